@@ -1,0 +1,33 @@
+# Set-up is two commands: `make demo` and `make test`. Both create .venv on a fresh machine.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+DEMO_OUT ?= demo_out
+
+.PHONY: install demo test lint bench clean
+
+$(STAMP): pyproject.toml Makefile
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	# torch is pinned exactly: the CPU wheel is cached on these machines; a range would pull CUDA wheels.
+	$(PY) -m pip install --quiet "torch==2.13.0"
+	$(PY) -m pip install --quiet -e ".[train,test]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/pfn-render --method pt --scene vortex --spp 64 --size 384x384 --seed 1 --out $(DEMO_OUT)/vortex_pt.exr
+	@echo "demo outputs: $(DEMO_OUT)/vortex_pt.exr (+ .png)"
+
+test: $(STAMP)
+	$(PY) -m ruff check runtime train models_spec tests bench
+	$(PY) -m pytest -q
+
+bench: $(STAMP)
+	$(PY) bench/bench_tracking.py
+	$(PY) bench/bench_pathtracer.py
+
+clean:
+	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache

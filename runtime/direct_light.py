@@ -1,0 +1,98 @@
+"""Next-event estimation: light arriving at a scattering vertex directly from every light source.
+
+For a vertex at ``p`` reached by a path travelling along ``d``, :func:`direct_light` returns
+
+    sum over lights  f_g(d . l) * Le * Tr(p -> light)        (point: Le = I / r^2; directional: Le = E)
+    + for the environment: f_g(d . l) * L_env * Tr / pdf_l * w_nee,   l ~ uniform sphere, pdf_l = 1/(4 pi)
+
+without the path throughput. Transmittance is estimated by ratio tracking. Delta lights (point and
+directional) can only be reached by NEE, so their weight is 1. The environment can also be reached by
+phase sampling; both strategies are combined with the power heuristic (Veach 1997):
+``w_nee = pdf_l^2 / (pdf_l^2 + pdf_phase^2)``, and the phase-sampled escape gets the complement
+(:func:`mis_weight_phase`). Used by the reference path tracer and, at the first vertex, by the neural
+renderer (paper Sec. 3.6, "Direct Illumination").
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from runtime.lights import DIRECTIONAL, ENVIRONMENT, POINT
+from runtime.medium import Medium, intersect_box
+from runtime.phase import INV_4PI, hg_eval
+from runtime.rng import next_float
+from runtime.tracking import ratio_track
+
+
+@njit(cache=True, inline="always")
+def mis_weight_phase(pdf_phase: float, pdf_light: float) -> float:
+    """Power-heuristic weight of a phase-sampled direction that escapes to the environment."""
+    if math.isinf(pdf_phase):
+        return 1.0
+    a = pdf_phase * pdf_phase
+    return a / (a + pdf_light * pdf_light)
+
+
+@njit(cache=True)
+def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, px: float, py: float,
+                 pz: float, dx: float, dy: float, dz: float, state: np.uint64) -> tuple[float, float, float, np.uint64]:
+    r = 0.0
+    gr = 0.0
+    b = 0.0
+    for k in range(kind.shape[0]):
+        if kind[k] == POINT:
+            lx, ly, lz = vec[k, 0] - px, vec[k, 1] - py, vec[k, 2] - pz
+            dist2 = lx * lx + ly * ly + lz * lz
+            if dist2 <= 0.0:
+                continue
+            dist = math.sqrt(dist2)
+            lx, ly, lz = lx / dist, ly / dist, lz / dist
+            scale = 1.0 / dist2
+            tend = dist
+        elif kind[k] == DIRECTIONAL:
+            lx, ly, lz = -vec[k, 0], -vec[k, 1], -vec[k, 2]
+            scale = 1.0
+            tend = math.inf
+        else:  # ENVIRONMENT: uniform direction, MIS against phase sampling
+            state, u1 = next_float(state)
+            state, u2 = next_float(state)
+            lz = 1.0 - 2.0 * u1
+            s = math.sqrt(max(0.0, 1.0 - lz * lz))
+            lx, ly = s * math.cos(2.0 * math.pi * u2), s * math.sin(2.0 * math.pi * u2)
+            pdf_l = INV_4PI
+            f = hg_eval(g, dx * lx + dy * ly + dz * lz)
+            scale = (1.0 - mis_weight_phase(f, pdf_l)) / pdf_l if f > 0.0 else 0.0
+            tend = math.inf
+        f = hg_eval(g, dx * lx + dy * ly + dz * lz)
+        if f * scale <= 0.0 or (rgb[k, 0] + rgb[k, 1] + rgb[k, 2]) <= 0.0:
+            continue
+        t0, t1 = intersect_box(m, px, py, pz, lx, ly, lz)
+        tr = 1.0
+        if t0 < t1:
+            tr, state = ratio_track(m, px, py, pz, lx, ly, lz, t0, min(t1, tend), state)
+        c = f * scale * tr
+        r += c * rgb[k, 0]
+        gr += c * rgb[k, 1]
+        b += c * rgb[k, 2]
+    return r, gr, b, state
+
+
+@njit(cache=True, parallel=True)
+def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, o: np.ndarray,
+                       d: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """Stage: NEE at every vertex of a SoA batch; returns radiance (3, n) (times throughput later)."""
+    n = o.shape[1]
+    out = np.empty((3, n))
+    for i in prange(n):
+        out[0, i], out[1, i], out[2, i], states[i] = direct_light(
+            m, kind, vec, rgb, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i])
+    return out
+
+
+def environment_index(kind: np.ndarray) -> int:
+    """Index of the (single) environment light, -1 if none. Several are merged by ``pack_scene_lights``."""
+    idx = np.flatnonzero(kind == ENVIRONMENT)
+    return int(idx[0]) if idx.size else -1

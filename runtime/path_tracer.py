@@ -1,0 +1,248 @@
+"""Reference volumetric path tracer (wavefront), the ground truth the neural renderer is judged against.
+
+Parameters
+----------
+spp : int >= 1
+    Samples per pixel.
+max_depth : int >= 1 (default 16)
+    Maximum number of scattering vertices on a path ("max path length 16" in the paper's Table 2).
+    ``max_depth = 1`` is single scattering.
+nee : bool (default True)
+    Next-event estimation at every vertex, combined with phase sampling by MIS (power heuristic)
+    for the environment light. ``False`` = pure phase sampling (only the environment is reachable);
+    both converge to the same image, which the tests check.
+rr_depth : int (default 3)
+    Russian roulette starts after this many vertices; survival probability = max throughput
+    component, capped at 0.95.
+batch_size : int
+    Work items (pixel samples) per wavefront batch; bounds memory.
+seed : int
+    Random streams are keyed by (seed, sample, pixel): same seed, same image, for any batch size or
+    thread count.
+
+Stages of one batch, each a function over a structure-of-arrays :class:`runtime.rays.RayBatch`:
+``generate_camera_rays`` -> ``clip_rays_to_volume`` -> repeat { ``sample_free_flights`` (delta
+tracking) -> ``add_escaped_radiance`` -> ``scatter_at_interactions`` (albedo) ->
+``add_direct_light`` (NEE + ratio-tracked shadow rays) -> ``russian_roulette`` ->
+``sample_phase_directions`` (HG) } with compaction after every stage that terminates rays.
+
+Radiance is split by the number of scattering vertices: L_e (0), L_d (1), L_i (>= 2); see
+:mod:`runtime.film`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit, prange
+from tqdm import tqdm
+
+from runtime.direct_light import direct_light_batch, environment_index, mis_weight_phase
+from runtime.film import Film
+from runtime.medium import Medium, albedo_at, intersect_box
+from runtime.phase import INV_4PI, sample_hg
+from runtime.rays import RayBatch, clip_rays_to_volume, generate_camera_rays
+from runtime.rng import next_float
+from runtime.scene import Scene
+from runtime.tracking import delta_track_batch
+
+DEFAULT_BATCH = 1 << 18
+
+
+@dataclass
+class RenderResult:
+    layers: dict[str, np.ndarray]  # name -> (H, W, 3) float32
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    stats: dict[str, float] = field(default_factory=dict)
+
+
+class StageTimer:
+    """Accumulates wall time per named stage (reported in ms): ``with timer("stage"): ...``."""
+
+    def __init__(self) -> None:
+        self.ms: dict[str, float] = defaultdict(float)
+
+    @contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.ms[name] += (time.perf_counter() - t) * 1e3
+
+
+# --- stages -----------------------------------------------------------------------------------------
+
+
+def sample_free_flights(m: Medium, rays: RayBatch) -> np.ndarray:
+    """Distance to the next real collision along each ray (inf: escapes the box). Delta tracking."""
+    return delta_track_batch(m, rays.o, rays.d, np.zeros(len(rays)), rays.tmax, rays.rng)
+
+
+def add_escaped_radiance(film: Film, rays: RayBatch, escaped: np.ndarray, env_rgb: np.ndarray | None,
+                         nee: bool) -> None:
+    """Escaping rays pick up the environment, MIS-weighted against NEE for rays that scattered."""
+    if env_rgb is None or not np.any(escaped):
+        return
+    pdf = rays.pdf[escaped]
+    depth = rays.depth[escaped]
+    # Camera rays (depth 0) carry pdf = inf, so their weight is 1 as it must be: NEE cannot reach them.
+    w = _mis_weights(pdf, INV_4PI) if nee else np.ones(pdf.shape[0])
+    film.splat_by_depth(depth, rays.pixel[escaped], rays.beta[:, escaped] * env_rgb[:, None] * w)
+
+
+@njit(cache=True)
+def _mis_weights(pdf: np.ndarray, pdf_light: float) -> np.ndarray:
+    w = np.empty(pdf.shape[0])
+    for i in range(pdf.shape[0]):
+        w[i] = mis_weight_phase(pdf[i], pdf_light)
+    return w
+
+
+@njit(cache=True, parallel=True)
+def _scatter(m: Medium, o: np.ndarray, d: np.ndarray, t: np.ndarray, beta: np.ndarray, depth: np.ndarray) -> None:
+    for i in prange(o.shape[1]):
+        o[0, i] += t[i] * d[0, i]
+        o[1, i] += t[i] * d[1, i]
+        o[2, i] += t[i] * d[2, i]
+        a0, a1, a2 = albedo_at(m, o[0, i], o[1, i], o[2, i])
+        beta[0, i] *= a0
+        beta[1, i] *= a1
+        beta[2, i] *= a2
+        depth[i] += 1
+
+
+def scatter_at_interactions(m: Medium, rays: RayBatch, t: np.ndarray) -> None:
+    """Move rays to their collision and weight by the albedo (delta tracking's estimator: a real
+    collision scatters with probability sigma_s / sigma_t, folded into the throughput)."""
+    _scatter(m, rays.o, rays.d, t, rays.beta, rays.depth)
+
+
+def add_direct_light(film: Film, m: Medium, lights: tuple[np.ndarray, np.ndarray, np.ndarray], g: float,
+                     rays: RayBatch) -> np.ndarray:
+    """NEE at every vertex; contributions go to L_d or L_i by vertex count. Returns the radiance (3, n)."""
+    kind, vec, rgb = lights
+    li = direct_light_batch(m, kind, vec, rgb, g, rays.o, rays.d, rays.rng)
+    film.splat_by_depth(rays.depth, rays.pixel, rays.beta * li)
+    return li
+
+
+@njit(cache=True, parallel=True)
+def _roulette(beta: np.ndarray, depth: np.ndarray, states: np.ndarray, rr_depth: int) -> np.ndarray:
+    n = beta.shape[1]
+    alive = np.empty(n, dtype=np.bool_)
+    for i in prange(n):
+        q = max(beta[0, i], beta[1, i], beta[2, i])
+        if q <= 0.0:
+            alive[i] = False
+            continue
+        alive[i] = True
+        if depth[i] >= rr_depth:
+            q = min(q, 0.95)
+            states[i], u = next_float(states[i])
+            if u >= q:
+                alive[i] = False
+            else:
+                beta[0, i] /= q
+                beta[1, i] /= q
+                beta[2, i] /= q
+    return alive
+
+
+def russian_roulette(rays: RayBatch, rr_depth: int) -> np.ndarray:
+    """Mask of surviving rays (throughputs of survivors are divided by their survival probability)."""
+    return _roulette(rays.beta, rays.depth, rays.rng, rr_depth)
+
+
+@njit(cache=True, parallel=True)
+def _phase_sample(m: Medium, g: float, o: np.ndarray, d: np.ndarray, pdf: np.ndarray, tmax: np.ndarray,
+                  states: np.ndarray) -> None:
+    for i in prange(o.shape[1]):
+        s, u1 = next_float(states[i])
+        s, u2 = next_float(s)
+        states[i] = s
+        d[0, i], d[1, i], d[2, i], pdf[i] = sample_hg(g, d[0, i], d[1, i], d[2, i], u1, u2)
+        _, t1 = intersect_box(m, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i])
+        tmax[i] = max(t1, 0.0)
+
+
+def sample_phase_directions(m: Medium, g: float, rays: RayBatch) -> None:
+    """Continue every path in an HG-sampled direction; the phase/pdf ratio is 1 (perfect importance
+    sampling), so the throughput is unchanged. Records the pdf for MIS and the new box exit."""
+    _phase_sample(m, g, rays.o, rays.d, rays.pdf, rays.tmax, rays.rng)
+
+
+# --- driver -----------------------------------------------------------------------------------------
+
+
+def trace_paths(film: Film, scene: Scene, m: Medium, rays: RayBatch, *, max_depth: int, nee: bool,
+                rr_depth: int, timer: StageTimer) -> None:
+    """Run the bounce loop of one batch of clipped camera rays to completion. All rays of a batch
+    advance in lockstep, so after bounce ``b`` every live ray has ``b + 1`` scattering vertices."""
+    lights = scene.packed_lights()
+    env_i = environment_index(lights[0])
+    env_rgb = lights[2][env_i] if env_i >= 0 else None
+    for bounce in range(max_depth):
+        if len(rays) == 0:
+            return
+        with timer("sample_free_flights"):
+            t = sample_free_flights(m, rays)
+        escaped = np.isinf(t)
+        with timer("add_escaped_radiance"):
+            add_escaped_radiance(film, rays, escaped, env_rgb, nee)
+        with timer("compact"):
+            rays, t = rays.compact(~escaped), t[~escaped]
+        with timer("scatter_at_interactions"):
+            scatter_at_interactions(m, rays, t)
+        if nee:
+            with timer("add_direct_light"):
+                add_direct_light(film, m, lights, scene.g, rays)
+        if bounce + 1 == max_depth:
+            return
+        with timer("russian_roulette"):
+            alive = russian_roulette(rays, rr_depth)
+        with timer("compact"):
+            rays = rays.compact(alive)
+        with timer("sample_phase_directions"):
+            sample_phase_directions(m, scene.g, rays)
+
+
+def render_path_traced(scene: Scene, *, spp: int = 16, max_depth: int = 16, nee: bool = True, rr_depth: int = 3,
+                       seed: int = 0, batch_size: int = DEFAULT_BATCH, progress: bool = True) -> RenderResult:
+    cam = scene.camera
+    m = scene.medium()
+    n_pix = cam.width * cam.height
+    film = Film(cam.width, cam.height)
+    timer = StageTimer()
+    lights = scene.packed_lights()
+    env_i = environment_index(lights[0])
+    env_rgb = lights[2][env_i] if env_i >= 0 else None
+    total = n_pix * spp
+    t_start = time.perf_counter()
+    n_paths = 0
+    with tqdm(total=total, desc="path tracing", unit="spl", unit_scale=True, disable=not progress,
+              leave=False) as bar:
+        for start in range(0, total, batch_size):
+            work = np.arange(start, min(start + batch_size, total), dtype=np.int64)
+            with timer("generate_camera_rays"):
+                rays = generate_camera_rays(cam, work, seed)
+            with timer("clip_rays_to_volume"):
+                hit = clip_rays_to_volume(m, rays)
+            if env_rgb is not None and not np.all(hit):  # camera rays that miss the box see the sky
+                film.splat("L_e", rays.pixel[~hit], np.broadcast_to(env_rgb[:, None], (3, int((~hit).sum()))))
+            with timer("compact"):
+                rays = rays.compact(hit)
+            n_paths += len(rays)
+            trace_paths(film, scene, m, rays, max_depth=max_depth, nee=nee, rr_depth=rr_depth, timer=timer)
+            bar.update(len(work))
+    film.samples = spp
+    wall = time.perf_counter() - t_start
+    timings = dict(timer.ms)
+    timings["total"] = wall * 1e3
+    return RenderResult(film.layers(), timings, {"samples": float(total), "paths_in_volume": float(n_paths),
+                                                 "samples_per_s": total / max(wall, 1e-9)})

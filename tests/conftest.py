@@ -1,0 +1,39 @@
+"""Shared fixtures: small analytic media and scenes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from runtime.camera import Camera
+from runtime.medium import build_medium
+from runtime.transfer import TransferFunction
+from runtime.volume import make_volume
+
+
+def constant_tf(sigma: float, albedo: float | tuple[float, float, float] = 1.0) -> TransferFunction:
+    """Extinction ``sigma`` and ``albedo`` wherever the normalized scalar is 1 (linear ramp from 0)."""
+    a = np.broadcast_to(np.asarray(albedo, dtype=np.float64), (3,))
+    return TransferFunction(np.array([0.0, 1.0]), np.stack([a, a]), np.array([0.0, 1.0]), sigma, "test")
+
+
+def smooth_field(n: int = 24) -> np.ndarray:
+    """A smooth heterogeneous field in [0.1, 1] (no empty space, gentle gradients)."""
+    x = (np.arange(n) + 0.5) / n
+    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
+    return 0.55 + 0.45 * np.sin(2.0 * np.pi * X) * np.cos(3.0 * np.pi * Y) * np.sin(np.pi * Z + 0.3)
+
+
+@pytest.fixture(scope="session")
+def homogeneous_medium():  # noqa: ANN201
+    vol = make_volume(np.ones((8, 8, 8)), window=(0.0, 1.0))
+    return build_medium(vol, constant_tf(3.0))
+
+
+@pytest.fixture(scope="session")
+def smooth_volume():  # noqa: ANN201
+    return make_volume(smooth_field(), window=(0.0, 1.0), name="smooth")
+
+
+def small_camera(size: int = 24, fov: float = 30.0) -> Camera:
+    return Camera([0.3, 0.4, 2.4], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], fov, size, size)
