@@ -1,0 +1,176 @@
+"""``pfn-render``: render a scene to EXR (layers L, L_d, L_i, L_e) + a tone-mapped PNG + a JSON report.
+
+Examples::
+
+    pfn-render --scene vortex --method pt --spp 64 --size 512x512 --out out/vortex.exr
+    pfn-render --scene my_scene.json --method raymarch --g 0.5 --out out/marched.exr
+
+Bad input exits with status 2 and one line on stderr: ``error: <input>: <problem>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from runtime.errors import InputError
+
+METHODS = ("pt", "raymarch")
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    parts = text.lower().split("x")
+    try:
+        w, h = (int(p) for p in parts)
+    except ValueError:
+        raise InputError("--size", f"expected WIDTHxHEIGHT such as 512x512, got {text!r}") from None
+    if not (1 <= w <= 16384 and 1 <= h <= 16384):
+        raise InputError("--size", f"width and height must be in [1, 16384], got {text!r}")
+    return w, h
+
+
+def positive_int(name: str, value: int, upper: int = 1 << 30) -> int:
+    if not 1 <= value <= upper:
+        raise InputError(name, f"must be an integer in [1, {upper}], got {value}")
+    return value
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose usage errors are :class:`InputError` s.
+
+    Fix: argparse printed the whole usage block plus an error line and raised ``SystemExit`` (from
+    ``_main`` too), instead of the single ``error: <input>: <problem>`` line of every other bad input.
+    """
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        m = re.match(r"argument (\S+): (.*)", message, flags=re.DOTALL)
+        if m:  # "argument --spp: invalid int value: 'abc'" -> "--spp: invalid int value: 'abc'"
+            raise InputError(m.group(1).split("/")[-1], m.group(2) + " (see --help)")
+        raise InputError("command line", message + " (see --help)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="pfn-render", description=__doc__.split("\n")[0],
+                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--scene", default="vortex", help="builtin scene name (vortex, blobs, shell) or a scene JSON file")
+    p.add_argument("--method", choices=METHODS, default="pt", help="pt: volumetric path tracer (reference); "
+                   "raymarch: single-scattering ray marcher with global shadows")
+    p.add_argument("--spp", type=int, default=16, help="samples (passes) per pixel")
+    p.add_argument("--size", default=None, help="WIDTHxHEIGHT (default: the scene camera's)")
+    p.add_argument("--g", type=float, default=None, help="Henyey-Greenstein g in [-1, 1] (default: the scene's)")
+    p.add_argument("--seed", type=int, default=0, help="random seed: same seed, same image")
+    p.add_argument("--max-depth", type=int, default=16, help="pt: max scattering vertices per path")
+    p.add_argument("--no-nee", action="store_true", help="pt: pure phase sampling (no next-event estimation)")
+    p.add_argument("--step", type=float, default=0.5, help="raymarch: step length in voxels")
+    p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
+    p.add_argument("--batch-size", type=int, default=1 << 18, help="work items per wavefront batch (memory bound)")
+    p.add_argument("--exposure", type=float, default=None, help="PNG exposure in stops (default: automatic)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--out", default="render.exr", help="output EXR path; a .png and a .json are written beside it")
+    return p
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    from runtime.scene import load_scene
+
+    out = Path(args.out)
+    if out.suffix.lower() != ".exr":
+        raise InputError("--out", f"must end in .exr, got {args.out!r}")
+    spp = positive_int("--spp", args.spp, 1 << 16)
+    positive_int("--batch-size", args.batch_size)
+    positive_int("--max-depth", args.max_depth, 1 << 16)
+    if not 0.01 <= args.step <= 100:
+        raise InputError("--step", f"must be in [0.01, 100] voxels, got {args.step}")
+    # Fix: --size, --g, --seed and --exposure are checked before the scene is loaded and rendered. --g was
+    # reported as "scene '<name>' phase g" (not naming the option); a seed outside int64 and a non-finite
+    # exposure escaped as tracebacks (the latter only after the whole render).
+    size = parse_size(args.size) if args.size is not None else (None, None)
+    if args.g is not None:
+        from runtime.phase import check_g
+
+        check_g(args.g, "--g")
+    if not -(1 << 63) <= args.seed < (1 << 63):
+        raise InputError("--seed", f"must be a 64-bit signed integer, got {args.seed}")
+    if args.exposure is not None and not math.isfinite(args.exposure):
+        raise InputError("--exposure", f"must be a finite number of stops, got {args.exposure}")
+    if args.threads is not None:
+        import numba
+
+        positive_int("--threads", args.threads, numba.config.NUMBA_NUM_THREADS)
+        numba.set_num_threads(args.threads)
+    scene = load_scene(args.scene)
+    scene = scene.with_overrides(g=args.g, width=size[0], height=size[1])
+    # Fix: the output folder is created before the render (fail fast), and a failure to create it is
+    # reported as one line instead of an OSError traceback. Likewise a folder sitting where an output
+    # file goes used to be found only after the render, after the EXR had already been replaced.
+    for target in (out, out.with_suffix(".png"), out.with_suffix(".json")):
+        if target.is_dir():
+            raise InputError("--out", f"{str(target)!r} is a folder, cannot write an output file there")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError("--out", f"cannot create the folder {str(out.parent)!r}: {exc.strerror or exc}") from None
+
+    t0 = time.perf_counter()
+    if args.method == "pt":
+        from runtime.path_tracer import render_path_traced
+
+        result = render_path_traced(scene, spp=spp, max_depth=args.max_depth, nee=not args.no_nee, seed=args.seed,
+                                    batch_size=args.batch_size, progress=not args.quiet)
+    else:
+        from runtime.ray_marcher import render_ray_marched
+
+        result = render_ray_marched(scene, spp=spp, step=args.step, seed=args.seed, batch_size=args.batch_size,
+                                    progress=not args.quiet)
+    wall = time.perf_counter() - t0
+    report = {"scene": scene.name, "method": args.method, "spp": spp, "seed": args.seed, "g": scene.g,
+              "size": [scene.camera.width, scene.camera.height], "wall_s": wall,
+              "timings_ms": result.timings_ms, "stats": result.stats, "scene_description": scene.to_dict()}
+    from runtime.atomic import atomic_write_text
+    from runtime.image_io import write_image_set
+
+    meta = {"photon_fields.method": args.method, "photon_fields.scene": scene.name,
+            "photon_fields.spp": str(spp), "photon_fields.seed": str(args.seed), "photon_fields.g": repr(scene.g)}
+    written = write_image_set(out, result.layers, metadata=meta, exposure=args.exposure)
+    json_path = out.with_suffix(".json")
+    try:
+        atomic_write_text(json_path, json.dumps(report, indent=2) + "\n")
+    except OSError as exc:  # Fix: was a traceback (e.g. a folder named like the report, or a full disk)
+        raise InputError(str(json_path), f"cannot write the JSON report: {exc.strerror or exc}") from None
+    written.append(json_path)
+    return {"wall_s": wall, "written": [str(p) for p in written]}
+
+
+def guarded(main_fn: Callable[[Sequence[str] | None], int]) -> Callable[[Sequence[str] | None], int]:
+    """Turn InputError into one line on stderr and exit status 2; Ctrl-C into status 130."""
+
+    def wrapper(argv: Sequence[str] | None = None) -> int:
+        try:
+            return main_fn(argv)
+        except InputError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            print("error: interrupted", file=sys.stderr)
+            return 130
+
+    return wrapper
+
+
+@guarded
+def _main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    info = run(args)
+    print(f"rendered in {info['wall_s']:.2f} s -> " + ", ".join(info["written"]))
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    sys.exit(_main(argv))
