@@ -38,7 +38,8 @@ def mis_weight_phase(pdf_phase: float, pdf_light: float) -> float:
 
 @njit(cache=True)
 def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, px: float, py: float,
-                 pz: float, dx: float, dy: float, dz: float, state: np.uint64) -> tuple[float, float, float, np.uint64]:
+                 pz: float, dx: float, dy: float, dz: float, state: np.uint64,
+                 env_mis: bool) -> tuple[float, float, float, np.uint64]:
     r = 0.0
     gr = 0.0
     b = 0.0
@@ -63,8 +64,10 @@ def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
             s = math.sqrt(max(0.0, 1.0 - lz * lz))
             lx, ly = s * math.cos(2.0 * math.pi * u2), s * math.sin(2.0 * math.pi * u2)
             pdf_l = INV_4PI
-            f = hg_eval(g, dx * lx + dy * ly + dz * lz)
-            scale = (1.0 - mis_weight_phase(f, pdf_l)) / pdf_l if f > 0.0 else 0.0
+            w = 1.0
+            if env_mis:
+                w = 1.0 - mis_weight_phase(hg_eval(g, dx * lx + dy * ly + dz * lz), pdf_l)
+            scale = w / pdf_l
             tend = math.inf
         f = hg_eval(g, dx * lx + dy * ly + dz * lz)
         if f * scale <= 0.0 or (rgb[k, 0] + rgb[k, 1] + rgb[k, 2]) <= 0.0:
@@ -82,13 +85,15 @@ def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
 
 @njit(cache=True, parallel=True)
 def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, o: np.ndarray,
-                       d: np.ndarray, states: np.ndarray) -> np.ndarray:
-    """Stage: NEE at every vertex of a SoA batch; returns radiance (3, n) (times throughput later)."""
+                       d: np.ndarray, states: np.ndarray, env_mis: bool = True) -> np.ndarray:
+    """Stage: NEE at every vertex of a SoA batch; returns radiance (3, n) (times throughput later).
+    ``env_mis=False`` gives the environment's NEE full weight, for estimators that never reach the
+    environment by phase sampling (the first-interaction renderers)."""
     n = o.shape[1]
     out = np.empty((3, n))
     for i in prange(n):
         out[0, i], out[1, i], out[2, i], states[i] = direct_light(
-            m, kind, vec, rgb, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i])
+            m, kind, vec, rgb, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
     return out
 
 

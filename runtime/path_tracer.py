@@ -33,48 +33,19 @@ Radiance is split by the number of scattering vertices: L_e (0), L_d (1), L_i (>
 from __future__ import annotations
 
 import time
-from collections import defaultdict
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit, prange
-from tqdm import tqdm
 
-from runtime.direct_light import direct_light_batch, environment_index, mis_weight_phase
+from runtime.direct_light import direct_light_batch, mis_weight_phase
 from runtime.film import Film
 from runtime.medium import Medium, albedo_at, intersect_box
 from runtime.phase import INV_4PI, sample_hg
-from runtime.rays import RayBatch, clip_rays_to_volume, generate_camera_rays
+from runtime.rays import RayBatch
 from runtime.rng import next_float
 from runtime.scene import Scene
 from runtime.tracking import delta_track_batch
-
-DEFAULT_BATCH = 1 << 18
-
-
-@dataclass
-class RenderResult:
-    layers: dict[str, np.ndarray]  # name -> (H, W, 3) float32
-    timings_ms: dict[str, float] = field(default_factory=dict)
-    stats: dict[str, float] = field(default_factory=dict)
-
-
-class StageTimer:
-    """Accumulates wall time per named stage (reported in ms): ``with timer("stage"): ...``."""
-
-    def __init__(self) -> None:
-        self.ms: dict[str, float] = defaultdict(float)
-
-    @contextmanager
-    def __call__(self, name: str) -> Iterator[None]:
-        t = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.ms[name] += (time.perf_counter() - t) * 1e3
-
+from runtime.wavefront import DEFAULT_BATCH, RenderResult, StageTimer, environment_radiance, finish, primary_ray_batches
 
 # --- stages -----------------------------------------------------------------------------------------
 
@@ -185,8 +156,7 @@ def trace_paths(film: Film, scene: Scene, m: Medium, rays: RayBatch, *, max_dept
     """Run the bounce loop of one batch of clipped camera rays to completion. All rays of a batch
     advance in lockstep, so after bounce ``b`` every live ray has ``b + 1`` scattering vertices."""
     lights = scene.packed_lights()
-    env_i = environment_index(lights[0])
-    env_rgb = lights[2][env_i] if env_i >= 0 else None
+    env_rgb = environment_radiance(scene)
     for bounce in range(max_depth):
         if len(rays) == 0:
             return
@@ -214,35 +184,13 @@ def trace_paths(film: Film, scene: Scene, m: Medium, rays: RayBatch, *, max_dept
 
 def render_path_traced(scene: Scene, *, spp: int = 16, max_depth: int = 16, nee: bool = True, rr_depth: int = 3,
                        seed: int = 0, batch_size: int = DEFAULT_BATCH, progress: bool = True) -> RenderResult:
-    cam = scene.camera
     m = scene.medium()
-    n_pix = cam.width * cam.height
-    film = Film(cam.width, cam.height)
+    film = Film(scene.camera.width, scene.camera.height)
     timer = StageTimer()
-    lights = scene.packed_lights()
-    env_i = environment_index(lights[0])
-    env_rgb = lights[2][env_i] if env_i >= 0 else None
-    total = n_pix * spp
     t_start = time.perf_counter()
     n_paths = 0
-    with tqdm(total=total, desc="path tracing", unit="spl", unit_scale=True, disable=not progress,
-              leave=False) as bar:
-        for start in range(0, total, batch_size):
-            work = np.arange(start, min(start + batch_size, total), dtype=np.int64)
-            with timer("generate_camera_rays"):
-                rays = generate_camera_rays(cam, work, seed)
-            with timer("clip_rays_to_volume"):
-                hit = clip_rays_to_volume(m, rays)
-            if env_rgb is not None and not np.all(hit):  # camera rays that miss the box see the sky
-                film.splat("L_e", rays.pixel[~hit], np.broadcast_to(env_rgb[:, None], (3, int((~hit).sum()))))
-            with timer("compact"):
-                rays = rays.compact(hit)
-            n_paths += len(rays)
-            trace_paths(film, scene, m, rays, max_depth=max_depth, nee=nee, rr_depth=rr_depth, timer=timer)
-            bar.update(len(work))
-    film.samples = spp
-    wall = time.perf_counter() - t_start
-    timings = dict(timer.ms)
-    timings["total"] = wall * 1e3
-    return RenderResult(film.layers(), timings, {"samples": float(total), "paths_in_volume": float(n_paths),
-                                                 "samples_per_s": total / max(wall, 1e-9)})
+    for rays in primary_ray_batches(scene, film, timer, spp=spp, seed=seed, batch_size=batch_size,
+                                    progress=progress, desc="path tracing"):
+        n_paths += len(rays)
+        trace_paths(film, scene, m, rays, max_depth=max_depth, nee=nee, rr_depth=rr_depth, timer=timer)
+    return finish(film, timer, spp, t_start, {"paths_in_volume": float(n_paths)})

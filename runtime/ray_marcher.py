@@ -30,17 +30,14 @@ import time
 
 import numpy as np
 from numba import njit, prange
-from tqdm import tqdm
 
-from runtime.direct_light import environment_index
 from runtime.film import Film
 from runtime.lights import DIRECTIONAL, POINT
 from runtime.medium import Medium, albedo_at, extinction_at, intersect_box
-from runtime.path_tracer import RenderResult
 from runtime.phase import hg_eval
-from runtime.rays import generate_camera_rays
 from runtime.rng import next_float
 from runtime.scene import Scene
+from runtime.wavefront import RenderResult, StageTimer, environment_radiance, finish, primary_ray_batches
 
 _T_MIN = 1e-4  # stop marching once the camera ray is this opaque: the rest cannot contribute
 
@@ -115,30 +112,19 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
 
 def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 0.5, shadow_step: float = 1.0, seed: int = 0,
                        batch_size: int = 1 << 17, progress: bool = True) -> RenderResult:
-    from runtime.rays import clip_rays_to_volume
-
-    cam = scene.camera
     m = scene.medium()
     kind, vec, rgb = scene.packed_lights()
-    env_i = environment_index(kind)
+    env = environment_radiance(scene)
     h = step * scene.volume.voxel_size
     hs = shadow_step * scene.volume.voxel_size
-    film = Film(cam.width, cam.height)
-    total = cam.width * cam.height * spp
+    film = Film(scene.camera.width, scene.camera.height)
+    timer = StageTimer()
     t_start = time.perf_counter()
-    with tqdm(total=total, desc="ray marching", unit="ray", unit_scale=True, disable=not progress,
-              leave=False) as bar:
-        for start in range(0, total, batch_size):
-            rays = generate_camera_rays(cam, np.arange(start, min(start + batch_size, total), dtype=np.int64), seed)
-            hit = clip_rays_to_volume(m, rays)
-            trans = np.ones(len(rays))
-            hits = rays.compact(hit)
-            ld, trans_hit = _march(m, kind, vec, rgb, scene.g, hits.o, hits.d, hits.tmax, hits.rng, h, hs)
-            film.splat("L_d", hits.pixel, ld)
-            trans[hit] = trans_hit
-            if env_i >= 0:
-                film.splat("L_e", rays.pixel, trans[None, :] * rgb[env_i][:, None])
-            bar.update(len(rays))
-    film.samples = spp
-    wall = time.perf_counter() - t_start
-    return RenderResult(film.layers(), {"total": wall * 1e3}, {"samples": float(total)})
+    for rays in primary_ray_batches(scene, film, timer, spp=spp, seed=seed, batch_size=batch_size,
+                                    progress=progress, desc="ray marching"):
+        with timer("march"):
+            ld, trans = _march(m, kind, vec, rgb, scene.g, rays.o, rays.d, rays.tmax, rays.rng, h, hs)
+        film.splat("L_d", rays.pixel, ld)
+        if env is not None:
+            film.splat("L_e", rays.pixel, trans[None, :] * env[:, None])
+    return finish(film, timer, spp, t_start, {})

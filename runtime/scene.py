@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from models_spec import scene_fingerprint
 from runtime.camera import Camera
 from runtime.errors import InputError
 from runtime.lights import (
@@ -71,6 +72,13 @@ class Scene:
         object.__setattr__(self, "lights", lights)
         object.__setattr__(self, "g", check_g(self.g, f"scene '{self.name}' phase g"))
 
+    def fingerprint(self) -> str:
+        """Identifies the light distribution: volume data, transfer function and lights (not camera, not g)."""
+        if "fingerprint" not in self._cache:
+            self._cache["fingerprint"] = scene_fingerprint(
+                self.volume.fingerprint(), self.tf.to_dict(), [light.to_dict() for light in self.lights])
+        return self._cache["fingerprint"]
+
     def medium(self) -> Medium:
         """The packed medium (built once per scene object)."""
         if "medium" not in self._cache:
@@ -101,8 +109,9 @@ class Scene:
             cam = cam.with_resolution(cam.width if width is None else width,
                                       cam.height if height is None else height)
         new = replace(self, g=self.g if g is None else g, camera=cam, _cache={})
-        if "medium" in self._cache:
-            new._cache["medium"] = self._cache["medium"]
+        for key in ("medium", "fingerprint", "lights"):  # none of these depend on g or the camera
+            if key in self._cache:
+                new._cache[key] = self._cache[key]
         return new
 
     def to_dict(self) -> dict[str, Any]:

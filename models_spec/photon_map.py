@@ -1,0 +1,29 @@
+"""Photon-map file format (written by ``train.photon_tracing``, read by ``runtime.photon_map``).
+
+A photon map is one ``.npz`` file (loaded with ``allow_pickle=False``) holding:
+
+=============  ============  ===========================================================================
+array          dtype/shape   meaning
+=============  ============  ===========================================================================
+position       float32 (n,3) world-space collision point (photon's 2nd or later real collision)
+direction      float32 (n,3) unit travel direction of the photon *arriving* at the collision
+power          float32 (n,3) RGB power arriving at the collision [W], already divided by the number of
+                             emitted photon paths and multiplied by |G| (each phase's photons form a
+                             complete map on their own)
+phase          uint8 (n,)    index into ``meta["phases"]`` (the g the photon scattered with)
+meta           uint8 (m,)    UTF-8 JSON metadata (below)
+=============  ============  ===========================================================================
+
+Metadata keys: ``format`` (= PHOTON_MAP_FORMAT), ``version`` (= PHOTON_MAP_VERSION), ``scene_fingerprint``,
+``phases`` (the set G), ``emitted`` (photon paths traced), ``stored`` (records), ``per_phase`` (records per
+phase), ``seed``, ``max_bounces``, ``trace_seconds``.
+"""
+
+from __future__ import annotations
+
+PHOTON_MAP_FORMAT = "photon-fields/photon-map"
+PHOTON_MAP_VERSION = 1
+#: The paper's phase set G (Sec. 3.2): "the best compromise between tracing and training speed and quality".
+DEFAULT_PHASES: tuple[float, ...] = (-0.75, 0.0, 0.75)
+PHOTON_MAP_ARRAYS = {"position": ("float32", 3), "direction": ("float32", 3), "power": ("float32", 3),
+                     "phase": ("uint8", 0)}
