@@ -13,13 +13,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import re
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from runtime.cli_common import OneLineArgumentParser, check_seed, guarded, positive_int, prepare_output, set_threads
 from runtime.errors import InputError
 
 METHODS = ("pt", "raymarch")
@@ -36,28 +36,8 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def positive_int(name: str, value: int, upper: int = 1 << 30) -> int:
-    if not 1 <= value <= upper:
-        raise InputError(name, f"must be an integer in [1, {upper}], got {value}")
-    return value
-
-
-class _Parser(argparse.ArgumentParser):
-    """An ArgumentParser whose usage errors are :class:`InputError` s.
-
-    Fix: argparse printed the whole usage block plus an error line and raised ``SystemExit`` (from
-    ``_main`` too), instead of the single ``error: <input>: <problem>`` line of every other bad input.
-    """
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        m = re.match(r"argument (\S+): (.*)", message, flags=re.DOTALL)
-        if m:  # "argument --spp: invalid int value: 'abc'" -> "--spp: invalid int value: 'abc'"
-            raise InputError(m.group(1).split("/")[-1], m.group(2) + " (see --help)")
-        raise InputError("command line", message + " (see --help)")
-
-
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="pfn-render", description=__doc__.split("\n")[0],
+    p = OneLineArgumentParser(prog="pfn-render", description=__doc__.split("\n")[0],
                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--scene", default="vortex", help="builtin scene name (vortex, blobs, shell) or a scene JSON file")
     p.add_argument("--method", choices=METHODS, default="pt", help="pt: volumetric path tracer (reference); "
@@ -81,42 +61,25 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from runtime.scene import load_scene
 
     out = Path(args.out)
-    if out.suffix.lower() != ".exr":
-        raise InputError("--out", f"must end in .exr, got {args.out!r}")
     spp = positive_int("--spp", args.spp, 1 << 16)
     positive_int("--batch-size", args.batch_size)
     positive_int("--max-depth", args.max_depth, 1 << 16)
     if not 0.01 <= args.step <= 100:
         raise InputError("--step", f"must be in [0.01, 100] voxels, got {args.step}")
-    # Fix: --size, --g, --seed and --exposure are checked before the scene is loaded and rendered. --g was
-    # reported as "scene '<name>' phase g" (not naming the option); a seed outside int64 and a non-finite
-    # exposure escaped as tracebacks (the latter only after the whole render).
+    # Check every option before loading the scene and rendering: errors should name the option and come
+    # at once, not after minutes of rendering.
     size = parse_size(args.size) if args.size is not None else (None, None)
     if args.g is not None:
         from runtime.phase import check_g
 
         check_g(args.g, "--g")
-    if not -(1 << 63) <= args.seed < (1 << 63):
-        raise InputError("--seed", f"must be a 64-bit signed integer, got {args.seed}")
+    check_seed(args.seed)
     if args.exposure is not None and not math.isfinite(args.exposure):
         raise InputError("--exposure", f"must be a finite number of stops, got {args.exposure}")
-    if args.threads is not None:
-        import numba
-
-        positive_int("--threads", args.threads, numba.config.NUMBA_NUM_THREADS)
-        numba.set_num_threads(args.threads)
+    set_threads(args.threads)
     scene = load_scene(args.scene)
     scene = scene.with_overrides(g=args.g, width=size[0], height=size[1])
-    # Fix: the output folder is created before the render (fail fast), and a failure to create it is
-    # reported as one line instead of an OSError traceback. Likewise a folder sitting where an output
-    # file goes used to be found only after the render, after the EXR had already been replaced.
-    for target in (out, out.with_suffix(".png"), out.with_suffix(".json")):
-        if target.is_dir():
-            raise InputError("--out", f"{str(target)!r} is a folder, cannot write an output file there")
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError("--out", f"cannot create the folder {str(out.parent)!r}: {exc.strerror or exc}") from None
+    prepare_output(out, ".exr", (".png", ".json"))
 
     t0 = time.perf_counter()
     if args.method == "pt":
@@ -142,26 +105,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     json_path = out.with_suffix(".json")
     try:
         atomic_write_text(json_path, json.dumps(report, indent=2) + "\n")
-    except OSError as exc:  # Fix: was a traceback (e.g. a folder named like the report, or a full disk)
+    except OSError as exc:  # e.g. a full disk: one line, not a traceback
         raise InputError(str(json_path), f"cannot write the JSON report: {exc.strerror or exc}") from None
     written.append(json_path)
     return {"wall_s": wall, "written": [str(p) for p in written]}
-
-
-def guarded(main_fn: Callable[[Sequence[str] | None], int]) -> Callable[[Sequence[str] | None], int]:
-    """Turn InputError into one line on stderr and exit status 2; Ctrl-C into status 130."""
-
-    def wrapper(argv: Sequence[str] | None = None) -> int:
-        try:
-            return main_fn(argv)
-        except InputError as err:
-            print(f"error: {err}", file=sys.stderr)
-            return 2
-        except KeyboardInterrupt:
-            print("error: interrupted", file=sys.stderr)
-            return 130
-
-    return wrapper
 
 
 @guarded
