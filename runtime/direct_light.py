@@ -36,6 +36,24 @@ def mis_weight_phase(pdf_phase: float, pdf_light: float) -> float:
     return a / (a + pdf_light * pdf_light)
 
 
+@njit(cache=True, inline="always")
+def delta_light_direction(kind: int, pos_or_dir: np.ndarray, px: float, py: float,
+                          pz: float) -> tuple[float, float, float, float, float]:
+    """Towards a delta light from p: (lx, ly, lz, falloff, distance). Point: falloff 1/r^2 and the
+    distance to the light; directional: falloff 1 and inf. Falloff 0 means 'no contribution' (p on
+    the light, or not a delta light)."""
+    if kind == POINT:
+        lx, ly, lz = pos_or_dir[0] - px, pos_or_dir[1] - py, pos_or_dir[2] - pz
+        dist2 = lx * lx + ly * ly + lz * lz
+        if dist2 <= 0.0:
+            return 0.0, 0.0, 1.0, 0.0, 0.0
+        dist = math.sqrt(dist2)
+        return lx / dist, ly / dist, lz / dist, 1.0 / dist2, dist
+    if kind == DIRECTIONAL:
+        return -pos_or_dir[0], -pos_or_dir[1], -pos_or_dir[2], 1.0, math.inf
+    return 0.0, 0.0, 1.0, 0.0, 0.0
+
+
 @njit(cache=True)
 def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, px: float, py: float,
                  pz: float, dx: float, dy: float, dz: float, state: np.uint64,
@@ -44,19 +62,8 @@ def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
     gr = 0.0
     b = 0.0
     for k in range(kind.shape[0]):
-        if kind[k] == POINT:
-            lx, ly, lz = vec[k, 0] - px, vec[k, 1] - py, vec[k, 2] - pz
-            dist2 = lx * lx + ly * ly + lz * lz
-            if dist2 <= 0.0:
-                continue
-            dist = math.sqrt(dist2)
-            lx, ly, lz = lx / dist, ly / dist, lz / dist
-            scale = 1.0 / dist2
-            tend = dist
-        elif kind[k] == DIRECTIONAL:
-            lx, ly, lz = -vec[k, 0], -vec[k, 1], -vec[k, 2]
-            scale = 1.0
-            tend = math.inf
+        if kind[k] != ENVIRONMENT:
+            lx, ly, lz, scale, tend = delta_light_direction(kind[k], vec[k], px, py, pz)
         else:  # ENVIRONMENT: uniform direction, MIS against phase sampling
             state, u1 = next_float(state)
             state, u2 = next_float(state)

@@ -31,8 +31,8 @@ import time
 import numpy as np
 from numba import njit, prange
 
+from runtime.direct_light import delta_light_direction
 from runtime.film import Film
-from runtime.lights import DIRECTIONAL, POINT
 from runtime.medium import Medium, albedo_at, extinction_at, intersect_box
 from runtime.phase import hg_eval
 from runtime.rng import next_float
@@ -83,19 +83,8 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
                 a0, a1, a2 = albedo_at(m, x, y, z)
                 w = T * (1.0 - math.exp(-sigma * seg))
                 for k in range(kind.shape[0]):
-                    if kind[k] == POINT:
-                        lx, ly, lz = vec[k, 0] - x, vec[k, 1] - y, vec[k, 2] - z
-                        dist2 = lx * lx + ly * ly + lz * lz
-                        dist = math.sqrt(dist2)
-                        lx, ly, lz = lx / dist, ly / dist, lz / dist
-                        scale = 1.0 / dist2
-                        tend = dist
-                    elif kind[k] == DIRECTIONAL:
-                        lx, ly, lz = -vec[k, 0], -vec[k, 1], -vec[k, 2]
-                        scale = 1.0
-                        tend = math.inf
-                    else:
-                        continue
+                    # The environment is not marched (module docstring): delta_light_direction gives it 0.
+                    lx, ly, lz, scale, tend = delta_light_direction(kind[k], vec[k], x, y, z)
                     c = w * scale * hg_eval(g, dx * lx + dy * ly + dz * lz)
                     if c <= 0.0:
                         continue

@@ -113,24 +113,23 @@ def ratio_track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float
 
 
 @njit(cache=True, parallel=True)
+def _track_batch(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray, states: np.ndarray,
+                 mode: int) -> np.ndarray:
+    n = o.shape[1]
+    out = np.empty(n)
+    for i in prange(n):
+        out[i], states[i] = _track(m, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], tmin[i], tmax[i],
+                                   states[i], mode)
+    return out
+
+
 def delta_track_batch(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray,
                       states: np.ndarray) -> np.ndarray:
     """Batch delta tracking over SoA rays (o, d: (3, n)); advances ``states`` in place."""
-    n = o.shape[1]
-    out = np.empty(n)
-    for i in prange(n):
-        out[i], states[i] = delta_track(m, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], tmin[i],
-                                        tmax[i], states[i])
-    return out
+    return _track_batch(m, o, d, tmin, tmax, states, _DELTA)
 
 
-@njit(cache=True, parallel=True)
 def ratio_track_batch(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray,
                       states: np.ndarray) -> np.ndarray:
     """Batch ratio tracking over SoA rays; advances ``states`` in place."""
-    n = o.shape[1]
-    out = np.empty(n)
-    for i in prange(n):
-        out[i], states[i] = ratio_track(m, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], tmin[i],
-                                        tmax[i], states[i])
-    return out
+    return _track_batch(m, o, d, tmin, tmax, states, _RATIO)
