@@ -12,8 +12,10 @@ Both walk the majorant grid of :mod:`runtime.medium` with a 3D DDA (Amanatides &
 macrocell's local majorant, so empty macrocells are skipped in one step. The exponential's
 memorylessness makes restarting the sampling at each macrocell boundary exact.
 
-Kernels take one ray and return ``(value, rng_state)``; batch stages over structure-of-arrays ray
-batches (``o``/``d`` of shape (3, n)) live with the integrators. :mod:`runtime.tracking_numpy` is the
+Kernels take one ray and return ``(value, rng_state)``; ``delta_track_batch``/``ratio_track_batch`` run
+them over structure-of-arrays ray batches (``o``/``d`` of shape (3, n)). The interval [tmin, tmax] is
+clipped to the volume box first: outside it the medium is empty (lookups clamp at the border, so an
+unclipped ray would otherwise see the border voxels extended to infinity). :mod:`runtime.tracking_numpy` is the
 vectorized numpy baseline they are benchmarked and cross-checked against.
 """
 
@@ -24,7 +26,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from runtime.medium import Medium, extinction_at
+from runtime.medium import Medium, extinction_at, intersect_box
 from runtime.rng import next_float
 
 RR_THRESHOLD = 0.05
@@ -49,6 +51,11 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
            tmax: float, state: np.uint64, mode: int) -> tuple[float, np.uint64]:
     """Shared DDA walk. mode _DELTA: returns the real-collision distance (inf on escape).
     mode _RATIO: returns the transmittance estimate over [tmin, tmax]."""
+    t0, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
+    tmin = max(tmin, t0)
+    tmax = min(tmax, t1)
+    if tmin >= tmax:
+        return (math.inf if mode == _DELTA else 1.0), state
     cx, cy, cz = m.majorant.shape
     ix, sx, nx_t, dx_t = _axis_setup(ox, dx, m.bmin[0], cx / m.bsize[0], cx, tmin)
     iy, sy, ny_t, dy_t = _axis_setup(oy, dy, m.bmin[1], cy / m.bsize[1], cy, tmin)
