@@ -22,7 +22,7 @@ from typing import Any
 from runtime.cli_common import OneLineArgumentParser, check_seed, guarded, positive_int, prepare_output, set_threads
 from runtime.errors import InputError
 
-METHODS = ("pt", "raymarch")
+METHODS = ("pt", "raymarch", "photonmap")
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -41,7 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--scene", default="vortex", help="builtin scene name (vortex, blobs, shell) or a scene JSON file")
     p.add_argument("--method", choices=METHODS, default="pt", help="pt: volumetric path tracer (reference); "
-                   "raymarch: single-scattering ray marcher with global shadows")
+                   "raymarch: single-scattering ray marcher with global shadows; photonmap: first interactions "
+                   "+ NEE + the photon-map estimate of L_i (needs --map)")
     p.add_argument("--spp", type=int, default=16, help="samples (passes) per pixel")
     p.add_argument("--size", default=None, help="WIDTHxHEIGHT (default: the scene camera's)")
     p.add_argument("--g", type=float, default=None, help="Henyey-Greenstein g in [-1, 1] (default: the scene's)")
@@ -49,6 +50,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-depth", type=int, default=16, help="pt: max scattering vertices per path")
     p.add_argument("--no-nee", action="store_true", help="pt: pure phase sampling (no next-event estimation)")
     p.add_argument("--step", type=float, default=0.5, help="raymarch: step length in voxels")
+    p.add_argument("--map", default=None, help="photonmap: photon map (.npz) from `pfn-train trace`")
+    p.add_argument("--k", type=int, default=1024, help="photonmap: photons per estimate (K)")
+    p.add_argument("--radius", type=float, default=0.05,
+                   help="photonmap: max search radius, in units of the volume box's longest side")
+    p.add_argument("--force", action="store_true", help="photonmap: use a map traced for another scene")
     p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     p.add_argument("--batch-size", type=int, default=1 << 18, help="work items per wavefront batch (memory bound)")
     p.add_argument("--exposure", type=float, default=None, help="PNG exposure in stops (default: automatic)")
@@ -76,9 +82,23 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     check_seed(args.seed)
     if args.exposure is not None and not math.isfinite(args.exposure):
         raise InputError("--exposure", f"must be a finite number of stops, got {args.exposure}")
+    if args.method == "photonmap":
+        if args.map is None:
+            raise InputError("--map", "--method photonmap needs a photon map (pfn-train trace SCENE --out map.npz)")
+        positive_int("--k", args.k, 1 << 16)
+        if not (0 < args.radius <= 2 and math.isfinite(args.radius)):
+            raise InputError("--radius", f"must be in (0, 2] box units, got {args.radius}")
     set_threads(args.threads)
     scene = load_scene(args.scene)
     scene = scene.with_overrides(g=args.g, width=size[0], height=size[1])
+    pmap = None
+    if args.method == "photonmap":
+        from runtime.photon_estimate import check_map_matches_scene
+        from runtime.photon_map import PhotonMap
+
+        pmap = PhotonMap.load(args.map)
+        check_map_matches_scene(pmap, scene, args.force)
+        pmap.phase_index(scene.g, "--g")
     prepare_output(out, ".exr", (".png", ".json"))
 
     t0 = time.perf_counter()
@@ -87,11 +107,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
         result = render_path_traced(scene, spp=spp, max_depth=args.max_depth, nee=not args.no_nee, seed=args.seed,
                                     batch_size=args.batch_size, progress=not args.quiet)
-    else:
+    elif args.method == "raymarch":
         from runtime.ray_marcher import render_ray_marched
 
         result = render_ray_marched(scene, spp=spp, step=args.step, seed=args.seed, batch_size=args.batch_size,
                                     progress=not args.quiet)
+    else:
+        from runtime.photon_estimate import render_photon_mapped
+
+        result = render_photon_mapped(scene, pmap, k=args.k, radius=args.radius, spp=spp, seed=args.seed,
+                                      batch_size=args.batch_size, progress=not args.quiet, force=args.force)
     wall = time.perf_counter() - t0
     report = {"scene": scene.name, "method": args.method, "spp": spp, "seed": args.seed, "g": scene.g,
               "size": [scene.camera.width, scene.camera.height], "wall_s": wall,
