@@ -28,6 +28,9 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(PY) bench/bench_tracking.py
 	$(PY) bench/bench_pathtracer.py
+	$(PY) bench/bench_photons.py
+	$(PY) bench/bench_knn.py
+	$(PY) bench/bench_hashgrid.py
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache

@@ -51,7 +51,7 @@ import numpy as np
 import torch
 
 # bench/ is on sys.path when this file is run as a script, so the sibling module imports directly.
-from bench_tracking import Contention, load_average, machine_info
+from common import Contention, load_average, machine_info
 
 from models_spec.hashgrid import HASH_PRIMES, PAPER_DIRECTION, PAPER_POSITION, HashGridConfig, level_specs
 from train.hashgrid import HashGridEncoding

@@ -45,7 +45,6 @@ back end, the wall times, the best time, queries/s and the mean ``found``.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections.abc import Callable
@@ -55,7 +54,7 @@ from typing import Any
 import numpy as np
 
 # bench/ is on sys.path when this file is run as a script, so the sibling module imports directly.
-from bench_tracking import machine_info
+from common import machine_info, write_report
 from scipy.spatial import cKDTree
 
 from runtime.knn import build_photon_grid, build_photon_index, indexed_radiance, knn_radiance
@@ -249,14 +248,10 @@ def main(argv: list[str] | None = None) -> int:
     res = run(args)
     print()
     print_table(res, args.queries)
-    doc = {"bench": "knn", "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "machine": info,
-           "config": {"photons": args.photons, "queries": args.queries, "k": args.k, "radii": args.radii,
-                      "repeats": args.repeats, "kd_queries": args.kd_queries, "chunk": args.chunk,
-                      "seed": args.seed, "g": G, "query_jitter": QUERY_JITTER, "clusters": N_CLUSTERS},
-           **res}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(doc, indent=2) + "\n")
-    print(f"\nwrote {args.out}")
+    write_report(args.out, "knn", info,
+                 {"photons": args.photons, "queries": args.queries, "k": args.k, "radii": args.radii,
+                  "repeats": args.repeats, "kd_queries": args.kd_queries, "chunk": args.chunk, "seed": args.seed,
+                  "g": G, "query_jitter": QUERY_JITTER, "clusters": N_CLUSTERS}, **res)
     return 0
 
 

@@ -26,14 +26,13 @@ Output: a table on stdout and the JSON file described in ``bench/README.md``.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
 # bench/ is on sys.path when this file is run as a script, so the sibling module imports directly.
-from bench_tracking import Contention, finish_info, machine_info, parse_scenes
+from common import Contention, finish_info, machine_info, parse_scenes, write_report
 
 from runtime.path_tracer import RenderResult, render_path_traced
 from runtime.scene import BUILTIN_SCENES, Scene, builtin_scene
@@ -135,14 +134,9 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print_table(results, args.spp)
     info = finish_info(info, results)
-    doc = {"bench": "pathtracer", "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "machine": info,
-           "config": {"width": w, "height": h, "spp": args.spp, "max_depth": args.max_depth,
-                      "repeats": args.repeats, "seed": args.seed, "scenes": scenes,
-                      "available_scenes": list(BUILTIN_SCENES)},
-           "scenes": results}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(doc, indent=2) + "\n")
-    print(f"\nwrote {args.out}")
+    write_report(args.out, "pathtracer", info,
+                 {"width": w, "height": h, "spp": args.spp, "max_depth": args.max_depth, "repeats": args.repeats,
+                  "seed": args.seed, "scenes": scenes, "available_scenes": list(BUILTIN_SCENES)}, scenes=results)
     return 0
 
 

@@ -14,14 +14,13 @@ Output: a table on stdout and JSON (default ``bench/results/photons.json``).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from bench_tracking import Contention, finish_info, machine_info, parse_scenes
+from common import Contention, finish_info, machine_info, parse_scenes, write_report
 
 from runtime.path_tracer import render_path_traced
 from runtime.photon_estimate import render_photon_mapped
@@ -103,17 +102,15 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name:8s} {int(n):9,d} {r['seconds']:8.2f} {r['records_per_s'] / 1e6:8.3f} "
                   f"{r['records_per_path']:9.3f}")
             tracing[name]["other_cores"] = r["other_cores"]
-    result: dict[str, Any] = {"bench": "photons", "tracing": tracing}
+    result: dict[str, Any] = {"tracing": tracing}
     if not args.no_convergence:
         conv = bench_convergence([100_000, 1_000_000, 4_000_000], args.reference_spp)
         result["convergence"] = conv
         print("photon-map L_i vs path-traced L_i (thin smooth scene, K=1024, r=0.05):")
         for n, r in conv["runs"].items():
             print(f"  {int(n):9,d} photons: rel L2 {r['rel_l2']:.4f}, mean ratio {r['mean_ratio']:.4f}")
-    result["machine"] = finish_info(info, tracing)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    write_report(args.out, "photons", finish_info(info, tracing),
+                 {"resolution": args.resolution, "photons": counts, "repeats": args.repeats}, **result)
     return 0
 
 

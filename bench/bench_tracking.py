@@ -34,101 +34,26 @@ Output: a table on stdout and the JSON file described in ``bench/README.md``.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numba
 import numpy as np
+from common import Contention, finish_info, machine_info, parse_scenes, write_report
 
 from runtime.medium import Medium, build_medium
 from runtime.rays import RayBatch, clip_rays_to_volume
 from runtime.rng import stream_states
-from runtime.scene import BUILTIN_SCENES, builtin_scene
+from runtime.scene import builtin_scene
 from runtime.tracking import delta_track_batch, ratio_track_batch
 from runtime.tracking_numpy import delta_track_numpy, ratio_track_numpy
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "tracking.json"
-BUSY_FRACTION = 0.2  # foreign load (in cores per usable core) above which a scene's figures are flagged
 SPHERE_RADIUS = 1.5  # the box's longest side is 1, so its half-diagonal is at most ~0.87
 
 Tracker = Callable[[Medium, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-
-
-def machine_info() -> dict[str, Any]:
-    """What the figures depend on: core counts (numba's prange scales with threads), versions."""
-    try:
-        usable = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        usable = os.cpu_count()
-    return {"cpu_count": os.cpu_count(), "usable_cores": usable, "numba_threads": numba.get_num_threads(),
-            "platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-            "python": platform.python_version(), "numpy": np.__version__, "numba": numba.__version__,
-            "load_avg_start": load_average()}
-
-
-def load_average() -> list[float] | None:
-    """1/5/15-minute load averages (they include this benchmark's own threads)."""
-    try:
-        return [round(x, 2) for x in os.getloadavg()]
-    except (AttributeError, OSError):
-        return None
-
-
-def _busy_cpu_seconds() -> float | None:
-    """CPU seconds spent busy by the whole machine since boot (Linux /proc/stat), else None."""
-    try:
-        with open("/proc/stat") as f:
-            fields = [int(x) for x in f.readline().split()[1:9]]
-    except (OSError, ValueError):
-        return None
-    user, nice, system, _idle, _iowait, irq, softirq, steal = fields
-    return (user + nice + system + irq + softirq + steal) / os.sysconf("SC_CLK_TCK")
-
-
-class Contention:
-    """Measures how many cores *other* processes kept busy while the block ran (machine busy time
-    minus this process's CPU time, over wall time): ``with Contention() as c: ...; c.other_cores``.
-    Numba's prange kernels synchronize at the end of every stage, so one descheduled worker stalls
-    the stage: even half a core of foreign load distorts the numba figures far more than numpy's."""
-
-    def __enter__(self) -> Contention:
-        self.other_cores: float | None = None
-        self._t, self._busy, self._own = time.perf_counter(), _busy_cpu_seconds(), _own_cpu_seconds()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        busy = _busy_cpu_seconds()
-        wall = time.perf_counter() - self._t
-        if busy is not None and self._busy is not None and wall > 0:
-            other = (busy - self._busy) - (_own_cpu_seconds() - self._own)
-            self.other_cores = round(max(other, 0.0) / wall, 3)
-
-
-def _own_cpu_seconds() -> float:
-    t = os.times()
-    return t.user + t.system  # all threads of this process, numba's workers included
-
-
-def finish_info(info: dict[str, Any], results: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """Facts only known after the run: numba's threading layer, the load, whether it was disturbed."""
-    try:
-        layer = numba.threading_layer()
-    except ValueError:  # no parallel kernel ran
-        layer = None
-    usable = info["usable_cores"] or 1
-    disturbed = {name: r["other_cores"] for name, r in results.items()
-                 if r.get("other_cores") is not None and r["other_cores"] > BUSY_FRACTION * usable}
-    if disturbed:
-        print(f"warning: other processes kept cores busy during {disturbed} (cores, of {usable}): "
-              "those figures are pessimistic, numba's parallel kernels most of all")
-    return {**info, "numba_threading_layer": layer, "load_avg_end": load_average(),
-            "machine_busy": bool(disturbed)}
 
 
 def random_box_rays(m: Medium, n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -218,16 +143,6 @@ def print_table(results: dict[str, dict[str, Any]]) -> None:
                   f"{check:<24}")
 
 
-def parse_scenes(values: list[str] | None) -> list[str]:
-    if not values:
-        return list(BUILTIN_SCENES)
-    names = [s for v in values for s in v.split(",") if s]
-    unknown = [s for s in names if s not in BUILTIN_SCENES]
-    if unknown:
-        raise SystemExit(f"unknown scene(s) {unknown}; builtin scenes: {', '.join(BUILTIN_SCENES)}")
-    return names
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rays", type=int, default=1 << 18, help="rays per measurement (default 2**18)")
@@ -251,11 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print_table(results)
     info = finish_info(info, results)
-    doc = {"bench": "tracking", "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "machine": info,
-           "config": {"rays": args.rays, "repeats": args.repeats, "seed": args.seed}, "scenes": results}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(doc, indent=2) + "\n")
-    print(f"\nwrote {args.out}")
+    write_report(args.out, "tracking", info, {"rays": args.rays, "repeats": args.repeats, "seed": args.seed},
+                 scenes=results)
     return 0
 
 
