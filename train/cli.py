@@ -1,9 +1,15 @@
-"""``pfn-train``: photon tracing (and, as they land, field fitting and export).
+"""``pfn-train``: photon tracing and photon-field fitting.
 
 Examples::
 
     pfn-train trace vortex --photons 1M --out maps/vortex.npz
     pfn-train trace my_scene.json --photons 3M --phases -0.75 0 0.75 --seed 7 --out maps/mine.npz
+    pfn-train fit vortex --map maps/vortex.npz --out runs/vortex/            # preset cpu
+    pfn-train fit vortex --map maps/vortex.npz --out runs/paper/ --preset paper
+    pfn-train all blobs --photons 1M --out runs/blobs/                       # trace (runs/blobs/map.npz) + fit
+
+``fit`` writes ``checkpoint.pt``, ``log.json`` and ``loss.png`` into the ``--out`` folder (see
+:mod:`train.fit`). Options left out come from the preset (``--preset``: cpu, paper, tiny).
 
 Bad input exits with status 2 and one line on stderr: ``error: <input>: <problem>``.
 """
@@ -12,8 +18,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import sys
+
+# OpenMP pools (torch's and numba's) that spin after every parallel region steal the only other core from
+# each other: measured 10x slower training steps on a busy 2-core machine, 2x faster with passive waiting
+# on an idle one (train.fit). Must be set before torch or numba load libgomp; the user's choice wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -48,7 +60,42 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.add_argument("--out", required=True, help="output photon map (.npz)")
+
+    f = sub.add_parser("fit", help="fit a photon field to a photon map (Sec. 3.5)",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    f.add_argument("scene", help="builtin scene name or scene JSON file the map was traced for")
+    f.add_argument("--map", required=True, help="photon map (.npz) from pfn-train trace")
+    _add_fit_options(f)
+
+    a = sub.add_parser("all", help="trace a photon map (saved as OUT/map.npz), then fit a field to it",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    a.add_argument("scene", help="builtin scene name (vortex, blobs, shell) or a scene JSON file")
+    a.add_argument("--photons", default="1M", help="records to store, e.g. 1M, 250k")
+    a.add_argument("--phases", type=float, nargs="+", default=list(DEFAULT_PHASES), help="the phase set G")
+    a.add_argument("--max-bounces", type=int, default=16, help="max collisions per photon path")
+    _add_fit_options(a)
     return p
+
+
+def _add_fit_options(f: argparse.ArgumentParser) -> None:
+    from train.fit import PRESETS
+
+    f.add_argument("--out", required=True, help="run folder (checkpoint.pt, log.json, loss.png)")
+    f.add_argument("--preset", default="cpu", choices=sorted(PRESETS), help="architecture and default settings")
+    f.add_argument("--steps", type=int, default=None, help="training steps (default: the preset's)")
+    f.add_argument("--batch", type=int, default=None, help="samples per step (default: the preset's)")
+    f.add_argument("--lr", type=float, default=None, help="Adam learning rate (default: the preset's)")
+    f.add_argument("--k", type=int, default=1024, help="photons per radiance estimate (K)")
+    f.add_argument("--schedule", choices=["staggered", "naive"], default=None,
+                   help="KNN radius schedule: Table 1 by photon count, or its final radius throughout "
+                        "(default: the preset's)")
+    f.add_argument("--sampling", choices=["box", "support"], default=None,
+                   help="training positions: uniform in the box (paper) or in the medium's support "
+                        "(default: the preset's)")
+    f.add_argument("--checkpoint-every", type=int, default=500, help="save checkpoint.pt every N steps")
+    f.add_argument("--seed", type=int, default=0, help="random seed: same seed, same field")
+    f.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
+    f.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def cmd_trace(args: argparse.Namespace) -> int:
@@ -73,10 +120,84 @@ def cmd_trace(args: argparse.Namespace) -> int:
     return 0
 
 
+def _fit_settings(args: argparse.Namespace):  # noqa: ANN202  (train.fit is imported lazily)
+    from train.fit import FitSettings
+
+    settings = FitSettings.from_preset(args.preset, steps=args.steps, batch=args.batch, lr=args.lr, k=args.k,
+                                       schedule_kind=args.schedule, sampling=args.sampling, seed=args.seed,
+                                       checkpoint_every=args.checkpoint_every)
+    settings.validate()
+    check_seed(args.seed)
+    return settings
+
+
+def _prepare_run_folder(out: Path) -> None:
+    if out.exists() and not out.is_dir():
+        raise InputError("--out", f"{str(out)!r} is a file; --out names a run folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError("--out", f"cannot create the folder {str(out)!r}: {exc.strerror or exc}") from None
+
+
+def _set_all_threads(threads: int | None) -> None:
+    set_threads(threads)  # numba: KNN targets, hash grid, optimizer
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(threads)  # the MLP
+
+
+def _run_fit(args: argparse.Namespace, scene, pmap, settings) -> int:  # noqa: ANN001
+    from train.fit import fit
+
+    out = Path(args.out)
+    result = fit(scene, pmap, out, settings, progress=not args.quiet)
+    t = result.log["totals"]
+    val = t["final_validation"] or {}
+    print(f"fitted {t['steps_done']} steps x {settings.batch} samples in {t['wall_s']:.1f} s (targets "
+          f"{t['targets_s_per_step'] * 1e3:.0f} ms/step, training {t['train_s_per_step'] * 1e3:.0f} ms/step, "
+          f"{t['samples_per_s']:,.0f} samples/s); final loss {t['final_loss']:.4g}, validation loss "
+          f"{val.get('val_loss', float('nan')):.4g}, relative L1 {val.get('val_rel_l1', float('nan')):.3f} -> "
+          + ", ".join(str(p) for p in result.files))
+    return 0
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from runtime.scene import load_scene
+    from train.fit import load_map_for
+
+    settings = _fit_settings(args)
+    _set_all_threads(args.threads)
+    scene = load_scene(args.scene)
+    pmap = load_map_for(scene, args.map)
+    _prepare_run_folder(Path(args.out))
+    return _run_fit(args, scene, pmap, settings)
+
+
+def cmd_all(args: argparse.Namespace) -> int:
+    from runtime.scene import load_scene
+    from train.photon_tracing import check_phases, trace_photons
+
+    photons = parse_count(args.photons)
+    check_phases(args.phases, "--phases")
+    settings = _fit_settings(args)
+    _set_all_threads(args.threads)
+    scene = load_scene(args.scene)
+    out = Path(args.out)
+    _prepare_run_folder(out)
+    pmap = trace_photons(scene, photons, phases=args.phases, max_bounces=args.max_bounces, seed=args.seed,
+                         progress=not args.quiet)
+    map_path = pmap.save(out / "map.npz")
+    secs = pmap.metadata()["trace_seconds"]
+    print(f"traced {len(pmap):,} photons in {secs:.2f} s -> {map_path}")
+    return _run_fit(args, scene, pmap, settings)
+
+
 @guarded
 def _main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return {"trace": cmd_trace}[args.command](args)
+    return {"trace": cmd_trace, "fit": cmd_fit, "all": cmd_all}[args.command](args)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,0 +1,181 @@
+"""The photon field's input and output conventions (paper Sec. 3.1, 3.3.2, 3.4), shared by training and runtime.
+
+numpy only (no torch): ``train.field`` has bit-identical torch twins of :func:`encode_radiance` and
+:func:`decode_radiance` (tested), and the runtime evaluates a trained field with exactly these functions.
+
+Output: the log target encoding (Eq. 6 / Eq. 7)
+-----------------------------------------------
+The field predicts the normalized radiance exponent ``L' = -log10(L) / psi`` instead of L (Eq. 6); values
+``L <= 10^-psi`` are encoded as 1 (implicitly clamped to zero). Decoding is ``L = 10^(-L' psi)`` (Eq. 7),
+so an encoded 1 decodes to ``10^-psi``, numerically zero next to the light the field carries. Eq. 6 maps
+``(10^-psi, 1]`` to ``[0, 1)``; our targets Q can exceed 1 (small KNN radii on dense photon clusters: up
+to ~100 measured), those map to negative L', which the linear output layer (no output activation,
+Sec. 3.4) represents without trouble. Both functions compute in float64 and round to float32 once.
+
+psi : float (``DEFAULT_PSI`` = 5)
+    Decades of dynamic range below 1 that the encoding keeps. The paper found 4 to 6 sufficient. We chose
+    5 from the targets themselves: Q at the final KNN radii (0.025 and 0.05 box units, K = 1024) at 30k
+    points inside the support (sigma_t > 0, where the renderer queries the field) of the three embedded
+    scenes with 1M-photon maps. The share of the total radiance carried by values at or below 10^-psi
+    (what the clamp throws away) was at most 4.3e-4 for psi = 4 (shell), 1.2e-5 for psi = 5 and 2.1e-7
+    for psi = 6. 1e-5 of the energy is invisible in any tone-mapped image, while every extra decade
+    costs precision: an error e in the encoded output is a relative radiance error ``ln(10) psi e``, so
+    psi = 6 would make the same network error 20 % larger in radiance than psi = 5, to represent light
+    nobody can see.
+
+Inputs (Sec. 3.1, Eq. 2: ``P(x, g, omega)``)
+--------------------------------------------
+- position: :func:`normalize_position`, world box ``[bmin, bmin + bsize]`` -> ``[0, 1]^3`` per axis (the
+  paper's grid coordinates; non-cubic boxes are stretched to the unit cube, so every grid level covers
+  the whole volume with no unused table entries);
+- direction: :func:`direction_input`, the camera ray's unit *travel* direction d (the direction the
+  radiance estimate Q(x, d, g) of :mod:`runtime.photon_estimate` is queried with, light arriving at the
+  camera travels along -d) -> :func:`models_spec.hashgrid.direction_to_unit_square` (normalized
+  spherical coordinates, as in Sec. 3.1);
+- phase: g in [-1, 1], unencoded ("a unitless scale", Sec. 3.4).
+
+The network input is ``[hash_position(x) (Lp Fp), hash_direction(d) (Ld Fd), g (1)]`` in this order.
+
+:class:`FieldConfig` (what a trained field needs to be rebuilt)
+---------------------------------------------------------------
+position : HashGridConfig (dims 3), direction : HashGridConfig (dims 2)
+    The two hash encodings (paper: 16 levels x 8 features, 2x scale, 2^19 tables).
+hidden_width : int >= 1, hidden_layers : int >= 1
+    ReLU MLP: ``hidden_layers`` hidden layers of ``hidden_width`` neurons, i.e. ``hidden_layers + 1``
+    linear layers, no biases (tiny-cuda-nn's FullyFusedMLP has none), no output activation, 3 outputs.
+    The paper's "5-layer perceptron with 64 neurons" is ``hidden_layers = 4, hidden_width = 64``.
+psi : float in (0, 30]
+    Eq. 6 / 7 precision (above).
+phases : tuple of g in [-1, 1]
+    The phase set G the field was trained on (the photon map's); g between them is interpolated.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+
+from models_spec.hashgrid import PAPER_DIRECTION, PAPER_POSITION, HashGridConfig, direction_to_unit_square
+from models_spec.photon_map import DEFAULT_PHASES
+
+DEFAULT_PSI = 5.0
+FIELD_CONFIG_VERSION = 1
+OUTPUT_CHANNELS = 3
+
+
+def check_psi(psi: float) -> float:
+    p = float(psi)
+    if not (0.0 < p <= 30.0):  # 10^-30 still fits float32's range with room; NaN fails too
+        raise ValueError(f"psi must be in (0, 30], got {psi!r}")
+    return p
+
+
+def encode_radiance(L: np.ndarray, psi: float = DEFAULT_PSI) -> np.ndarray:
+    """Eq. 6: float32 ``-log10(L) / psi`` where ``L > 10^-psi``, else 1 (zero, negative, NaN included)."""
+    p = check_psi(psi)
+    lum = np.asarray(L, dtype=np.float64)
+    keep = lum > 10.0**-p  # False for NaN: a broken estimate reads as "no light", never as NaN
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(keep, -np.log10(np.where(keep, lum, 1.0)) / p, 1.0)
+    return out.astype(np.float32)
+
+
+def decode_radiance(Lp: np.ndarray, psi: float = DEFAULT_PSI) -> np.ndarray:
+    """Eq. 7: float32 ``10^(-L' psi)``. Not clamped: ``L' > 1`` decodes below ``10^-psi`` (darker still)."""
+    p = check_psi(psi)
+    with np.errstate(over="ignore"):
+        return np.power(10.0, -np.asarray(Lp, dtype=np.float64) * p).astype(np.float32)
+
+
+def normalize_position(x_world: np.ndarray, bmin: np.ndarray, bsize: np.ndarray) -> np.ndarray:
+    """World positions (n, 3) -> float32 (n, 3) in [0, 1]^3: ``(x - bmin) / bsize`` per axis (float64, then
+    one rounding). Points outside the box map outside [0, 1] (the hash grid accepts them)."""
+    x = np.asarray(x_world, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise ValueError(f"x_world must have shape (n, 3), got {x.shape}")
+    lo = np.asarray(bmin, dtype=np.float64).reshape(3)
+    size = np.asarray(bsize, dtype=np.float64).reshape(3)
+    if not np.all(size > 0):
+        raise ValueError(f"bsize must be positive, got {size}")
+    return ((x - lo) / size).astype(np.float32)
+
+
+def direction_input(d: np.ndarray) -> np.ndarray:
+    """Camera-ray unit travel directions (n, 3) -> float32 (n, 2) in [0, 1]^2, the direction encoding's input."""
+    return direction_to_unit_square(d)
+
+
+def phase_input(g: np.ndarray | float, n: int | None = None) -> np.ndarray:
+    """Phase coefficients -> float32 (n, 1) (a scalar g is repeated ``n`` times)."""
+    ga = np.asarray(g, dtype=np.float32)
+    if ga.ndim == 0:
+        if n is None:
+            raise ValueError("phase_input: give n for a scalar g")
+        ga = np.full(n, ga, dtype=np.float32)
+    return ga.reshape(-1, 1)
+
+
+def _int_field(name: str, v: Any, lo: int, hi: int) -> int:
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not lo <= int(v) <= hi:
+        raise ValueError(f"FieldConfig.{name} must be an int in [{lo}, {hi}], got {v!r}")
+    return int(v)
+
+
+@dataclass(frozen=True)
+class FieldConfig:
+    """Architecture of a photon field (see the module docstring)."""
+
+    position: HashGridConfig = PAPER_POSITION
+    direction: HashGridConfig = PAPER_DIRECTION
+    hidden_width: int = 64
+    hidden_layers: int = 4
+    psi: float = DEFAULT_PSI
+    phases: tuple[float, ...] = DEFAULT_PHASES
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.position, HashGridConfig) or self.position.dims != 3:
+            raise ValueError(f"FieldConfig.position must be a 3-D HashGridConfig, got {self.position!r}")
+        if not isinstance(self.direction, HashGridConfig) or self.direction.dims != 2:
+            raise ValueError(f"FieldConfig.direction must be a 2-D HashGridConfig, got {self.direction!r}")
+        object.__setattr__(self, "hidden_width", _int_field("hidden_width", self.hidden_width, 1, 4096))
+        object.__setattr__(self, "hidden_layers", _int_field("hidden_layers", self.hidden_layers, 1, 64))
+        object.__setattr__(self, "psi", check_psi(self.psi))
+        try:
+            phases = tuple(float(g) for g in self.phases)
+        except (TypeError, ValueError):
+            raise ValueError(f"FieldConfig.phases must be numbers in [-1, 1], got {self.phases!r}") from None
+        if not phases or not all(-1.0 <= g <= 1.0 and math.isfinite(g) for g in phases):
+            raise ValueError(f"FieldConfig.phases must be a non-empty set of g in [-1, 1], got {self.phases!r}")
+        object.__setattr__(self, "phases", phases)
+
+    @property
+    def input_dims(self) -> int:
+        """MLP input width: position features + direction features + g."""
+        return self.position.output_dims + self.direction.output_dims + 1
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able dict (nested hash-grid dicts), with a format version."""
+        return {"version": FIELD_CONFIG_VERSION, "position": self.position.to_dict(),
+                "direction": self.direction.to_dict(), "hidden_width": self.hidden_width,
+                "hidden_layers": self.hidden_layers, "psi": self.psi, "phases": list(self.phases)}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> FieldConfig:
+        """Inverse of :meth:`to_dict`; unknown or missing keys, or another version, raise ValueError."""
+        if not isinstance(data, Mapping):
+            raise ValueError(f"FieldConfig.from_dict needs a mapping, got {type(data).__name__}")
+        if data.get("version") != FIELD_CONFIG_VERSION:
+            raise ValueError(f"FieldConfig version {data.get('version')!r} is not supported "
+                             f"(this build reads version {FIELD_CONFIG_VERSION})")
+        names = [f.name for f in fields(cls)]
+        unknown = sorted(set(data) - set(names) - {"version"})
+        missing = [n for n in names if n not in data]
+        if unknown or missing:
+            raise ValueError(f"FieldConfig.from_dict: unknown keys {unknown}, missing keys {missing}")
+        return cls(position=HashGridConfig.from_dict(data["position"]),
+                   direction=HashGridConfig.from_dict(data["direction"]), hidden_width=data["hidden_width"],
+                   hidden_layers=data["hidden_layers"], psi=data["psi"], phases=tuple(data["phases"]))
