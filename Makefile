@@ -31,6 +31,7 @@ bench: $(STAMP)
 	$(PY) bench/bench_photons.py
 	$(PY) bench/bench_knn.py
 	$(PY) bench/bench_hashgrid.py
+	$(PY) bench/bench_runtime_hashgrid.py
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache
