@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
-import numpy as np
+import os
+
+# torch's and numba's OpenMP pools spin after parallel regions and steal each other's core on 2 cores
+# (train.fit); pfn-train sets this itself, the test process must set it before either library loads.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np  # noqa: E402
 import pytest
 
 from runtime.camera import Camera

@@ -49,7 +49,8 @@ def test_interpolation_in_log_photons_and_clamping() -> None:
     assert table1_radii(6_000_000) == (0.25, 0.5, 1.5, 3.0)
     t = math.log(2) / math.log(3)  # 2M sits at this fraction between 1M and 3M in log photons
     r = table1_radii(2_000_000)
-    assert r[2] == pytest.approx(2.5 - 0.5 * t) and r[3] == pytest.approx(5.0 - 1.0 * t)
+    assert r[2] == pytest.approx(2.5 - 0.5 * t, rel=1e-3) and r[3] == pytest.approx(5.0 - 1.0 * t, rel=1e-3)
+    assert table1_radii(1_000_035) == (0.25, 0.5, 2.5, 5.0)  # a traced "1M" map overshoots a little
     assert table1_radii(50_000) == table1_radii(1_000_000)  # held constant outside the table
     assert table1_radii(100_000_000) == table1_radii(12_000_000)
 

@@ -22,9 +22,10 @@ import os
 import re
 import sys
 
-# OpenMP pools (torch's and numba's) that spin after every parallel region steal the only other core from
-# each other: measured 10x slower training steps on a busy 2-core machine, 2x faster with passive waiting
-# on an idle one (train.fit). Must be set before torch or numba load libgomp; the user's choice wins.
+# torch's and numba's OpenMP pools spin after every parallel region and, with any other load on 2 cores,
+# steal each other's core: a cpu-preset fit with one busy core elsewhere ran 1.4x faster with passive
+# waiting (same speed on an idle machine; train.fit). Must be set before torch or numba load libgomp;
+# the user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 from collections.abc import Sequence
 from pathlib import Path

@@ -33,10 +33,47 @@ lr        blobs: val loss / rel. L1    vortex: val loss / rel. L1
 
 Presets (:data:`PRESETS`)
 -------------------------
-``paper``: Sec. 3.4/3.5 as published: both encodings 16 levels x 8 features, 2x scale, 2^19 tables,
-4 hidden layers of 64, batch 2^16, 3000 steps, Table-1 schedule, samples uniform in the box.
-``cpu``: the provisional CPU default (see :data:`PRESETS` for the reasoning and measurements).
-``tiny``: a seconds-long smoke-test configuration.
+``paper``: Sec. 3.4/3.5 as published: both encodings 16 levels x 8 features, 2x scale, 2^19 tables
+(102 M table entries), 4 hidden layers of 64, batch 2^16, 3000 steps, Table-1 schedule, box sampling.
+``cpu``: the provisional CPU default (below). ``tiny``: a seconds-long smoke-test configuration.
+
+Measured per step, 2 threads, load ~1.3-1.5 (another job used part of a core), OMP_WAIT_POLICY=PASSIVE:
+
+==================================  =======================  ==============================================
+preset, batch                       training step            targets (vortex / blobs / shell)
+==================================  =======================  ==============================================
+paper, 2^16 (box, r = 0.25 % ...)   0.93-0.98 s (fwd 0.2,    r 0.25 %: 80 / 74 / 55 ms, 0.5 %: 85 / 87 / 55,
+                                    bwd 0.6, Adam 0.12)      2.5 %: 194 / 129 / 116, 5 %: 572 / 275 / 293
+cpu, 2^12 (support, r = 5 %)        23 ms                    117 / 62 / 66 ms
+==================================  =======================  ==============================================
+
+So the paper preset is training-bound (~1.1 s/step, ~55 min for 3000 steps, 3.1 GB RSS, a 407 MB
+checkpoint) and the cpu preset target-bound (targets are 73-84 % of its step). ``pfn-train all`` with the
+cpu preset, 1M photons: vortex 118 s end to end (trace 7.9 s, fit 103.5 s), shell 83 s.
+
+How the provisional ``cpu`` preset was chosen (1M-photon maps, lr 1e-2, seed 0; validation relative L1
+error on 8192 support points at r = 5 %, at the wall time given; one run each, loaded machine, so
+differences below ~5 % are noise; the reference itself is noisy: two independent 1M maps differ by
+0.133 (vortex) / 0.149 (blobs), i.e. a perfect field would score ~0.09 / ~0.10):
+
+- sampling and schedule, 600 x 2^14, cpu v0 architecture (8x2 levels, 2^15 tables; directions 4x2):
+  vortex box/naive 0.217 @130 s, box/staggered 0.383 @69 s, support/naive 0.158 @84 s (0.136 @302 s),
+  support/staggered 0.227 @54 s (naive 0.216 @53 s), 0.152 @137 s; blobs box/naive 0.182 @83 s,
+  box/staggered 0.271 @58 s, support/naive 0.173 @100 s, support/staggered 0.177 @84 s. Support sampling
+  wins on vortex (98 % empty) and ties on blobs; the Table-1 schedule's first two stages teach nothing
+  (validation ~1.0 until r reaches 2.5 %), naive is as good or better at equal time;
+- batch at equal time (support, naive): vortex at ~150 s 0.137 (2^12), 0.137 (2^13), ~0.145 (2^14);
+  blobs 0.133 @106 s (2^12) vs 0.151 @144 s (2^13): small batches, many steps;
+- architecture, 800 x 2^12: v0 vortex 0.135 @110 s / blobs 0.139 @62 s; positions 8x4 features, 2^16
+  tables: 0.128 / 0.130; directions 6 levels (N_min 4, b 1.6, 2^14) + 3 hidden layers: 0.124 / 0.133;
+  both (the preset): **0.112 @108 s / 0.120 @70 s**.
+
+Threads: torch's and numba's OpenMP pools both spin after every parallel region; on 2 cores with any
+other load they steal each other's core. 150 cpu-preset steps on vortex: 25 s (default policy) vs 26 s
+(``OMP_WAIT_POLICY=PASSIVE``) on an idle machine, 48 s vs 34 s next to one busy-looping process (training
+step 80 vs 30 ms); a toy fit (batch 1024) next to two other jobs: 63.7 s vs 3.4 s. ``pfn-train`` sets
+PASSIVE unless the user chose a policy; it must be in the environment before torch or numba load
+libgomp, so library users export it themselves.
 
 Outputs (run folder, each file written atomically)
 --------------------------------------------------
@@ -115,9 +152,13 @@ PRESETS: dict[str, Preset] = {
     "paper": Preset(PAPER_POSITION, PAPER_DIRECTION, 64, 4, steps=3000, batch=1 << 16, lr=1e-2,
                     schedule="staggered", sampling="box",
                     about="Sec. 3.4/3.5 as published (hours on 2 CPU cores)"),
-    "cpu": Preset(HashGridConfig(3, 8, 2, 15, 16, 1.5), HashGridConfig(2, 4, 2, 12, 4, 2.0), 64, 2,
-                  steps=600, batch=1 << 14, lr=1e-2, schedule="staggered", sampling="box",
-                  about="provisional CPU default"),
+    # Provisional CPU default, from quick measurements on vortex and blobs (1M photons, 2 cores; module
+    # docstring). Targets dominate a step (~110 ms of ~130 ms on vortex at 2^12), so the choices are about
+    # useful targets per second: samples in the support (empty space is 98 % of vortex's box), the
+    # final radius from the start, small batches and many steps; the network can be richer at ~no cost.
+    "cpu": Preset(HashGridConfig(3, 8, 4, 16, 16, 1.5), HashGridConfig(2, 6, 2, 14, 4, 1.6), 64, 3,
+                  steps=800, batch=1 << 12, lr=1e-2, schedule="naive", sampling="support",
+                  about="provisional CPU default: trace (1M) + fit in about 2 minutes"),
     "tiny": Preset(HashGridConfig(3, 4, 2, 12, 8, 2.0), HashGridConfig(2, 2, 2, 8, 4, 2.0), 16, 1,
                    steps=50, batch=1 << 10, lr=1e-2, schedule="staggered", sampling="box",
                    about="smoke tests: seconds"),
@@ -222,14 +263,18 @@ def lr_at(step: int, total: int, lr: float) -> float:
 
 @dataclass
 class FitSettings:
+    """Everything a fit needs besides the scene and the map. Build it with :meth:`from_preset` (the
+    defaults here equal the ``cpu`` preset); ``schedule`` overrides ``schedule_kind`` with any
+    :class:`train.schedule.KnnSchedule`."""
+
     preset: str = "cpu"
-    steps: int = 600
-    batch: int = 1 << 14
+    steps: int = 800
+    batch: int = 1 << 12
     lr: float = 1e-2
     k: int = DEFAULT_K
     schedule: KnnSchedule | None = None  # None: from ``schedule_kind`` and the photon count
-    schedule_kind: str = "staggered"
-    sampling: str = "box"
+    schedule_kind: str = "naive"
+    sampling: str = "support"
     seed: int = 0
     checkpoint_every: int = 500
     val_points: int = 1 << 13
@@ -246,6 +291,8 @@ class FitSettings:
         return replace(base, **{k: v for k, v in overrides.items() if v is not None})
 
     def validate(self) -> None:
+        if self.preset not in PRESETS:
+            raise InputError("--preset", f"unknown preset {self.preset!r} (available: {', '.join(PRESETS)})")
         for name, v, hi in (("--steps", self.steps, 10**7), ("--batch", self.batch, 1 << 22), ("--k", self.k, 1 << 16),
                             ("--checkpoint-every", self.checkpoint_every, 10**9),
                             ("validation points", self.val_points, 1 << 22)):
@@ -339,14 +386,14 @@ def plot_loss(log: dict[str, Any], path: Path) -> None:
                 label="validation loss (support, final radius)")
     for b, r in zip(log["schedule_boundaries"][1:], log["schedule"]["stages"][1:], strict=False):
         ax.axvline(b, color="0.5", ls="--", lw=0.8)
-        ax.text(b, 1.0, f" r={r['radius_percent']:g}%", transform=ax.get_xaxis_transform(), va="top", fontsize=8)
+        ax.text(b, 0.99, f" r={r['radius_percent']:.3g}%", transform=ax.get_xaxis_transform(), va="top", fontsize=8)
     if np.all(loss[np.isfinite(loss)] > 0) and np.isfinite(loss).any():
         ax.set_yscale("log")
     ax.set_xlabel("step")
     ax.set_ylabel("relative L2 (encoded)")
     ax.set_title(f"{log['scene']} - preset {log['settings']['preset']}, batch {log['settings']['batch']}, "
                  f"lr {log['settings']['lr']:g}")
-    ax.legend(loc="upper right", fontsize=8)
+    ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
