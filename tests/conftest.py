@@ -43,3 +43,12 @@ def smooth_volume():  # noqa: ANN201
 
 def small_camera(size: int = 24, fov: float = 30.0) -> Camera:
     return Camera([0.3, 0.4, 2.4], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], fov, size, size)
+
+
+def tiny_scene_dict(name: str = "blobs") -> dict:
+    return {"name": f"{name}32", "volume": {"builtin": name, "resolution": 32},
+            "transfer_function": {"preset": "cloud" if name == "blobs" else name},
+            "lights": [{"type": "directional", "direction": [-0.5, -0.8, 0.3], "color": [1, 0.95, 0.85],
+                        "power": 3.0}],
+            "camera": {"eye": [1.25, 0.75, 1.45], "target": [0, 0, 0], "up": [0, 1, 0], "fov": 38,
+                       "width": 32, "height": 32}}

@@ -17,6 +17,8 @@ import pytest  # noqa: E402
 
 torch = pytest.importorskip("torch")
 
+from conftest import tiny_scene_dict  # noqa: E402
+
 from models_spec.encoding import FieldConfig, decode_radiance, direction_input, encode_radiance  # noqa: E402
 from models_spec.hashgrid import HashGridConfig  # noqa: E402
 from runtime.errors import InputError  # noqa: E402
@@ -38,15 +40,6 @@ from train.photon_tracing import trace_photons  # noqa: E402
 from train.targets import TargetSampler, uniform_directions  # noqa: E402
 
 PHASES = (-0.75, 0.0, 0.75)
-
-
-def tiny_scene_dict(name: str = "blobs") -> dict:
-    return {"name": f"{name}32", "volume": {"builtin": name, "resolution": 32},
-            "transfer_function": {"preset": "cloud" if name == "blobs" else name},
-            "lights": [{"type": "directional", "direction": [-0.5, -0.8, 0.3], "color": [1, 0.95, 0.85],
-                        "power": 3.0}],
-            "camera": {"eye": [1.25, 0.75, 1.45], "target": [0, 0, 0], "up": [0, 1, 0], "fov": 38,
-                       "width": 32, "height": 32}}
 
 
 @pytest.fixture(scope="module")
