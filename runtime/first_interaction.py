@@ -78,18 +78,27 @@ def sample_first_interactions(m: Medium, rays: RayBatch) -> tuple[np.ndarray, np
     return hit, albedo
 
 
-def render_first_interaction(scene: Scene, estimator: IndirectEstimator, *, spp: int = 1, seed: int = 0,
-                             batch_size: int = DEFAULT_BATCH, progress: bool = True,
-                             desc: str = "rendering") -> RenderResult:
+def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, *, spp: int = 1, seed: int = 0,
+                             batch_size: int = DEFAULT_BATCH, progress: bool = True, desc: str = "rendering",
+                             direct: bool = True, film: Film | None = None, first_sample: int = 0) -> RenderResult:
+    """Render ``spp`` samples per pixel (stages in the module docstring).
+
+    ``estimator`` None skips stage 4 (L_i = 0) and ``direct`` False stage 5 (L_d = 0): the benchmarks time
+    L_d and L_i alone this way. ``film`` accumulates into an existing film (its sample count grows by
+    ``spp``) and ``first_sample`` selects the samples' random streams: frames with consecutive
+    ``first_sample`` equal one render with all their samples (:mod:`runtime.wavefront`).
+    """
     m = scene.medium()
     kind, vec, rgb = scene.packed_lights()
     env = environment_radiance(scene)
-    film = Film(scene.camera.width, scene.camera.height)
+    film = film if film is not None else Film(scene.camera.width, scene.camera.height)
+    if (film.width, film.height) != (scene.camera.width, scene.camera.height):
+        raise ValueError(f"film is {film.width}x{film.height}, camera {scene.camera.width}x{scene.camera.height}")
     timer = StageTimer()
     t_start = time.perf_counter()
     n_rays = n_samples = 0
     for rays in primary_ray_batches(scene, film, timer, spp=spp, seed=seed, batch_size=batch_size,
-                                    progress=progress, desc=desc):
+                                    progress=progress, desc=desc, first_sample=first_sample):
         n_rays += len(rays)
         with timer("sample_first_interactions"):
             hit, albedo = sample_first_interactions(m, rays)
@@ -100,12 +109,15 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator, *, spp:
         n_samples += len(rays)
         if len(rays) == 0:
             continue
-        with timer("estimate_indirect"):
-            q = estimator(rays.o, rays.d, scene.g)
-        with timer("estimate_direct"):
-            direct = direct_light_batch(m, kind, vec, rgb, scene.g, rays.o, rays.d, rays.rng, False)
-        with timer("compose"):
-            film.splat("L_d", rays.pixel, albedo * direct)
-            film.splat("L_i", rays.pixel, albedo * q)
+        if estimator is not None:
+            with timer("estimate_indirect"):
+                q = estimator(rays.o, rays.d, scene.g)
+            with timer("compose"):
+                film.splat("L_i", rays.pixel, albedo * q)
+        if direct:
+            with timer("estimate_direct"):
+                nee = direct_light_batch(m, kind, vec, rgb, scene.g, rays.o, rays.d, rays.rng, False)
+            with timer("compose"):
+                film.splat("L_d", rays.pixel, albedo * nee)
     return finish(film, timer, spp, t_start, {"rays_in_volume": float(n_rays), "samples_in_volume": float(n_samples),
                                              "compaction_removed": 1.0 - n_samples / max(n_rays, 1)})

@@ -49,6 +49,7 @@ __all__ = [
     "read_exr",
     "srgb_oetf",
     "tonemap_srgb",
+    "auto_exposure_stops",
     "write_exr",
     "write_image_set",
     "write_png",
@@ -246,6 +247,13 @@ def _auto_scale(rgb: np.ndarray, finite: np.ndarray) -> float:
     if ref <= 0.0:  # a few lit pixels on black (e.g. fireflies): expose for the brightest one
         ref = float(lum.max())
     return min(1.0 / ref, _MAX_SCALE) if ref > 0.0 else 1.0  # all black stays black
+
+
+def auto_exposure_stops(rgb: np.ndarray) -> float:
+    """The exposure (stops) that automatic exposure would pick for ``rgb`` (H, W, 3): to keep it fixed over
+    a sequence of frames, so brightness does not flicker."""
+    arr = np.asarray(rgb, dtype=np.float64)
+    return float(np.log2(_auto_scale(arr, np.all(np.isfinite(arr), axis=-1))))
 
 
 def tonemap_srgb(rgb: np.ndarray, exposure: float | None = None) -> np.ndarray:

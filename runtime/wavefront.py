@@ -54,16 +54,21 @@ def environment_radiance(scene: Scene) -> np.ndarray | None:
 
 
 def primary_ray_batches(scene: Scene, film: Film, timer: StageTimer, *, spp: int, seed: int, batch_size: int,
-                        progress: bool, desc: str) -> Iterator[RayBatch]:
+                        progress: bool, desc: str, first_sample: int = 0) -> Iterator[RayBatch]:
     """Yield compacted batches of camera rays clipped to the volume box. Rays that miss the box add
-    the environment (if any) to L_e and are dropped at once."""
+    the environment (if any) to L_e and are dropped at once.
+
+    Work item ``w = sample * pixels + pixel`` owns random stream ``w``; this call covers samples
+    ``first_sample .. first_sample + spp - 1``, so frames rendered with consecutive ``first_sample``
+    add up to exactly the image of one render with all their samples (progressive accumulation)."""
     cam = scene.camera
     m = scene.medium()
     env = environment_radiance(scene)
-    total = cam.width * cam.height * spp
+    n_pixels = cam.width * cam.height
+    first, total = first_sample * n_pixels, n_pixels * spp
     with tqdm(total=total, desc=desc, unit="spl", unit_scale=True, disable=not progress, leave=False) as bar:
-        for start in range(0, total, batch_size):
-            work = np.arange(start, min(start + batch_size, total), dtype=np.int64)
+        for start in range(first, first + total, batch_size):
+            work = np.arange(start, min(start + batch_size, first + total), dtype=np.int64)
             with timer("generate_camera_rays"):
                 rays = generate_camera_rays(cam, work, seed)
             with timer("clip_rays_to_volume"):
@@ -77,7 +82,8 @@ def primary_ray_batches(scene: Scene, film: Film, timer: StageTimer, *, spp: int
 
 
 def finish(film: Film, timer: StageTimer, spp: int, t_start: float, stats: dict[str, float]) -> RenderResult:
-    film.samples = spp
+    """Close a render of ``spp`` new samples per pixel into ``film`` (which may hold earlier frames)."""
+    film.samples += spp
     wall = time.perf_counter() - t_start
     timings = dict(timer.ms)
     timings["total"] = wall * 1e3
