@@ -1,10 +1,12 @@
 """The versioned contract between training (train/) and the runtime (runtime/).
 
 Everything both sides must agree on lives here, once: file-format names and versions, the default phase
-set, the scene fingerprint, the field's input conventions and target encoding (Eq. 6 / 7). This package
+set, the scene fingerprint, the field's input conventions and target encoding (Eq. 6 / 7), the field
+bundle's layout and manifest schema (:mod:`models_spec.bundle`). This package
 depends on nothing but numpy and the standard library, so the runtime can import it with torch absent.
 """
 
+from models_spec.bundle import BUNDLE_FORMAT, BUNDLE_VERSION
 from models_spec.encoding import (
     DEFAULT_PSI,
     FieldConfig,
@@ -17,4 +19,5 @@ from models_spec.fingerprint import scene_fingerprint
 from models_spec.photon_map import DEFAULT_PHASES, PHOTON_MAP_FORMAT, PHOTON_MAP_VERSION
 
 __all__ = ["scene_fingerprint", "DEFAULT_PHASES", "PHOTON_MAP_FORMAT", "PHOTON_MAP_VERSION", "DEFAULT_PSI",
-           "FieldConfig", "encode_radiance", "decode_radiance", "normalize_position", "direction_input"]
+           "FieldConfig", "encode_radiance", "decode_radiance", "normalize_position", "direction_input",
+           "BUNDLE_FORMAT", "BUNDLE_VERSION"]

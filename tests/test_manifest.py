@@ -1,0 +1,133 @@
+"""The bundle manifest contract (models_spec.bundle): schema file in sync, validator accepts what the
+exporter builds and names the first bad field in one line, versions are refused with their own words."""
+
+from __future__ import annotations
+
+import copy
+import json
+import subprocess
+import sys
+
+import pytest
+
+from models_spec.bundle import (
+    BUNDLE_VERSION,
+    MANIFEST_SCHEMA,
+    SCHEMA_PATH,
+    BundleError,
+    build_manifest,
+    input_layout,
+    manifest_text,
+    parse_manifest_bytes,
+    schema_json,
+    training_summary,
+    validate_manifest,
+)
+from models_spec.encoding import FieldConfig
+from models_spec.hashgrid import HASH_PRIMES, HashGridConfig, total_table_rows
+
+CFG = FieldConfig(HashGridConfig(3, 5, 2, 10, 4, 1.6), HashGridConfig(2, 3, 4, 8, 4, 2.0), 32, 2, 5.0,
+                  (-0.75, 0.0, 0.75))
+
+
+def good_manifest() -> dict:
+    files = {"field.onnx": {"sha256": "1" * 64, "bytes": 100}, "tables.npz": {"sha256": "2" * 64, "bytes": 200}}
+    training = training_summary(preset="tiny", steps=50, batch=1024, final_loss=float("nan"),
+                                validation={"step": 50, "val_loss": 0.1, "val_rel_l1": 0.3}, wall_s=2.5)
+    return build_manifest(CFG, bmin=[-0.5, -0.4, -0.3], bsize=[1.0, 0.8, 0.6], scene_fingerprint="a" * 64,
+                          training=training, tables_dtype="float32", files=files)
+
+
+def test_schema_file_is_generated_from_the_dict() -> None:
+    assert SCHEMA_PATH.read_text() == schema_json(), "regenerate: python -c 'from models_spec.bundle import *; " \
+                                                     "SCHEMA_PATH.write_text(schema_json())'"
+    assert json.loads(SCHEMA_PATH.read_text()) == MANIFEST_SCHEMA
+    assert MANIFEST_SCHEMA["properties"]["hash_primes"]["const"] == [int(p) for p in HASH_PRIMES]
+
+
+def test_schema_agrees_with_jsonschema_if_installed() -> None:
+    jsonschema = pytest.importorskip("jsonschema")
+    jsonschema.Draft202012Validator.check_schema(MANIFEST_SCHEMA)
+    jsonschema.validate(good_manifest(), MANIFEST_SCHEMA)
+
+
+def test_good_manifest_round_trips() -> None:
+    doc = good_manifest()
+    text = manifest_text(doc)
+    assert text == manifest_text(good_manifest())  # deterministic text
+    m = parse_manifest_bytes(text.encode())
+    assert m.config == CFG and m.input_width == 5 * 2 + 3 * 4 + 1
+    assert list(m.bmin) == [-0.5, -0.4, -0.3] and m.tables_dtype == "float32"
+    assert m.training["final_loss"] is None  # NaN is not JSON: written as null
+    assert m.training["validation"] == {"val_loss": 0.1, "val_rel_l1": 0.3}
+    assert doc["inputs"]["layout"] == input_layout(CFG)
+    assert doc["tables"]["arrays"]["position"]["shape"] == [total_table_rows(CFG.position), 2]
+
+
+def _set(doc: dict, path: str, value: object) -> None:
+    keys = path.split(".")
+    for k in keys[:-1]:
+        doc = doc[int(k)] if isinstance(doc, list) else doc[k]
+    if value is _DELETE:
+        del doc[keys[-1]]
+    else:
+        doc[keys[-1]] = value
+
+
+_DELETE = object()
+
+BAD = [
+    ("format", "other", "not a photon-field bundle manifest"),
+    ("version", BUNDLE_VERSION + 1, "newer than this build reads"),
+    ("version", 0, "unknown bundle version 0"),
+    ("version", "1", "unknown bundle version \"1\""),
+    ("field.position.levels", "x", "field.position.levels: must be an integer"),
+    ("field.position.levels", 0, "field.position.levels: must be >= 1"),
+    ("field.direction.features", 3, "field.direction.features: must be one of"),
+    ("field.psi", 0, "field.psi: must be > 0"),
+    ("field.phases", [], "field.phases: must have at least 1"),
+    ("field.hidden_width", 1.5, "field.hidden_width: must be an integer"),
+    ("hash_primes", [1, 2, 3], "hash_primes: must be [1, 2654435761, 805459861]"),
+    ("domain.bsize", [1.0, 0.0, 1.0], "domain.bsize[1]: must be > 0"),
+    ("domain.bmin", [0, 0], "domain.bmin: must have at least 3"),
+    ("domain.bmin", _DELETE, "domain.bmin: missing"),
+    ("inputs.width", 99, "inputs.width: must be 23"),
+    ("inputs.layout.1.start", 7, "inputs.layout: must be"),
+    ("tables.dtype", "float64", "tables.dtype: must be one of"),
+    ("tables.arrays.position.shape", [10, 2], "tables.arrays.position.shape: must be ["),
+    ("encodings.position.level_hashed", [False] * 5, "another hash-grid definition"),
+    ("scene_fingerprint", "xyz", "scene_fingerprint: must match"),
+    ("training.steps", -1, "training.steps: must be >= 0"),
+    ("extra", 1, "extra: unknown field"),
+]
+
+
+@pytest.mark.parametrize("path, value, expect", BAD, ids=lambda v: str(v)[:30])
+def test_validator_names_the_first_problem_in_one_line(path: str, value: object, expect: str) -> None:
+    doc = copy.deepcopy(good_manifest())
+    if path == "extra":
+        doc["extra"] = value
+    else:
+        _set(doc, path, value)
+    with pytest.raises(BundleError) as err:
+        validate_manifest(doc)
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith("manifest.json")
+    assert expect in msg, msg
+
+
+def test_missing_file_entry_and_non_json() -> None:
+    doc = good_manifest()
+    del doc["files"]["field.onnx"]
+    with pytest.raises(BundleError, match=r"files\.field\.onnx: missing"):
+        validate_manifest(doc)
+    for data, match in ((b"{", "not valid JSON"), (b"\xff\xfe", "not valid JSON"), (b"[1]", "must be a JSON object"),
+                        (manifest_text(good_manifest()).replace("0.1", "NaN").encode(), "not valid JSON")):
+        with pytest.raises(BundleError, match=match):
+            parse_manifest_bytes(data)
+
+
+def test_models_spec_bundle_needs_no_torch_or_onnx() -> None:
+    code = ("import sys, models_spec.bundle; bad = {'torch', 'onnx', 'onnxruntime', 'numba'} & set(sys.modules); "
+            "assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True)
