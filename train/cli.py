@@ -6,10 +6,13 @@ Examples::
     pfn-train trace my_scene.json --photons 3M --phases -0.75 0 0.75 --seed 7 --out maps/mine.npz
     pfn-train fit vortex --map maps/vortex.npz --out runs/vortex/            # preset cpu
     pfn-train fit vortex --map maps/vortex.npz --out runs/paper/ --preset paper
-    pfn-train all blobs --photons 1M --out runs/blobs/                       # trace (runs/blobs/map.npz) + fit
+    pfn-train all blobs --photons 1M --out runs/blobs/                       # trace + fit + export
+    pfn-train export runs/vortex/ --out fields/vortex.pfn                    # the bundle for pfn-render
 
-``fit`` writes ``checkpoint.pt``, ``log.json`` and ``loss.png`` into the ``--out`` folder (see
-:mod:`train.fit`). Options left out come from the preset (``--preset``: cpu, paper, tiny).
+``fit`` writes ``checkpoint.pt``, ``log.json``, ``loss.png`` and ``domain.json`` (the world box, for the
+export) into the ``--out`` folder (see :mod:`train.fit`). Options left out come from the preset
+(``--preset``: cpu, paper, tiny). ``export`` writes the runtime's bundle (:mod:`train.export`); ``all``
+ends with it (``OUT/field.pfn``, replaced if present).
 
 Bad input exits with status 2 and one line on stderr: ``error: <input>: <problem>``.
 """
@@ -74,7 +77,19 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--photons", default="1M", help="records to store, e.g. 1M, 250k")
     a.add_argument("--phases", type=float, nargs="+", default=list(DEFAULT_PHASES), help="the phase set G")
     a.add_argument("--max-bounces", type=int, default=16, help="max collisions per photon path")
+    a.add_argument("--tables-dtype", choices=["float32", "float16"], default="float32",
+                   help="hash-table precision in the exported bundle")
     _add_fit_options(a)
+
+    e = sub.add_parser("export", help="export a run's checkpoint as a field bundle (NAME.pfn) for the runtime",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    e.add_argument("run", help="run folder of pfn-train fit (checkpoint.pt, domain.json)")
+    e.add_argument("--out", default=None, help="bundle directory to write, NAME.pfn (default: RUN/field.pfn)")
+    e.add_argument("--scene", default=None, help="the scene trained for (needed only when the run folder has no "
+                                                 "domain.json)")
+    e.add_argument("--tables-dtype", choices=["float32", "float16"], default="float32",
+                   help="hash-table precision (float16: half the size, L' within ~1e-3)")
+    e.add_argument("--force", action="store_true", help="replace an existing bundle")
     return p
 
 
@@ -150,9 +165,11 @@ def _set_all_threads(threads: int | None) -> None:
 
 
 def _run_fit(args: argparse.Namespace, scene, pmap, settings) -> int:  # noqa: ANN001
+    from train.export import write_run_domain
     from train.fit import fit
 
     out = Path(args.out)
+    write_run_domain(out, scene, args.scene)  # the world box the export needs (checkpoints do not hold it)
     result = fit(scene, pmap, out, settings, progress=not args.quiet)
     t = result.log["totals"]
     val = t["final_validation"] or {}
@@ -192,13 +209,37 @@ def cmd_all(args: argparse.Namespace) -> int:
     map_path = pmap.save(out / "map.npz")
     secs = pmap.metadata()["trace_seconds"]
     print(f"traced {len(pmap):,} photons in {secs:.2f} s -> {map_path}")
-    return _run_fit(args, scene, pmap, settings)
+    _run_fit(args, scene, pmap, settings)
+    from train.export import export_bundle
+
+    res = export_bundle(out, out / "field.pfn", tables_dtype=args.tables_dtype, force=True)
+    _print_export(res)
+    return 0
+
+
+def _print_export(res) -> None:  # noqa: ANN001  (train.export is imported lazily)
+    mb = sum(res.files.values()) / 1e6
+    check = f", verified (max |dL'| {res.verify_max_abs_diff:.2g})" if res.verify_max_abs_diff is not None else ""
+    print(f"exported {res.path} ({mb:.1f} MB, tables {res.manifest['tables']['dtype']}{check}) in {res.seconds:.1f} s")
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from train.export import export_bundle
+
+    scene = None
+    if args.scene is not None:
+        from runtime.scene import load_scene
+
+        scene = load_scene(args.scene)
+    res = export_bundle(args.run, args.out, scene=scene, tables_dtype=args.tables_dtype, force=args.force)
+    _print_export(res)
+    return 0
 
 
 @guarded
 def _main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return {"trace": cmd_trace, "fit": cmd_fit, "all": cmd_all}[args.command](args)
+    return {"trace": cmd_trace, "fit": cmd_fit, "all": cmd_all, "export": cmd_export}[args.command](args)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,0 +1,434 @@
+"""A trained photon field at render time: load a ``NAME.pfn`` bundle and query it, without torch.
+
+``P(x, g, omega)`` of the paper (Sec. 3.1, Eq. 2; network of Sec. 3.4, Fig. 5) evaluated as Alg. 2's
+indirect-light estimate needs it: both hash encodings (numba, :mod:`runtime.hashgrid`, bit-exact with
+training's), the MLP in onnxruntime, Eq. 7 to decode. The bundle format is :mod:`models_spec.bundle`.
+
+Python API::
+
+    from runtime.field import PhotonField
+    field = PhotonField.load("runs/vortex/field.pfn", threads=2)          # validates everything
+    L = field.query(x, omega, g)          # x (N, 3) world, omega (N, 3) unit travel directions, g (N,) or scalar
+    Lp = field.query_encoded(x, omega, g) # L' (Eq. 6 space), what the ONNX model outputs
+    q = field.estimator()                 # runtime.first_interaction.IndirectEstimator: (3, n) in and out
+    print(field.timers)                   # encode (position, direction) / inference / decode seconds
+
+``load(path, *, threads=None, precision="fp32", expected_fingerprint=None, force=False, chunk=...)``
+----------------------------------------------------------------------------------------------------
+path : the bundle directory.
+threads : worker threads for the hash encoding (numba, set around each query and restored) and for
+    onnxruntime's intra-op pool; None: numba's current setting and all cores for onnxruntime.
+precision : "fp32" (default; the exact path: L' within 1e-5 of the torch model, tests/test_bundle.py) or
+    "int8" (onnxruntime dynamic quantization of the MLP's weights at load time, :data:`INT8_ABS_BOUND`).
+    fp16 is not offered: see "Precision" below.
+expected_fingerprint : the scene's :meth:`runtime.scene.Scene.fingerprint`; a bundle trained for another
+    scene is refused unless ``force``.
+chunk : queries per onnxruntime call (the encode buffer holds ``chunk`` rows; default :data:`DEFAULT_CHUNK`).
+spinning : let onnxruntime's idle workers spin (default False, see "Threads").
+
+Every refusal is a one-line :class:`runtime.errors.InputError` naming the file and the problem: bundle or
+file missing, manifest not JSON / failing the schema / another format / a newer version, a file whose size
+or sha256 differs from the manifest (corrupt, truncated, replaced), a tables.npz with other arrays, another
+shape or dtype, non-finite values or a pickled object array (refused, never unpickled), an ONNX model with
+external data, failing ``onnx.checker``, or with an input width other than the encodings' features + 1,
+and a scene fingerprint mismatch.
+
+Query pipeline, per chunk of ``chunk`` queries, into one reused float32 buffer (chunk, W):
+``normalize_position`` + position hash encoding into columns ``[0, Lp Fp)``; ``direction_input`` + direction
+encoding into ``[Lp Fp, Lp Fp + Ld Fd)`` (``runtime.hashgrid.encode(out=buf, col=...)``: no concatenation
+copy); g into the last column; ``InferenceSession.run`` on the buffer. Eq. 7 (``decode_radiance`` of
+:mod:`models_spec.encoding`, the same function training's targets are checked with) runs once over the
+whole result. ``field.timers`` accumulates seconds per stage over calls (``reset()`` clears them).
+
+Threads
+-------
+numba's workers and onnxruntime's pool alternate on the same cores, chunk after chunk. onnxruntime's
+workers spin after each run by default and then steal the core the next numba kernel needs;
+``allow_spinning = 0`` makes them sleep. ``bench/bench_field.py`` measures both (``--spinning``).
+
+Precision (measured, ``bench/bench_field.py``; ``../shared/measurements.md`` agrees)
+----------------------------------------------------------------------------------
+- fp16 MLP (weights and activations float16 in onnxruntime): not faster than fp32 on this CPU (no native
+  fp16 GEMM in onnxruntime's x86 CPU kernels; the casts cost extra) with ~1e-4 abs error: not offered.
+- fp16 *tables* (``pfn-train export --tables-dtype float16``): half the bundle size; the runtime widens
+  them to float32 at load (numba has no float16 on the CPU), so speed is unchanged and the runtime still
+  equals the torch model evaluated with the same float16-rounded tables exactly (within 1e-5 on L'); the
+  rounding itself changes L' by up to ~1e-3 (relative table error 2^-11), documented in the README.
+- int8 dynamic quantization of the MLP: offered as ``precision="int8"`` only as an opt-in with the looser
+  bound :data:`INT8_ABS_BOUND` on L'; its speed is in bench/results/field.json.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+import zipfile
+from collections.abc import Iterator
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from models_spec.bundle import (
+    MANIFEST_FILE,
+    MAX_MANIFEST_BYTES,
+    ONNX_FILE,
+    ONNX_INPUT,
+    ONNX_OUTPUT,
+    TABLE_ARRAYS,
+    TABLES_FILE,
+    BundleError,
+    Manifest,
+    check_table,
+    file_digest,
+    parse_manifest_bytes,
+)
+from models_spec.encoding import OUTPUT_CHANNELS, decode_radiance, direction_input, normalize_position
+from runtime.errors import InputError
+from runtime.hashgrid import aligned_table, encode
+
+#: Queries per onnxruntime call (bench/bench_field.py sweeps it: 2^14 keeps the encode buffer of the
+#: paper architecture (257 floats per row, 16 MB) within reach of the caches, and larger chunks bought
+#: nothing measurable).
+DEFAULT_CHUNK = 1 << 14
+PRECISIONS = ("fp32", "int8")
+#: Max abs difference on L' (Eq. 6 space) of the int8 path against fp32, the looser bound it is tested
+#: against (tests/test_runtime_field.py); a relative radiance error of up to ln(10) psi times this.
+INT8_ABS_BOUND = 2e-2
+
+
+@dataclass
+class FieldTimers:
+    """Seconds per query stage, accumulated over calls (``queries``: points evaluated)."""
+
+    encode_position_s: float = 0.0
+    encode_direction_s: float = 0.0
+    inference_s: float = 0.0
+    decode_s: float = 0.0
+    queries: int = 0
+    calls: int = 0
+
+    def reset(self) -> None:
+        for f in fields(self):
+            setattr(self, f.name, type(getattr(self, f.name))(0))
+
+    @property
+    def total_s(self) -> float:
+        return self.encode_position_s + self.encode_direction_s + self.inference_s + self.decode_s
+
+    def to_dict(self) -> dict[str, float]:
+        return {**{f.name: getattr(self, f.name) for f in fields(self)}, "total_s": self.total_s}
+
+
+def _bundle_error(err: BundleError, bundle: Path) -> InputError:
+    return InputError(f"{bundle}/{err.what}" if not err.what.startswith(str(bundle)) else err.what, err.problem)
+
+
+def _read_manifest(bundle: Path) -> Manifest:
+    path = bundle / MANIFEST_FILE
+    if not path.is_file():
+        raise InputError(str(path), "missing: not a photon-field bundle (no manifest.json)")
+    size = path.stat().st_size
+    if size > MAX_MANIFEST_BYTES:
+        raise InputError(str(path), f"is {size} bytes; a manifest is at most {MAX_MANIFEST_BYTES}")
+    try:
+        return parse_manifest_bytes(path.read_bytes(), MANIFEST_FILE)
+    except BundleError as err:
+        raise _bundle_error(err, bundle) from None
+
+
+def _check_file(bundle: Path, name: str, entry: dict[str, Any]) -> Path:
+    path = bundle / name
+    if not path.is_file():
+        raise InputError(str(path), "missing (the manifest lists it)")
+    size = path.stat().st_size
+    if size != entry["bytes"]:
+        kind = "truncated" if size < entry["bytes"] else "longer than the manifest says"
+        raise InputError(str(path), f"{kind}: {size} bytes, the manifest says {entry['bytes']}")
+    digest, _ = file_digest(path)
+    if digest != entry["sha256"]:
+        raise InputError(str(path), "checksum mismatch: sha256 differs from the manifest (corrupt or modified)")
+    return path
+
+
+def _load_tables(path: Path, manifest: Manifest) -> dict[str, np.ndarray]:
+    what = str(path)
+    try:
+        z = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise InputError(what, f"not a readable .npz: {exc}") from None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise InputError(what, "not an .npz archive")
+    tables: dict[str, np.ndarray] = {}
+    with z:
+        names = sorted(z.files)
+        if names != sorted(TABLE_ARRAYS):
+            # Unknown entries are refused by name, before anything is read from them.
+            raise InputError(what, f"must hold exactly the arrays {list(TABLE_ARRAYS)}, found {names}")
+        for name in TABLE_ARRAYS:
+            try:
+                a = z[name]
+            except ValueError as exc:  # object arrays: numpy refuses to unpickle with allow_pickle=False
+                if "pickle" in str(exc).lower():
+                    raise InputError(what, f"'{name}' is a pickled object array: refused (never unpickled)") from None
+                raise InputError(what, f"'{name}' is not a readable array: {exc}") from None
+            except (OSError, EOFError, zipfile.BadZipFile) as exc:
+                raise InputError(what, f"'{name}' is not a readable array: {exc}") from None
+            try:
+                check_table(manifest, name, a.shape, a.dtype, what)
+            except BundleError as err:
+                raise InputError(err.what, err.problem) from None
+            if not np.all(np.isfinite(a)):
+                raise InputError(what, f"'{name}' contains non-finite values")
+            # numba has no float16 on the CPU: widen once (exact), and align rows to cache lines.
+            tables[name] = aligned_table(np.ascontiguousarray(a, dtype=np.float32))
+    return tables
+
+
+def _check_onnx(path: Path, data: bytes, manifest: Manifest) -> Any:
+    import onnx
+
+    what = str(path)
+    try:
+        model = onnx.load_from_string(data)
+    except Exception as exc:  # protobuf's DecodeError and friends
+        raise InputError(what, f"not an ONNX model: {type(exc).__name__}: {exc}") from None
+    for init in model.graph.initializer:
+        if init.data_location == onnx.TensorProto.EXTERNAL:
+            raise InputError(what, f"initializer '{init.name}' uses external data; a bundle's field.onnx must be "
+                             "self-contained")
+    try:
+        onnx.checker.check_model(model, full_check=True)
+    except (onnx.checker.ValidationError, onnx.shape_inference.InferenceError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(what, f"fails onnx.checker: {first}") from None
+    init_names = {i.name for i in model.graph.initializer}
+    inputs = [i for i in model.graph.input if i.name not in init_names]
+    if [i.name for i in inputs] != [ONNX_INPUT]:
+        raise InputError(what, f"must have one input '{ONNX_INPUT}', has {[i.name for i in inputs]}")
+    if [o.name for o in model.graph.output] != [ONNX_OUTPUT]:
+        raise InputError(what, f"must have one output '{ONNX_OUTPUT}', has {[o.name for o in model.graph.output]}")
+    want = {"input": manifest.input_width, "output": OUTPUT_CHANNELS}
+    for kind, value in (("input", inputs[0]), ("output", model.graph.output[0])):
+        tt = value.type.tensor_type
+        if tt.elem_type != onnx.TensorProto.FLOAT:
+            raise InputError(what, f"{kind} '{value.name}' must be float32, has element type "
+                             f"{onnx.TensorProto.DataType.Name(tt.elem_type)}")
+        dims = tt.shape.dim
+        width = dims[1].dim_value if len(dims) == 2 and dims[1].HasField("dim_value") else None
+        if len(dims) != 2 or dims[0].HasField("dim_value") or width is None:
+            raise InputError(what, f"{kind} '{value.name}' must have shape (batch, {want[kind]}) with a dynamic "
+                             "batch axis")
+        if width != want[kind]:
+            meaning = "the encodings' features + g" if kind == "input" else "RGB"
+            raise InputError(what, f"{kind} width {width} does not match the manifest: {meaning} needs "
+                             f"{want[kind]}")
+    return model
+
+
+def _session(model_bytes: bytes, what: str, threads: int | None, spinning: bool) -> Any:
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = 0 if threads is None else int(threads)
+    so.inter_op_num_threads = 1  # one chain of MatMuls: nothing to run side by side
+    so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    so.log_severity_level = 3  # errors only: no per-session warnings on stderr
+    so.add_session_config_entry("session.intra_op.allow_spinning", "1" if spinning else "0")
+    try:
+        return ort.InferenceSession(model_bytes, so, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own exception types
+        raise InputError(what, f"onnxruntime cannot load it: {str(exc).splitlines()[0] if str(exc) else exc}") from None
+
+
+def quantize_int8(model: Any) -> bytes:
+    """The MLP with int8 weights (onnxruntime dynamic quantization: activations quantized per call)."""
+    import tempfile
+
+    import onnx
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+
+    # quantize_dynamic works on files; a private temporary folder keeps it away from the bundle.
+    with tempfile.TemporaryDirectory(prefix="pfn-int8-") as tmp:
+        src, dst = Path(tmp) / "fp32.onnx", Path(tmp) / "int8.onnx"
+        onnx.save(model, src)
+        import logging
+
+        logger = logging.getLogger()
+        level = logger.level
+        logger.setLevel(logging.ERROR)  # it logs a "consider pre-processing" warning for every model
+        try:
+            quantize_dynamic(src, dst, weight_type=QuantType.QInt8)
+        finally:
+            logger.setLevel(level)
+        return dst.read_bytes()
+
+
+@contextlib.contextmanager
+def _numba_threads(threads: int | None) -> Iterator[None]:
+    if threads is None:
+        yield
+        return
+    import numba
+
+    previous = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(previous)
+
+
+class PhotonField:
+    """A loaded bundle (see the module docstring). Not thread-safe: one encode buffer is reused per call."""
+
+    def __init__(self, path: Path, manifest: Manifest, tables: dict[str, np.ndarray], session: Any, *,
+                 threads: int | None, precision: str, chunk: int, spinning: bool) -> None:
+        self.path = path
+        self.manifest = manifest
+        self.config = manifest.config
+        self.bmin, self.bsize = manifest.bmin, manifest.bsize
+        self.scene_fingerprint = manifest.scene_fingerprint
+        self.position_table = tables["position"]
+        self.direction_table = tables["direction"]
+        self.session = session
+        self.threads, self.precision, self.chunk, self.spinning = threads, precision, int(chunk), spinning
+        self.timers = FieldTimers()
+        self._dir_col = self.config.position.output_dims
+        self._buffer = np.empty((0, self.config.input_dims), np.float32)
+
+    # ------------------------------------------------------------------------------------------------
+    @classmethod
+    def load(cls, path: str | os.PathLike[str], *, threads: int | None = None, precision: str = "fp32",
+             expected_fingerprint: str | None = None, force: bool = False, chunk: int = DEFAULT_CHUNK,
+             spinning: bool = False) -> PhotonField:
+        """Load and validate a bundle (module docstring); one-line InputError on any problem."""
+        bundle = Path(path)
+        if precision not in PRECISIONS:
+            raise InputError("precision", f"must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+        if threads is not None:
+            import numba
+
+            if isinstance(threads, bool) or not isinstance(threads, int) or \
+                    not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
+                raise InputError("threads", f"must be an integer in [1, {numba.config.NUMBA_NUM_THREADS}], got "
+                                 f"{threads!r}")
+        if isinstance(chunk, bool) or not isinstance(chunk, int) or not 1 <= chunk <= 1 << 22:
+            raise InputError("chunk", f"must be an integer in [1, {1 << 22}], got {chunk!r}")
+        if not bundle.exists():
+            raise InputError(str(bundle), "bundle not found")
+        if not bundle.is_dir():
+            raise InputError(str(bundle), "is a file; a bundle is a NAME.pfn directory (manifest.json, field.onnx, "
+                             "tables.npz)")
+        manifest = _read_manifest(bundle)
+        if expected_fingerprint is not None and manifest.scene_fingerprint != expected_fingerprint and not force:
+            raise InputError(str(bundle), "was trained for another scene (fingerprint mismatch: volume, transfer "
+                             "function or lights differ); retrain, or force to use it anyway")
+        onnx_path = _check_file(bundle, ONNX_FILE, manifest.files[ONNX_FILE])
+        tables_path = _check_file(bundle, TABLES_FILE, manifest.files[TABLES_FILE])
+        data = onnx_path.read_bytes()
+        model = _check_onnx(onnx_path, data, manifest)
+        tables = _load_tables(tables_path, manifest)
+        if precision == "int8":
+            data = quantize_int8(model)
+        session = _session(data, str(onnx_path), threads, spinning)
+        return cls(bundle, manifest, tables, session, threads=threads, precision=precision, chunk=chunk,
+                   spinning=spinning)
+
+    # ------------------------------------------------------------------------------------------------
+    @property
+    def input_width(self) -> int:
+        return self.config.input_dims
+
+    def _inputs(self, x: Any, omega: Any, g: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        x = np.asarray(x)
+        omega = np.asarray(omega)
+        if x.ndim != 2 or x.shape[1] != 3:
+            raise InputError("query x", f"must have shape (N, 3), got {x.shape}")
+        n = x.shape[0]
+        if omega.shape != (n, 3):
+            raise InputError("query omega", f"must have shape ({n}, 3) like x, got {omega.shape}")
+        ga = np.asarray(g, dtype=np.float32)
+        if ga.ndim == 0:
+            ga = np.full(n, ga, np.float32)
+        elif ga.shape != (n,):
+            raise InputError("query g", f"must be a scalar or have shape ({n},), got {ga.shape}")
+        if not np.all(np.isfinite(ga)):
+            raise InputError("query g", "must be finite")
+        return x, omega, ga
+
+    def _buf(self, m: int) -> np.ndarray:
+        if self._buffer.shape[0] < m:
+            self._buffer = np.empty((m, self.input_width), np.float32)
+        return self._buffer[:m]
+
+    def encode_inputs(self, x: Any, omega: Any, g: Any) -> np.ndarray:
+        """The MLP input (N, W) float32 for N queries (one buffer, no chunking; for tests and inspection)."""
+        x, omega, ga = self._inputs(x, omega, g)
+        out = np.empty((x.shape[0], self.input_width), np.float32)
+        self._encode_into(out, x, omega, ga)
+        return out
+
+    def _encode_into(self, buf: np.ndarray, x: np.ndarray, omega: np.ndarray, ga: np.ndarray) -> None:
+        cfg, t = self.config, self.timers
+        t0 = time.perf_counter()
+        try:
+            encode(cfg.position, self.position_table, normalize_position(x, self.bmin, self.bsize), out=buf)
+            t1 = time.perf_counter()
+            encode(cfg.direction, self.direction_table, direction_input(omega), out=buf, col=self._dir_col)
+        except ValueError as exc:  # non-finite or absurdly far positions / directions
+            raise InputError("query", str(exc)) from None
+        t2 = time.perf_counter()
+        buf[:, -1] = ga
+        t.encode_position_s += t1 - t0
+        t.encode_direction_s += t2 - t1
+
+    def query_encoded(self, x: Any, omega: Any, g: Any) -> np.ndarray:
+        """L' (Eq. 6 space, the ONNX output) as float32 (N, 3) for world positions x (N, 3), unit camera-ray
+        travel directions omega (N, 3) and g (N,) or a scalar."""
+        x, omega, ga = self._inputs(x, omega, g)
+        n = x.shape[0]
+        out = np.empty((n, OUTPUT_CHANNELS), np.float32)
+        t = self.timers
+        with _numba_threads(self.threads):
+            for a in range(0, n, self.chunk):
+                b = min(n, a + self.chunk)
+                buf = self._buf(b - a)
+                self._encode_into(buf, x[a:b], omega[a:b], ga[a:b])
+                t0 = time.perf_counter()
+                out[a:b] = self.session.run([ONNX_OUTPUT], {ONNX_INPUT: buf})[0]
+                t.inference_s += time.perf_counter() - t0
+        t.queries += n
+        t.calls += 1
+        return out
+
+    def query(self, x: Any, omega: Any, g: Any) -> np.ndarray:
+        """Radiance Q(x, omega, g) float32 (N, 3): :meth:`query_encoded` decoded by Eq. 7 (psi of the bundle)."""
+        Lp = self.query_encoded(x, omega, g)
+        t0 = time.perf_counter()
+        L = decode_radiance(Lp, self.config.psi)
+        self.timers.decode_s += time.perf_counter() - t0
+        return L
+
+    def estimator(self) -> FieldEstimator:
+        """This field as the renderer's :class:`runtime.first_interaction.IndirectEstimator`."""
+        return FieldEstimator(self)
+
+    def describe(self) -> dict[str, Any]:
+        """What was loaded (for reports)."""
+        return {"path": str(self.path), "precision": self.precision, "threads": self.threads, "chunk": self.chunk,
+                "spinning": self.spinning, "input_width": self.input_width,
+                "field": self.config.to_dict(), "training": self.manifest.training,
+                "scene_fingerprint": self.scene_fingerprint}
+
+
+class FieldEstimator:
+    """Q(x, d, g) from a photon field (Alg. 2's network query): ``x``, ``d`` (3, n) -> float32 (3, n)."""
+
+    def __init__(self, field: PhotonField) -> None:
+        self.field = field
+
+    def __call__(self, x: np.ndarray, d: np.ndarray, g: float) -> np.ndarray:
+        return np.ascontiguousarray(self.field.query(np.asarray(x).T, np.asarray(d).T, g).T)
