@@ -4,6 +4,8 @@ Examples::
 
     pfn-render --scene vortex --method pt --spp 64 --size 512x512 --out out/vortex.exr
     pfn-render --scene my_scene.json --method raymarch --g 0.5 --out out/marched.exr
+    pfn-render --method field --bundle run/field.pfn --scene vortex --g 0.3 --spp 4 --size 512x512 --out img.exr
+    pfn-render --method field --bundle run/field.pfn --scene vortex --orbit 120 --out orbit/frame.exr
 
 Bad input exits with status 2 and one line on stderr: ``error: <input>: <problem>``.
 """
@@ -22,7 +24,7 @@ from typing import Any
 from runtime.cli_common import OneLineArgumentParser, check_seed, guarded, positive_int, prepare_output, set_threads
 from runtime.errors import InputError
 
-METHODS = ("pt", "raymarch", "photonmap")
+METHODS = ("pt", "raymarch", "photonmap", "field")
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -42,7 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scene", default="vortex", help="builtin scene name (vortex, blobs, shell) or a scene JSON file")
     p.add_argument("--method", choices=METHODS, default="pt", help="pt: volumetric path tracer (reference); "
                    "raymarch: single-scattering ray marcher with global shadows; photonmap: first interactions "
-                   "+ NEE + the photon-map estimate of L_i (needs --map)")
+                   "+ NEE + the photon-map estimate of L_i (needs --map); field: the neural renderer (Alg. 2), "
+                   "first interactions + NEE + the photon field's L_i (needs --bundle)")
     p.add_argument("--spp", type=int, default=16, help="samples (passes) per pixel")
     p.add_argument("--size", default=None, help="WIDTHxHEIGHT (default: the scene camera's)")
     p.add_argument("--g", type=float, default=None, help="Henyey-Greenstein g in [-1, 1] (default: the scene's)")
@@ -54,7 +57,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--k", type=int, default=1024, help="photonmap: photons per estimate (K)")
     p.add_argument("--radius", type=float, default=0.05,
                    help="photonmap: max search radius, in units of the volume box's longest side")
-    p.add_argument("--force", action="store_true", help="photonmap: use a map traced for another scene")
+    p.add_argument("--bundle", default=None, help="field: photon-field bundle (NAME.pfn) from `pfn-train export`")
+    p.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
+                   help="field: MLP precision (int8: dynamic quantization, faster, ~1e-3 looser)")
+    p.add_argument("--orbit", type=int, default=None,
+                   help="field: render N frames orbiting the volume to numbered files OUT_0000.exr ...")
+    p.add_argument("--orbit-degrees", type=float, default=360.0, help="field: total orbit angle")
+    p.add_argument("--force", action="store_true",
+                   help="photonmap / field: use a map or bundle made for another scene")
     p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     p.add_argument("--batch-size", type=int, default=1 << 18, help="work items per wavefront batch (memory bound)")
     p.add_argument("--exposure", type=float, default=None, help="PNG exposure in stops (default: automatic)")
@@ -88,6 +98,15 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         positive_int("--k", args.k, 1 << 16)
         if not (0 < args.radius <= 2 and math.isfinite(args.radius)):
             raise InputError("--radius", f"must be in (0, 2] box units, got {args.radius}")
+    if args.method == "field" and args.bundle is None:
+        raise InputError("--bundle", "--method field needs a bundle (pfn-train all SCENE --out run/ "
+                         "writes run/field.pfn)")
+    if args.orbit is not None:
+        if args.method != "field":
+            raise InputError("--orbit", "fly-around sequences are rendered with --method field")
+        positive_int("--orbit", args.orbit, 100_000)
+        if not math.isfinite(args.orbit_degrees):
+            raise InputError("--orbit-degrees", f"must be a finite angle, got {args.orbit_degrees}")
     set_threads(args.threads)
     scene = load_scene(args.scene)
     scene = scene.with_overrides(g=args.g, width=size[0], height=size[1])
@@ -99,6 +118,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         pmap = PhotonMap.load(args.map)
         check_map_matches_scene(pmap, scene, args.force)
         pmap.phase_index(scene.g, "--g")
+    field = None
+    if args.method == "field":
+        from runtime.field import PhotonField
+
+        field = PhotonField.load(args.bundle, threads=args.threads, precision=args.precision,
+                                 expected_fingerprint=scene.fingerprint(), force=args.force)
+    if args.orbit is not None:
+        return run_orbit(args, scene, field, out, spp)
     prepare_output(out, ".exr", (".png", ".json"))
 
     t0 = time.perf_counter()
@@ -112,15 +139,22 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
         result = render_ray_marched(scene, spp=spp, step=args.step, seed=args.seed, batch_size=args.batch_size,
                                     progress=not args.quiet)
-    else:
+    elif args.method == "photonmap":
         from runtime.photon_estimate import render_photon_mapped
 
         result = render_photon_mapped(scene, pmap, k=args.k, radius=args.radius, spp=spp, seed=args.seed,
                                       batch_size=args.batch_size, progress=not args.quiet, force=args.force)
+    else:
+        from runtime.neural_renderer import render_neural
+
+        result = render_neural(scene, field.estimator(), spp=spp, seed=args.seed, batch_size=args.batch_size,
+                               progress=not args.quiet)
     wall = time.perf_counter() - t0
     report = {"scene": scene.name, "method": args.method, "spp": spp, "seed": args.seed, "g": scene.g,
               "size": [scene.camera.width, scene.camera.height], "wall_s": wall,
               "timings_ms": result.timings_ms, "stats": result.stats, "scene_description": scene.to_dict()}
+    if field is not None:
+        report["field"] = field.describe()
     from runtime.atomic import atomic_write_text
     from runtime.image_io import write_image_set
 
@@ -133,13 +167,40 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     except OSError as exc:  # e.g. a full disk: one line, not a traceback
         raise InputError(str(json_path), f"cannot write the JSON report: {exc.strerror or exc}") from None
     written.append(json_path)
-    return {"wall_s": wall, "written": [str(p) for p in written]}
+    return {"wall_s": wall, "written": [str(p) for p in written], "timings_ms": result.timings_ms}
+
+
+def run_orbit(args: argparse.Namespace, scene: Any, field: Any, out: Path, spp: int) -> dict[str, Any]:
+    """``--orbit N``: N frames orbiting the volume, numbered files beside ``out``, a timings JSON."""
+    from runtime.neural_renderer import orbit_frame_paths, render_orbit
+
+    for path in orbit_frame_paths(out, args.orbit)[:1]:
+        prepare_output(path, ".exr", (".png",))
+    summary = render_orbit(scene, field.estimator(), out, frames=args.orbit, spp=spp, seed=args.seed,
+                           batch_size=args.batch_size, degrees=args.orbit_degrees, exposure=args.exposure,
+                           progress=not args.quiet)
+    files = summary["files"]
+    return {"wall_s": float(sum(summary["frame_s"])), "timings_ms": summary["stage_ms_per_frame"],
+            "written": [files[0], "...", files[-1], summary["timings_file"]] if len(files) > 2 else
+            [*files, summary["timings_file"]],
+            "orbit": f"{summary['frames']} frames, mean {summary['mean_s'] * 1e3:.0f} ms, median "
+                     f"{summary['median_s'] * 1e3:.0f} ms, p95 {summary['p95_s'] * 1e3:.0f} ms per frame"}
+
+
+def format_timings(timings_ms: dict[str, float]) -> str:
+    """Per-stage milliseconds in one line, largest first (the total last)."""
+    items = sorted(((k, v) for k, v in timings_ms.items() if k != "total"), key=lambda kv: -kv[1])
+    text = ", ".join(f"{k} {v:.0f}" for k, v in items)
+    return f"stages (ms): {text}" + (f"; total {timings_ms['total']:.0f}" if "total" in timings_ms else "")
 
 
 @guarded
 def _main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     info = run(args)
+    if "orbit" in info:
+        print(f"orbit: {info['orbit']}")
+    print(format_timings(info["timings_ms"]))
     print(f"rendered in {info['wall_s']:.2f} s -> " + ", ".join(info["written"]))
     return 0
 

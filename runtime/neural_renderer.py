@@ -69,10 +69,11 @@ def render_neural(scene: Scene, estimator: IndirectEstimator | None, *, spp: int
 
 
 def _field_seconds(estimator: Any) -> dict[str, float]:
-    seconds = getattr(estimator, "seconds", None)
-    if callable(seconds):
-        seconds = seconds()
-    return dict(seconds) if isinstance(seconds, dict) else {}
+    """A field estimator's accumulated stage seconds (``runtime.field.FieldTimers``), else nothing."""
+    timers = getattr(getattr(estimator, "field", None), "timers", None)
+    if timers is None:
+        return {}
+    return {k.removesuffix("_s"): float(v) for k, v in timers.to_dict().items() if k.endswith("_s") and k != "total_s"}
 
 
 class ProgressiveRender:

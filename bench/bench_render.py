@@ -1,0 +1,148 @@
+"""Render timings, the paper's Table 2 on this machine: neural renderer (Alg. 2) against the path tracer.
+
+For each scene (default: all builtin), at ``--size`` (default 512x512) and 1 spp, best of ``--repeats``
+after a warm-up render (numba compilation, onnxruntime session start-up), in one run:
+
+- neural L_d: first interactions + NEE only (``render_neural(estimator=None)``);
+- neural L_i: first interactions + field only (``direct=False``), split into hash encoding (position,
+  direction), MLP inference and decoding, and the fraction of in-box rays removed by compaction;
+- neural L: both, the product's frame;
+- path tracer L_d: max 1 scattering vertex (single scattering with NEE);
+- path tracer L (max path length 16, NEE + MIS, Russian roulette): also the time of its L_i, which a path
+  tracer cannot compute without tracing the whole paths;
+- speedups path tracer / neural for L_d, L_i and L. Issue goals: L_i >= 15x, L >= 5x, neural 512x512
+  1 spp frame <= 0.25 s on 2 cores. The paper (GPU) reports L_i 10.2x and L 4.6x.
+
+``--hd`` adds one 1280x720 row for the first scene. Bundles: ``--bundle SCENE=PATH`` or, by default,
+``bench/results/render/<scene>.pfn``, exported from the training sweep's ``cpu`` run
+(``bench/results/training/<scene>/cpu``) when present, else traced (1M photons) and trained with the
+``cpu`` preset first (~2-3 min per scene; the result is kept for the next run).
+
+Output: a table on stdout and JSON (default ``bench/results/render.json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+from common import Contention, finish_info, machine_info, parse_scenes, write_report  # noqa: E402
+
+from runtime.field import PhotonField  # noqa: E402
+from runtime.neural_renderer import render_neural  # noqa: E402
+from runtime.path_tracer import render_path_traced  # noqa: E402
+from runtime.scene import Scene, builtin_scene  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+DEFAULT_OUT = HERE / "results" / "render.json"
+BUNDLES = HERE / "results" / "render"
+TRAINING = HERE / "results" / "training"
+
+
+def bundle_for(name: str, scene: Scene, given: dict[str, str]) -> Path:
+    """The scene's bundle: given, cached, exported from the sweep's cpu run, or trained now."""
+    if name in given:
+        return Path(given[name])
+    path = BUNDLES / f"{name}.pfn"
+    if path.exists():
+        return path
+    from train.export import export_bundle, write_run_domain
+
+    run = TRAINING / name / "cpu"
+    if not (run / "checkpoint.pt").exists():
+        from train.fit import FitSettings, fit
+        from train.photon_tracing import trace_photons
+
+        run = BUNDLES / f"{name}_run"
+        print(f"{name}: no trained field yet, tracing 1M photons and training the cpu preset into {run}")
+        fit(scene, trace_photons(scene, 1_000_000, seed=0, progress=False), run, FitSettings.from_preset("cpu"),
+            progress=False)
+    write_run_domain(run, scene)
+    export_bundle(run, path, scene=scene, force=True)
+    return path
+
+
+def timed(fn: Any, repeats: int) -> tuple[float, Any]:
+    """Best wall time of ``repeats`` calls (after the caller's warm-up) and the last result."""
+    best, result = float("inf"), None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        result = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, result
+
+
+def bench_scene(name: str, scene: Scene, field: PhotonField, size: tuple[int, int], repeats: int,
+                max_depth: int) -> dict[str, Any]:
+    sc = scene.with_overrides(width=size[0], height=size[1])
+    est = field.estimator()
+    kw: dict[str, Any] = {"spp": 1, "seed": 0, "progress": False}
+    render_neural(sc.with_overrides(width=32, height=32), est, **kw)  # warm-up: compile, start sessions
+    render_path_traced(sc.with_overrides(width=32, height=32), max_depth=max_depth, **kw)
+    with Contention() as c:
+        t_nd, _ = timed(lambda: render_neural(sc, None, **kw), repeats)
+        field.timers.reset()
+        t_ni, res_i = timed(lambda: render_neural(sc, est, direct=False, **kw), repeats)
+        split = {k: v / repeats for k, v in field.timers.to_dict().items() if k.endswith("_s")}
+        t_n, res = timed(lambda: render_neural(sc, est, **kw), repeats)
+        t_pd, _ = timed(lambda: render_path_traced(sc, max_depth=1, **kw), repeats)
+        t_p, _ = timed(lambda: render_path_traced(sc, max_depth=max_depth, **kw), repeats)
+    samples = res.stats["samples_in_volume"]
+    return {
+        "size": list(size), "spp": 1, "max_depth": max_depth, "repeats": repeats, "other_cores": c.other_cores,
+        "neural": {"L_d_s": t_nd, "L_i_s": t_ni, "L_s": t_n, "stages_ms": res.timings_ms,
+                   "L_i_stages_ms": res_i.timings_ms, "field_split_s_per_render": split,
+                   "samples_in_volume": samples, "rays_in_box": res.stats["rays_in_volume"],
+                   "compaction_removed": res.stats["compaction_removed"],
+                   "pixels_missing_box": 1.0 - res.stats["rays_in_volume"] / (size[0] * size[1]),
+                   "field_queries_per_s": samples / max(split.get("total_s", 0.0), 1e-12)},
+        "path_tracer": {"L_d_s": t_pd, "L_i_s": t_p, "L_s": t_p},
+        "speedup": {"L_d": t_pd / t_nd, "L_i": t_p / t_ni, "L": t_p / t_n},
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenes", nargs="*", default=None, help="builtin scenes (default: all)")
+    ap.add_argument("--size", default="512x512")
+    ap.add_argument("--hd", action=argparse.BooleanOptionalAction, default=True, help="add one 1280x720 row")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--max-depth", type=int, default=16)
+    ap.add_argument("--precision", choices=("fp32", "int8"), default="fp32")
+    ap.add_argument("--bundle", action="append", default=[], metavar="SCENE=PATH")
+    ap.add_argument("--out", default=str(DEFAULT_OUT))
+    args = ap.parse_args()
+    given = dict(b.split("=", 1) for b in args.bundle)
+    w, h = (int(v) for v in args.size.lower().split("x"))
+    info = machine_info()
+    results: dict[str, Any] = {}
+    names = parse_scenes(args.scenes)
+    for name in names:
+        scene = builtin_scene(name)
+        field = PhotonField.load(bundle_for(name, scene, given), precision=args.precision,
+                                 expected_fingerprint=scene.fingerprint())
+        rows = {f"{w}x{h}": bench_scene(name, scene, field, (w, h), args.repeats, args.max_depth)}
+        if args.hd and name == names[0]:
+            rows["1280x720"] = bench_scene(name, scene, field, (1280, 720), max(1, args.repeats - 1), args.max_depth)
+        results[name] = rows
+    print(f"\n{'scene':7s} {'size':9s} | {'neural L_d':>10s} {'L_i':>7s} {'L':>7s} | {'PT L_d':>7s} {'L':>7s} | "
+          f"{'x L_d':>6s} {'x L_i':>6s} {'x L':>6s} | {'enc ms':>7s} {'mlp ms':>7s} {'compact':>7s}")
+    for name, rows in results.items():
+        for size, r in rows.items():
+            n, p, s, f = r["neural"], r["path_tracer"], r["speedup"], r["neural"]["field_split_s_per_render"]
+            enc = (f.get("encode_position_s", 0) + f.get("encode_direction_s", 0)) * 1e3
+            print(f"{name:7s} {size:9s} | {n['L_d_s']:10.3f} {n['L_i_s']:7.3f} {n['L_s']:7.3f} | {p['L_d_s']:7.3f} "
+                  f"{p['L_s']:7.3f} | {s['L_d']:6.1f} {s['L_i']:6.1f} {s['L']:6.1f} | {enc:7.1f} "
+                  f"{f.get('inference_s', 0) * 1e3:7.1f} {n['compaction_removed']:7.1%}")
+    info = finish_info(info, {f"{s}/{k}": r for s, rows in results.items() for k, r in rows.items()})
+    write_report(Path(args.out), "render", info, {"size": [w, h], "repeats": args.repeats, "max_depth": args.max_depth,
+                                                   "precision": args.precision}, results=results)
+
+
+if __name__ == "__main__":
+    main()
