@@ -17,9 +17,10 @@ $(STAMP): pyproject.toml Makefile
 
 install: $(STAMP)
 
+# Trace, train, export, render (neural, photon map, path-traced reference) and compare: ~3-5 min on 2 cores.
 demo: $(STAMP)
-	$(VENV)/bin/pfn-render --method pt --scene vortex --spp 64 --size 384x384 --seed 1 --out $(DEMO_OUT)/vortex_pt.exr
-	@echo "demo outputs: $(DEMO_OUT)/vortex_pt.exr (+ .png)"
+	$(VENV)/bin/pfn-demo --scene vortex --out $(DEMO_OUT)
+	@echo "demo outputs: $(DEMO_OUT)/ (comparison.png, summary.txt, neural.exr/.png, run/field.pfn, run/loss.png)"
 
 test: $(STAMP)
 	$(PY) -m ruff check runtime train models_spec tests bench
@@ -32,6 +33,7 @@ bench: $(STAMP)
 	$(PY) bench/bench_knn.py
 	$(PY) bench/bench_hashgrid.py
 	$(PY) bench/bench_runtime_hashgrid.py
+	$(PY) bench/bench_field.py
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache
