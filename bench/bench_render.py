@@ -25,18 +25,16 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from common import Contention, finish_info, machine_info, parse_scenes, write_report  # noqa: E402
+from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
 
 from runtime.field import PhotonField  # noqa: E402
-from runtime.neural_renderer import render_neural  # noqa: E402
-from runtime.path_tracer import render_path_traced  # noqa: E402
 from runtime.scene import Scene, builtin_scene  # noqa: E402
+from runtime.timing import time_renderers  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "results" / "render.json"
@@ -67,45 +65,6 @@ def bundle_for(name: str, scene: Scene, given: dict[str, str]) -> Path:
     return path
 
 
-def timed(fn: Any, repeats: int) -> tuple[float, Any]:
-    """Best wall time of ``repeats`` calls (after the caller's warm-up) and the last result."""
-    best, result = float("inf"), None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        result = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, result
-
-
-def bench_scene(name: str, scene: Scene, field: PhotonField, size: tuple[int, int], repeats: int,
-                max_depth: int) -> dict[str, Any]:
-    sc = scene.with_overrides(width=size[0], height=size[1])
-    est = field.estimator()
-    kw: dict[str, Any] = {"spp": 1, "seed": 0, "progress": False}
-    render_neural(sc.with_overrides(width=32, height=32), est, **kw)  # warm-up: compile, start sessions
-    render_path_traced(sc.with_overrides(width=32, height=32), max_depth=max_depth, **kw)
-    with Contention() as c:
-        t_nd, _ = timed(lambda: render_neural(sc, None, **kw), repeats)
-        field.timers.reset()
-        t_ni, res_i = timed(lambda: render_neural(sc, est, direct=False, **kw), repeats)
-        split = {k: v / repeats for k, v in field.timers.to_dict().items() if k.endswith("_s")}
-        t_n, res = timed(lambda: render_neural(sc, est, **kw), repeats)
-        t_pd, _ = timed(lambda: render_path_traced(sc, max_depth=1, **kw), repeats)
-        t_p, _ = timed(lambda: render_path_traced(sc, max_depth=max_depth, **kw), repeats)
-    samples = res.stats["samples_in_volume"]
-    return {
-        "size": list(size), "spp": 1, "max_depth": max_depth, "repeats": repeats, "other_cores": c.other_cores,
-        "neural": {"L_d_s": t_nd, "L_i_s": t_ni, "L_s": t_n, "stages_ms": res.timings_ms,
-                   "L_i_stages_ms": res_i.timings_ms, "field_split_s_per_render": split,
-                   "samples_in_volume": samples, "rays_in_box": res.stats["rays_in_volume"],
-                   "compaction_removed": res.stats["compaction_removed"],
-                   "pixels_missing_box": 1.0 - res.stats["rays_in_volume"] / (size[0] * size[1]),
-                   "field_queries_per_s": samples / max(split.get("total_s", 0.0), 1e-12)},
-        "path_tracer": {"L_d_s": t_pd, "L_i_s": t_p, "L_s": t_p},
-        "speedup": {"L_d": t_pd / t_nd, "L_i": t_p / t_ni, "L": t_p / t_n},
-    }
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", nargs="*", default=None, help="builtin scenes (default: all)")
@@ -126,9 +85,9 @@ def main() -> None:
         scene = builtin_scene(name)
         field = PhotonField.load(bundle_for(name, scene, given), precision=args.precision,
                                  expected_fingerprint=scene.fingerprint())
-        rows = {f"{w}x{h}": bench_scene(name, scene, field, (w, h), args.repeats, args.max_depth)}
+        rows = {f"{w}x{h}": time_renderers(scene, field, (w, h), args.repeats, args.max_depth)}
         if args.hd and name == names[0]:
-            rows["1280x720"] = bench_scene(name, scene, field, (1280, 720), max(1, args.repeats - 1), args.max_depth)
+            rows["1280x720"] = time_renderers(scene, field, (1280, 720), max(1, args.repeats - 1), args.max_depth)
         results[name] = rows
     print(f"\n{'scene':7s} {'size':9s} | {'neural L_d':>10s} {'L_i':>7s} {'L':>7s} | {'PT L_d':>7s} {'L':>7s} | "
           f"{'x L_d':>6s} {'x L_i':>6s} {'x L':>6s} | {'enc ms':>7s} {'mlp ms':>7s} {'compact':>7s}")

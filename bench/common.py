@@ -18,6 +18,7 @@ import numba
 import numpy as np
 
 from runtime.scene import BUILTIN_SCENES
+from runtime.timing import Contention  # noqa: F401  (re-exported for the benchmarks)
 
 BUSY_FRACTION = 0.2  # foreign load (in cores per usable core) above which a scene's figures are flagged
 
@@ -40,41 +41,6 @@ def load_average() -> list[float] | None:
         return [round(x, 2) for x in os.getloadavg()]
     except (AttributeError, OSError):
         return None
-
-
-def _busy_cpu_seconds() -> float | None:
-    """CPU seconds spent busy by the whole machine since boot (Linux /proc/stat), else None."""
-    try:
-        with open("/proc/stat") as f:
-            fields = [int(x) for x in f.readline().split()[1:9]]
-    except (OSError, ValueError):
-        return None
-    user, nice, system, _idle, _iowait, irq, softirq, steal = fields
-    return (user + nice + system + irq + softirq + steal) / os.sysconf("SC_CLK_TCK")
-
-
-class Contention:
-    """Measures how many cores *other* processes kept busy while the block ran (machine busy time
-    minus this process's CPU time, over wall time): ``with Contention() as c: ...; c.other_cores``.
-    Numba's prange kernels synchronize at the end of every stage, so one descheduled worker stalls
-    the stage: even half a core of foreign load distorts the numba figures far more than numpy's."""
-
-    def __enter__(self) -> Contention:
-        self.other_cores: float | None = None
-        self._t, self._busy, self._own = time.perf_counter(), _busy_cpu_seconds(), _own_cpu_seconds()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        busy = _busy_cpu_seconds()
-        wall = time.perf_counter() - self._t
-        if busy is not None and self._busy is not None and wall > 0:
-            other = (busy - self._busy) - (_own_cpu_seconds() - self._own)
-            self.other_cores = round(max(other, 0.0) / wall, 3)
-
-
-def _own_cpu_seconds() -> float:
-    t = os.times()
-    return t.user + t.system  # all threads of this process, numba's workers included
 
 
 def finish_info(info: dict[str, Any], results: dict[str, dict[str, Any]]) -> dict[str, Any]:
