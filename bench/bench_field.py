@@ -13,6 +13,8 @@ Variants at the largest batch (``--variant-batch``, default 2^18):
 
 - ``threads``: 1 and 2 threads (numba and onnxruntime both);
 - ``spinning``: onnxruntime's idle workers spinning (its default) or sleeping (our default);
+- ``pipeline``: ``PhotonField.load(pipeline=True)``, onnxruntime on chunk k in a worker thread while numba
+  encodes chunk k + 1, with 1 and 2 threads for each;
 - ``chunk``: queries per onnxruntime call (2^12 .. 2^16);
 - ``precision``: fp32 (exact), int8 (dynamic quantization), fp16 MLP (float16 weights and activations in
   onnxruntime, casts at both ends: measured to decide whether to offer it) and fp16 tables (same speed
@@ -259,6 +261,10 @@ def main(argv: list[str] | None = None) -> int:
                 show(f"threads {t}", r)
             var["spinning"] = r = run_query(load(path, threads=threads, spinning=True), x, d, g, args.repeats)
             show("onnxruntime spinning", r)
+            for t in sorted({1, threads}):
+                var[f"pipeline_threads_{t}"] = r = run_query(load(path, threads=t, pipeline=True), x, d, g,
+                                                             args.repeats)
+                show(f"pipelined, {t} thread(s) each", r)
             for c in (1 << 12, 1 << 13, 1 << 15, 1 << 16):
                 var[f"chunk_{c}"] = r = run_query(load(path, threads=threads, chunk=c), x, d, g, args.repeats)
                 show(f"chunk 2^{c.bit_length() - 1}", r)

@@ -13,18 +13,21 @@ Python API::
     q = field.estimator()                 # runtime.first_interaction.IndirectEstimator: (3, n) in and out
     print(field.timers)                   # encode (position, direction) / inference / decode seconds
 
-``load(path, *, threads=None, precision="fp32", expected_fingerprint=None, force=False, chunk=...)``
-----------------------------------------------------------------------------------------------------
+``load(path, *, threads=None, precision="fp32", expected_fingerprint=None, force=False, chunk=..., ...)``
+----------------------------------------------------------------------------------------------------------
 path : the bundle directory.
 threads : worker threads for the hash encoding (numba, set around each query and restored) and for
     onnxruntime's intra-op pool; None: numba's current setting and all cores for onnxruntime.
 precision : "fp32" (default; the exact path: L' within 1e-5 of the torch model, tests/test_bundle.py) or
-    "int8" (onnxruntime dynamic quantization of the MLP's weights at load time, :data:`INT8_ABS_BOUND`).
-    fp16 is not offered: see "Precision" below.
+    "int8" (onnxruntime dynamic quantization of the MLP's weights at load time; L' within
+    :data:`INT8_ABS_BOUND`). fp16 is not offered: see "Precision" below.
 expected_fingerprint : the scene's :meth:`runtime.scene.Scene.fingerprint`; a bundle trained for another
     scene is refused unless ``force``.
 chunk : queries per onnxruntime call (the encode buffer holds ``chunk`` rows; default :data:`DEFAULT_CHUNK`).
 spinning : let onnxruntime's idle workers spin (default False, see "Threads").
+pipeline : overlap the two halves: onnxruntime runs chunk k in a worker thread (``run`` releases the GIL)
+    while numba encodes chunk k + 1 into a second buffer (default False, see "Threads"). Same results bit
+    for bit; timers then add up to more than the wall time.
 
 Every refusal is a one-line :class:`runtime.errors.InputError` naming the file and the problem: bundle or
 file missing, manifest not JSON / failing the schema / another format / a newer version, a file whose size
@@ -40,22 +43,41 @@ copy); g into the last column; ``InferenceSession.run`` on the buffer. Eq. 7 (``
 :mod:`models_spec.encoding`, the same function training's targets are checked with) runs once over the
 whole result. ``field.timers`` accumulates seconds per stage over calls (``reset()`` clears them).
 
+Measured (``bench/bench_field.py``, bench/README.md; this machine had another ~1 of its 2 cores busy
+throughout, so the figures are contended and A/B comparisons were interleaved call by call)
+-------------------------------------------------------------------------------------------------------
+Where the time goes, cpu-preset architecture (8x4 / 6x2 encodings, 45 -> 64x3 -> 3), 2^18 random queries:
+position encoding ~45-55 %, onnxruntime ~30-40 %, direction encoding ~10 %, decode and the float64
+coordinate transforms ~5 %; about 1.0-1.5 CPU-seconds per million queries, 0.6-1.0 M queries/s wall.
+The paper architecture (16x8 / 2^19 encodings, 257 -> 64x4 -> 3) costs ~4.8 CPU-s per million, ~0.2 M/s:
+its encodings are three quarters of it (random reads into 400 MB of tables).
+
 Threads
 -------
 numba's workers and onnxruntime's pool alternate on the same cores, chunk after chunk. onnxruntime's
-workers spin after each run by default and then steal the core the next numba kernel needs;
-``allow_spinning = 0`` makes them sleep. ``bench/bench_field.py`` measures both (``--spinning``).
+workers spin after each run by default and then steal the core the next numba kernel needs: with
+spinning on, 0.62x the queries/s of ``allow_spinning = 0`` (interleaved A/B) and 1.8x the CPU time per
+query, so spinning is off by default. Chunks of 2^12 .. 2^16 measured within +-5 % of each other; 2^14
+keeps the paper architecture's buffer at 16 MB. ``pipeline=True`` measured equal to sequential here, as
+it must with one core left to this process; it can only pay on idle cores, where encode and inference
+each scale poorly from 1 to 2 threads (~1.3x) and could instead run side by side on one core each:
+``pipeline=True, threads=1`` is the configuration to try there (``bench_field.py`` measures it).
 
-Precision (measured, ``bench/bench_field.py``; ``../shared/measurements.md`` agrees)
-----------------------------------------------------------------------------------
-- fp16 MLP (weights and activations float16 in onnxruntime): not faster than fp32 on this CPU (no native
-  fp16 GEMM in onnxruntime's x86 CPU kernels; the casts cost extra) with ~1e-4 abs error: not offered.
+Precision
+---------
+- fp16 MLP (float16 weights and activations in onnxruntime, casts at both ends): same speed as fp32
+  end to end (0.66 vs 0.64 M/s) and for the MLP alone (1.04 vs 1.03 M/s at 2^14), ~1e-4 error: not offered.
+  onnxruntime's x86 CPU kernels have no fast fp16 GEMM.
 - fp16 *tables* (``pfn-train export --tables-dtype float16``): half the bundle size; the runtime widens
   them to float32 at load (numba has no float16 on the CPU), so speed is unchanged and the runtime still
-  equals the torch model evaluated with the same float16-rounded tables exactly (within 1e-5 on L'); the
-  rounding itself changes L' by up to ~1e-3 (relative table error 2^-11), documented in the README.
-- int8 dynamic quantization of the MLP: offered as ``precision="int8"`` only as an opt-in with the looser
-  bound :data:`INT8_ABS_BOUND` on L'; its speed is in bench/results/field.json.
+  equals the torch model evaluated with the same rounded tables (within 1e-5 on L'); the rounding itself
+  (relative 2^-11) moved L' by ~2e-4 on tables of magnitude 1 (tested bound 2e-3).
+- int8 dynamic quantization of the MLP (``precision="int8"``): onnxruntime turns each MatMul into
+  DynamicQuantizeLinear + MatMulInteger + Cast + Mul (also from a Gemm graph after ``quant_pre_process``,
+  per-channel or uint8 weights), and that measured *slower* than fp32 for these thin layers: MLP alone
+  0.70x (45 -> 64x3 -> 3) and 0.9-1.0x (257 -> 64x4 -> 3), end to end 0.83x / 0.99x, with ~1.5e-2 error on
+  L'. It stays available (``pfn-render --precision int8`` exposes it) for CPUs where it pays; fp32 is the
+  default and the only exact path.
 """
 
 from __future__ import annotations
@@ -285,7 +307,7 @@ class PhotonField:
     """A loaded bundle (see the module docstring). Not thread-safe: one encode buffer is reused per call."""
 
     def __init__(self, path: Path, manifest: Manifest, tables: dict[str, np.ndarray], session: Any, *,
-                 threads: int | None, precision: str, chunk: int, spinning: bool) -> None:
+                 threads: int | None, precision: str, chunk: int, spinning: bool, pipeline: bool = False) -> None:
         self.path = path
         self.manifest = manifest
         self.config = manifest.config
@@ -295,15 +317,17 @@ class PhotonField:
         self.direction_table = tables["direction"]
         self.session = session
         self.threads, self.precision, self.chunk, self.spinning = threads, precision, int(chunk), spinning
+        self.pipeline = bool(pipeline)
         self.timers = FieldTimers()
         self._dir_col = self.config.position.output_dims
-        self._buffer = np.empty((0, self.config.input_dims), np.float32)
+        self._buffers = [np.empty((0, self.config.input_dims), np.float32) for _ in range(2)]
+        self._pool: Any = None
 
     # ------------------------------------------------------------------------------------------------
     @classmethod
     def load(cls, path: str | os.PathLike[str], *, threads: int | None = None, precision: str = "fp32",
              expected_fingerprint: str | None = None, force: bool = False, chunk: int = DEFAULT_CHUNK,
-             spinning: bool = False) -> PhotonField:
+             spinning: bool = False, pipeline: bool = False) -> PhotonField:
         """Load and validate a bundle (module docstring); one-line InputError on any problem."""
         bundle = Path(path)
         if precision not in PRECISIONS:
@@ -335,7 +359,7 @@ class PhotonField:
             data = quantize_int8(model)
         session = _session(data, str(onnx_path), threads, spinning)
         return cls(bundle, manifest, tables, session, threads=threads, precision=precision, chunk=chunk,
-                   spinning=spinning)
+                   spinning=spinning, pipeline=pipeline)
 
     # ------------------------------------------------------------------------------------------------
     @property
@@ -359,10 +383,10 @@ class PhotonField:
             raise InputError("query g", "must be finite")
         return x, omega, ga
 
-    def _buf(self, m: int) -> np.ndarray:
-        if self._buffer.shape[0] < m:
-            self._buffer = np.empty((m, self.input_width), np.float32)
-        return self._buffer[:m]
+    def _buf(self, m: int, k: int = 0) -> np.ndarray:
+        if self._buffers[k].shape[0] < m:
+            self._buffers[k] = np.empty((m, self.input_width), np.float32)
+        return self._buffers[k][:m]
 
     def encode_inputs(self, x: Any, omega: Any, g: Any) -> np.ndarray:
         """The MLP input (N, W) float32 for N queries (one buffer, no chunking; for tests and inspection)."""
@@ -393,16 +417,44 @@ class PhotonField:
         out = np.empty((n, OUTPUT_CHANNELS), np.float32)
         t = self.timers
         with _numba_threads(self.threads):
-            for a in range(0, n, self.chunk):
-                b = min(n, a + self.chunk)
-                buf = self._buf(b - a)
-                self._encode_into(buf, x[a:b], omega[a:b], ga[a:b])
-                t0 = time.perf_counter()
-                out[a:b] = self.session.run([ONNX_OUTPUT], {ONNX_INPUT: buf})[0]
-                t.inference_s += time.perf_counter() - t0
+            if self.pipeline and n > self.chunk:
+                self._pipelined(out, x, omega, ga)
+            else:
+                for a in range(0, n, self.chunk):
+                    b = min(n, a + self.chunk)
+                    buf = self._buf(b - a)
+                    self._encode_into(buf, x[a:b], omega[a:b], ga[a:b])
+                    self._infer(buf, out, a, b)
         t.queries += n
         t.calls += 1
         return out
+
+    def _infer(self, buf: np.ndarray, out: np.ndarray, a: int, b: int) -> None:
+        t0 = time.perf_counter()
+        out[a:b] = self.session.run([ONNX_OUTPUT], {ONNX_INPUT: buf})[0]
+        self.timers.inference_s += time.perf_counter() - t0
+
+    def _pipelined(self, out: np.ndarray, x: np.ndarray, omega: np.ndarray, ga: np.ndarray) -> None:
+        """Encode chunk k + 1 on this thread (numba) while a worker thread runs onnxruntime on chunk k
+        (``run`` releases the GIL), with two encode buffers in turn. Buffer k % 2 is reused by chunk k + 2
+        only after chunk k's inference has been waited for, before chunk k + 1 was submitted."""
+        if self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pfn-onnxruntime")
+        n = x.shape[0]
+        pending = None
+        try:
+            for k, a in enumerate(range(0, n, self.chunk)):
+                b = min(n, a + self.chunk)
+                buf = self._buf(b - a, k % 2)
+                self._encode_into(buf, x[a:b], omega[a:b], ga[a:b])
+                if pending is not None:
+                    pending.result()
+                pending = self._pool.submit(self._infer, buf, out, a, b)
+        finally:
+            if pending is not None:
+                pending.result()  # never leave a run writing into a buffer the next call reuses
 
     def query(self, x: Any, omega: Any, g: Any) -> np.ndarray:
         """Radiance Q(x, omega, g) float32 (N, 3): :meth:`query_encoded` decoded by Eq. 7 (psi of the bundle)."""
@@ -419,7 +471,7 @@ class PhotonField:
     def describe(self) -> dict[str, Any]:
         """What was loaded (for reports)."""
         return {"path": str(self.path), "precision": self.precision, "threads": self.threads, "chunk": self.chunk,
-                "spinning": self.spinning, "input_width": self.input_width,
+                "spinning": self.spinning, "pipeline": self.pipeline, "input_width": self.input_width,
                 "field": self.config.to_dict(), "training": self.manifest.training,
                 "scene_fingerprint": self.scene_fingerprint}
 

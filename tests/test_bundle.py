@@ -177,6 +177,22 @@ def test_float16_tables_equal_the_rounded_torch_model(small: tuple, tmp_path: Pa
     assert np.abs(got - torch_reference(model, x, d, g, np.zeros(3), np.ones(3))).max() <= 2e-3
 
 
+def test_pipelined_and_chunked_queries_equal_one_call(small: tuple) -> None:
+    _, _, path = small
+    rng = np.random.default_rng(9)
+    x, d, g = rng.random((2500, 3)), unit(rng.standard_normal((2500, 3))), rng.uniform(-1, 1, 2500)
+    want = PhotonField.load(path, chunk=1 << 14).query_encoded(x, d, g)
+    for kw in ({"chunk": 300}, {"chunk": 300, "pipeline": True, "threads": 1}, {"chunk": 1000, "pipeline": True}):
+        field = PhotonField.load(path, **kw)
+        np.testing.assert_array_equal(field.query_encoded(x, d, g), want)
+        np.testing.assert_array_equal(field.query_encoded(x[:700], d[:700], g[:700]), want[:700])  # buffers reused
+    bad = x.copy()
+    bad[2000] = np.nan  # an error in a late chunk: the in-flight inference is waited for, the field stays usable
+    with pytest.raises(InputError, match="finite"):
+        field.query(bad, d, g)
+    np.testing.assert_array_equal(field.query_encoded(x, d, g), want)
+
+
 def test_int8_precision_within_its_documented_bound(small: tuple) -> None:
     model, _, path = small
     field = PhotonField.load(path, precision="int8")
