@@ -177,6 +177,9 @@ def _check_file(bundle: Path, name: str, entry: dict[str, Any]) -> Path:
 
 def _load_tables(path: Path, manifest: Manifest) -> dict[str, np.ndarray]:
     what = str(path)
+    if not zipfile.is_zipfile(path):
+        # np.load would try the other formats, pickle last (and refuse it, with advice to unpickle).
+        raise InputError(what, "not an .npz archive (no zip structure)")
     try:
         z = np.load(path, allow_pickle=False)
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:

@@ -318,8 +318,8 @@ def test_interrupted_export_leaves_the_previous_bundle_intact(small: tuple, tmp_
     PhotonField.load(out)
 
 
-@pytest.mark.parametrize("case", ["missing run", "run is a file", "no checkpoint", "no domain", "bad out",
-                                  "bad dtype"])
+@pytest.mark.parametrize("case", ["missing run", "run is a file", "no checkpoint", "corrupt checkpoint", "no domain",
+                                  "foreign domain", "bad out", "bad dtype"])
 def test_export_bad_inputs(small: tuple, tmp_path: Path, case: str) -> None:
     _, run, _ = small
     if case == "missing run":
@@ -330,6 +330,17 @@ def test_export_bad_inputs(small: tuple, tmp_path: Path, case: str) -> None:
     elif case == "no checkpoint":
         (tmp_path / "empty").mkdir()
         args, match = (tmp_path / "empty",), "no checkpoint.pt"
+    elif case == "corrupt checkpoint":
+        r = tmp_path / "r"
+        shutil.copytree(run, r, ignore=shutil.ignore_patterns("field.pfn"))
+        (r / "checkpoint.pt").write_bytes((r / "checkpoint.pt").read_bytes()[:200])
+        args, match = (r,), "not a readable checkpoint"
+    elif case == "foreign domain":
+        r = tmp_path / "r"
+        shutil.copytree(run, r, ignore=shutil.ignore_patterns("field.pfn"))
+        dom = json.loads((r / "domain.json").read_text())
+        (r / "domain.json").write_text(json.dumps({**dom, "scene_fingerprint": "0" * 64}))
+        args, match = (r,), "another scene"
     elif case == "no domain":
         r = tmp_path / "r"
         shutil.copytree(run, r, ignore=shutil.ignore_patterns("domain.json", "field.pfn"))
@@ -342,6 +353,7 @@ def test_export_bad_inputs(small: tuple, tmp_path: Path, case: str) -> None:
     with pytest.raises(InputError, match=match) as err:
         export_bundle(*args, **kw)
     assert "\n" not in str(err.value)
+    assert not list(tmp_path.rglob("*.pfn")) and not list(tmp_path.rglob(".*.tmp"))  # nothing written
 
 
 def test_cli_export_one_line_errors_and_success(small: tuple, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
@@ -473,7 +485,7 @@ def test_table_shape_dtype_and_values(bundle_copy: Path, tmp_path: Path) -> None
     rewrite(bundle_copy, "tables.npz", _npz_bytes(tmp_path, position=pos, direction=dirs, extra=pos[:1]))
     refused(bundle_copy, "must hold exactly the arrays")
     rewrite(bundle_copy, "tables.npz", b"not a zip at all")
-    refused(bundle_copy, "not a readable .npz")
+    refused(bundle_copy, "not an .npz archive")
     # A manifest whose table shape disagrees with its own field config is refused before any file is read.
     edit_manifest(bundle_copy, lambda m: m["tables"]["arrays"]["position"].update(shape=[8, 2]))
     refused(bundle_copy, "tables.arrays.position.shape")

@@ -321,12 +321,6 @@ def export_bundle(run_dir: str | Path, out: str | Path | None = None, *, scene: 
         raise InputError("--tables-dtype", f"must be one of {', '.join(TABLE_DTYPES)}, got {tables_dtype!r}")
     dest = Path(out) if out is not None else run / DEFAULT_BUNDLE_NAME
     _check_out(dest, force)
-    if not dest.parent.is_dir():
-        try:
-            dest.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise InputError("--out", f"cannot create the folder {str(dest.parent)!r}: {exc.strerror or exc}") from None
-
     model, data = load_checkpoint(ckpt)
     model.eval()
     fingerprint = str(data.get("scene_fingerprint", ""))
@@ -339,6 +333,11 @@ def export_bundle(run_dir: str | Path, out: str | Path | None = None, *, scene: 
                                 validation=summary.get("final_validation"), wall_s=summary.get("wall_s"))
     onnx_bytes = mlp_onnx(mlp_weights(model))
     tables = _tables(model, tables_dtype)
+    if not dest.parent.is_dir():  # only now: a refused export creates nothing
+        try:
+            dest.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise InputError("--out", f"cannot create the folder {str(dest.parent)!r}: {exc.strerror or exc}") from None
 
     staging = dest.with_name(f".{dest.name}.{secrets.token_hex(4)}.tmp")
     staging.mkdir()
