@@ -167,8 +167,10 @@ def _set_all_threads(threads: int | None) -> None:
 def _run_fit(args: argparse.Namespace, scene, pmap, settings) -> int:  # noqa: ANN001
     from train.export import write_run_domain
     from train.fit import fit
+    from train.targets import check_phase_bins
 
     out = Path(args.out)
+    check_phase_bins(pmap)  # refuse before anything is written into the run folder
     write_run_domain(out, scene, args.scene)  # the world box the export needs (checkpoints do not hold it)
     result = fit(scene, pmap, out, settings, progress=not args.quiet)
     t = result.log["totals"]

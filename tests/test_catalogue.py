@@ -1,0 +1,284 @@
+"""The bad-input catalogue: every command refuses every kind of bad input with one line and nothing written.
+
+One table across scene files, volumes, transfer functions, lights, cameras, photon maps, bundles and the
+arguments of pfn-render, pfn-train, pfn-demo and pfn-eval. Each case builds its inputs in a fresh folder,
+runs the command in-process, and checks: exit status 2, exactly one ``error: ...`` line on stderr naming
+the input (``needle``), nothing on stdout that claims success, and no file written to the output folder.
+Hypothesis fuzzes the two parsers users feed by hand (scene files, bundle manifests): any input either
+parses or raises the one-line error type, never anything else.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+pytest.importorskip("torch")
+
+from conftest import tiny_scene_dict  # noqa: E402
+
+from models_spec.bundle import BundleError, validate_manifest  # noqa: E402
+from runtime.cli import _main as render_main  # noqa: E402
+from runtime.errors import InputError  # noqa: E402
+from runtime.photon_map import PhotonMap  # noqa: E402
+from runtime.scene import scene_from_dict  # noqa: E402
+from train.cli import _main as train_main  # noqa: E402
+from train.demo import _main as demo_main  # noqa: E402
+from train.eval_report import _main as eval_main  # noqa: E402
+
+SIZE = ["--size", "8x8", "--spp", "1", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def assets(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """A scene file, its photon map, a trained run and its bundle (tiny, ~10 s)."""
+    from train.export import export_bundle
+    from train.fit import FitSettings, fit
+    from train.photon_tracing import trace_photons
+
+    folder = tmp_path_factory.mktemp("assets")
+    scene_file = folder / "scene.json"
+    scene_file.write_text(json.dumps(tiny_scene_dict()))
+    scene = scene_from_dict(tiny_scene_dict(), folder)
+    pmap = trace_photons(scene, 20_000, seed=1, progress=False)
+    pmap.save(folder / "map.npz")
+    fit(scene, pmap, folder / "run", FitSettings.from_preset("tiny", steps=5, batch=256, val_points=256, k=32),
+        progress=False)
+    export_bundle(folder / "run", folder / "field.pfn", scene=scene)
+    other = tiny_scene_dict()
+    other["lights"][0]["power"] = 9.0
+    (folder / "other.json").write_text(json.dumps(other))
+    return {"scene": scene_file, "map": folder / "map.npz", "run": folder / "run", "bundle": folder / "field.pfn",
+            "other": folder / "other.json"}
+
+
+def scene_file(d: Path, **changes: object) -> str:
+    """tiny_scene_dict with top-level entries replaced (None removes one), written to d/scene.json."""
+    s = tiny_scene_dict()
+    for k, v in changes.items():
+        if v is None:
+            s.pop(k, None)
+        else:
+            s[k] = v
+    (d / "scene.json").write_text(json.dumps(s))
+    return str(d / "scene.json")
+
+
+def npy_scene(d: Path, arr: np.ndarray) -> str:
+    np.save(d / "vol.npy", arr)
+    return scene_file(d, volume={"path": "vol.npy"})
+
+
+def copy_bundle(a: dict[str, Path], d: Path) -> Path:
+    dst = d / "copy.pfn"
+    shutil.copytree(a["bundle"], dst)
+    return dst
+
+
+def flip_byte(path: Path) -> None:
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def newer_version(b: Path) -> Path:
+    m = json.loads((b / "manifest.json").read_text())
+    m["version"] = 99
+    (b / "manifest.json").write_text(json.dumps(m))
+    return b
+
+
+def map_without_a_phase(a: dict[str, Path], d: Path) -> str:
+    pmap = PhotonMap.load(a["map"])
+    keep = pmap.phase != 1
+    PhotonMap(pmap.position[keep], pmap.direction[keep], pmap.power[keep], pmap.phase[keep], pmap.phases,
+              pmap.scene_fingerprint, pmap.emitted, pmap.meta).save(d / "holey.npz")
+    return str(d / "holey.npz")
+
+
+Case = tuple[str, Callable[[dict[str, Path], Path, Path], list[str]], str]
+R, T, D, E = "render", "train", "demo", "eval"
+
+CASES: list[Case] = [
+    # scene files
+    (R, lambda a, d, o: ["--scene", str(d / "missing.json"), *SIZE, "--out", str(o / "r.exr")], "missing.json"),
+    (R, lambda a, d, o: ["--scene", (d / "s.json").write_text("{") and str(d / "s.json"), *SIZE, "--out",
+                         str(o / "r.exr")], "JSON"),
+    (R, lambda a, d, o: ["--scene", scene_file(d, sparkle=1), *SIZE, "--out", str(o / "r.exr")], "sparkle"),
+    (R, lambda a, d, o: ["--scene", scene_file(d, camera=None), *SIZE, "--out", str(o / "r.exr")], "camera"),
+    (R, lambda a, d, o: ["--scene", scene_file(d, camera={"eye": [0, 0, 0], "target": [0, 0, 0]}), *SIZE,
+                         "--out", str(o / "r.exr")], "camera"),
+    (R, lambda a, d, o: ["--scene", scene_file(d, camera={"eye": [2, 0, 0], "target": [0, 0, 0], "fov": 0}), *SIZE,
+                         "--out", str(o / "r.exr")], "fov"),
+    (R, lambda a, d, o: ["--scene", scene_file(d, phase={"g": 1.5}), *SIZE, "--out", str(o / "r.exr")], "g"),
+    # volumes
+    (R, lambda a, d, o: ["--scene", scene_file(d, volume={"path": "nope.raw"}), *SIZE, "--out", str(o / "r.exr")],
+     "nope.raw"),
+    (R, lambda a, d, o: ["--scene", npy_scene(d, np.full((8, 8, 8), np.nan)), *SIZE, "--out", str(o / "r.exr")],
+     "vol.npy"),
+    (R, lambda a, d, o: ["--scene", npy_scene(d, np.ones((8, 8))), *SIZE, "--out", str(o / "r.exr")], "vol.npy"),
+    (R, lambda a, d, o: ["--scene", npy_scene(d, np.ones((4, 4, 4), complex)), *SIZE, "--out", str(o / "r.exr")],
+     "vol.npy"),
+    (R, lambda a, d, o: ["--scene", (d / "vol.npy").write_bytes(b"\x93NUMPY garbage") and
+                         scene_file(d, volume={"path": "vol.npy"}), *SIZE, "--out", str(o / "r.exr")], "vol.npy"),
+    # transfer functions and lights
+    (R, lambda a, d, o: ["--scene", scene_file(d, transfer_function={"preset": "rainbow"}), *SIZE, "--out",
+                         str(o / "r.exr")], "rainbow"),
+    (R, lambda a, d, o: ["--scene", scene_file(d, transfer_function={"preset": "cloud", "density_scale": -1}),
+                         *SIZE, "--out", str(o / "r.exr")], "density_scale"),
+    (R, lambda a, d, o: ["--scene", scene_file(d, lights=[{"type": "laser"}]), *SIZE, "--out", str(o / "r.exr")],
+     "laser"),
+    (R, lambda a, d, o: ["--scene", scene_file(d, lights=[]), *SIZE, "--out", str(o / "r.exr")], "lights"),
+    # render arguments
+    (R, lambda a, d, o: ["--spp", "0", "--out", str(o / "r.exr")], "--spp"),
+    (R, lambda a, d, o: ["--size", "0x8", "--out", str(o / "r.exr")], "--size"),
+    (R, lambda a, d, o: ["--g", "1.01", "--out", str(o / "r.exr")], "--g"),
+    (R, lambda a, d, o: ["--out", str(o / "r.png")], "--out"),
+    # photon maps
+    (R, lambda a, d, o: ["--method", "photonmap", "--out", str(o / "r.exr")], "--map"),
+    (R, lambda a, d, o: ["--method", "photonmap", "--map", str(d / "none.npz"), "--scene", str(a["scene"]), *SIZE,
+                         "--out", str(o / "r.exr")], "none.npz"),
+    (R, lambda a, d, o: ["--method", "photonmap", "--map", (d / "bad.npz").write_bytes(b"PK junk") and
+                         str(d / "bad.npz"), "--scene", str(a["scene"]), *SIZE, "--out", str(o / "r.exr")], "bad.npz"),
+    (R, lambda a, d, o: ["--method", "photonmap", "--map", str(a["map"]), "--scene", str(a["other"]), *SIZE,
+                         "--out", str(o / "r.exr")], "another scene"),
+    (R, lambda a, d, o: ["--method", "photonmap", "--map", str(a["map"]), "--scene", str(a["scene"]), "--g", "0.3",
+                         *SIZE, "--out", str(o / "r.exr")], "0.3"),
+    (T, lambda a, d, o: ["fit", str(a["scene"]), "--map", map_without_a_phase(a, d), "--preset", "tiny",
+                         "--out", str(o / "run")], "phase"),
+    (T, lambda a, d, o: ["fit", str(a["other"]), "--map", str(a["map"]), "--out", str(o / "run")], "another scene"),
+    # bundles
+    (R, lambda a, d, o: ["--method", "field", "--scene", str(a["scene"]), *SIZE, "--out", str(o / "r.exr")],
+     "--bundle"),
+    (R, lambda a, d, o: ["--method", "field", "--bundle", str(d / "none.pfn"), "--scene", str(a["scene"]), *SIZE,
+                         "--out", str(o / "r.exr")], "none.pfn"),
+    (R, lambda a, d, o: ["--method", "field", "--bundle", str((lambda b: (b / "field.onnx").unlink() or b)(
+        copy_bundle(a, d))), "--scene", str(a["scene"]), *SIZE, "--out", str(o / "r.exr")], "field.onnx"),
+    (R, lambda a, d, o: ["--method", "field", "--bundle", str((lambda b: flip_byte(b / "tables.npz") or b)(
+        copy_bundle(a, d))), "--scene", str(a["scene"]), *SIZE, "--out", str(o / "r.exr")], "tables.npz"),
+    (R, lambda a, d, o: ["--method", "field", "--bundle", str(newer_version(copy_bundle(a, d))), "--scene",
+                         str(a["scene"]), *SIZE, "--out", str(o / "r.exr")], "version"),
+    (R, lambda a, d, o: ["--method", "field", "--bundle", str(a["bundle"]), "--scene", str(a["other"]), *SIZE,
+                         "--out", str(o / "r.exr")], "another scene"),
+    (T, lambda a, d, o: ["export", str(d / "norun"), "--out", str(o / "f.pfn")], "norun"),
+    # training, demo and evaluation arguments
+    (T, lambda a, d, o: ["trace", "blobs", "--photons", "lots", "--out", str(o / "m.npz")], "--photons"),
+    (T, lambda a, d, o: ["trace", "blobs", "--phases", "0", "2", "--out", str(o / "m.npz")], "--phases"),
+    (T, lambda a, d, o: ["fit", str(a["scene"]), "--map", str(a["map"]), "--steps", "0", "--out", str(o / "run")],
+     "--steps"),
+    (T, lambda a, d, o: ["fit", str(a["scene"]), "--map", str(a["map"]), "--schedule", "zigzag", "--out",
+                         str(o / "run")], "--schedule"),
+    (D, lambda a, d, o: ["--spp", "0", "--out", str(o / "demo")], "--spp"),
+    (D, lambda a, d, o: ["--scene", "teapot", "--out", str(o / "demo")], "teapot"),
+    (E, lambda a, d, o: ["--quick", "--scenes", "teapot", "--out", str(o / "docs"), "--work", str(o / "w")],
+     "teapot"),
+    (E, lambda a, d, o: ["--quick", "--size", "0", "--out", str(o / "docs"), "--work", str(o / "w")], "--size"),
+]
+
+MAINS = {R: render_main, T: train_main, D: demo_main, E: eval_main}
+
+
+def test_catalogue_is_broad() -> None:
+    assert len(CASES) >= 30 and {c[0] for c in CASES} == set(MAINS)
+
+
+@pytest.mark.parametrize(("cli", "build", "needle"), CASES, ids=[f"{i:02d}-{c[0]}-{c[2]}" for i, c in enumerate(CASES)])
+def test_bad_input_one_line_nothing_written(assets: dict[str, Path], tmp_path: Path, cli: str,
+                                            build: Callable[..., list[str]], needle: str,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    inputs, out = tmp_path / "in", tmp_path / "out"
+    inputs.mkdir()
+    argv = build(assets, inputs, out)
+    capsys.readouterr()
+    assert MAINS[cli](argv) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "Traceback" not in captured.err, captured.err
+    assert needle in lines[0], lines[0]
+    written = sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file()) if out.exists() else []
+    assert written == [], written
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Fuzzing the hand-written inputs: scene files and bundle manifests
+
+JSON = st.recursive(st.none() | st.booleans() | st.integers(-10, 10) | st.floats(allow_nan=True) | st.text(max_size=8),
+                    lambda kids: st.lists(kids, max_size=4) | st.dictionaries(st.text(max_size=8), kids, max_size=4),
+                    max_leaves=12)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(key=st.sampled_from(["volume", "transfer_function", "lights", "camera", "phase", "name", "extra"]), value=JSON)
+def test_fuzz_scene_entries(tmp_path: Path, key: str, value: object) -> None:
+    d = tiny_scene_dict()
+    d[key] = value
+    try:
+        scene_from_dict(d, tmp_path, "fuzz.json")
+    except InputError as err:
+        assert "\n" not in str(err) and str(err)
+
+
+@pytest.fixture(scope="module")
+def manifest_doc(assets: dict[str, Path]) -> dict:
+    return json.loads((assets["bundle"] / "manifest.json").read_text())
+
+
+def _paths(doc: object, prefix: tuple = ()) -> list[tuple]:
+    out = [prefix]
+    if isinstance(doc, dict):
+        for k, v in doc.items():
+            out += _paths(v, (*prefix, k))
+    elif isinstance(doc, list):
+        for i, v in enumerate(doc):
+            out += _paths(v, (*prefix, i))
+    return out
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data(), value=JSON)
+def test_fuzz_manifest_fields(manifest_doc: dict, data: st.DataObject, value: object) -> None:
+    doc = json.loads(json.dumps(manifest_doc))
+    path = data.draw(st.sampled_from([p for p in _paths(doc) if p]))
+    node = doc
+    for k in path[:-1]:
+        node = node[k]
+    node[path[-1]] = value
+    try:
+        validate_manifest(doc)
+    except BundleError as err:
+        assert "\n" not in str(err) and str(err)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Killed midway
+
+
+def test_killed_render_leaves_earlier_outputs_intact(tmp_path: Path) -> None:
+    """SIGKILL a long render that would overwrite earlier outputs: they stay byte for byte."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "r.exr"
+    old = {s: f"old {s}".encode() for s in (".exr", ".png", ".json")}
+    for s, data in old.items():
+        out.with_suffix(s).write_bytes(data)
+    cmd = [sys.executable, "-c", "from runtime.cli import main; main()", "--scene", "blobs", "--size", "256x256",
+           "--spp", "4096", "--quiet", "--out", str(out)]
+    proc = subprocess.Popen(cmd, cwd=Path(__file__).resolve().parents[1], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])})
+    time.sleep(4.0)
+    assert proc.poll() is None, "the render finished before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    for s, data in old.items():
+        assert out.with_suffix(s).read_bytes() == data
