@@ -219,7 +219,12 @@ def _is_type(value: Any, name: str) -> bool:
     if name == "integer":
         return isinstance(value, int) and not isinstance(value, bool)
     if name == "number":
-        return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return False
+        try:  # JSON integers are unbounded; a "number" must also be a finite float64
+            return math.isfinite(float(value))
+        except OverflowError:
+            return False
     return isinstance(value, _TYPES[name])
 
 
@@ -402,7 +407,7 @@ def validate_manifest(doc: Any, what: str = MANIFEST_FILE) -> Manifest:
         raise BundleError(f"{what}: {err.what}", err.problem) from None
     try:
         cfg = FieldConfig.from_dict(doc["field"])
-    except ValueError as exc:
+    except (ValueError, TypeError, OverflowError) as exc:  # e.g. a base resolution beyond any float
         raise BundleError(f"{what}: field", str(exc)) from None
     for name, hg in (("position", cfg.position), ("direction", cfg.direction)):
         want = encoding_geometry(hg)

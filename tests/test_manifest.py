@@ -99,6 +99,10 @@ BAD = [
     ("scene_fingerprint", "xyz", "scene_fingerprint: must match"),
     ("training.steps", -1, "training.steps: must be >= 0"),
     ("extra", 1, "extra: unknown field"),
+    # JSON integers are unbounded: beyond float64 they are not numbers, and no config survives them.
+    ("domain.bmin", [10**400, 0, 0], "domain.bmin[0]: must be a finite number"),
+    ("training.wall_s", -(10**400), "training.wall_s: must be a finite number or null"),
+    ("field.position.base_resolution", 10**400, "field: "),
 ]
 
 
