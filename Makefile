@@ -34,6 +34,8 @@ bench: $(STAMP)
 	$(PY) bench/bench_hashgrid.py
 	$(PY) bench/bench_runtime_hashgrid.py
 	$(PY) bench/bench_field.py
+	$(PY) bench/bench_render.py
+	$(PY) bench/bench_training.py
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache
