@@ -49,8 +49,10 @@ throughout, so the figures are contended and A/B comparisons were interleaved ca
 Where the time goes, cpu-preset architecture (8x4 / 6x2 encodings, 45 -> 64x3 -> 3), 2^18 random queries:
 position encoding ~45-55 %, onnxruntime ~30-40 %, direction encoding ~10 %, decode and the float64
 coordinate transforms ~5 %; about 1.0-1.5 CPU-seconds per million queries, 0.6-1.0 M queries/s wall.
-The paper architecture (16x8 / 2^19 encodings, 257 -> 64x4 -> 3) costs ~4.8 CPU-s per million, ~0.2 M/s:
-its encodings are three quarters of it (random reads into 400 MB of tables).
+The paper architecture (16x8 / 2^19 encodings, 257 -> 64x4 -> 3) costs 4-5 CPU-s per million, 0.2-0.25 M/s:
+its encodings are about three quarters of it (random reads into 400 MB of tables). Loading validates every
+byte: ~0.1 s for the cpu-preset bundle (6 MB), ~3 s for the paper's (407 MB: sha256, reading, the finite
+check and the aligned copy).
 
 Threads
 -------
