@@ -59,7 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="photonmap: max search radius, in units of the volume box's longest side")
     p.add_argument("--bundle", default=None, help="field: photon-field bundle (NAME.pfn) from `pfn-train export`")
     p.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
-                   help="field: MLP precision (int8: dynamic quantization, faster, ~1e-3 looser)")
+                   help="field: MLP precision (fp32: exact; int8: dynamic quantization, L' within ~2e-2, "
+                        "measured no faster on this CPU; runtime/field.py)")
     p.add_argument("--orbit", type=int, default=None,
                    help="field: render N frames orbiting the volume to numbered files OUT_0000.exr ...")
     p.add_argument("--orbit-degrees", type=float, default=360.0, help="field: total orbit angle")

@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import constant_tf, small_camera, smooth_field
 
 from runtime.image_io import read_exr
 from runtime.lights import DirectionalLight, PointLight
@@ -16,7 +17,6 @@ from runtime.path_tracer import render_path_traced
 from runtime.photon_estimate import PhotonMapEstimator, render_photon_mapped
 from runtime.scene import Scene
 from runtime.volume import make_volume
-from tests.conftest import constant_tf, small_camera, smooth_field
 from train.photon_tracing import trace_photons
 
 
@@ -89,8 +89,9 @@ def test_orbit_writes_numbered_frames_with_timings(scene, pmap, tmp_path) -> Non
 def trained(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
     """blobs at 32^3, 300k photons, a short cpu-preset fit, exported: (scene, pmap, bundle path)."""
     pytest.importorskip("torch")
+    from conftest import tiny_scene_dict
+
     from runtime.scene import scene_from_dict
-    from tests.conftest import tiny_scene_dict
     from train.export import export_bundle
     from train.fit import FitSettings, fit
 
@@ -133,7 +134,7 @@ def test_pfn_render_field_cli_and_foreign_scene_refusal(trained, tmp_path, capsy
 
     scene, _, bundle = trained
     scene_file = tmp_path / "scene.json"
-    from tests.conftest import tiny_scene_dict
+    from conftest import tiny_scene_dict
 
     scene_file.write_text(_json.dumps(tiny_scene_dict()))
     out = tmp_path / "img.exr"

@@ -7,13 +7,13 @@ import math
 import numba
 import numpy as np
 import pytest
+from conftest import constant_tf, small_camera, smooth_field
 
 from runtime.lights import DirectionalLight, EnvironmentLight, PointLight
 from runtime.path_tracer import render_path_traced
 from runtime.ray_marcher import render_ray_marched
 from runtime.scene import Scene
 from runtime.volume import make_volume
-from tests.conftest import constant_tf, small_camera, smooth_field
 
 
 def _scene(lights, sigma: float = 8.0, albedo=0.8, g: float = 0.0, size: int = 24) -> Scene:  # noqa: ANN001

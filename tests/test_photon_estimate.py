@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import constant_tf, small_camera, smooth_field
 
 from runtime.errors import InputError
 from runtime.lights import DirectionalLight, PointLight
@@ -13,7 +14,6 @@ from runtime.path_tracer import render_path_traced
 from runtime.photon_estimate import ball_pattern, render_photon_mapped, support_fraction
 from runtime.scene import Scene, builtin_scene
 from runtime.volume import make_volume
-from tests.conftest import constant_tf, small_camera, smooth_field
 from train.photon_tracing import trace_photons
 
 

@@ -7,6 +7,7 @@ import math
 import numba
 import numpy as np
 import pytest
+from conftest import constant_tf, small_camera
 from scipy import stats
 
 from runtime.errors import InputError
@@ -14,7 +15,6 @@ from runtime.lights import DirectionalLight, PointLight
 from runtime.photon_map import PhotonMap
 from runtime.scene import Scene, builtin_scene
 from runtime.volume import make_volume
-from tests.conftest import constant_tf, small_camera
 from tests.test_phase import _equal_probability_edges, hg_cdf
 from train.photon_tracing import CHUNK, _trace_chunk, light_fluxes, trace_photons
 

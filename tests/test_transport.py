@@ -6,12 +6,12 @@ import math
 
 import numpy as np
 import pytest
+from conftest import constant_tf, smooth_field
 
 from runtime.medium import build_medium, extinction_batch
 from runtime.rng import stream_states
 from runtime.tracking import delta_track_batch, ratio_track_batch
 from runtime.volume import make_volume
-from tests.conftest import constant_tf, smooth_field
 
 
 def _rays_through(m, n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # noqa: ANN001
