@@ -1,17 +1,17 @@
 """The neural wavefront renderer (paper Alg. 2, Sec. 3.6): global illumination from a trained photon field.
 
 Stages (each timed under its own name in ``RenderResult.timings_ms``; code in
-:mod:`runtime.first_interaction`, shared with the photon-map renderer so the two differ only in stage 4):
+:mod:`runtime.first_interaction`, shared with the photon-map renderer so the two differ only in stage 3):
 
-1. ``generate_camera_rays`` / ``clip_rays_to_volume``: rays that miss the volume box are dropped at once;
-2. ``sample_first_interactions``: one delta-tracked first interaction per (pixel, sample) work item;
-   rays that leave the volume without one leave a hole (and add the environment to L_e);
-3. ``compact``: holes are removed before anything reaches the field;
-4. ``estimate_indirect``: the field :class:`runtime.field.PhotonField` predicts Q(x, d, g) at every
+1. ``sample_first_interactions``: one jittered camera ray per (pixel, sample) work item, clipped to the
+   volume box and delta-tracked to its first interaction, in one fused numba pass; rays that miss the box
+   or leave it without an interaction leave a hole (and add the environment to L_e);
+2. ``compact``: holes are removed before anything reaches the field;
+3. ``estimate_indirect``: the field :class:`runtime.field.PhotonField` predicts Q(x, d, g) at every
    interaction (hash encoding, batched onnxruntime inference, Eq. 7 decode), at the render's g, which may
    be any value in [-1, 1]: the field interpolates between the phases G it was trained on;
-5. ``estimate_direct``: next-event estimation with ratio-tracked shadow rays to every light;
-6. ``compose``: per sample ``L_d = a(x) NEE(x)`` and ``L_i = a(x) Q(x, d, g)``, averaged over spp.
+4. ``estimate_direct``: next-event estimation with ratio-tracked shadow rays to every light;
+5. ``compose``: per sample ``L_d = a(x) NEE(x)`` and ``L_i = a(x) Q(x, d, g)``, averaged over spp.
 
 The estimator (Sec. 3.6's ``L = 1/spp sum (w_d L_d + w_i sigma_s L_i^pred)``): the paper's sigma_s becomes
 the albedo a = sigma_s / sigma_t because delta tracking samples the first interaction with pdf

@@ -42,6 +42,25 @@ class RayBatch:
         return RayBatch(**{f.name: getattr(self, f.name).take(idx, axis=-1) for f in fields(self)})
 
 
+@njit(cache=True, inline="always")
+def camera_ray(origin: np.ndarray, du: np.ndarray, dv: np.ndarray, width: int, n_pixels: int, w: int,
+               seed: np.uint64) -> tuple[float, float, float, int, np.uint64]:
+    """Work item ``w``'s jittered primary ray: (unit direction dx, dy, dz, flat pixel, random state after the
+    two jitter draws). The only copy of the arithmetic, so every renderer's camera rays agree bit for bit
+    (the fused first-interaction kernel of :mod:`runtime.first_interaction` inlines it too)."""
+    p = w % n_pixels
+    s = stream_state(seed, np.uint64(w))
+    s, ju = next_float(s)
+    s, jv = next_float(s)
+    x = (p % width) + ju
+    y = (p // width) + jv
+    dx = origin[0] + x * du[0] + y * dv[0]
+    dy = origin[1] + x * du[1] + y * dv[1]
+    dz = origin[2] + x * du[2] + y * dv[2]
+    inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
+    return dx * inv, dy * inv, dz * inv, p, s
+
+
 @njit(cache=True, parallel=True)
 def _camera_rays(origin: np.ndarray, du: np.ndarray, dv: np.ndarray, width: int, n_pixels: int,
                  work: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -50,20 +69,8 @@ def _camera_rays(origin: np.ndarray, du: np.ndarray, dv: np.ndarray, width: int,
     pixel = np.empty(n, dtype=np.int64)
     states = np.empty(n, dtype=np.uint64)
     for i in prange(n):
-        w = work[i]
-        p = w % n_pixels
-        s = stream_state(np.uint64(seed), np.uint64(w))
-        s, ju = next_float(s)
-        s, jv = next_float(s)
-        x = (p % width) + ju
-        y = (p // width) + jv
-        dx = origin[0] + x * du[0] + y * dv[0]
-        dy = origin[1] + x * du[1] + y * dv[1]
-        dz = origin[2] + x * du[2] + y * dv[2]
-        inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
-        d[0, i], d[1, i], d[2, i] = dx * inv, dy * inv, dz * inv
-        pixel[i] = p
-        states[i] = s
+        d[0, i], d[1, i], d[2, i], pixel[i], states[i] = camera_ray(origin, du, dv, width, n_pixels, work[i],
+                                                                   np.uint64(seed))
     return d, pixel, states
 
 
@@ -78,20 +85,24 @@ def generate_camera_rays(camera: Camera, work: np.ndarray, seed: int) -> RayBatc
                     np.full(n, np.inf))
 
 
+@njit(cache=True, inline="always")
+def clip_to_box(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float,
+                dz: float) -> tuple[bool, float, float, float, float]:
+    """(hits the box, origin moved to the box entry, distance to the box exit from there); the only copy
+    of the arithmetic (see :func:`camera_ray`). A miss returns the origin unmoved and 0."""
+    t0, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
+    if t0 < t1:
+        return True, ox + t0 * dx, oy + t0 * dy, oz + t0 * dz, t1 - t0
+    return False, ox, oy, oz, 0.0
+
+
 @njit(cache=True, parallel=True)
 def _clip(m: Medium, o: np.ndarray, d: np.ndarray, tmax: np.ndarray) -> np.ndarray:
     n = o.shape[1]
     hit = np.empty(n, dtype=np.bool_)
     for i in prange(n):
-        t0, t1 = intersect_box(m, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i])
-        hit[i] = t0 < t1
-        if hit[i]:
-            o[0, i] += t0 * d[0, i]
-            o[1, i] += t0 * d[1, i]
-            o[2, i] += t0 * d[2, i]
-            tmax[i] = t1 - t0
-        else:
-            tmax[i] = 0.0
+        hit[i], o[0, i], o[1, i], o[2, i], tmax[i] = clip_to_box(m, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i],
+                                                                 d[2, i])
     return hit
 
 

@@ -42,6 +42,46 @@ def test_photon_map_estimator_in_place_of_the_field_gives_the_photon_map_and_pat
     np.testing.assert_array_equal(neural["L_d"], pt["L_d"])  # same first interactions and shadow rays
 
 
+@pytest.mark.parametrize(("start", "count"), [(0, 400), (650, 1111), (1370, 37)])
+def test_fused_first_interactions_equal_the_separate_stages(scene, start, count) -> None:  # noqa: ANN001
+    """The fused kernel (camera ray + clip + delta tracking + albedo, packed) gives the separate stages'
+    collisions, directions, albedos, pixels and random states bit for bit, in work-item order."""
+    from runtime.first_interaction import (
+        ESCAPED,
+        INTERACTED,
+        MISSED_BOX,
+        FirstInteractions,
+        compact_first_interactions,
+        sample_first_interactions,
+    )
+    from runtime.medium import albedo_at
+    from runtime.rays import clip_rays_to_volume, generate_camera_rays
+    from runtime.tracking import delta_track_batch
+
+    m = scene.medium()
+    work = np.arange(start, start + count, dtype=np.int64)
+    rays = generate_camera_rays(scene.camera, work, 7)
+    inside = clip_rays_to_volume(m, rays)
+    rays = rays.compact(inside)
+    t = delta_track_batch(m, rays.o, rays.d, np.zeros(len(rays)), rays.tmax, rays.rng)
+    hit = np.isfinite(t)
+    rays, t = rays.compact(hit), t[hit]
+    x = rays.o + t * rays.d
+    albedo = np.array([albedo_at(m, *x[:, i]) for i in range(len(rays))]).reshape(-1, 3).T
+
+    scratch, status = FirstInteractions.empty(count), np.empty(count, np.uint8)
+    counts = sample_first_interactions(scene, m, start, count, 7, scratch, status)
+    fi = compact_first_interactions(scratch, counts)
+    assert 0 < len(fi) < count and int(counts[:, 1].sum()) == int(inside.sum())
+    np.testing.assert_array_equal(fi.pixel, rays.pixel)
+    np.testing.assert_array_equal(fi.rng, rays.rng)
+    np.testing.assert_array_equal(fi.d, rays.d)
+    np.testing.assert_array_equal(fi.x, x)
+    np.testing.assert_array_equal(fi.albedo, albedo)
+    np.testing.assert_array_equal(status == MISSED_BOX, ~inside)
+    assert np.all(np.isin(status, (MISSED_BOX, ESCAPED, INTERACTED))) and (status == INTERACTED).sum() == len(fi)
+
+
 def test_progressive_frames_add_up_to_one_render(scene, pmap) -> None:  # noqa: ANN001
     est = PhotonMapEstimator(pmap, scene.medium(), k=64, radius=0.1)
     prog = ProgressiveRender(scene, est, spp=2, seed=9)
