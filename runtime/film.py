@@ -12,6 +12,7 @@ Layers (each RGB, float64 accumulators, divided by the sample count on read-out)
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 LAYERS = ("L_e", "L_d", "L_i")
 
@@ -22,11 +23,24 @@ class Film:
         self.acc = {name: np.zeros((3, width * height)) for name in LAYERS}
         self.samples = 0
 
-    def splat(self, layer: str, pixel: np.ndarray, rgb: np.ndarray) -> None:
-        """Add rgb (3, n) contributions at flat pixel indices ``pixel`` (n,); repeated pixels add up."""
+    def splat(self, layer: str, pixel: np.ndarray, rgb: np.ndarray, distinct: bool = False,
+              weight: np.ndarray | None = None) -> None:
+        """Add rgb (3, n) contributions at flat pixel indices ``pixel`` (n,); repeated pixels add up.
+        ``weight`` (3, n), if given, multiplies them first (``weight * rgb`` in float64, as numpy would).
+
+        ``distinct=True`` promises that no pixel repeats (a batch of at most one sample per pixel): each
+        contribution is then added straight into the accumulator, which is the same sum bit for bit as
+        ``acc += bincount(...)`` (that adds ``0 + v`` to the pixel, and ``0 + v == v`` whenever the
+        accumulator, which never holds -0, does not depend on the sign of a zero), without bincount's three
+        full-film temporaries (measured 5-8 ms -> ~1 ms per 512x512 frame)."""
         if pixel.shape[0] == 0:
             return
         acc = self.acc[layer]
+        if distinct:
+            _add_at_distinct(acc, pixel, rgb, np.ones((3, 1)) if weight is None else weight, weight is not None)
+            return
+        if weight is not None:
+            rgb = weight * rgb
         for c in range(3):
             acc[c] += np.bincount(pixel, weights=rgb[c], minlength=acc.shape[1])
 
@@ -43,3 +57,20 @@ class Film:
                for name, a in self.acc.items()}
         out["L"] = out["L_e"] + out["L_d"] + out["L_i"]
         return {k: out[k] for k in ("L", "L_d", "L_i", "L_e")}
+
+
+@njit(cache=True)
+def _add_at_distinct(acc: np.ndarray, pixel: np.ndarray, rgb: np.ndarray, weight: np.ndarray,
+                     weighted: bool) -> None:
+    # Serial: a few 10k scattered adds take well under a millisecond, no parallel region to wake. The
+    # product is float64 (float32 rgb is widened first), the same rounding as numpy's weight * rgb.
+    for i in range(pixel.shape[0]):
+        p = pixel[i]
+        if weighted:
+            acc[0, p] += weight[0, i] * np.float64(rgb[0, i])
+            acc[1, p] += weight[1, i] * np.float64(rgb[1, i])
+            acc[2, p] += weight[2, i] * np.float64(rgb[2, i])
+        else:
+            acc[0, p] += rgb[0, i]
+            acc[1, p] += rgb[1, i]
+            acc[2, p] += rgb[2, i]

@@ -198,6 +198,7 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
     first, total = first_sample * n_pixels, n_pixels * spp
     batch = min(batch_size, total)
     scratch, status = FirstInteractions.empty(batch), np.empty(batch, np.uint8)
+    distinct = batch <= n_pixels  # consecutive work items: no pixel twice in one batch (Film.splat)
     n_rays = n_samples = 0
     with tqdm(total=total, desc=desc, unit="spl", unit_scale=True, disable=not progress, leave=False) as bar:
         for start in range(first, first + total, batch):
@@ -208,7 +209,7 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
             if env is not None:  # misses first, then escapes: the order the separate stages added them in
                 for which in (MISSED_BOX, ESCAPED):
                     pixel = (np.flatnonzero(status[:count] == which) + start) % n_pixels
-                    film.splat("L_e", pixel, np.broadcast_to(env[:, None], (3, pixel.shape[0])))
+                    film.splat("L_e", pixel, np.broadcast_to(env[:, None], (3, pixel.shape[0])), distinct)
             with timer("compact"):
                 fi = compact_first_interactions(scratch, counts)
             n_samples += len(fi)
@@ -219,11 +220,11 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
                 with timer("estimate_indirect"):
                     q = estimator(fi.x, fi.d, scene.g)
                 with timer("compose"):
-                    film.splat("L_i", fi.pixel, fi.albedo * q)
+                    film.splat("L_i", fi.pixel, q, distinct, weight=fi.albedo)
             if direct:
                 with timer("estimate_direct"):
                     nee = direct_light_batch(m, kind, vec, rgb, scene.g, fi.x, fi.d, fi.rng, False)
                 with timer("compose"):
-                    film.splat("L_d", fi.pixel, fi.albedo * nee)
+                    film.splat("L_d", fi.pixel, nee, distinct, weight=fi.albedo)
     return finish(film, timer, spp, t_start, {"rays_in_volume": float(n_rays), "samples_in_volume": float(n_samples),
                                              "compaction_removed": 1.0 - n_samples / max(n_rays, 1)})
