@@ -37,3 +37,23 @@ def test_weighted_splat_is_weight_times_rgb() -> None:
     b.splat("L_i", pixel, q, distinct=True, weight=albedo)
     np.testing.assert_array_equal(a.acc["L_i"], ref.acc["L_i"])
     np.testing.assert_array_equal(b.acc["L_i"], ref.acc["L_i"])
+
+
+def test_layers_equal_the_numpy_means() -> None:
+    """``layers()`` (one numba pass) rounds like ``(acc * scale).T.reshape(H, W, 3).astype(float32)`` and sums
+    L as ``(L_e + L_d) + L_i`` in float32, overflow to inf included."""
+    rng = np.random.default_rng(5)
+    film = Film(7, 5)
+    film.samples = 3
+    for a in film.acc.values():
+        a[:] = rng.normal(size=a.shape) * 10.0 ** rng.integers(-40, 40, size=a.shape)
+    film.acc["L_d"][:, ::4] = 1e300
+    scale = 1.0 / 3
+    with np.errstate(over="ignore", invalid="ignore"):
+        ref = {k: (a * scale).T.reshape(5, 7, 3).astype(np.float32) for k, a in film.acc.items()}
+        ref["L"] = ref["L_e"] + ref["L_d"] + ref["L_i"]
+    out = film.layers()
+    assert list(out) == ["L", "L_d", "L_i", "L_e"]
+    for k, v in out.items():
+        assert v.dtype == np.float32 and v.shape == (5, 7, 3)
+        np.testing.assert_array_equal(v, ref[k])
