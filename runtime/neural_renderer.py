@@ -32,7 +32,34 @@ APIs:
 - :func:`render_orbit`: a fly-around of N frames orbiting the volume, written to numbered files, with
   per-frame timings (the paper's 2000-frame timing protocol in miniature).
 
-Memory: work is processed in batches of ``batch_size`` work items (default 2^18): the ray batch, the
+Performance (paper Table 2 on this machine, 512x512, 1 spp, max path length 16): 2 cores with a training job
+keeping ~1 of them busy throughout (``other_cores`` 1.0-1.1), so each figure is what about one free core does.
+``bench/bench_render.py``'s protocol (warm-up, best of 3 renders), run in 3 processes per code version,
+alternating with the code before this section's changes; the figures are the minima.
+``.venv/bin/python bench/bench_render.py --scenes vortex blobs shell --no-hd`` agrees within its noise:
+
+=======  ===========================  ==========================  ===========================
+scene    neural L_d / L_i / L (s)     path tracer L_d / L (s)     speedup L_d / L_i / L
+=======  ===========================  ==========================  ===========================
+vortex   0.225 / 0.203 / 0.249        0.220 / 0.382               1.0 / 1.9 / 1.5
+blobs    0.295 / 0.261 / 0.410        0.324 / 1.400               1.1 / 5.4 / 3.4
+shell    0.355 / 0.338 / 0.408        0.361 / 0.943               1.0 / 2.8 / 2.3
+=======  ===========================  ==========================  ===========================
+
+(before: vortex L 0.301, blobs 0.455, shell 0.397 s; the fusion of stages 1-2 and the film's numba splat and
+read-out saved 20-50 ms per frame, within the machine's run-to-run noise of ~10 % for shell.) Per-stage ms of
+the fastest vortex / blobs frame: sample_first_interactions 178 / 173, compact 1 / 4, estimate_indirect 26 / 85
+(encode position 12 / 33, direction 4 / 10, onnxruntime 9 / 33, decode 1 / 4), estimate_direct 29 / 131,
+compose 1 / 2; the film's allocation and read-out add ~15 ms outside ``total``. Of the issue's goals, the
+0.25 s frame is met by vortex's best frames only (blobs and shell ~0.41 s), and L_i >= 15x, L >= 5x are out
+of reach here for a structural reason: delta tracking every camera
+ray to its first interaction is 55-75 % of the frame, and it is the path tracer's first bounce, the same
+kernel and the same random numbers (the layers must agree bit for bit), so the neural renderer can only
+save the path tracer's later bounces: L_i is bounded by (path tracer L) / (first-interaction stage), ~2x
+(vortex, where 89 % of the in-box rays escape) to ~8x (blobs). 1 and 2 numba / onnxruntime threads measured
+equal here, the second core being taken; an idle machine was not available to measure.
+
+Memory: work is processed in batches of ``batch_size`` work items (default 2^18): the first interactions, the
 field's input buffer (chunked again inside the field) and the film (3 layers x 3 float64 per pixel) bound
 it, so a 1280x720, 16 spp render needs a few hundred MB whatever the spp.
 """
