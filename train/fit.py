@@ -47,6 +47,10 @@ paper, 2^16 (box, r = 0.25 % ...)   0.93-0.98 s (fwd 0.2,    r 0.25 %: 80 / 74 /
 cpu, 2^12 (support, r = 5 %)        23 ms                    117 / 62 / 66 ms
 ==================================  =======================  ==============================================
 
+Paper preset run to the end on vortex (1M photons, seed 0; ``bench/bench_training.py --configs cpu,paper``):
+6462 s under ~1 core of foreign load, validation relative L1 0.179, field L_i relative L2 on held-out views
+0.224 in G; the cpu preset reaches 0.113 / 0.140 in 173 s on the same map: 0.63x the paper preset's error.
+
 So the paper preset is training-bound (~1.1 s/step, ~55 min for 3000 steps, 3.1 GB RSS, a 407 MB
 checkpoint) and the cpu preset target-bound (targets are 73-84 % of its step). ``pfn-train all`` with the
 cpu preset, 1M photons: vortex 118 s end to end (trace 7.9 s, fit 103.5 s), shell 83 s.
