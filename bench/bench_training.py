@@ -26,7 +26,6 @@ report records the foreign load during each fit.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -41,7 +40,7 @@ from models_spec.hashgrid import HashGridConfig  # noqa: E402
 from runtime.photon_map import PhotonMap  # noqa: E402
 from runtime.scene import Scene, builtin_scene  # noqa: E402
 from train.evaluate import OUTSIDE_G, evaluate_field, reference_maps  # noqa: E402
-from train.fit import PRESETS, FitSettings, Preset, fit, load_checkpoint  # noqa: E402
+from train.fit import PRESETS, FitSettings, Preset, finished_run, fit, load_checkpoint  # noqa: E402
 from train.photon_tracing import trace_photons  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -87,17 +86,6 @@ def cached_map(path: Path, make: Any) -> PhotonMap:
 def settings_for(config: str) -> FitSettings:
     preset, overrides = CONFIGS[config]
     return FitSettings.from_preset(preset, **overrides)
-
-
-def finished_run(run: Path, settings: FitSettings) -> dict[str, Any] | None:
-    """The log of a finished run in ``run`` with exactly these settings, else None."""
-    try:
-        log = json.loads((run / "log.json").read_text())
-    except (OSError, ValueError):
-        return None
-    if log.get("status") != "done" or not (run / "checkpoint.pt").exists():
-        return None
-    return log if log.get("settings") == json.loads(json.dumps(settings.to_dict())) else None
 
 
 def time_to_reach(log: dict[str, Any], target: float) -> float | None:

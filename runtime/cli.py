@@ -175,8 +175,7 @@ def run_orbit(args: argparse.Namespace, scene: Any, field: Any, out: Path, spp: 
     """``--orbit N``: N frames orbiting the volume, numbered files beside ``out``, a timings JSON."""
     from runtime.neural_renderer import orbit_frame_paths, render_orbit
 
-    for path in orbit_frame_paths(out, args.orbit)[:1]:
-        prepare_output(path, ".exr", (".png",))
+    prepare_output(orbit_frame_paths(out, args.orbit)[0], ".exr", (".png",))
     summary = render_orbit(scene, field.estimator(), out, frames=args.orbit, spp=spp, seed=args.seed,
                            batch_size=args.batch_size, degrees=args.orbit_degrees, exposure=args.exposure,
                            progress=not args.quiet)

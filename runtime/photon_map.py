@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import zipfile
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,14 @@ import numpy as np
 from models_spec.photon_map import PHOTON_MAP_ARRAYS, PHOTON_MAP_FORMAT, PHOTON_MAP_VERSION
 from runtime.atomic import atomic_path
 from runtime.errors import InputError
+
+
+def find_phase(phases: Sequence[float], g: float) -> int | None:
+    """Index of ``g`` in a phase set (within 1e-6), or None: the one membership rule for maps and fields."""
+    for i, gi in enumerate(phases):
+        if abs(gi - g) < 1e-6:
+            return i
+    return None
 
 
 @dataclass(eq=False)
@@ -39,10 +48,10 @@ class PhotonMap:
     def phase_index(self, g: float, what: str = "g") -> int:
         """Index of ``g`` in the map's phase set; the estimate is phase-selective (Eq. 5), so a g that
         was not traced cannot be answered by the map."""
-        for i, gi in enumerate(self.phases):
-            if abs(gi - g) < 1e-6:
-                return i
-        raise InputError(what, f"g = {g} is not in the photon map's phase set {list(self.phases)}")
+        i = find_phase(self.phases, g)
+        if i is None:
+            raise InputError(what, f"g = {g} is not in the photon map's phase set {list(self.phases)}")
+        return i
 
     def subset(self, phase: int) -> PhotonMap:
         sel = self.phase == phase

@@ -56,10 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     t = sub.add_parser("trace", help="multi-phase photon tracing (Alg. 1) into a photon map",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    t.add_argument("scene", help="builtin scene name (vortex, blobs, shell) or a scene JSON file")
-    t.add_argument("--photons", default="1M", help="records to store, e.g. 1M, 250k")
-    t.add_argument("--phases", type=float, nargs="+", default=list(DEFAULT_PHASES), help="the phase set G")
-    t.add_argument("--max-bounces", type=int, default=16, help="max collisions per photon path")
+    _add_trace_options(t)
     t.add_argument("--seed", type=int, default=0, help="random seed: same seed, same map")
     t.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -73,10 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     a = sub.add_parser("all", help="trace a photon map (saved as OUT/map.npz), then fit a field to it",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    a.add_argument("scene", help="builtin scene name (vortex, blobs, shell) or a scene JSON file")
-    a.add_argument("--photons", default="1M", help="records to store, e.g. 1M, 250k")
-    a.add_argument("--phases", type=float, nargs="+", default=list(DEFAULT_PHASES), help="the phase set G")
-    a.add_argument("--max-bounces", type=int, default=16, help="max collisions per photon path")
+    _add_trace_options(a)
     a.add_argument("--tables-dtype", choices=["float32", "float16"], default="float32",
                    help="hash-table precision in the exported bundle")
     _add_fit_options(a)
@@ -91,6 +85,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hash-table precision (float16: half the size, L' within ~1e-3)")
     e.add_argument("--force", action="store_true", help="replace an existing bundle")
     return p
+
+
+def _add_trace_options(t: argparse.ArgumentParser) -> None:
+    """The scene and photon-tracing options of ``trace`` and ``all``."""
+    t.add_argument("scene", help="builtin scene name (vortex, blobs, shell) or a scene JSON file")
+    t.add_argument("--photons", default="1M", help="records to store, e.g. 1M, 250k")
+    t.add_argument("--phases", type=float, nargs="+", default=list(DEFAULT_PHASES), help="the phase set G")
+    t.add_argument("--max-bounces", type=int, default=16, help="max collisions per photon path")
 
 
 def _add_fit_options(f: argparse.ArgumentParser) -> None:

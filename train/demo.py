@@ -149,13 +149,9 @@ def run_demo(args: argparse.Namespace) -> dict[str, Any]:
     times["render_neural"] = time.perf_counter() - t
     step(f"rendering: photon map ({spp} spp) ...")
     t = time.perf_counter()
-    ref_map = pmap
-    if not any(abs(g - scene.g) < 1e-9 for g in pmap.phases):
-        # The field interpolates g between the phases it was trained on; the photon-map image needs photons
-        # traced at the scene's g itself: as many as one training phase holds (train.evaluate).
-        from train.evaluate import reference_maps
+    from train.evaluate import map_at_g
 
-        ref_map = reference_maps(scene, pmap, (scene.g,), seed=args.seed + 1, progress=progress)
+    ref_map = map_at_g(scene, pmap, scene.g, seed=args.seed + 1, progress=progress)
     renders["photon map"] = render_photon_mapped(scene, ref_map, spp=spp, seed=args.seed, progress=progress)
     times["render_photon_map"] = time.perf_counter() - t
     step(f"rendering: path-traced reference ({ref_spp} spp) ...")

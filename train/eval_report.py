@@ -165,16 +165,14 @@ class Evaluation:
     def run(self, name: str, photons: int, schedule: str) -> tuple[Path, dict[str, Any]]:
         """A fit of the plan's preset on the scene's map (kept in the work folder and reused)."""
         from train.export import write_run_domain
-        from train.fit import FitSettings, fit
+        from train.fit import FitSettings, finished_run, fit
 
         run = self.work / name / f"run_{photons}_{schedule}"
         settings = FitSettings.from_preset(self.plan.preset, steps=self.plan.steps, schedule_kind=schedule,
                                            seed=self.seed)
-        log_path = run / "log.json"
-        if log_path.exists():
-            log = json.loads(log_path.read_text())
-            if log.get("status") == "done" and log.get("settings") == json.loads(json.dumps(settings.to_dict())):
-                return run, log
+        log = finished_run(run, settings)
+        if log is not None:
+            return run, log
         scene = self.scene(name)
         run.mkdir(parents=True, exist_ok=True)
         write_run_domain(run, scene)
@@ -287,7 +285,7 @@ class Evaluation:
         from runtime.path_tracer import render_path_traced
         from runtime.photon_estimate import render_photon_mapped
         from runtime.ray_marcher import render_ray_marched
-        from train.evaluate import reference_maps
+        from train.evaluate import map_at_g
 
         plt = _plt()
         size, spp = self.plan.image_size, self.plan.image_spp
@@ -299,8 +297,7 @@ class Evaluation:
             _say(f"4. images: {name}")
             scene = self.scene(name, (size, size))
             pmap = self.photon_map(name, self.plan.train_photons)
-            if not any(abs(g - scene.g) < 1e-9 for g in pmap.phases):  # the field interpolates; the map cannot
-                pmap = reference_maps(scene, pmap, (scene.g,), seed=self.seed + 1)
+            pmap = map_at_g(scene, pmap, scene.g, seed=self.seed + 1)
             renders = {
                 "neural": render_neural(scene, self.field(name).estimator(), spp=spp, seed=self.seed, progress=False),
                 "photon map": render_photon_mapped(scene, pmap, spp=spp, seed=self.seed, progress=False),
@@ -387,6 +384,7 @@ class Evaluation:
 
     # -- 6. phase awareness ---------------------------------------------------------------------------
     def section_phases(self) -> str:
+        from runtime.photon_map import find_phase
         from train.evaluate import evaluate_field, reference_maps
         from train.fit import load_checkpoint
 
@@ -399,7 +397,7 @@ class Evaluation:
         model, _ = load_checkpoint(run / "checkpoint.pt")
         res = evaluate_field(scene, model, [indep], PHASE_SWEEP, size=self.plan.eval_size, spp=2, seed=self.seed)
         self.data["phases"] = res
-        rows = [[g, "yes" if any(abs(float(g) - p) < 1e-9 for p in pmap.phases) else "no", v["rel_l2"], v["ssim"]]
+        rows = [[g, "yes" if find_phase(pmap.phases, float(g)) is not None else "no", v["rel_l2"], v["ssim"]]
                 for g, v in res["per_g"].items()]
         plt = _plt()
         fig, ax = plt.subplots(figsize=(5, 3.5))

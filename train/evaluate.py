@@ -38,7 +38,7 @@ from runtime.first_interaction import render_first_interaction
 from runtime.medium import Medium
 from runtime.metrics import relative_l2, ssim
 from runtime.photon_estimate import DEFAULT_K, DEFAULT_RADIUS, render_photon_mapped
-from runtime.photon_map import PhotonMap
+from runtime.photon_map import PhotonMap, find_phase
 from runtime.scene import Scene
 from train.field import PhotonField
 from train.photon_tracing import trace_photons
@@ -84,6 +84,15 @@ def reference_maps(scene: Scene, train_map: PhotonMap, gs: tuple[float, ...] = O
     return trace_photons(scene, per_phase * len(gs), phases=list(gs), seed=seed, progress=progress)
 
 
+def map_at_g(scene: Scene, train_map: PhotonMap, g: float, *, seed: int = 1, progress: bool = False) -> PhotonMap:
+    """A map that answers the photon-map estimate at ``g``: the training map if g is in its phase set, else
+    a map traced at g alone with as many photons as one training phase (:func:`reference_maps`). The field
+    interpolates between phases; a photon map cannot."""
+    if find_phase(train_map.phases, g) is not None:
+        return train_map
+    return reference_maps(scene, train_map, (g,), seed=seed, progress=progress)
+
+
 @dataclass
 class ViewScore:
     view: int
@@ -107,7 +116,7 @@ def evaluate_field(scene: Scene, model: PhotonField, maps: list[PhotonMap], gs: 
     cache = {} if cache is None else cache
     result = _scores(scene, model, maps, gs, size, spp, seed, k, radius, cameras, cache)
     if independent is not None:
-        in_g = tuple(g for g in gs if any(abs(g - p) < 1e-9 for p in model.cfg.phases))
+        in_g = tuple(g for g in gs if find_phase(model.cfg.phases, g) is not None)
         indep = _scores(scene, model, [independent], in_g, size, spp, seed, k, radius, cameras, cache)
         result["rel_l2_in_G_independent"] = indep["rel_l2_in_G"]
         result["ssim_in_G_independent"] = indep["ssim_in_G"]
@@ -120,7 +129,7 @@ def _scores(scene: Scene, model: PhotonField, maps: list[PhotonMap], gs: tuple[f
     est = TorchFieldEstimator(model, scene.medium())
     scores: list[ViewScore] = []
     for g in gs:
-        pmap = next((m for m in maps if any(abs(p - g) < 1e-9 for p in m.phases)), None)
+        pmap = next((m for m in maps if find_phase(m.phases, g) is not None), None)
         if pmap is None:
             raise ValueError(f"no reference map was traced at g = {g}")
         for v, cam in enumerate(cams):
@@ -138,7 +147,7 @@ def _scores(scene: Scene, model: PhotonField, maps: list[PhotonMap], gs: tuple[f
                                     ssim(img.layers["L_i"], ref.layers["L_i"]), t2 - t1, ref_s))
     per_g = {f"{g:g}": {"rel_l2": float(np.mean([s.rel_l2 for s in scores if s.g == g])),
                         "ssim": float(np.mean([s.ssim for s in scores if s.g == g]))} for g in gs}
-    in_g = [s for s in scores if any(abs(s.g - p) < 1e-9 for p in model.cfg.phases)]
+    in_g = [s for s in scores if find_phase(model.cfg.phases, s.g) is not None]
     out_g = [s for s in scores if s not in in_g]
 
     def mean(sel: list[ViewScore], key: str) -> float | None:

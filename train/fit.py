@@ -367,6 +367,19 @@ def load_checkpoint(path: str | Path, expected_fingerprint: str | None = None) -
     return model, data
 
 
+def finished_run(run_dir: str | Path, settings: FitSettings) -> dict[str, Any] | None:
+    """The log of a finished fit in ``run_dir`` (status done, checkpoint present) made with exactly these
+    settings, else None: lets benchmarks and the evaluation reuse a run instead of training it again."""
+    run = Path(run_dir)
+    try:
+        log = json.loads((run / "log.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if log.get("status") != "done" or not (run / "checkpoint.pt").exists():
+        return None
+    return log if log.get("settings") == json.loads(json.dumps(settings.to_dict())) else None
+
+
 def plot_loss(log: dict[str, Any], path: Path) -> None:
     """Loss curve (log scale, raw and smoothed), validation loss, vertical lines at stage changes."""
     import matplotlib
