@@ -1,8 +1,9 @@
 """Helpers shared by the benchmarks: machine facts, contention measurement, scene lists, JSON reports.
 
-Figures are only comparable within one run and on a quiet machine; every report records the core
-count, numba's threading layer, the load and how many cores other processes kept busy, and flags the
-run as ``machine_busy`` when that foreign load exceeds ``BUSY_FRACTION`` of the usable cores.
+Figures are only comparable within one run and on a quiet machine; every report records the CPU model
+and its instruction-set flags, the core count, numba's threading layer, the load and how many cores other
+processes kept busy, and flags the run as ``machine_busy`` when that foreign load exceeds ``BUSY_FRACTION``
+of the usable cores.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Any
 import numba
 import numpy as np
 
+from runtime.machine import cpu_info
 from runtime.scene import BUILTIN_SCENES
 from runtime.timing import Contention  # noqa: F401  (re-exported for the benchmarks)
 
@@ -24,12 +26,14 @@ BUSY_FRACTION = 0.2  # foreign load (in cores per usable core) above which a sce
 
 
 def machine_info() -> dict[str, Any]:
-    """What the figures depend on: core counts (numba's prange scales with threads), versions."""
+    """What the figures depend on: the CPU (model, ISA extensions, flags: figures from different CPUs are
+    not comparable), core counts (numba's prange scales with threads), versions."""
     try:
         usable = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         usable = os.cpu_count()
-    return {"cpu_count": os.cpu_count(), "usable_cores": usable, "numba_threads": numba.get_num_threads(),
+    return {"cpu": cpu_info(), "cpu_count": os.cpu_count(), "usable_cores": usable,
+            "numba_threads": numba.get_num_threads(),
             "platform": platform.platform(), "processor": platform.processor() or platform.machine(),
             "python": platform.python_version(), "numpy": np.__version__, "numba": numba.__version__,
             "load_avg_start": load_average()}

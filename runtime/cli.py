@@ -50,17 +50,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", default=None, help="WIDTHxHEIGHT (default: the scene camera's)")
     p.add_argument("--g", type=float, default=None, help="Henyey-Greenstein g in [-1, 1] (default: the scene's)")
     p.add_argument("--seed", type=int, default=0, help="random seed: same seed, same image")
-    p.add_argument("--max-depth", type=int, default=16, help="pt: max scattering vertices per path")
-    p.add_argument("--no-nee", action="store_true", help="pt: pure phase sampling (no next-event estimation)")
+    p.add_argument("--max-depth", type=int, default=16,
+                   help="pt: max scattering vertices per path, with or without --no-nee (1: single scattering)")
+    p.add_argument("--no-nee", action="store_true",
+                   help="pt: pure phase sampling (no next-event estimation; reaches the environment light only)")
     p.add_argument("--step", type=float, default=0.5, help="raymarch: step length in voxels")
     p.add_argument("--map", default=None, help="photonmap: photon map (.npz) from `pfn-train trace`")
     p.add_argument("--k", type=int, default=1024, help="photonmap: photons per estimate (K)")
     p.add_argument("--radius", type=float, default=0.05,
                    help="photonmap: max search radius, in units of the volume box's longest side")
     p.add_argument("--bundle", default=None, help="field: photon-field bundle (NAME.pfn) from `pfn-train export`")
-    p.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
-                   help="field: MLP precision (fp32: exact; int8: dynamic quantization, L' within ~2e-2, "
-                        "measured no faster on this CPU; runtime/field.py)")
+    p.add_argument("--precision", default="fp32",
+                   help="field: MLP precision; fp32 (exact) is the only one (int8 was removed: runtime/field.py)")
     p.add_argument("--orbit", type=int, default=None,
                    help="field: render N frames orbiting the volume to numbered files OUT_0000.exr ...")
     p.add_argument("--orbit-degrees", type=float, default=360.0, help="field: total orbit angle")
@@ -99,6 +100,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         positive_int("--k", args.k, 1 << 16)
         if not (0 < args.radius <= 2 and math.isfinite(args.radius)):
             raise InputError("--radius", f"must be in (0, 2] box units, got {args.radius}")
+    if args.precision != "fp32":
+        from runtime.field import REMOVED_PRECISIONS
+
+        raise InputError("--precision", REMOVED_PRECISIONS.get(args.precision,
+                                                               f"fp32 is the only precision, got {args.precision!r}"))
     if args.method == "field" and args.bundle is None:
         raise InputError("--bundle", "--method field needs a bundle (pfn-train all SCENE --out run/ "
                          "writes run/field.pfn)")

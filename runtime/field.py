@@ -18,9 +18,8 @@ Python API::
 path : the bundle directory.
 threads : worker threads for the hash encoding (numba, set around each query and restored) and for
     onnxruntime's intra-op pool; None: numba's current setting and all cores for onnxruntime.
-precision : "fp32" (default; the exact path: L' within 1e-5 of the torch model, tests/test_bundle.py) or
-    "int8" (onnxruntime dynamic quantization of the MLP's weights at load time; L' within
-    :data:`INT8_ABS_BOUND`). fp16 is not offered: see "Precision" below.
+precision : "fp32", the only one (the exact path: L' within 1e-5 of the torch model, tests/test_bundle.py).
+    "int8" was removed and is refused in one line, and fp16 is not offered: see "Precision" below.
 expected_fingerprint : the scene's :meth:`runtime.scene.Scene.fingerprint`; a bundle trained for another
     scene is refused unless ``force``.
 chunk : queries per onnxruntime call (the encode buffer holds ``chunk`` rows; default :data:`DEFAULT_CHUNK`).
@@ -74,12 +73,12 @@ Precision
   them to float32 at load (numba has no float16 on the CPU), so speed is unchanged and the runtime still
   equals the torch model evaluated with the same rounded tables (within 1e-5 on L'); the rounding itself
   (relative 2^-11) moved L' by ~2e-4 on tables of magnitude 1 (tested bound 2e-3).
-- int8 dynamic quantization of the MLP (``precision="int8"``): onnxruntime turns each MatMul into
-  DynamicQuantizeLinear + MatMulInteger + Cast + Mul (also from a Gemm graph after ``quant_pre_process``,
-  per-channel or uint8 weights), and that measured *slower* than fp32 for these thin layers: MLP alone
-  0.70x (45 -> 64x3 -> 3) and 0.9-1.0x (257 -> 64x4 -> 3), end to end 0.83x / 0.99x, with ~1.5e-2 error on
-  L'. It stays available (``pfn-render --precision int8`` exposes it) for CPUs where it pays; fp32 is the
-  default and the only exact path.
+- int8 dynamic quantization of the MLP was offered until 0.1 and is refused now. onnxruntime's U8S8 kernels
+  saturate int16 sums on x86 CPUs without VNNI (AVX2 only, AVX-512 without VNNI): on an AMD EPYC with AVX2
+  it was off by 0.27 on L' (tested bound 2e-2, fine on VNNI and AMX machines). Its speed did not pay for an
+  ISA-dependent error that no single machine can test: end to end 0.83x of fp32 on an Intel AMX machine,
+  1.2x on an AMD EPYC with AVX-512 VNNI (the MLP is 30-40 % of a query and a query a small part of a
+  frame). ``bench/bench_field.py`` still measures it (speed and error) for a future decision.
 """
 
 from __future__ import annotations
@@ -117,10 +116,10 @@ from runtime.hashgrid import aligned_table, encode
 #: paper architecture (257 floats per row, 16 MB) within reach of the caches, and larger chunks bought
 #: nothing measurable).
 DEFAULT_CHUNK = 1 << 14
-PRECISIONS = ("fp32", "int8")
-#: Max abs difference on L' (Eq. 6 space) of the int8 path against fp32, the looser bound it is tested
-#: against (tests/test_runtime_field.py); a relative radiance error of up to ln(10) psi times this.
-INT8_ABS_BOUND = 2e-2
+PRECISIONS = ("fp32",)
+#: Precisions that were offered once, with why they are refused now (module docstring, "Precision").
+REMOVED_PRECISIONS = {"int8": "int8 was removed: onnxruntime's int8 kernels lose accuracy on CPUs without "
+                              "VNNI and it was not faster; use fp32"}
 
 
 @dataclass
@@ -270,29 +269,6 @@ def _session(model_bytes: bytes, what: str, threads: int | None, spinning: bool)
         raise InputError(what, f"onnxruntime cannot load it: {str(exc).splitlines()[0] if str(exc) else exc}") from None
 
 
-def quantize_int8(model: Any) -> bytes:
-    """The MLP with int8 weights (onnxruntime dynamic quantization: activations quantized per call)."""
-    import tempfile
-
-    import onnx
-    from onnxruntime.quantization import QuantType, quantize_dynamic
-
-    # quantize_dynamic works on files; a private temporary folder keeps it away from the bundle.
-    with tempfile.TemporaryDirectory(prefix="pfn-int8-") as tmp:
-        src, dst = Path(tmp) / "fp32.onnx", Path(tmp) / "int8.onnx"
-        onnx.save(model, src)
-        import logging
-
-        logger = logging.getLogger()
-        level = logger.level
-        logger.setLevel(logging.ERROR)  # it logs a "consider pre-processing" warning for every model
-        try:
-            quantize_dynamic(src, dst, weight_type=QuantType.QInt8)
-        finally:
-            logger.setLevel(level)
-        return dst.read_bytes()
-
-
 @contextlib.contextmanager
 def _numba_threads(threads: int | None) -> Iterator[None]:
     if threads is None:
@@ -335,6 +311,8 @@ class PhotonField:
              spinning: bool = False, pipeline: bool = False) -> PhotonField:
         """Load and validate a bundle (module docstring); one-line InputError on any problem."""
         bundle = Path(path)
+        if precision in REMOVED_PRECISIONS:
+            raise InputError("precision", REMOVED_PRECISIONS[precision])
         if precision not in PRECISIONS:
             raise InputError("precision", f"must be one of {', '.join(PRECISIONS)}, got {precision!r}")
         if threads is not None:
@@ -358,10 +336,8 @@ class PhotonField:
         onnx_path = _check_file(bundle, ONNX_FILE, manifest.files[ONNX_FILE])
         tables_path = _check_file(bundle, TABLES_FILE, manifest.files[TABLES_FILE])
         data = onnx_path.read_bytes()
-        model = _check_onnx(onnx_path, data, manifest)
+        _check_onnx(onnx_path, data, manifest)
         tables = _load_tables(tables_path, manifest)
-        if precision == "int8":
-            data = quantize_int8(model)
         session = _session(data, str(onnx_path), threads, spinning)
         return cls(bundle, manifest, tables, session, threads=threads, precision=precision, chunk=chunk,
                    spinning=spinning, pipeline=pipeline)

@@ -167,6 +167,8 @@ CASES: list[Case] = [
                          str(a["scene"]), *SIZE, "--out", str(o / "r.exr")], "version"),
     (R, lambda a, d, o: ["--method", "field", "--bundle", str(a["bundle"]), "--scene", str(a["other"]), *SIZE,
                          "--out", str(o / "r.exr")], "another scene"),
+    (R, lambda a, d, o: ["--method", "field", "--bundle", str(a["bundle"]), "--scene", str(a["scene"]),
+                         "--precision", "int8", *SIZE, "--out", str(o / "r.exr")], "int8 was removed"),
     (T, lambda a, d, o: ["export", str(d / "norun"), "--out", str(o / "f.pfn")], "norun"),
     # training, demo and evaluation arguments
     (T, lambda a, d, o: ["trace", "blobs", "--photons", "lots", "--out", str(o / "m.npz")], "--photons"),
