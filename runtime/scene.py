@@ -35,7 +35,7 @@ import numpy as np
 
 from models_spec import scene_fingerprint
 from runtime.camera import Camera
-from runtime.errors import InputError
+from runtime.errors import InputError, check_keys
 from runtime.lights import (
     ENVIRONMENT,
     DirectionalLight,
@@ -205,9 +205,7 @@ def scene_from_dict(d: Any, base_dir: Path | None = None, what: str = "scene") -
     base_dir = base_dir or Path.cwd()
     if not isinstance(d, dict):
         raise InputError(what, "a scene must be a JSON object")
-    unknown = set(d) - _SCENE_KEYS
-    if unknown:
-        raise InputError(what, f"unknown keys {sorted(unknown)} (allowed: {sorted(_SCENE_KEYS)})")
+    check_keys(d, _SCENE_KEYS, what)
     for key in ("volume", "transfer_function", "lights", "camera"):
         if key not in d:
             raise InputError(what, f"missing '{key}'")
@@ -226,8 +224,7 @@ def scene_from_dict(d: Any, base_dir: Path | None = None, what: str = "scene") -
     if not isinstance(phase, dict):
         raise InputError(f"{what} phase", "must be an object like {\"g\": 0.0}")
     # Fix: a misspelt phase key (e.g. "gg") used to be ignored silently, rendering with g = 0.
-    if set(phase) - {"g"}:
-        raise InputError(f"{what} phase", f"unknown keys {sorted(set(phase) - {'g'})} (allowed: ['g'])")
+    check_keys(phase, ("g",), f"{what} phase")
     # Fix: g and the light checks of Scene used to be labelled "scene '<name>' ...", which does not name
     # the file; validate g here and re-label the Scene's own errors with ``what``.
     g = check_g(phase.get("g", 0.0), f"{what} phase g")
@@ -249,18 +246,13 @@ def _volume_from_dict(v: Any, base_dir: Path, what: str) -> Volume:
         raise InputError(what, "must be an object with 'path' or 'builtin'")
     if "builtin" in v:
         # Fix: unknown keys were ignored here (but refused for file volumes); errors now name the entry.
-        unknown = set(v) - {"builtin", "resolution"}
-        if unknown:
-            raise InputError(what, f"unknown keys {sorted(unknown)} (allowed: ['builtin', 'resolution'])")
+        check_keys(v, ("builtin", "resolution"), what)
         return builtin_volume(str(v["builtin"]), v.get("resolution", BUILTIN_RESOLUTION), what=what)
     if "path" not in v:
         raise InputError(what, "needs 'path' (a volume file) or 'builtin' (a procedural volume name)")
     from runtime.volume_io import load_volume
 
-    allowed = {"path", "dims", "dtype", "endian", "spacing", "window", "axes"}
-    unknown = set(v) - allowed
-    if unknown:
-        raise InputError(what, f"unknown keys {sorted(unknown)} (allowed: {sorted(allowed)})")
+    check_keys(v, ("path", "dims", "dtype", "endian", "spacing", "window", "axes"), what)
     kwargs = {k: v[k] for k in ("dims", "dtype", "endian", "spacing", "window", "axes") if k in v}
     return load_volume(_resolve(str(v["path"]), base_dir), **kwargs)
 
