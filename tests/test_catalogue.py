@@ -182,6 +182,39 @@ CASES: list[Case] = [
     (E, lambda a, d, o: ["--quick", "--size", "0", "--out", str(o / "docs"), "--work", str(o / "w")], "--size"),
 ]
 
+# Issue 11, part 3: inputs that were wrong but accepted (or refused without naming the entry).
+_TF_PTS = [{"s": 0.0, "albedo": [0.9, 0.9, 0.9], "opacity": 0.0}, {"s": 1.0, "albedo": [0.9, 0.9, 0.9], "opacity": 1.0}]
+
+
+def tf_file(d: Path, tf: dict) -> str:
+    (d / "tf.json").write_text(json.dumps(tf))
+    return scene_file(d, transfer_function="tf.json")
+
+
+def raw_scene(d: Path, sidecar: dict | None = None, **entry: object) -> str:
+    (d / "vol.raw").write_bytes(bytes(range(64)))
+    if sidecar is not None:
+        (d / "vol.raw.json").write_text(json.dumps(sidecar))
+    return scene_file(d, volume={"path": "vol.raw", **entry})
+
+
+CASES += [
+    (R, lambda a, d, o: ["--scene", scene_file(d, transfer_function={"preset": "cloud", "densty_scale": 80}), *SIZE,
+                         "--out", str(o / "r.exr")], "scene.json transfer_function: unknown key 'densty_scale'"),
+    (R, lambda a, d, o: ["--scene", tf_file(d, {"points": _TF_PTS, "densty_scale": 80}), *SIZE, "--out",
+                         str(o / "r.exr")], "tf.json: unknown key 'densty_scale'"),
+    (R, lambda a, d, o: ["--scene", tf_file(d, {"points": [_TF_PTS[0], {**_TF_PTS[1], "opacty": 1}]}), *SIZE,
+                         "--out", str(o / "r.exr")], "tf.json points[1]: unknown key 'opacty'"),
+    (R, lambda a, d, o: ["--scene", tf_file(d, {"points": [_TF_PTS[0], {"s": 1.0, "albedo": [1, 1, 1]}]}), *SIZE,
+                         "--out", str(o / "r.exr")], "tf.json points[1]: missing 'opacity'"),
+    (R, lambda a, d, o: ["--scene", scene_file(d, camera={"eye": [2, 0, 0], "target": [0, 0, 0], "fow": 20}), *SIZE,
+                         "--out", str(o / "r.exr")], "camera: unknown key 'fow'"),
+    (R, lambda a, d, o: ["--scene", raw_scene(d), *SIZE, "--out", str(o / "r.exr")],
+     'vol.raw: a raw volume has no header, so its dimensions and data type must be given: add "dims"'),
+    (R, lambda a, d, o: ["--scene", raw_scene(d, {"dims": [4, 4, 4], "dtype": "uint8", "spacng": [1, 1, 2]}), *SIZE,
+                         "--out", str(o / "r.exr")], "vol.raw.json: unknown key 'spacng'"),
+]
+
 MAINS = {R: render_main, T: train_main, D: demo_main, E: eval_main}
 
 
