@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from models_spec import scene_fingerprint
+from models_spec import fingerprint_parts, scene_fingerprint
 from runtime.camera import Camera
 from runtime.errors import InputError, check_keys
 from runtime.lights import (
@@ -79,6 +79,14 @@ class Scene:
                 self.volume.fingerprint(), self.tf.to_dict(), [light.to_dict() for light in self.lights])
         return self._cache["fingerprint"]
 
+    def fingerprint_parts(self) -> dict[str, str]:
+        """Per-part fingerprints (volume, transfer_function, lights): recorded beside :meth:`fingerprint` in
+        photon maps and bundles, so that a mismatch can name what differs."""
+        if "fingerprint_parts" not in self._cache:
+            self._cache["fingerprint_parts"] = fingerprint_parts(
+                self.volume.fingerprint(), self.tf.to_dict(), [light.to_dict() for light in self.lights])
+        return dict(self._cache["fingerprint_parts"])
+
     def medium(self) -> Medium:
         """The packed medium (built once per scene object)."""
         if "medium" not in self._cache:
@@ -109,7 +117,7 @@ class Scene:
             cam = cam.with_resolution(cam.width if width is None else width,
                                       cam.height if height is None else height)
         new = replace(self, g=self.g if g is None else g, camera=cam, _cache={})
-        for key in ("medium", "fingerprint", "lights"):  # none of these depend on g or the camera
+        for key in ("medium", "fingerprint", "fingerprint_parts", "lights"):  # none depend on g or the camera
             if key in self._cache:
                 new._cache[key] = self._cache[key]
         return new

@@ -552,4 +552,4 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
 
 def load_map_for(scene: Scene, path: str | Path) -> PhotonMap:
     """Load a photon map and refuse one traced for another scene, in one line."""
-    return PhotonMap.load(path, expected_fingerprint=scene.fingerprint())
+    return PhotonMap.load(path, expected_fingerprint=scene.fingerprint(), expected_parts=scene.fingerprint_parts())
