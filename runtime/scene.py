@@ -61,6 +61,9 @@ class Scene:
     camera: Camera
     g: float = 0.0
     name: str = "scene"
+    #: How to rebuild the volume: a scene file's volume entry (``{"builtin", "resolution"}`` or ``{"path"``
+    #: (absolute), reader options``}``), set by the loaders; None for a volume built from an array.
+    volume_source: dict[str, Any] | None = None
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -122,6 +125,16 @@ class Scene:
                 new._cache[key] = self._cache[key]
         return new
 
+    def spec(self) -> dict[str, Any] | None:
+        """The scene as a scene file (what :func:`scene_from_dict` reads back to the same fingerprint,
+        camera and g), or None when the volume was built from an array and cannot be referenced. Bundles
+        record it so that ``pfn-render --method field`` can rebuild the scene a field was trained for."""
+        if self.volume_source is None:
+            return None
+        return {"name": self.name, "volume": dict(self.volume_source), "transfer_function": self.tf.to_dict(),
+                "lights": [lt.to_dict() for lt in self.lights], "camera": self.camera.to_dict(),
+                "phase": {"g": self.g}}
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-able description (the volume is referenced by name and fingerprint, not embedded)."""
         return {"name": self.name, "volume": {"name": self.volume.name, "dims": list(self.volume.dims),
@@ -181,7 +194,7 @@ def builtin_scene(name: str, resolution: int = BUILTIN_RESOLUTION) -> Scene:
     spec = BUILTIN_SCENES[name]
     return Scene(builtin_volume(spec["volume"], resolution), preset(spec["tf"]),
                  tuple(light_from_dict(d) for d in spec["lights"]), Camera.from_dict(_DEFAULT_CAMERA),
-                 spec["g"], name)
+                 spec["g"], name, {"builtin": spec["volume"], "resolution": resolution})
 
 
 # --- scene files ---------------------------------------------------------------------------------------
@@ -218,7 +231,7 @@ def scene_from_dict(d: Any, base_dir: Path | None = None, what: str = "scene") -
         if key not in d:
             raise InputError(what, f"missing '{key}'")
     name = str(d.get("name", Path(what).stem))
-    volume = _volume_from_dict(d["volume"], base_dir, f"{what} volume")
+    volume, volume_source = _volume_from_dict(d["volume"], base_dir, f"{what} volume")
     tf_spec = d["transfer_function"]
     if isinstance(tf_spec, str):
         tf = TransferFunction.load(_resolve(tf_spec, base_dir))
@@ -237,7 +250,7 @@ def scene_from_dict(d: Any, base_dir: Path | None = None, what: str = "scene") -
     # the file; validate g here and re-label the Scene's own errors with ``what``.
     g = check_g(phase.get("g", 0.0), f"{what} phase g")
     try:
-        return Scene(volume, tf, lights, camera, g, name)
+        return Scene(volume, tf, lights, camera, g, name, volume_source)
     except InputError as err:
         prefix = f"scene '{name}'"
         label = what + err.what[len(prefix):] if err.what.startswith(prefix) else f"{what} {err.what}"
@@ -249,20 +262,24 @@ def _resolve(path: str, base_dir: Path) -> Path:
     return p if p.is_absolute() else base_dir / p
 
 
-def _volume_from_dict(v: Any, base_dir: Path, what: str) -> Volume:
+def _volume_from_dict(v: Any, base_dir: Path, what: str) -> tuple[Volume, dict[str, Any]]:
+    """The volume of a scene entry, and the entry that rebuilds it from anywhere (path made absolute)."""
     if not isinstance(v, dict):
         raise InputError(what, "must be an object with 'path' or 'builtin'")
     if "builtin" in v:
         # Fix: unknown keys were ignored here (but refused for file volumes); errors now name the entry.
         check_keys(v, ("builtin", "resolution"), what)
-        return builtin_volume(str(v["builtin"]), v.get("resolution", BUILTIN_RESOLUTION), what=what)
+        resolution = v.get("resolution", BUILTIN_RESOLUTION)
+        volume = builtin_volume(str(v["builtin"]), resolution, what=what)
+        return volume, {"builtin": str(v["builtin"]), "resolution": resolution}
     if "path" not in v:
         raise InputError(what, "needs 'path' (a volume file) or 'builtin' (a procedural volume name)")
     from runtime.volume_io import load_volume
 
     check_keys(v, ("path", "dims", "dtype", "endian", "spacing", "window", "axes"), what)
     kwargs = {k: v[k] for k in ("dims", "dtype", "endian", "spacing", "window", "axes") if k in v}
-    return load_volume(_resolve(str(v["path"]), base_dir), **kwargs)
+    path = _resolve(str(v["path"]), base_dir)
+    return load_volume(path, **kwargs), {"path": str(path.absolute()), **kwargs}
 
 
 __all__ = ["Scene", "builtin_scene", "load_scene", "scene_from_dict", "BUILTIN_SCENES", "DEFAULT_SCENE",

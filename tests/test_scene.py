@@ -829,3 +829,34 @@ def test_every_scene_entry_refuses_unknown_keys(scene_dir: Path, entries: dict, 
     msg = _load_error(path)
     assert msg.startswith(f"{scene_dir / entry}: ") or msg.startswith(f"{scene_dir / entry} "), msg
     assert f"'{key}'" in msg and "allowed: " in msg, msg
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Scene.spec: the scene file that rebuilds a scene (recorded in bundles, issue 11)
+
+
+@pytest.mark.parametrize("name", sorted(BUILTIN_SCENES))
+def test_builtin_scene_spec_rebuilds_the_same_scene(name: str) -> None:
+    scene = builtin_scene(name, resolution=16).with_overrides(g=0.4, width=20, height=10)
+    spec = json.loads(json.dumps(scene.spec()))  # survives JSON
+    back = scene_from_dict(spec, what="recorded")
+    assert back.fingerprint() == scene.fingerprint() and back.fingerprint_parts() == scene.fingerprint_parts()
+    assert back.name == name and back.g == 0.4 and back.camera.to_dict() == scene.camera.to_dict()
+    assert spec["volume"] == {"builtin": BUILTIN_SCENES[name]["volume"], "resolution": 16}
+
+
+def test_file_scene_spec_uses_absolute_paths(scene_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    write_scene(scene_dir, transfer_function="tf.json")
+    monkeypatch.chdir(scene_dir)
+    scene = load_scene("scene.json")  # relative paths all the way
+    spec = scene.spec()
+    assert spec is not None and spec["volume"] == {"path": str(scene_dir / "data" / "vol.npy")}
+    assert isinstance(spec["transfer_function"], dict)  # embedded: the TF file is not needed to rebuild
+    monkeypatch.chdir(tmp_path)  # rebuilt from anywhere
+    back = scene_from_dict(json.loads(json.dumps(spec)), what="recorded")
+    assert back.fingerprint() == scene.fingerprint() and back.g == scene.g and back.name == "test"
+
+
+def test_scene_from_arrays_has_no_spec() -> None:
+    scene = builtin_scene("blobs", resolution=16)
+    assert Scene(scene.volume, scene.tf, scene.lights, scene.camera).spec() is None
