@@ -127,11 +127,10 @@ def check_map_matches_scene(pmap: PhotonMap, scene: Scene, force: bool = False) 
     if pmap.scene_fingerprint == scene.fingerprint():
         return None
     name = str(pmap.path) if pmap.path is not None else "photon map"
-    detail = pmap.mismatch(scene.fingerprint_parts())
+    other = pmap.mismatch(scene.fingerprint_parts())
     if not force:
-        raise InputError(name, f"was traced for another scene than '{scene.name}': {detail}; re-trace it, or "
-                         "force to use it anyway")
-    return f"{name} was traced for another scene than '{scene.name}': {detail}; L_i will be wrong"
+        raise InputError(name, f"was traced for {other}; re-trace it, or force to use it anyway")
+    return f"{name} was traced for {other}; L_i will be wrong"
 
 
 def render_photon_mapped(scene: Scene, pmap: PhotonMap, *, k: int = DEFAULT_K, radius: float = DEFAULT_RADIUS,

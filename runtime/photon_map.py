@@ -159,13 +159,16 @@ class PhotonMap:
         pmap = cls(arrays["position"], arrays["direction"], arrays["power"], arrays["phase"], phases, fp, emitted,
                    meta, p)
         if expected_fingerprint is not None and fp != expected_fingerprint:
-            raise InputError(what, f"photon map was traced for another scene: {pmap.mismatch(expected_parts)}; "
-                             "re-trace it for this scene")
+            raise InputError(what, f"photon map was traced for {pmap.mismatch(expected_parts)}; re-trace it for "
+                             "this scene")
         return pmap
 
     def mismatch(self, expected_parts: dict[str, str] | None) -> str:
-        """What differs between the scene this map was traced for and a scene with ``expected_parts``."""
-        return mismatch_detail(expected_parts, self.scene_parts)
+        """``"another scene ('blobs'): lights differ (volume and transfer function match)"``: the scene this
+        map was traced for (by name, when recorded) and what differs from a scene with ``expected_parts``."""
+        name = self.meta.get("scene_name")
+        named = f" ({name!r})" if isinstance(name, str) and name else ""
+        return f"another scene{named}: {mismatch_detail(expected_parts, self.scene_parts)}"
 
 
 def _check_parts(parts: Any, what: str) -> None:

@@ -41,7 +41,7 @@ def variant(kind: str) -> Scene:
         d["transfer_function"] = {"preset": "cloud", "density_scale": 60}
     if kind in ("volume", "all"):
         d["volume"]["resolution"] = 20
-    d["camera"]["fov"] = 25  # camera and g never count
+    d["camera"]["fov"] = 25  # camera and g never count (variant("none") is the same light distribution)
     d["phase"] = {"g": 0.5}
     return scene_from_dict(d)
 
@@ -145,3 +145,162 @@ def test_map_metadata_is_strict(base: Scene, tmp_path: Path, edit, needles: list
     assert msg.startswith(str(bad)) and "\n" not in msg
     for needle in needles:
         assert needle in msg, msg
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Bundles: the manifest records the parts and the scene; loads name what differs; pfn-render without --scene
+
+torch = pytest.importorskip("torch")
+
+from runtime.cli import _main as render_main  # noqa: E402
+from runtime.field import PhotonField, scene_for_bundle  # noqa: E402
+from tests.test_bundle import SMALL, make_model, make_run  # noqa: E402
+from train.export import export_bundle, write_run_domain  # noqa: E402
+
+RENDER = ["--size", "8x8", "--spp", "1", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def bundle(base: Scene, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A small field 'trained' for ``base`` (random weights: the scene bookkeeping is what is tested)."""
+    folder = tmp_path_factory.mktemp("bundle")
+    run = make_run(folder / "run", make_model(SMALL), [0.0] * 3, [1.0] * 3, fp=base.fingerprint())
+    return export_bundle(run, folder / "field.pfn", scene=base).path
+
+
+def manifest(path: Path) -> dict:
+    return json.loads((path / "manifest.json").read_text())
+
+
+def as_version_1(src: Path, dst: Path) -> Path:
+    """The same bundle as an older exporter wrote it (no ``scene``; the manifest is not checksummed)."""
+    import shutil
+
+    shutil.copytree(src, dst)
+    doc = manifest(dst)
+    del doc["scene"]
+    doc["version"] = 1
+    (dst / "manifest.json").write_text(json.dumps(doc))
+    return dst
+
+
+def test_export_records_the_scene(base: Scene, bundle: Path) -> None:
+    rec = manifest(bundle)["scene"]
+    assert rec["name"] == base.name and rec["parts"] == base.fingerprint_parts() and rec["spec"] == base.spec()
+
+
+def test_export_from_the_run_folder_records_the_scene(base: Scene, tmp_path: Path) -> None:
+    """``pfn-train fit`` writes domain.json (version 2: parts and spec); the export reads them back. A version 1
+    domain.json still exports, with the scene's parts and spec unknown."""
+    run = make_run(tmp_path / "run", make_model(SMALL), [0.0] * 3, [1.0] * 3, fp=base.fingerprint())
+    write_run_domain(run, base, "somewhere/scene.json")
+    rec = export_bundle(run, tmp_path / "a.pfn", verify=False).manifest["scene"]
+    assert rec == {"name": base.name, "parts": base.fingerprint_parts(), "spec": base.spec()}
+    make_run(run, make_model(SMALL), [0.0] * 3, [1.0] * 3, fp=base.fingerprint())  # a version 1 domain.json
+    rec = export_bundle(run, tmp_path / "b.pfn", verify=False).manifest["scene"]
+    assert rec == {"name": "test", "parts": None, "spec": None}
+
+
+@pytest.mark.parametrize("kind", list(VARIANTS))
+def test_bundle_mismatch_names_what_differs(bundle: Path, kind: str) -> None:
+    other = variant(kind)
+    kw = {"expected_fingerprint": other.fingerprint(), "expected_parts": other.fingerprint_parts()}
+    with pytest.raises(InputError) as err:
+        PhotonField.load(bundle, **kw)
+    msg = str(err.value)
+    assert msg.startswith(f"{bundle}: was trained for another scene ('blobs32'): {VARIANTS[kind]}; "), msg
+    field = PhotonField.load(bundle, force=True, **kw)
+    assert field.scene_warning == f"{bundle} was trained for another scene ('blobs32'): {VARIANTS[kind]}; " \
+                                  "L_i will be wrong"
+    assert field.describe()["scene_warning"] == field.scene_warning
+    assert PhotonField.load(bundle, expected_fingerprint=variant("none").fingerprint()).scene_warning is None
+
+
+def test_version_1_bundle_loads_and_says_parts_cannot_be_compared(bundle: Path, tmp_path: Path) -> None:
+    old = as_version_1(bundle, tmp_path / "old.pfn")
+    other = variant("lights")
+    with pytest.raises(InputError, match=r"another scene: volume, transfer function or lights differ \(which cannot "
+                                         r"be told: the file records no per-part fingerprints\)"):
+        PhotonField.load(old, expected_fingerprint=other.fingerprint(), expected_parts=other.fingerprint_parts())
+    assert PhotonField.load(old).manifest.scene is None
+
+
+def _render(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str], dict | None]:
+    capsys.readouterr()
+    code = render_main(argv)
+    err = capsys.readouterr().err.splitlines()
+    out = Path(argv[argv.index("--out") + 1]).with_suffix(".json")
+    return code, err, json.loads(out.read_text()) if out.exists() else None
+
+
+def test_render_without_scene_uses_the_scene_the_bundle_records(base: Scene, bundle: Path, tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    code, err, report = _render(["--method", "field", "--bundle", str(bundle), *RENDER, "--out",
+                                 str(tmp_path / "r.exr")], capsys)
+    assert code == 0 and err == [], err
+    assert report["scene"] == base.name and report["scene_from"] == "bundle" and report["warnings"] == []
+    assert report["scene_description"]["volume"]["fingerprint"] == base.volume.fingerprint()
+    assert scene_for_bundle(bundle)[0].fingerprint() == base.fingerprint()
+
+
+def test_render_without_scene_of_an_old_bundle_says_which_scene_was_used(bundle: Path, tmp_path: Path,
+                                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    old = as_version_1(bundle, tmp_path / "old.pfn")
+    code, err, report = _render(["--method", "field", "--bundle", str(old), *RENDER, "--out",
+                                 str(tmp_path / "r.exr")], capsys)
+    assert code == 2 and report is None and len(err) == 1, err
+    assert err[0].startswith(f"error: {old}: no --scene given, so the default scene 'vortex' was used; the bundle "
+                             "was trained for another scene: "), err
+    assert err[0].endswith("; pass --scene"), err
+
+
+@pytest.mark.parametrize("kind", ["lights", "tf", "volume"])
+def test_forced_render_warns_naming_what_differs(base: Scene, bundle: Path, tmp_path: Path, kind: str,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """The issue's case: another light power, forced, rendered L_i 40 % too dark with nothing said."""
+    other = variant(kind)
+    scene_file = tmp_path / "other.json"
+    scene_file.write_text(json.dumps(other.spec()))
+    pmap_path = fake_map(base).save(tmp_path / "m.npz")
+    for method, source, verb in (("field", ["--bundle", str(bundle)], "trained for"),
+                                 ("photonmap", ["--map", str(pmap_path), "--radius", "0.5", "--k", "8"],
+                                  "traced for")):
+        argv = ["--method", method, *source, "--scene", str(scene_file), "--g", "0", *RENDER, "--out",
+                str(tmp_path / f"{method}.exr")]
+        code, err, report = _render(argv, capsys)
+        assert code == 2 and len(err) == 1 and VARIANTS[kind] in err[0] and "force" in err[0], err
+        code, err, report = _render([*argv, "--force"], capsys)
+        assert code == 0 and len(err) == 1, err
+        assert err[0].startswith(f"warning: {source[1]} was {verb} another scene") and \
+            err[0].endswith(f": {VARIANTS[kind]}; L_i will be wrong"), err
+        assert report["warnings"] == [err[0][len("warning: "):]]
+
+
+def test_checkpoint_domain_and_log_are_strict(base: Scene, tmp_path: Path) -> None:
+    run = make_run(tmp_path / "run", make_model(SMALL), [0.0] * 3, [1.0] * 3, fp=base.fingerprint())
+    write_run_domain(run, base)
+    dom = json.loads((run / "domain.json").read_text())
+    (run / "domain.json").write_text(json.dumps({**dom, "bsise": [1, 1, 1]}))
+    with pytest.raises(InputError, match=r"domain.json: unknown key 'bsise' \(did you mean 'bsize'\?\)"):
+        export_bundle(run, tmp_path / "x.pfn", verify=False)
+    (run / "domain.json").write_text(json.dumps({**dom, "scene_parts": {"volume": "1" * 64}}))
+    with pytest.raises(InputError, match="domain.json scene.parts.transfer_function: missing"):
+        export_bundle(run, tmp_path / "x.pfn", verify=False)
+    (run / "domain.json").write_text(json.dumps(dom))
+    log = json.loads((run / "log.json").read_text())
+    (run / "log.json").write_text(json.dumps({**log, "setings": {}}))
+    with pytest.raises(InputError, match=r"log.json: unknown key 'setings' \(did you mean 'settings'\?\)"):
+        export_bundle(run, tmp_path / "x.pfn", verify=False)
+    (run / "log.json").write_text(json.dumps({**log, "settings": {"preset": "tiny", "batch": "512"}}))
+    with pytest.raises(InputError, match="log.json settings batch: must be a positive integer"):
+        export_bundle(run, tmp_path / "x.pfn", verify=False)
+    (run / "log.json").write_text(json.dumps(log))
+    data = torch.load(run / "checkpoint.pt", weights_only=True)
+    torch.save({**data, "stepp": 3}, run / "checkpoint.pt")
+    with pytest.raises(InputError, match=r"checkpoint.pt: unknown key 'stepp' \(did you mean 'step'\?\)"):
+        export_bundle(run, tmp_path / "x.pfn", verify=False)
+    del data["field_config"]
+    torch.save(data, run / "checkpoint.pt")
+    with pytest.raises(InputError, match="checkpoint.pt: missing 'field_config'"):
+        export_bundle(run, tmp_path / "x.pfn", verify=False)
+    assert not list(tmp_path.glob("*.pfn"))
