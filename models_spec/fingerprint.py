@@ -72,9 +72,10 @@ def mismatch_detail(expected: Mapping[str, str] | None, recorded: Mapping[str, s
     and transfer function match)"``; without parts on either side, says that they cannot be compared."""
     diff = differing_parts(expected, recorded)
     if diff is None:
-        side = "the scene" if not expected else "the file"
-        return ("volume, transfer function or lights differ (which cannot be told: " + side
-                + " records no per-part fingerprints)")
+        if not recorded:
+            return ("volume, transfer function or lights differ (which cannot be told: the file records no "
+                    "per-part fingerprints)")
+        return "volume, transfer function or lights differ (not compared part by part)"
     if not diff:  # only with an edited or corrupt file: every part equal, the combined hash not
         return "the fingerprints are inconsistent (every part matches but the combined fingerprint does not)"
     words = [_WORDS[p] for p in diff]

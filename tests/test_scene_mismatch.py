@@ -81,7 +81,8 @@ def test_mismatch_detail_words() -> None:
     assert mismatch_detail(a, {**a, "lights": "x"}) == VARIANTS["lights"]
     assert mismatch_detail(a, {**a, "volume": "x", "transfer_function": "x"}) == \
         "volume and transfer function differ (lights match)"
-    assert "cannot be told" in mismatch_detail(a, None) and "cannot be told" in mismatch_detail(None, a)
+    assert "cannot be told: the file records no per-part fingerprints" in mismatch_detail(a, None)
+    assert "not compared part by part" in mismatch_detail(None, a)  # a caller that passed no parts
 
 
 @pytest.mark.parametrize("kind", list(VARIANTS))
