@@ -15,9 +15,10 @@ from models_spec.encoding import (
     encode_radiance,
     normalize_position,
 )
-from models_spec.fingerprint import scene_fingerprint
+from models_spec.fingerprint import FINGERPRINT_PARTS, fingerprint_parts, mismatch_detail, scene_fingerprint
 from models_spec.photon_map import DEFAULT_PHASES, PHOTON_MAP_FORMAT, PHOTON_MAP_VERSION
 
-__all__ = ["scene_fingerprint", "DEFAULT_PHASES", "PHOTON_MAP_FORMAT", "PHOTON_MAP_VERSION", "DEFAULT_PSI",
+__all__ = ["scene_fingerprint", "fingerprint_parts", "mismatch_detail", "FINGERPRINT_PARTS",
+           "DEFAULT_PHASES", "PHOTON_MAP_FORMAT", "PHOTON_MAP_VERSION", "DEFAULT_PSI",
            "FieldConfig", "encode_radiance", "decode_radiance", "normalize_position", "direction_input",
            "BUNDLE_FORMAT", "BUNDLE_VERSION"]

@@ -44,10 +44,22 @@ Manifest (version :data:`BUNDLE_VERSION`; :data:`MANIFEST_SCHEMA` is its JSON Sc
 - ``output``: 3 channels, ``encoding`` "eq6-log10" (decode: ``10^(-L' psi)``);
 - ``tables``: file, ``dtype`` (float32 | float16), array shapes;
 - ``scene_fingerprint``: :func:`models_spec.fingerprint.scene_fingerprint` of the scene trained for;
+- ``scene`` (version 2): the scene trained for, each entry null when unknown: ``name``; ``parts``, its
+  per-part fingerprints ``{"volume", "transfer_function", "lights"}`` (:func:`models_spec.fingerprint.
+  fingerprint_parts`), so that a bundle used for another scene can name what differs; ``spec``, the scene
+  file that rebuilds it (``runtime.scene`` format: volume by builtin name or absolute path, transfer
+  function, lights, camera, phase; checked by that reader when used), so that ``pfn-render --method
+  field`` without ``--scene`` renders the scene the field was trained for;
 - ``training``: preset, steps, batch, final loss, validation (val_loss, val_rel_l1) or null, wall time;
 - ``files``: ``{"field.onnx": {"sha256", "bytes"}, "tables.npz": {...}}``.
 
 No creation time is stored: the same checkpoint gives byte-identical bundle files.
+
+Versions. Version 2 added ``scene`` (required, entries nullable). Readers of version 1 only refuse a version 2
+bundle in one line ("newer than this build reads ...; update"); this build reads both
+(:data:`READABLE_VERSIONS`): a version 1 manifest is checked against the schema without ``scene`` and
+loads with ``Manifest.scene`` None (a mismatch then says the parts cannot be compared, and a render
+without ``--scene`` uses the default scene and says so). The exporter always writes :data:`BUNDLE_VERSION`.
 
 Validation (:func:`validate_manifest`, used by the exporter on what it wrote and by the runtime on what it
 reads): the first problem found is raised as a :class:`BundleError` whose message is one line naming the
@@ -73,10 +85,13 @@ from typing import Any
 import numpy as np
 
 from models_spec.encoding import OUTPUT_CHANNELS, FieldConfig
+from models_spec.fingerprint import FINGERPRINT_PARTS
 from models_spec.hashgrid import HASH_PRIMES, HashGridConfig, level_specs, total_table_rows
 
 BUNDLE_FORMAT = "photon-fields/field-bundle"
-BUNDLE_VERSION = 1
+BUNDLE_VERSION = 2
+#: Manifest versions this build reads (older ones against :func:`manifest_schema` of their version).
+READABLE_VERSIONS = (1, 2)
 BUNDLE_SUFFIX = ".pfn"
 MANIFEST_FILE = "manifest.json"
 ONNX_FILE = "field.onnx"
@@ -128,7 +143,7 @@ _INT_LIST = {"type": "array", "items": {"type": "integer", "minimum": 0}, "minIt
 
 MANIFEST_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "$id": "https://photon-fields/schemas/field-bundle-manifest-v1.json",
+    "$id": f"https://photon-fields/schemas/field-bundle-manifest-v{BUNDLE_VERSION}.json",
     "title": "photon-fields field bundle manifest",
     "description": "manifest.json of a NAME.pfn bundle (models_spec/bundle.py documents every field)",
     "$defs": {
@@ -187,6 +202,12 @@ MANIFEST_SCHEMA: dict[str, Any] = {
         "onnx": _obj({"file": {"type": "string", "const": ONNX_FILE},
                       "opset": {"type": "integer", "minimum": 1}}),
         "scene_fingerprint": {"type": "string", "pattern": _SHA256},
+        "scene": _obj({
+            "name": {"type": ["string", "null"]},
+            "parts": {**_obj({p: {"type": "string", "pattern": _SHA256} for p in FINGERPRINT_PARTS}),
+                      "type": ["object", "null"]},
+            "spec": {"type": ["object", "null"]},
+        }),
         "training": _obj({
             "preset": {"type": ["string", "null"]},
             "steps": {"type": "integer", "minimum": 0},
@@ -198,6 +219,20 @@ MANIFEST_SCHEMA: dict[str, Any] = {
         "files": _obj({ONNX_FILE: _FILE_ENTRY, TABLES_FILE: _FILE_ENTRY}),
     }),
 }
+
+
+def manifest_schema(version: int = BUNDLE_VERSION) -> dict[str, Any]:
+    """The schema a manifest of ``version`` (one of :data:`READABLE_VERSIONS`) is checked against."""
+    if version == BUNDLE_VERSION:
+        return MANIFEST_SCHEMA
+    if version == 1:  # before ``scene``
+        schema = json.loads(json.dumps(MANIFEST_SCHEMA))
+        del schema["properties"]["scene"]
+        schema["required"].remove("scene")
+        schema["properties"]["version"]["const"] = 1
+        schema["$id"] = "https://photon-fields/schemas/field-bundle-manifest-v1.json"
+        return schema
+    raise ValueError(f"no schema for bundle version {version!r}")
 
 
 def schema_json() -> str:
@@ -335,9 +370,24 @@ def training_summary(*, preset: str | None, steps: int, batch: int | None, final
             "final_loss": _finite_or_none(final_loss), "validation": val, "wall_s": _finite_or_none(wall_s)}
 
 
+def scene_record(name: str | None = None, parts: Mapping[str, str] | None = None,
+                 spec: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The manifest's ``scene`` entry (None: unknown)."""
+    return {"name": name, "parts": None if parts is None else {p: str(parts[p]) for p in FINGERPRINT_PARTS},
+            "spec": None if spec is None else json.loads(json.dumps(dict(spec)))}
+
+
+def validate_scene_record(record: Any) -> None:
+    """Check a ``scene`` entry on its own (:class:`BundleError` naming ``scene.<field>``)."""
+    sub = MANIFEST_SCHEMA["properties"]["scene"]
+    _schema_check(record, sub, "scene", MANIFEST_SCHEMA)
+
+
 def build_manifest(cfg: FieldConfig, *, bmin: Sequence[float], bsize: Sequence[float], scene_fingerprint: str,
-                   training: Mapping[str, Any], tables_dtype: str, files: Mapping[str, Mapping[str, Any]]) -> dict:
-    """The manifest dict for a field (``files``: ``{name: {"sha256", "bytes"}}`` of field.onnx and tables.npz)."""
+                   training: Mapping[str, Any], tables_dtype: str, files: Mapping[str, Mapping[str, Any]],
+                   scene: Mapping[str, Any] | None = None) -> dict:
+    """The manifest dict for a field (``files``: ``{name: {"sha256", "bytes"}}`` of field.onnx and tables.npz;
+    ``scene``: :func:`scene_record`, default all unknown)."""
     shapes = table_shapes(cfg)
     return {
         "format": BUNDLE_FORMAT, "version": BUNDLE_VERSION, "field": cfg.to_dict(),
@@ -351,6 +401,7 @@ def build_manifest(cfg: FieldConfig, *, bmin: Sequence[float], bsize: Sequence[f
                    "arrays": {k: {"shape": list(v)} for k, v in shapes.items()}},
         "onnx": {"file": ONNX_FILE, "opset": ONNX_OPSET},
         "scene_fingerprint": scene_fingerprint,
+        "scene": dict(scene) if scene is not None else scene_record(),
         "training": dict(training),
         "files": {name: {"sha256": str(files[name]["sha256"]), "bytes": int(files[name]["bytes"])}
                   for name in (ONNX_FILE, TABLES_FILE)},
@@ -375,6 +426,12 @@ class Manifest:
     files: dict[str, dict[str, Any]]
     training: dict[str, Any]
     raw: dict[str, Any]
+    #: The ``scene`` entry (name, parts, spec; version 2), None for a version 1 manifest.
+    scene: dict[str, Any] | None = None
+
+    @property
+    def scene_parts(self) -> dict[str, str] | None:
+        return None if self.scene is None or self.scene["parts"] is None else dict(self.scene["parts"])
 
     @property
     def input_width(self) -> int:
@@ -398,11 +455,12 @@ def validate_manifest(doc: Any, what: str = MANIFEST_FILE) -> Manifest:
     if version > BUNDLE_VERSION:
         raise BundleError(what, f"version: bundle version {version} is newer than this build reads "
                           f"({BUNDLE_VERSION}); update photon-fields or re-export with this version")
-    if version != BUNDLE_VERSION:
-        raise BundleError(what, f"version: bundle version {version} is not supported (this build reads version "
-                          f"{BUNDLE_VERSION}); re-export the bundle")
+    if version not in READABLE_VERSIONS:
+        raise BundleError(what, f"version: bundle version {version} is not supported (this build reads versions "
+                          f"{', '.join(map(str, READABLE_VERSIONS))}); re-export the bundle")
+    schema = manifest_schema(version)
     try:
-        _schema_check(doc, MANIFEST_SCHEMA, "", MANIFEST_SCHEMA)
+        _schema_check(doc, schema, "", schema)
     except BundleError as err:
         raise BundleError(f"{what}: {err.what}", err.problem) from None
     try:
@@ -428,7 +486,7 @@ def validate_manifest(doc: Any, what: str = MANIFEST_FILE) -> Manifest:
                               f"got {list(got)}")
     return Manifest(cfg, np.array(doc["domain"]["bmin"], np.float64), np.array(doc["domain"]["bsize"], np.float64),
                     doc["scene_fingerprint"], doc["tables"]["dtype"], {k: dict(v) for k, v in doc["files"].items()},
-                    dict(doc["training"]), doc)
+                    dict(doc["training"]), doc, dict(doc["scene"]) if "scene" in doc else None)
 
 
 def parse_manifest_bytes(data: bytes, what: str = MANIFEST_FILE) -> Manifest:

@@ -14,9 +14,14 @@ phase          uint8 (n,)    index into ``meta["phases"]`` (the g the photon sca
 meta           uint8 (m,)    UTF-8 JSON metadata (below)
 =============  ============  ===========================================================================
 
-Metadata keys: ``format`` (= PHOTON_MAP_FORMAT), ``version`` (= PHOTON_MAP_VERSION), ``scene_fingerprint``,
-``phases`` (the set G), ``emitted`` (photon paths traced), ``stored`` (records), ``per_phase`` (records per
-phase), ``seed``, ``max_bounces``, ``trace_seconds``.
+Metadata keys (:data:`PHOTON_MAP_META_KEYS`; a reader refuses any other key, naming it): ``format``
+(= PHOTON_MAP_FORMAT), ``version`` (= PHOTON_MAP_VERSION), ``scene_fingerprint``, ``phases`` (the set G),
+``emitted`` (photon paths traced), ``stored`` (records), ``per_phase`` (records per phase), ``seed``,
+``max_bounces``, ``trace_seconds``, ``scene_name``, ``emitted_per_phase`` and ``scene_parts``: the
+per-part fingerprints ``{"volume", "transfer_function", "lights"}`` (:func:`models_spec.fingerprint.
+fingerprint_parts`), so that a map used for another scene can say what differs. ``scene_parts`` was added
+without a version change: it is optional (maps traced before it lack it; their mismatches say the parts
+cannot be compared), and readers of version 1 that predate it ignore metadata keys they do not use.
 """
 
 from __future__ import annotations
@@ -27,3 +32,7 @@ PHOTON_MAP_VERSION = 1
 DEFAULT_PHASES: tuple[float, ...] = (-0.75, 0.0, 0.75)
 PHOTON_MAP_ARRAYS = {"position": ("float32", 3), "direction": ("float32", 3), "power": ("float32", 3),
                      "phase": ("uint8", 0)}
+#: Metadata keys a photon map must have, and the ones it may have besides.
+PHOTON_MAP_META_REQUIRED: tuple[str, ...] = ("format", "version", "scene_fingerprint", "phases", "emitted")
+PHOTON_MAP_META_KEYS: tuple[str, ...] = (*PHOTON_MAP_META_REQUIRED, "stored", "per_phase", "seed", "max_bounces",
+                                         "trace_seconds", "scene_name", "emitted_per_phase", "scene_parts")

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from runtime.errors import InputError
+from runtime.errors import InputError, check_keys
 from runtime.lights import _vec3
 
 
@@ -100,12 +100,11 @@ class Camera:
     def from_dict(cls, d: Any, what: str = "camera") -> Camera:
         if not isinstance(d, dict):
             raise InputError(what, "must be a JSON object")
+        # Unknown keys first: a misspelt "eye" should be named as a typo, not as a missing key.
+        check_keys(d, ("eye", "target", "up", "fov", "fov_axis", "width", "height"), what)
         for key in ("eye", "target"):
             if key not in d:
                 raise InputError(what, f"missing '{key}'")
-        unknown = set(d) - {"eye", "target", "up", "fov", "fov_axis", "width", "height"}
-        if unknown:
-            raise InputError(what, f"unknown keys {sorted(unknown)}")
         try:
             return cls(d["eye"], d["target"], d.get("up", [0.0, 1.0, 0.0]), d.get("fov", 40.0),
                        d.get("width", 256), d.get("height", 256), d.get("fov_axis", "y"))

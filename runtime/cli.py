@@ -5,6 +5,7 @@ Examples::
     pfn-render --scene vortex --method pt --spp 64 --size 512x512 --out out/vortex.exr
     pfn-render --scene my_scene.json --method raymarch --g 0.5 --out out/marched.exr
     pfn-render --method field --bundle run/field.pfn --scene vortex --g 0.3 --spp 4 --size 512x512 --out img.exr
+    pfn-render --method field --bundle run/field.pfn --out img.exr     # the scene the bundle was trained for
     pfn-render --method field --bundle run/field.pfn --scene vortex --orbit 120 --out orbit/frame.exr
 
 Bad input exits with status 2 and one line on stderr: ``error: <input>: <problem>``.
@@ -41,7 +42,8 @@ def parse_size(text: str) -> tuple[int, int]:
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineArgumentParser(prog="pfn-render", description=__doc__.split("\n")[0],
                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--scene", default="vortex", help="builtin scene name (vortex, blobs, shell) or a scene JSON file")
+    p.add_argument("--scene", default=None, help="builtin scene name (vortex, blobs, shell) or a scene JSON file "
+                   "(default: with --method field the scene the bundle records, else vortex)")
     p.add_argument("--method", choices=METHODS, default="pt", help="pt: volumetric path tracer (reference); "
                    "raymarch: single-scattering ray marcher with global shadows; photonmap: first interactions "
                    "+ NEE + the photon-map estimate of L_i (needs --map); field: the neural renderer (Alg. 2), "
@@ -115,22 +117,40 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         if not math.isfinite(args.orbit_degrees):
             raise InputError("--orbit-degrees", f"must be a finite angle, got {args.orbit_degrees}")
     set_threads(args.threads)
-    scene = load_scene(args.scene)
+    # No --scene: a bundle rebuilds the scene it records (else the default, and a mismatch says so).
+    scene_from = "--scene" if args.scene is not None else "default"
+    if args.scene is None and args.method == "field":
+        from runtime.field import scene_for_bundle
+
+        scene, scene_from = scene_for_bundle(args.bundle, force=args.force)
+    else:
+        from runtime.scene import DEFAULT_SCENE
+
+        scene = load_scene(args.scene if args.scene is not None else DEFAULT_SCENE)
     scene = scene.with_overrides(g=args.g, width=size[0], height=size[1])
+    warnings: list[str] = []  # forced mismatches: one line each on stderr, and in the JSON report
     pmap = None
     if args.method == "photonmap":
         from runtime.photon_estimate import check_map_matches_scene
         from runtime.photon_map import PhotonMap
 
         pmap = PhotonMap.load(args.map)
-        check_map_matches_scene(pmap, scene, args.force)
+        if scene_from == "default" and not args.force and pmap.scene_fingerprint != scene.fingerprint():
+            raise InputError(args.map, f"no --scene given, so the default scene '{scene.name}' was used; the map "
+                             f"was traced for {pmap.mismatch(scene.fingerprint_parts())}; pass --scene")
+        warnings.append(check_map_matches_scene(pmap, scene, args.force))
         pmap.phase_index(scene.g, "--g")
     field = None
     if args.method == "field":
         from runtime.field import PhotonField
 
         field = PhotonField.load(args.bundle, threads=args.threads, precision=args.precision,
-                                 expected_fingerprint=scene.fingerprint(), force=args.force)
+                                 expected_fingerprint=scene.fingerprint(), force=args.force,
+                                 expected_parts=scene.fingerprint_parts())
+        warnings.append(field.scene_warning)
+    warnings = [w for w in warnings if w]
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
     if args.orbit is not None:
         return run_orbit(args, scene, field, out, spp)
     prepare_output(out, ".exr", (".png", ".json"))
@@ -159,7 +179,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     wall = time.perf_counter() - t0
     report = {"scene": scene.name, "method": args.method, "spp": spp, "seed": args.seed, "g": scene.g,
               "size": [scene.camera.width, scene.camera.height], "wall_s": wall,
-              "timings_ms": result.timings_ms, "stats": result.stats, "scene_description": scene.to_dict()}
+              "timings_ms": result.timings_ms, "stats": result.stats, "scene_description": scene.to_dict(),
+              "scene_from": scene_from, "warnings": warnings}
     if field is not None:
         report["field"] = field.describe()
     from runtime.atomic import atomic_write_text

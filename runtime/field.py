@@ -13,7 +13,8 @@ Python API::
     q = field.estimator()                 # runtime.first_interaction.IndirectEstimator: (3, n) in and out
     print(field.timers)                   # encode (position, direction) / inference / decode seconds
 
-``load(path, *, threads=None, precision="fp32", expected_fingerprint=None, force=False, chunk=..., ...)``
+``load(path, *, threads=None, precision="fp32", expected_fingerprint=None, force=False, chunk=..., ...,
+expected_parts=None)``
 ----------------------------------------------------------------------------------------------------------
 path : the bundle directory.
 threads : worker threads for the hash encoding (numba, set around each query and restored) and for
@@ -21,7 +22,10 @@ threads : worker threads for the hash encoding (numba, set around each query and
 precision : "fp32", the only one (the exact path: L' within 1e-5 of the torch model, tests/test_bundle.py).
     "int8" was removed and is refused in one line, and fp16 is not offered: see "Precision" below.
 expected_fingerprint : the scene's :meth:`runtime.scene.Scene.fingerprint`; a bundle trained for another
-    scene is refused unless ``force``.
+    scene is refused unless ``force`` (then ``field.scene_warning`` is the one-line warning to show, and
+    ``describe()`` reports it).
+expected_parts : the scene's :meth:`runtime.scene.Scene.fingerprint_parts`: the refusal or warning then
+    names what differs (volume, transfer function, lights), if the bundle records its parts (version 2).
 chunk : queries per onnxruntime call (the encode buffer holds ``chunk`` rows; default :data:`DEFAULT_CHUNK`).
 spinning : let onnxruntime's idle workers spin (default False, see "Threads").
 pipeline : overlap the two halves: onnxruntime runs chunk k in a worker thread (``run`` releases the GIL)
@@ -109,6 +113,7 @@ from models_spec.bundle import (
     parse_manifest_bytes,
 )
 from models_spec.encoding import OUTPUT_CHANNELS, decode_radiance, direction_input, normalize_position
+from models_spec.fingerprint import mismatch_detail
 from runtime.errors import InputError
 from runtime.hashgrid import aligned_table, encode
 
@@ -160,6 +165,51 @@ def _read_manifest(bundle: Path) -> Manifest:
         return parse_manifest_bytes(path.read_bytes(), MANIFEST_FILE)
     except BundleError as err:
         raise _bundle_error(err, bundle) from None
+
+
+def read_manifest(path: str | os.PathLike[str]) -> Manifest:
+    """The validated manifest of the bundle at ``path`` (one-line InputError), without loading the rest."""
+    bundle = Path(path)
+    if not bundle.exists():
+        raise InputError(str(bundle), "bundle not found")
+    if not bundle.is_dir():
+        raise InputError(str(bundle), "is a file; a bundle is a NAME.pfn directory (manifest.json, field.onnx, "
+                         "tables.npz)")
+    return _read_manifest(bundle)
+
+
+def _trained_name(manifest: Manifest) -> str:
+    name = (manifest.scene or {}).get("name")
+    return f" ('{name}')" if name else ""
+
+
+def scene_for_bundle(path: str | os.PathLike[str], force: bool = False) -> tuple[Any, str]:
+    """The scene to render a bundle with when the user named none, and where it came from: the scene the
+    bundle records (manifest ``scene.spec``, version 2), rebuilt and checked against its fingerprint, else
+    the default builtin scene. A scene that cannot be rebuilt, or (unless ``force``) that is not the one the
+    field was trained for, is refused in one line that says no scene was given and which one was used."""
+    from runtime.scene import DEFAULT_SCENE, builtin_scene, scene_from_dict
+
+    manifest = read_manifest(path)
+    recorded = manifest.scene or {}
+    name = recorded.get("name") or "?"
+    if recorded.get("spec") is not None:
+        try:
+            scene = scene_from_dict(recorded["spec"], what=f"{path} scene '{name}'")
+        except InputError as err:
+            raise InputError(str(path), f"no --scene given, and the scene the bundle records ('{name}') cannot be "
+                             f"rebuilt: {err}; pass --scene") from None
+        used, source = f"the scene the bundle records ('{name}')", "bundle"
+    else:
+        scene, used, source = builtin_scene(DEFAULT_SCENE), f"the default scene '{DEFAULT_SCENE}'", "default"
+    if scene.fingerprint() != manifest.scene_fingerprint and not force:
+        detail = mismatch_detail(scene.fingerprint_parts(), manifest.scene_parts)
+        if source == "bundle":
+            raise InputError(str(path), f"no --scene given, and {used} no longer rebuilds to the scene it was "
+                             f"trained for: {detail}; pass --scene")
+        raise InputError(str(path), f"no --scene given, so {used} was used; the bundle was trained for another "
+                         f"scene{_trained_name(manifest)}: {detail}; pass --scene")
+    return scene, source
 
 
 def _check_file(bundle: Path, name: str, entry: dict[str, Any]) -> Path:
@@ -294,6 +344,9 @@ class PhotonField:
         self.config = manifest.config
         self.bmin, self.bsize = manifest.bmin, manifest.bsize
         self.scene_fingerprint = manifest.scene_fingerprint
+        #: Set by :meth:`load` when a bundle trained for another scene was forced: one line naming what
+        #: differs (``"... lights differ (volume and transfer function match); L_i will be wrong"``).
+        self.scene_warning: str | None = None
         self.position_table = tables["position"]
         self.direction_table = tables["direction"]
         self.session = session
@@ -308,7 +361,8 @@ class PhotonField:
     @classmethod
     def load(cls, path: str | os.PathLike[str], *, threads: int | None = None, precision: str = "fp32",
              expected_fingerprint: str | None = None, force: bool = False, chunk: int = DEFAULT_CHUNK,
-             spinning: bool = False, pipeline: bool = False) -> PhotonField:
+             spinning: bool = False, pipeline: bool = False,
+             expected_parts: dict[str, str] | None = None) -> PhotonField:
         """Load and validate a bundle (module docstring); one-line InputError on any problem."""
         bundle = Path(path)
         if precision in REMOVED_PRECISIONS:
@@ -324,23 +378,23 @@ class PhotonField:
                                  f"{threads!r}")
         if isinstance(chunk, bool) or not isinstance(chunk, int) or not 1 <= chunk <= 1 << 22:
             raise InputError("chunk", f"must be an integer in [1, {1 << 22}], got {chunk!r}")
-        if not bundle.exists():
-            raise InputError(str(bundle), "bundle not found")
-        if not bundle.is_dir():
-            raise InputError(str(bundle), "is a file; a bundle is a NAME.pfn directory (manifest.json, field.onnx, "
-                             "tables.npz)")
-        manifest = _read_manifest(bundle)
-        if expected_fingerprint is not None and manifest.scene_fingerprint != expected_fingerprint and not force:
-            raise InputError(str(bundle), "was trained for another scene (fingerprint mismatch: volume, transfer "
-                             "function or lights differ); retrain, or force to use it anyway")
+        manifest = read_manifest(bundle)
+        warning = None
+        if expected_fingerprint is not None and manifest.scene_fingerprint != expected_fingerprint:
+            other = f"another scene{_trained_name(manifest)}: {mismatch_detail(expected_parts, manifest.scene_parts)}"
+            if not force:
+                raise InputError(str(bundle), f"was trained for {other}; retrain, or force to use it anyway")
+            warning = f"{bundle} was trained for {other}; L_i will be wrong"
         onnx_path = _check_file(bundle, ONNX_FILE, manifest.files[ONNX_FILE])
         tables_path = _check_file(bundle, TABLES_FILE, manifest.files[TABLES_FILE])
         data = onnx_path.read_bytes()
         _check_onnx(onnx_path, data, manifest)
         tables = _load_tables(tables_path, manifest)
         session = _session(data, str(onnx_path), threads, spinning)
-        return cls(bundle, manifest, tables, session, threads=threads, precision=precision, chunk=chunk,
-                   spinning=spinning, pipeline=pipeline)
+        field = cls(bundle, manifest, tables, session, threads=threads, precision=precision, chunk=chunk,
+                    spinning=spinning, pipeline=pipeline)
+        field.scene_warning = warning
+        return field
 
     # ------------------------------------------------------------------------------------------------
     @property
@@ -454,7 +508,9 @@ class PhotonField:
         return {"path": str(self.path), "precision": self.precision, "threads": self.threads, "chunk": self.chunk,
                 "spinning": self.spinning, "pipeline": self.pipeline, "input_width": self.input_width,
                 "field": self.config.to_dict(), "training": self.manifest.training,
-                "scene_fingerprint": self.scene_fingerprint}
+                "scene_fingerprint": self.scene_fingerprint,
+                "scene_parts": self.manifest.scene_parts, "trained_for": (self.manifest.scene or {}).get("name"),
+                "scene_warning": self.scene_warning}
 
 
 class FieldEstimator:

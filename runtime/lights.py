@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from runtime.errors import InputError
+from runtime.errors import InputError, unknown_keys_problem
 
 POINT, DIRECTIONAL, ENVIRONMENT = 0, 1, 2
 
@@ -115,10 +115,9 @@ def light_from_dict(d: Any, what: str = "light") -> Light:
     if kind not in _LIGHT_KEYS:
         raise InputError(what, f"unknown light type {kind!r} (expected 'point', 'directional' or 'environment')")
     # Fix: unknown keys used to be ignored silently, so a misspelt "power" rendered with power 1.
-    unknown = set(d) - _LIGHT_KEYS[kind] - {"type"}
+    unknown = [k for k in d if k not in _LIGHT_KEYS[kind] | {"type"}]
     if unknown:
-        raise InputError(what, f"unknown keys {sorted(unknown)} for a {kind} light "
-                         f"(allowed: {sorted(_LIGHT_KEYS[kind] | {'type'})})")
+        raise InputError(what, f"{kind} light: {unknown_keys_problem(unknown, _LIGHT_KEYS[kind] | {'type'})}")
     color = d.get("color", [1.0, 1.0, 1.0])
     power = d.get("power", 1.0)
     if kind == "point" and "position" not in d:

@@ -120,10 +120,17 @@ class PhotonMapEstimator:
         return np.ascontiguousarray(est.T)
 
 
-def check_map_matches_scene(pmap: PhotonMap, scene: Scene, force: bool = False) -> None:
-    if not force and pmap.scene_fingerprint != scene.fingerprint():
-        raise InputError("photon map", f"was traced for another scene than '{scene.name}' (volume, transfer "
-                         "function or lights differ); re-trace it, or force to use it anyway")
+def check_map_matches_scene(pmap: PhotonMap, scene: Scene, force: bool = False) -> str | None:
+    """Refuse a map traced for another scene, naming what differs (volume, transfer function, lights); with
+    ``force``, return that as a one-line warning instead (the caller shows it: L_i will be wrong). None
+    when the map was traced for ``scene``."""
+    if pmap.scene_fingerprint == scene.fingerprint():
+        return None
+    name = str(pmap.path) if pmap.path is not None else "photon map"
+    other = pmap.mismatch(scene.fingerprint_parts())
+    if not force:
+        raise InputError(name, f"was traced for {other}; re-trace it, or force to use it anyway")
+    return f"{name} was traced for {other}; L_i will be wrong"
 
 
 def render_photon_mapped(scene: Scene, pmap: PhotonMap, *, k: int = DEFAULT_K, radius: float = DEFAULT_RADIUS,

@@ -10,6 +10,7 @@ format or version, from another scene, or with inconsistent arrays, with a one-l
 from __future__ import annotations
 
 import json
+import re
 import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -18,9 +19,18 @@ from typing import Any
 
 import numpy as np
 
-from models_spec.photon_map import PHOTON_MAP_ARRAYS, PHOTON_MAP_FORMAT, PHOTON_MAP_VERSION
+from models_spec.fingerprint import FINGERPRINT_PARTS, mismatch_detail
+from models_spec.photon_map import (
+    PHOTON_MAP_ARRAYS,
+    PHOTON_MAP_FORMAT,
+    PHOTON_MAP_META_KEYS,
+    PHOTON_MAP_META_REQUIRED,
+    PHOTON_MAP_VERSION,
+)
 from runtime.atomic import atomic_path
-from runtime.errors import InputError
+from runtime.errors import InputError, check_keys
+
+_SHA256 = re.compile(r"^[0-9a-f]{64}$")
 
 
 def find_phase(phases: Sequence[float], g: float) -> int | None:
@@ -41,6 +51,14 @@ class PhotonMap:
     scene_fingerprint: str
     emitted: int
     meta: dict[str, Any] = field(default_factory=dict)
+    #: The file it was loaded from (None for a map in memory): names the map in messages.
+    path: Path | None = None
+
+    @property
+    def scene_parts(self) -> dict[str, str] | None:
+        """Per-part fingerprints of the scene traced for (``meta["scene_parts"]``), None for older maps."""
+        parts = self.meta.get("scene_parts")
+        return dict(parts) if isinstance(parts, dict) else None
 
     def __len__(self) -> int:
         return int(self.position.shape[0])
@@ -56,7 +74,7 @@ class PhotonMap:
     def subset(self, phase: int) -> PhotonMap:
         sel = self.phase == phase
         return PhotonMap(self.position[sel], self.direction[sel], self.power[sel], self.phase[sel], self.phases,
-                         self.scene_fingerprint, self.emitted, dict(self.meta))
+                         self.scene_fingerprint, self.emitted, dict(self.meta), self.path)
 
     def metadata(self) -> dict[str, Any]:
         counts = np.bincount(self.phase, minlength=len(self.phases)) if len(self) else np.zeros(len(self.phases))
@@ -73,8 +91,10 @@ class PhotonMap:
         return path
 
     @classmethod
-    def load(cls, path: str | Path, expected_fingerprint: str | None = None) -> PhotonMap:
-        """Load and validate; with ``expected_fingerprint`` also refuse a map traced for another scene."""
+    def load(cls, path: str | Path, expected_fingerprint: str | None = None,
+             expected_parts: dict[str, str] | None = None) -> PhotonMap:
+        """Load and validate; with ``expected_fingerprint`` also refuse a map traced for another scene
+        (``expected_parts``, the scene's :meth:`runtime.scene.Scene.fingerprint_parts`, names what differs)."""
         p = Path(path)
         what = str(p)
         if not p.is_file():
@@ -96,6 +116,11 @@ class PhotonMap:
         if meta.get("version") != PHOTON_MAP_VERSION:
             raise InputError(what, f"photon map version {meta.get('version')!r} is not supported "
                              f"(this build reads version {PHOTON_MAP_VERSION}); re-trace it")
+        check_keys(meta, PHOTON_MAP_META_KEYS, f"{what} metadata", required=PHOTON_MAP_META_REQUIRED)
+        extra = sorted(set(arrays) - set(PHOTON_MAP_ARRAYS))
+        if extra:
+            raise InputError(what, f"unknown array{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))}; a "
+                             f"photon map holds {', '.join(map(repr, [*PHOTON_MAP_ARRAYS, 'meta']))}")
         n = None
         for name, (dtype, width) in PHOTON_MAP_ARRAYS.items():
             if name not in arrays:
@@ -109,20 +134,47 @@ class PhotonMap:
                 n = a.shape[0]
             elif a.shape[0] != n:
                 raise InputError(what, f"'{name}' has {a.shape[0]} rows, expected {n}")
-        phases = tuple(float(g) for g in meta.get("phases", []))
+        try:
+            phases = tuple(float(g) for g in meta["phases"])
+        except (TypeError, ValueError):
+            raise InputError(f"{what} metadata", f"'phases' must be a list of numbers, got {meta['phases']!r}"
+                             ) from None
         if not phases:
             raise InputError(what, "photon map metadata lists no phases")
         if n and int(arrays["phase"].max()) >= len(phases):
             raise InputError(what, "phase index out of range of the phase set")
+        if "stored" in meta and meta["stored"] != n:
+            raise InputError(f"{what} metadata", f"'stored' is {meta['stored']!r} but the arrays hold {n} photons")
         for name in ("position", "direction", "power"):
             if not np.all(np.isfinite(arrays[name])):
                 raise InputError(what, f"'{name}' contains non-finite values")
-        fp = str(meta.get("scene_fingerprint", ""))
+        fp = meta["scene_fingerprint"]
+        if not isinstance(fp, str) or not _SHA256.match(fp):
+            raise InputError(f"{what} metadata", f"'scene_fingerprint' must be a sha256 hex string, got {fp!r}")
+        if "scene_parts" in meta:
+            _check_parts(meta["scene_parts"], f"{what} metadata scene_parts")
+        emitted = meta["emitted"]
+        if isinstance(emitted, bool) or not isinstance(emitted, int) or emitted <= 0:
+            raise InputError(what, f"photon map metadata has no positive 'emitted' count (got {emitted!r})")
+        pmap = cls(arrays["position"], arrays["direction"], arrays["power"], arrays["phase"], phases, fp, emitted,
+                   meta, p)
         if expected_fingerprint is not None and fp != expected_fingerprint:
-            raise InputError(what, "photon map was traced for another scene (fingerprint mismatch: volume, "
-                             "transfer function or lights differ)")
-        emitted = int(meta.get("emitted", 0))
-        if emitted <= 0:
-            raise InputError(what, "photon map metadata has no positive 'emitted' count")
-        return cls(arrays["position"], arrays["direction"], arrays["power"], arrays["phase"], phases, fp, emitted,
-                   meta)
+            raise InputError(what, f"photon map was traced for {pmap.mismatch(expected_parts)}; re-trace it for "
+                             "this scene")
+        return pmap
+
+    def mismatch(self, expected_parts: dict[str, str] | None) -> str:
+        """``"another scene ('blobs'): lights differ (volume and transfer function match)"``: the scene this
+        map was traced for (by name, when recorded) and what differs from a scene with ``expected_parts``."""
+        name = self.meta.get("scene_name")
+        named = f" ({name!r})" if isinstance(name, str) and name else ""
+        return f"another scene{named}: {mismatch_detail(expected_parts, self.scene_parts)}"
+
+
+def _check_parts(parts: Any, what: str) -> None:
+    if not isinstance(parts, dict):
+        raise InputError(what, f"must be an object with keys {', '.join(FINGERPRINT_PARTS)}")
+    check_keys(parts, FINGERPRINT_PARTS, what, required=FINGERPRINT_PARTS)
+    for key, value in parts.items():
+        if not isinstance(value, str) or not _SHA256.match(value):
+            raise InputError(f"{what} {key}", f"must be a sha256 hex string, got {value!r}")

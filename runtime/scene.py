@@ -33,9 +33,9 @@ from typing import Any
 
 import numpy as np
 
-from models_spec import scene_fingerprint
+from models_spec import fingerprint_parts, scene_fingerprint
 from runtime.camera import Camera
-from runtime.errors import InputError
+from runtime.errors import InputError, check_keys
 from runtime.lights import (
     ENVIRONMENT,
     DirectionalLight,
@@ -61,6 +61,9 @@ class Scene:
     camera: Camera
     g: float = 0.0
     name: str = "scene"
+    #: How to rebuild the volume: a scene file's volume entry (``{"builtin", "resolution"}`` or ``{"path"``
+    #: (absolute), reader options``}``), set by the loaders; None for a volume built from an array.
+    volume_source: dict[str, Any] | None = None
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -78,6 +81,14 @@ class Scene:
             self._cache["fingerprint"] = scene_fingerprint(
                 self.volume.fingerprint(), self.tf.to_dict(), [light.to_dict() for light in self.lights])
         return self._cache["fingerprint"]
+
+    def fingerprint_parts(self) -> dict[str, str]:
+        """Per-part fingerprints (volume, transfer_function, lights): recorded beside :meth:`fingerprint` in
+        photon maps and bundles, so that a mismatch can name what differs."""
+        if "fingerprint_parts" not in self._cache:
+            self._cache["fingerprint_parts"] = fingerprint_parts(
+                self.volume.fingerprint(), self.tf.to_dict(), [light.to_dict() for light in self.lights])
+        return dict(self._cache["fingerprint_parts"])
 
     def medium(self) -> Medium:
         """The packed medium (built once per scene object)."""
@@ -109,10 +120,20 @@ class Scene:
             cam = cam.with_resolution(cam.width if width is None else width,
                                       cam.height if height is None else height)
         new = replace(self, g=self.g if g is None else g, camera=cam, _cache={})
-        for key in ("medium", "fingerprint", "lights"):  # none of these depend on g or the camera
+        for key in ("medium", "fingerprint", "fingerprint_parts", "lights"):  # none depend on g or the camera
             if key in self._cache:
                 new._cache[key] = self._cache[key]
         return new
+
+    def spec(self) -> dict[str, Any] | None:
+        """The scene as a scene file (what :func:`scene_from_dict` reads back to the same fingerprint,
+        camera and g), or None when the volume was built from an array and cannot be referenced. Bundles
+        record it so that ``pfn-render --method field`` can rebuild the scene a field was trained for."""
+        if self.volume_source is None:
+            return None
+        return {"name": self.name, "volume": dict(self.volume_source), "transfer_function": self.tf.to_dict(),
+                "lights": [lt.to_dict() for lt in self.lights], "camera": self.camera.to_dict(),
+                "phase": {"g": self.g}}
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able description (the volume is referenced by name and fingerprint, not embedded)."""
@@ -173,7 +194,7 @@ def builtin_scene(name: str, resolution: int = BUILTIN_RESOLUTION) -> Scene:
     spec = BUILTIN_SCENES[name]
     return Scene(builtin_volume(spec["volume"], resolution), preset(spec["tf"]),
                  tuple(light_from_dict(d) for d in spec["lights"]), Camera.from_dict(_DEFAULT_CAMERA),
-                 spec["g"], name)
+                 spec["g"], name, {"builtin": spec["volume"], "resolution": resolution})
 
 
 # --- scene files ---------------------------------------------------------------------------------------
@@ -205,14 +226,12 @@ def scene_from_dict(d: Any, base_dir: Path | None = None, what: str = "scene") -
     base_dir = base_dir or Path.cwd()
     if not isinstance(d, dict):
         raise InputError(what, "a scene must be a JSON object")
-    unknown = set(d) - _SCENE_KEYS
-    if unknown:
-        raise InputError(what, f"unknown keys {sorted(unknown)} (allowed: {sorted(_SCENE_KEYS)})")
+    check_keys(d, _SCENE_KEYS, what)
     for key in ("volume", "transfer_function", "lights", "camera"):
         if key not in d:
             raise InputError(what, f"missing '{key}'")
     name = str(d.get("name", Path(what).stem))
-    volume = _volume_from_dict(d["volume"], base_dir, f"{what} volume")
+    volume, volume_source = _volume_from_dict(d["volume"], base_dir, f"{what} volume")
     tf_spec = d["transfer_function"]
     if isinstance(tf_spec, str):
         tf = TransferFunction.load(_resolve(tf_spec, base_dir))
@@ -226,13 +245,12 @@ def scene_from_dict(d: Any, base_dir: Path | None = None, what: str = "scene") -
     if not isinstance(phase, dict):
         raise InputError(f"{what} phase", "must be an object like {\"g\": 0.0}")
     # Fix: a misspelt phase key (e.g. "gg") used to be ignored silently, rendering with g = 0.
-    if set(phase) - {"g"}:
-        raise InputError(f"{what} phase", f"unknown keys {sorted(set(phase) - {'g'})} (allowed: ['g'])")
+    check_keys(phase, ("g",), f"{what} phase")
     # Fix: g and the light checks of Scene used to be labelled "scene '<name>' ...", which does not name
     # the file; validate g here and re-label the Scene's own errors with ``what``.
     g = check_g(phase.get("g", 0.0), f"{what} phase g")
     try:
-        return Scene(volume, tf, lights, camera, g, name)
+        return Scene(volume, tf, lights, camera, g, name, volume_source)
     except InputError as err:
         prefix = f"scene '{name}'"
         label = what + err.what[len(prefix):] if err.what.startswith(prefix) else f"{what} {err.what}"
@@ -244,25 +262,24 @@ def _resolve(path: str, base_dir: Path) -> Path:
     return p if p.is_absolute() else base_dir / p
 
 
-def _volume_from_dict(v: Any, base_dir: Path, what: str) -> Volume:
+def _volume_from_dict(v: Any, base_dir: Path, what: str) -> tuple[Volume, dict[str, Any]]:
+    """The volume of a scene entry, and the entry that rebuilds it from anywhere (path made absolute)."""
     if not isinstance(v, dict):
         raise InputError(what, "must be an object with 'path' or 'builtin'")
     if "builtin" in v:
         # Fix: unknown keys were ignored here (but refused for file volumes); errors now name the entry.
-        unknown = set(v) - {"builtin", "resolution"}
-        if unknown:
-            raise InputError(what, f"unknown keys {sorted(unknown)} (allowed: ['builtin', 'resolution'])")
-        return builtin_volume(str(v["builtin"]), v.get("resolution", BUILTIN_RESOLUTION), what=what)
+        check_keys(v, ("builtin", "resolution"), what)
+        resolution = v.get("resolution", BUILTIN_RESOLUTION)
+        volume = builtin_volume(str(v["builtin"]), resolution, what=what)
+        return volume, {"builtin": str(v["builtin"]), "resolution": resolution}
     if "path" not in v:
         raise InputError(what, "needs 'path' (a volume file) or 'builtin' (a procedural volume name)")
     from runtime.volume_io import load_volume
 
-    allowed = {"path", "dims", "dtype", "endian", "spacing", "window", "axes"}
-    unknown = set(v) - allowed
-    if unknown:
-        raise InputError(what, f"unknown keys {sorted(unknown)} (allowed: {sorted(allowed)})")
+    check_keys(v, ("path", "dims", "dtype", "endian", "spacing", "window", "axes"), what)
     kwargs = {k: v[k] for k in ("dims", "dtype", "endian", "spacing", "window", "axes") if k in v}
-    return load_volume(_resolve(str(v["path"]), base_dir), **kwargs)
+    path = _resolve(str(v["path"]), base_dir)
+    return load_volume(path, **kwargs), {"path": str(path.absolute()), **kwargs}
 
 
 __all__ = ["Scene", "builtin_scene", "load_scene", "scene_from_dict", "BUILTIN_SCENES", "DEFAULT_SCENE",

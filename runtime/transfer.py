@@ -29,9 +29,13 @@ from typing import Any
 
 import numpy as np
 
-from runtime.errors import InputError
+from runtime.errors import InputError, check_keys
 
 LUT_SIZE = 1024
+#: Keys of the two JSON forms of a transfer function and of one control point (anything else is refused).
+_PRESET_KEYS = ("preset", "density_scale")
+_POINTS_KEYS = ("points", "density_scale", "name")
+_POINT_KEYS = ("s", "albedo", "opacity")
 
 
 @dataclass(frozen=True, eq=False)
@@ -97,25 +101,45 @@ class TransferFunction:
 
     @classmethod
     def from_dict(cls, d: Any, what: str = "transfer function") -> TransferFunction:
+        """A transfer function from its JSON form: ``{"preset": NAME}`` (optionally with ``density_scale``)
+        or ``{"points": [{"s", "albedo", "opacity"}, ...], "density_scale": ..., "name": ...}``. Unknown
+        keys are refused, at the top level and in every point (``what points[2]``), so that a typo such as
+        ``"densty_scale"`` cannot silently render with the default."""
         if not isinstance(d, dict):
             raise InputError(what, "must be a JSON object")
+        if "preset" in d and "points" in d:
+            raise InputError(what, "give either 'preset' or 'points', not both")
         if "preset" in d:
+            check_keys(d, _PRESET_KEYS, what)
             tf = preset(str(d["preset"]), what=what)
             if "density_scale" in d:
                 ds = _number(d, "density_scale", what)
                 tf = _relabelled(what, lambda: TransferFunction(tf.points, tf.albedo, tf.opacity, ds, tf.name))
             return tf
+        check_keys(d, _POINTS_KEYS, what)
         pts = d.get("points")
         if not isinstance(pts, list) or not pts:
-            raise InputError(what, "'points' must be a non-empty list of {s, albedo, opacity} objects")
-        try:
-            s = [float(p["s"]) for p in pts]
-            alb = [[float(v) for v in p["albedo"]] for p in pts]
-            opa = [float(p["opacity"]) for p in pts]
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(what, f"each point needs numeric 's', 'albedo' [r, g, b] and 'opacity' ({exc})") from None
-        if any(len(a) != 3 for a in alb):
-            raise InputError(what, "each albedo must have three components [r, g, b]")
+            raise InputError(what, "needs 'preset' (a preset name) or 'points' (a non-empty list of "
+                                   "{s, albedo, opacity} objects)")
+        s, alb, opa = [], [], []
+        for i, p in enumerate(pts):
+            where = f"{what} points[{i}]"
+            if not isinstance(p, dict):
+                raise InputError(where, f"must be an object {{\"s\", \"albedo\", \"opacity\"}}, got {p!r}")
+            check_keys(p, _POINT_KEYS, where)
+            missing = [k for k in _POINT_KEYS if k not in p]
+            if missing:
+                raise InputError(where, f"missing {', '.join(repr(k) for k in missing)} (each point needs 's', "
+                                 "'albedo' [r, g, b] and 'opacity')")
+            try:
+                s.append(float(p["s"]))
+                alb.append([float(v) for v in p["albedo"]])
+                opa.append(float(p["opacity"]))
+            except (TypeError, ValueError):
+                raise InputError(where, "needs numeric 's', 'albedo' [r, g, b] and 'opacity', got "
+                                 f"{json.dumps(p)[:80]}") from None
+            if len(alb[-1]) != 3:
+                raise InputError(where, f"albedo must have three components [r, g, b], got {p['albedo']!r}")
         ds = _number(d, "density_scale", what, 50.0)
         return _relabelled(what, lambda: cls(np.array(s), np.array(alb), np.array(opa), ds,
                                              str(d.get("name", "custom"))))

@@ -49,9 +49,11 @@ Conventions:
   ``(nz, ny, nx)``), read with that shape and transposed. NRRD is read with ``index_order='F'`` (first
   NRRD axis = x); NIfTI arrays are ``[i, j, k]`` = ``[x, y, z]``. Only voxel *sizes* are taken from
   the headers: direction cosines, flips and origins are ignored (the volume sits in a centred box).
-- **Raw sidecar.** ``<file>.json`` (e.g. ``head.raw.json``), else ``<stem>.json`` (``head.json``),
-  a JSON object with keys ``dims``, ``dtype``, ``endian``, ``spacing`` and optionally ``window``;
-  other keys are ignored. Keyword arguments override the sidecar. The file size must be exactly
+- **Raw sidecar.** ``<file>.json`` (e.g. ``head.raw.json``), else ``<stem>.json`` (``head.json``, unless
+  that is a scene file, i.e. has a ``volume`` entry),
+  a JSON object with keys ``dims``, ``dtype``, ``endian``, ``spacing`` and optionally ``window`` and
+  ``layout`` (which, if present, must be the one layout read: :data:`RAW_LAYOUT`); any other key is
+  refused, naming the sidecar and the key. Keyword arguments override the sidecar. The file size must be exactly
   ``nx * ny * nz * itemsize``.
 - **Memory.** Raw and ``.npy`` files (and uncompressed NIfTI, via nibabel) are memory-mapped; the
   normalization in :func:`make_volume` streams through them in chunks, so the only full-size
@@ -77,16 +79,20 @@ from typing import Any
 import numpy as np
 
 from runtime.atomic import atomic_path, atomic_write_text
-from runtime.errors import InputError
+from runtime.errors import InputError, check_keys
 from runtime.volume import Volume, make_volume
 
-__all__ = ["RAW_DTYPES", "load_volume", "save_volume_raw", "find_sidecar"]
+__all__ = ["RAW_DTYPES", "RAW_LAYOUT", "SIDECAR_KEYS", "load_volume", "save_volume_raw", "find_sidecar"]
 
 #: dtype names accepted for raw files (native numpy names, byte order given separately by ``endian``).
 RAW_DTYPES: tuple[str, ...] = (
     "uint8", "int8", "uint16", "int16", "uint32", "int32", "uint64", "int64", "float16", "float32", "float64",
 )  # fmt: skip
 _ENDIAN = {"little": "<", "big": ">"}
+#: Keys of a raw file's sidecar JSON (anything else is refused); ``layout`` is written by
+#: :func:`save_volume_raw` for people reading the file and must say what the reader does.
+SIDECAR_KEYS: tuple[str, ...] = ("dims", "dtype", "endian", "spacing", "window", "layout")
+RAW_LAYOUT = "x fastest, then y, then z (C order of shape [nz, ny, nx])"
 _RAW_SUFFIXES = (".raw", ".bin", ".dat")
 _FORMATS = {".npy": "npy", ".nrrd": "nrrd", ".nhdr": "nrrd", ".nii": "nifti", ".nii.gz": "nifti"}
 _FORMATS.update({s: "raw" for s in _RAW_SUFFIXES})
@@ -236,12 +242,23 @@ def _read_npy(path: Path, what: str, axes: str) -> _ReadResult:
 
 
 def find_sidecar(path: str | os.PathLike[str]) -> Path | None:
-    """The sidecar JSON of a raw file: ``<file>.json`` if it exists, else ``<stem>.json``, else None."""
+    """The sidecar JSON of a raw file: ``<file>.json`` if it exists, else ``<stem>.json``, else None. A
+    ``<stem>.json`` that is a scene file (it has a ``volume`` entry: ``engine.json`` beside ``engine.raw``)
+    is not a sidecar."""
     p = Path(path)
-    for cand in (p.with_name(p.name + ".json"), p.with_suffix(".json")):
-        if cand.is_file():
-            return cand
+    if p.with_name(p.name + ".json").is_file():
+        return p.with_name(p.name + ".json")
+    stem = p.with_suffix(".json")
+    if stem.is_file() and not (isinstance(doc := _json_or_none(stem), dict) and "volume" in doc):
+        return stem
     return None
+
+
+def _json_or_none(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
 
 
 def _read_sidecar(raw_path: Path) -> tuple[dict[str, Any], Path | None]:
@@ -256,7 +273,28 @@ def _read_sidecar(raw_path: Path) -> tuple[dict[str, Any], Path | None]:
         raise InputError(
             str(side), f"JSON sidecar of {raw_path.name} must be an object with keys dims, dtype, ..."
         )
+    # A misspelt key ("dtyp", "spacng") must not silently fall back to a default or to a guess.
+    check_keys(meta, SIDECAR_KEYS, str(side))
+    if "layout" in meta and meta["layout"] != RAW_LAYOUT:
+        raise InputError(str(side), f"layout {_fmt(meta['layout'])} is not read; raw files are read as "
+                         f"{RAW_LAYOUT!r} (remove the key or convert the file)")
     return meta, side
+
+
+def _raw_needs(path: Path, missing: list[str], side: Path | None) -> str:
+    """What to write where when a raw file's dims and/or dtype are unknown: phrased for the scene file and
+    the sidecar, which is what users edit (the Python keywords have the same names)."""
+    words = {"dims": "dimensions", "dtype": "data type"}
+    entries = {"dims": '"dims": [nx, ny, nz]', "dtype": f'"dtype" (one of {", ".join(RAW_DTYPES)})'}
+    what = " and ".join(words[k] for k in missing)
+    add = " and ".join(entries[k] for k in missing)
+    if side is not None:
+        where = f"to its sidecar {side.name} or to the scene's volume entry"
+    else:
+        where = (f"to the scene's volume entry, or to a sidecar JSON {path.name}.json (or "
+                 f"{path.with_suffix('.json').name}) beside it")
+    return (f"a raw volume has no header, so its {what} must be given: add {add} {where}; e.g. "
+            '{"dims": [256, 256, 128], "dtype": "uint16", "endian": "little"}')
 
 
 def _read_raw(
@@ -270,15 +308,11 @@ def _read_raw(
             return kwarg, what
         return meta.get(key), side_what
 
-    how = (
-        f"pass dims=(nx, ny, nz) and dtype=... (e.g. 'uint16') or put them in a sidecar "
-        f'{path.name}.json like {{"dims": [256, 256, 128], "dtype": "uint16", "endian": "little"}}'
-    )
     dims_v, dims_w = pick("dims", dims)
     dtype_v, dtype_w = pick("dtype", dtype)
     missing = [k for k, v in (("dims", dims_v), ("dtype", dtype_v)) if v is None]
     if missing:
-        raise InputError(what, f"raw file needs {' and '.join(missing)}: {how}")
+        raise InputError(what, _raw_needs(path, missing, side))
     nx, ny, nz = _parse_dims(dims_v, dims_w)
     dt = _parse_dtype(dtype_v, dtype_w)
     endian_v, endian_w = pick("endian", endian)
@@ -484,7 +518,7 @@ def save_volume_raw(
     }
     if win is not None:
         meta["window"] = list(win)
-    meta["layout"] = "x fastest, then y, then z (C order of shape [nz, ny, nx])"
+    meta["layout"] = RAW_LAYOUT
     side = p.with_name(p.name + ".json")
     atomic_write_text(side, json.dumps(meta, indent=2) + "\n")
     return side

@@ -27,7 +27,7 @@ torch = pytest.importorskip("torch")
 
 import onnx  # noqa: E402
 
-from models_spec.bundle import file_digest  # noqa: E402
+from models_spec.bundle import BUNDLE_VERSION, file_digest  # noqa: E402
 from models_spec.encoding import FieldConfig, direction_input, normalize_position  # noqa: E402
 from models_spec.hashgrid import HashGridConfig, level_specs  # noqa: E402
 from runtime.errors import InputError  # noqa: E402
@@ -440,7 +440,8 @@ def test_manifest_corrupted_truncated_or_from_another_version(bundle_copy: Path)
     text = (bundle_copy / "manifest.json").read_text()
     (bundle_copy / "manifest.json").write_text(text[: len(text) // 2])
     refused(bundle_copy, "not valid JSON")
-    (bundle_copy / "manifest.json").write_text(text.replace('"version": 1,', '"version": 2,', 1))
+    (bundle_copy / "manifest.json").write_text(text.replace(f'"version": {BUNDLE_VERSION},',
+                                                            f'"version": {BUNDLE_VERSION + 1},', 1))
     refused(bundle_copy, "newer than this build reads")
     (bundle_copy / "manifest.json").write_text(text.replace('"levels": 6', '"levels": "6"', 1))
     refused(bundle_copy, "field.position.levels: must be an integer")

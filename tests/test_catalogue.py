@@ -184,6 +184,90 @@ CASES: list[Case] = [
     (E, lambda a, d, o: ["--quick", "--size", "0", "--out", str(o / "docs"), "--work", str(o / "w")], "--size"),
 ]
 
+# Issue 11, part 3: inputs that were wrong but accepted (or refused without naming the entry).
+_TF_PTS = [{"s": 0.0, "albedo": [0.9, 0.9, 0.9], "opacity": 0.0}, {"s": 1.0, "albedo": [0.9, 0.9, 0.9], "opacity": 1.0}]
+
+
+def tf_file(d: Path, tf: dict) -> str:
+    (d / "tf.json").write_text(json.dumps(tf))
+    return scene_file(d, transfer_function="tf.json")
+
+
+def raw_scene(d: Path, sidecar: dict | None = None, **entry: object) -> str:
+    (d / "vol.raw").write_bytes(bytes(range(64)))
+    if sidecar is not None:
+        (d / "vol.raw.json").write_text(json.dumps(sidecar))
+    return scene_file(d, volume={"path": "vol.raw", **entry})
+
+
+CASES += [
+    (R, lambda a, d, o: ["--scene", scene_file(d, transfer_function={"preset": "cloud", "densty_scale": 80}), *SIZE,
+                         "--out", str(o / "r.exr")], "scene.json transfer_function: unknown key 'densty_scale'"),
+    (R, lambda a, d, o: ["--scene", tf_file(d, {"points": _TF_PTS, "densty_scale": 80}), *SIZE, "--out",
+                         str(o / "r.exr")], "tf.json: unknown key 'densty_scale'"),
+    (R, lambda a, d, o: ["--scene", tf_file(d, {"points": [_TF_PTS[0], {**_TF_PTS[1], "opacty": 1}]}), *SIZE,
+                         "--out", str(o / "r.exr")], "tf.json points[1]: unknown key 'opacty'"),
+    (R, lambda a, d, o: ["--scene", tf_file(d, {"points": [_TF_PTS[0], {"s": 1.0, "albedo": [1, 1, 1]}]}), *SIZE,
+                         "--out", str(o / "r.exr")], "tf.json points[1]: missing 'opacity'"),
+    (R, lambda a, d, o: ["--scene", scene_file(d, camera={"eye": [2, 0, 0], "target": [0, 0, 0], "fow": 20}), *SIZE,
+                         "--out", str(o / "r.exr")], "camera: unknown key 'fow'"),
+    (R, lambda a, d, o: ["--scene", raw_scene(d), *SIZE, "--out", str(o / "r.exr")],
+     'vol.raw: a raw volume has no header, so its dimensions and data type must be given: add "dims"'),
+    (R, lambda a, d, o: ["--scene", raw_scene(d, {"dims": [4, 4, 4], "dtype": "uint8", "spacng": [1, 1, 2]}), *SIZE,
+                         "--out", str(o / "r.exr")], "vol.raw.json: unknown key 'spacng'"),
+]
+
+
+
+def old_bundle(a: dict[str, Path], d: Path) -> Path:
+    """The assets' bundle as a version 1 exporter wrote it: no ``scene`` entry (the manifest is not hashed)."""
+    b = copy_bundle(a, d)
+    m = json.loads((b / "manifest.json").read_text())
+    del m["scene"]
+    m["version"] = 1
+    (b / "manifest.json").write_text(json.dumps(m))
+    return b
+
+
+def moved_volume_bundle(a: dict[str, Path], d: Path) -> Path:
+    """A bundle whose recorded scene references a volume file that is no longer there."""
+    b = copy_bundle(a, d)
+    m = json.loads((b / "manifest.json").read_text())
+    m["scene"]["spec"]["volume"] = {"path": str(d / "gone.raw"), "dims": [4, 4, 4], "dtype": "uint8"}
+    (b / "manifest.json").write_text(json.dumps(m))
+    return b
+
+
+def run_with(a: dict[str, Path], d: Path, name: str, edit: Callable[[dict], None]) -> str:
+    """A copy of the assets' run folder with a domain.json, and ``name`` (domain.json or log.json) edited."""
+    from train.export import write_run_domain
+
+    run = d / "run"
+    shutil.copytree(a["run"], run)
+    write_run_domain(run, scene_from_dict(tiny_scene_dict(), d))
+    doc = json.loads((run / name).read_text())
+    edit(doc)
+    (run / name).write_text(json.dumps(doc))
+    return str(run)
+
+
+CASES += [
+    (R, lambda a, d, o: ["--method", "field", "--bundle", str(a["bundle"]), "--scene", str(a["other"]), *SIZE,
+                         "--out", str(o / "r.exr")], "lights differ (volume and transfer function match)"),
+    (R, lambda a, d, o: ["--method", "photonmap", "--map", str(a["map"]), "--scene", str(a["other"]), *SIZE,
+                         "--out", str(o / "r.exr")], "lights differ (volume and transfer function match)"),
+    (R, lambda a, d, o: ["--method", "field", "--bundle", str(old_bundle(a, d)), *SIZE, "--out", str(o / "r.exr")],
+     "no --scene given, so the default scene 'vortex' was used; the bundle was trained for another scene"),
+    (R, lambda a, d, o: ["--method", "field", "--bundle", str(moved_volume_bundle(a, d)), *SIZE, "--out",
+                         str(o / "r.exr")], "gone.raw: file not found; pass --scene"),
+    (R, lambda a, d, o: ["--method", "photonmap", "--map", str(a["map"]), *SIZE, "--out", str(o / "r.exr")],
+     "no --scene given, so the default scene 'vortex' was used; the map was traced for another scene"),
+    (T, lambda a, d, o: ["export", run_with(a, d, "domain.json", lambda m: m.update(bsise=[1, 1, 1])), "--out",
+                         str(o / "f.pfn")], "domain.json: unknown key 'bsise'"),
+    (T, lambda a, d, o: ["export", run_with(a, d, "log.json", lambda m: m.update(setings={})), "--out",
+                         str(o / "f.pfn")], "log.json: unknown key 'setings'"),
+]
+
 MAINS = {R: render_main, T: train_main, D: demo_main, E: eval_main}
 
 

@@ -135,3 +135,56 @@ def test_models_spec_bundle_needs_no_torch_or_onnx() -> None:
     code = ("import sys, models_spec.bundle; bad = {'torch', 'onnx', 'onnxruntime', 'numba'} & set(sys.modules); "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Version 2: the ``scene`` entry (issue 11); version 1 manifests are still read
+
+
+PARTS = {"volume": "1" * 64, "transfer_function": "2" * 64, "lights": "3" * 64}
+
+
+def v1_manifest() -> dict:
+    doc = good_manifest()
+    del doc["scene"]
+    doc["version"] = 1
+    return doc
+
+
+def test_scene_entry_round_trips_and_defaults_to_unknown() -> None:
+    from models_spec.bundle import scene_record
+
+    assert BUNDLE_VERSION == 2 and good_manifest()["scene"] == {"name": None, "parts": None, "spec": None}
+    spec = {"name": "s", "volume": {"builtin": "blobs", "resolution": 16}}
+    doc = good_manifest()
+    doc["scene"] = scene_record("s", PARTS, spec)
+    m = parse_manifest_bytes(manifest_text(doc).encode())
+    assert m.scene == {"name": "s", "parts": PARTS, "spec": spec} and m.scene_parts == PARTS
+
+
+def test_version_1_manifests_are_still_read() -> None:
+    m = validate_manifest(v1_manifest())
+    assert m.scene is None and m.scene_parts is None and m.config == CFG
+    doc = v1_manifest()
+    doc["scene"] = {"name": None, "parts": None, "spec": None}  # version 1 had no scene: refused, by name
+    with pytest.raises(BundleError, match="manifest.json: scene: unknown field"):
+        validate_manifest(doc)
+    with pytest.raises(BundleError, match="version: unknown bundle version 0"):
+        validate_manifest({**v1_manifest(), "version": 0})
+
+
+@pytest.mark.parametrize(("path", "value", "expect"), [
+    ("scene", _DELETE, "scene: missing"),
+    ("scene.parts", {**PARTS, "light": "4" * 64}, "scene.parts.light: unknown field"),
+    ("scene.parts", {"volume": "1" * 64}, "scene.parts.transfer_function: missing"),
+    ("scene.parts", {**PARTS, "lights": "x"}, "scene.parts.lights: must match"),
+    ("scene.spec", "vortex", "scene.spec: must be an object or null"),
+    ("scene.name", 3, "scene.name: must be a string or null"),
+    ("scene.extra", 1, "scene.extra: unknown field"),
+])
+def test_scene_entry_is_strict(path: str, value: object, expect: str) -> None:
+    doc = copy.deepcopy(good_manifest())
+    _set(doc, path, value)
+    with pytest.raises(BundleError) as err:
+        validate_manifest(doc)
+    assert expect in str(err.value) and "\n" not in str(err.value), str(err.value)

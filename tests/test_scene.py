@@ -609,7 +609,7 @@ def test_scene_error_invalid_json(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("entries", "needles"),
     [
-        ({"colour": "red"}, ["unknown keys", "colour"]),
+        ({"colour": "red"}, ["unknown key", "colour"]),
         ({"camera": None}, ["missing 'camera'"]),
         ({"lights": []}, ["lights", "at least one light"]),
         ({"lights": [{**SUN, "power": 0}, {"type": "environment", "color": [0, 0, 0]}]}, ["lights", "zero power"]),
@@ -764,3 +764,99 @@ def test_unknown_builtin_scene_lists_available(tmp_path: Path, monkeypatch: pyte
     with pytest.raises(InputError) as info:
         load_scene("teapot")
     assert_one_line(info.value, "teapot", *BUILTIN_SCENES)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Issue 11: every JSON entry refuses unknown keys, naming the file, the entry and the key
+
+
+def test_tf_file_typo_is_refused_not_defaulted(tmp_path: Path) -> None:
+    """``"densty_scale": 80`` used to render with the default 50 and exit 0."""
+    path = tmp_path / "my_tf.json"
+    path.write_text(json.dumps({**INLINE_TF, "densty_scale": 80}))
+    with pytest.raises(InputError) as info:
+        TransferFunction.load(path)
+    msg = assert_one_line(info.value, str(path), "unknown key 'densty_scale'", "did you mean 'density_scale'")
+    assert msg.startswith(f"{path}: ") and "'points'" in msg  # the allowed keys are listed
+    path.write_text(json.dumps({"preset": "cloud", "densty_scale": 80}))
+    with pytest.raises(InputError) as info:
+        TransferFunction.load(path)
+    assert_one_line(info.value, str(path), "densty_scale")
+    path.write_text(json.dumps({"preset": "cloud", "points": INLINE_TF["points"]}))
+    with pytest.raises(InputError) as info:
+        TransferFunction.load(path)
+    assert_one_line(info.value, str(path), "either 'preset' or 'points'")
+
+
+@pytest.mark.parametrize(("point", "needles"), [
+    ({"s": 1.0, "albedo": [1, 1, 1], "opacty": 1.0}, ["points[1]: unknown key 'opacty'", "did you mean 'opacity'"]),
+    ({"s": 1.0, "albedo": [1, 1, 1]}, ["points[1]: missing 'opacity'"]),
+    ({"albedo": [1, 1, 1], "opacity": 1.0}, ["points[1]: missing 's'"]),
+    ({"s": 1.0, "albedo": [1, 1], "opacity": 1.0}, ["points[1]: albedo must have three components"]),
+    ({"s": "one", "albedo": [1, 1, 1], "opacity": 1.0}, ["points[1]: needs numeric"]),
+    (0.5, ["points[1]: must be an object"]),
+])
+def test_tf_point_errors_name_the_point(tmp_path: Path, point: Any, needles: list[str]) -> None:
+    """An ``"opacty"`` typo used to error without naming the point."""
+    path = tmp_path / "tf.json"
+    path.write_text(json.dumps({"points": [INLINE_TF["points"][0], point]}))
+    with pytest.raises(InputError) as info:
+        TransferFunction.load(path)
+    assert_one_line(info.value, f"{path} points[1]", *needles)
+
+
+@pytest.mark.parametrize(("entries", "entry", "key"), [
+    ({"volum": {"path": "data/vol.npy"}}, "scene.json", "volum"),
+    ({"volume": {"path": "data/vol.npy", "spacng": [1, 1, 2]}}, "scene.json volume", "spacng"),
+    ({"volume": {"builtin": "blobs", "resolution": 16, "res": 8}}, "scene.json volume", "res"),
+    ({"transfer_function": {"preset": "cloud", "densty_scale": 80}}, "scene.json transfer_function", "densty_scale"),
+    ({"transfer_function": {**INLINE_TF, "densty_scale": 80}}, "scene.json transfer_function", "densty_scale"),
+    ({"transfer_function": {"points": [{**INLINE_TF["points"][0], "opacty": 0.5}]}},
+     "scene.json transfer_function points[0]", "opacty"),
+    ({"lights": [SUN, {**SUN, "powr": 9}]}, "scene.json lights[1]", "powr"),
+    ({"camera": {**CAMERA, "fow": 20}}, "scene.json camera", "fow"),
+    ({"phase": {"g": 0.1, "gg": 0.5}}, "scene.json phase", "gg"),
+])
+def test_every_scene_entry_refuses_unknown_keys(scene_dir: Path, entries: dict, entry: str, key: str) -> None:
+    """Each nested entry of a scene file names the file, the entry and the key, and lists what is allowed."""
+    if "volum" in entries:
+        spec = json.loads(write_scene(scene_dir).read_text())
+        spec["volum"] = spec.pop("volume")
+        (scene_dir / "scene.json").write_text(json.dumps(spec))
+        path = scene_dir / "scene.json"
+    else:
+        path = write_scene(scene_dir, **entries)
+    msg = _load_error(path)
+    assert msg.startswith(f"{scene_dir / entry}: ") or msg.startswith(f"{scene_dir / entry} "), msg
+    assert f"'{key}'" in msg and "allowed: " in msg, msg
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Scene.spec: the scene file that rebuilds a scene (recorded in bundles, issue 11)
+
+
+@pytest.mark.parametrize("name", sorted(BUILTIN_SCENES))
+def test_builtin_scene_spec_rebuilds_the_same_scene(name: str) -> None:
+    scene = builtin_scene(name, resolution=16).with_overrides(g=0.4, width=20, height=10)
+    spec = json.loads(json.dumps(scene.spec()))  # survives JSON
+    back = scene_from_dict(spec, what="recorded")
+    assert back.fingerprint() == scene.fingerprint() and back.fingerprint_parts() == scene.fingerprint_parts()
+    assert back.name == name and back.g == 0.4 and back.camera.to_dict() == scene.camera.to_dict()
+    assert spec["volume"] == {"builtin": BUILTIN_SCENES[name]["volume"], "resolution": 16}
+
+
+def test_file_scene_spec_uses_absolute_paths(scene_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    write_scene(scene_dir, transfer_function="tf.json")
+    monkeypatch.chdir(scene_dir)
+    scene = load_scene("scene.json")  # relative paths all the way
+    spec = scene.spec()
+    assert spec is not None and spec["volume"] == {"path": str(scene_dir / "data" / "vol.npy")}
+    assert isinstance(spec["transfer_function"], dict)  # embedded: the TF file is not needed to rebuild
+    monkeypatch.chdir(tmp_path)  # rebuilt from anywhere
+    back = scene_from_dict(json.loads(json.dumps(spec)), what="recorded")
+    assert back.fingerprint() == scene.fingerprint() and back.g == scene.g and back.name == "test"
+
+
+def test_scene_from_arrays_has_no_spec() -> None:
+    scene = builtin_scene("blobs", resolution=16)
+    assert Scene(scene.volume, scene.tf, scene.lights, scene.camera).spec() is None

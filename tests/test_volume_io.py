@@ -289,11 +289,52 @@ def test_too_long_raw(tmp_path: Path) -> None:
 
 
 def test_raw_without_dims(tmp_path: Path) -> None:
+    """Issue 11: the message is phrased for what users write (the scene's volume entry, the sidecar JSON),
+    not for the Python keywords, and says exactly which sidecar names the reader looks for."""
     path = tmp_path / "nodims.raw"
     path.write_bytes(raw_bytes(pattern(), "<f4"))
-    msg = _expect_error(path, "dims", dtype="float32")
-    assert "sidecar" in msg and "dims=" in msg
-    msg = _expect_error(path, "dims and dtype")
+    msg = _expect_error(path, "its dimensions must be given", dtype="float32")
+    assert 'add "dims": [nx, ny, nz] to the scene\'s volume entry' in msg, msg
+    assert "nodims.raw.json (or nodims.json)" in msg and '"dtype" (' not in msg, msg
+    assert "dims=" not in msg and "pass" not in msg, msg  # no Python-call phrasing
+    msg = _expect_error(path, "its dimensions and data type must be given")
+    assert '"dims": [nx, ny, nz] and "dtype" (one of ' + ", ".join(vio.RAW_DTYPES) + ")" in msg, msg
+    # A sidecar that lacks dims is the place named.
+    (tmp_path / "nodims.json").write_text(json.dumps({"dtype": "float32"}))
+    msg = _expect_error(path, 'add "dims": [nx, ny, nz] to its sidecar nodims.json or to the scene\'s volume entry')
+
+
+def test_sidecar_refuses_unknown_keys(tmp_path: Path) -> None:
+    """A misspelt sidecar key ("spacng") used to be ignored, rendering with spacing (1, 1, 1)."""
+    path = tmp_path / "sc.raw"
+    path.write_bytes(raw_bytes(pattern(), "<f4"))
+    side = tmp_path / "sc.raw.json"
+    side.write_text(json.dumps({"dims": [NX, NY, NZ], "dtype": "float32", "spacng": [1, 1, 3]}))
+    with pytest.raises(InputError) as ei:
+        load_volume(path)
+    msg = assert_one_line_error(ei, side)
+    assert "unknown key 'spacng' (did you mean 'spacing'?)" in msg and "'window'" in msg, msg
+    side.write_text(json.dumps({"dims": [NX, NY, NZ], "dtype": "float32", "layout": "z fastest"}))
+    with pytest.raises(InputError) as ei:
+        load_volume(path)
+    assert "layout 'z fastest' is not read" in assert_one_line_error(ei, side)
+    side.write_text(json.dumps({"dims": [NX, NY, NZ], "dtype": "float32", "layout": vio.RAW_LAYOUT}))
+    check_volume(load_volume(path), pattern(np.float32), (1.0, 1.0, 1.0))
+
+
+def test_scene_file_beside_its_raw_volume_is_not_a_sidecar(tmp_path: Path) -> None:
+    """engine.json (a scene) next to engine.raw: the stem-named JSON is the scene, not the raw sidecar (the
+    strict sidecar reader would otherwise refuse the scene's keys)."""
+    from runtime.scene import load_scene
+
+    data = pattern(np.uint16)
+    (tmp_path / "engine.raw").write_bytes(raw_bytes(data, "<u2"))
+    scene = {"volume": {"path": "engine.raw", "dims": [NX, NY, NZ], "dtype": "uint16"},
+             "transfer_function": {"preset": "grey_ramp"},
+             "lights": [{"type": "directional", "direction": [0, -1, 0]}],
+             "camera": {"eye": [2, 0, 0], "target": [0, 0, 0]}}
+    (tmp_path / "engine.json").write_text(json.dumps(scene))
+    check_volume(load_scene(tmp_path / "engine.json").volume, data, (1.0, 1.0, 1.0))
 
 
 def test_raw_bad_dims_value(tmp_path: Path) -> None:

@@ -6,7 +6,10 @@ step of ``pfn-train all`` call :func:`export_bundle`:
 1. load ``RUN_DIR/checkpoint.pt`` (:func:`train.fit.load_checkpoint`) and the run's domain box: the world
    box ``[bmin, bmin + bsize]`` training normalized positions with (``normalize_position``, Sec. 3.1),
    from ``RUN_DIR/domain.json`` (written by ``pfn-train fit`` / ``all``, :func:`write_run_domain`) or from a
-   scene given with ``--scene`` (its fingerprint must equal the checkpoint's);
+   scene given with ``--scene`` (its fingerprint must equal the checkpoint's). The same source gives the
+   manifest's ``scene`` record (name, per-part fingerprints, the scene file that rebuilds it); a version 1
+   ``domain.json`` has only the name. ``domain.json``, ``log.json`` and the checkpoint's metadata refuse
+   unknown keys like every JSON input;
 2. ``field.onnx``: the MLP alone (Sec. 3.4, Fig. 5), built directly with ``onnx.helper`` from the
    weight matrices (:func:`mlp_onnx`), not with ``torch.onnx.export``. The network is bias-free
    Linear/ReLU, i.e. ``MatMul, Relu, ..., MatMul``: building it by hand is a dozen lines, gives one
@@ -61,21 +64,28 @@ from models_spec.bundle import (
     ONNX_OUTPUT,
     TABLE_DTYPES,
     TABLES_FILE,
+    BundleError,
     build_manifest,
     file_digest,
     manifest_text,
+    scene_record,
     training_summary,
     validate_manifest,
+    validate_scene_record,
 )
 from models_spec.encoding import direction_input, normalize_position
 from runtime.atomic import atomic_write_text
-from runtime.errors import InputError
+from runtime.errors import InputError, check_keys
 from runtime.scene import Scene
 from train.field import PhotonField as TorchField
-from train.fit import load_checkpoint
+from train.fit import LOG_KEYS, load_checkpoint
 
 RUN_DOMAIN_FILE = "domain.json"
 RUN_DOMAIN_FORMAT = "photon-fields/run-domain"
+#: Version 2 added ``scene_parts`` and ``scene_spec``; version 1 files are still read (both unknown).
+RUN_DOMAIN_VERSION = 2
+_RUN_DOMAIN_KEYS = {1: ("format", "version", "scene", "scene_source", "scene_fingerprint", "bmin", "bsize")}
+_RUN_DOMAIN_KEYS[2] = (*_RUN_DOMAIN_KEYS[1], "scene_parts", "scene_spec")
 CHECKPOINT_FILE = "checkpoint.pt"
 DEFAULT_BUNDLE_NAME = "field" + BUNDLE_SUFFIX
 #: Max abs difference on L' between the exported bundle (runtime) and the torch model, checked at export.
@@ -90,40 +100,62 @@ _ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # the earliest zip timestamp: fixed, so the a
 
 
 def write_run_domain(run_dir: str | Path, scene: Scene, source: str | None = None) -> Path:
-    """Record the scene's world box and fingerprint in ``RUN_DIR/domain.json`` (for a later export)."""
+    """Record the scene's world box, fingerprints and description in ``RUN_DIR/domain.json`` (for a later
+    export: the bundle carries the scene's part fingerprints and the scene file that rebuilds it)."""
     m = scene.medium()
-    doc = {"format": RUN_DOMAIN_FORMAT, "version": 1, "scene": scene.name, "scene_source": source,
+    doc = {"format": RUN_DOMAIN_FORMAT, "version": RUN_DOMAIN_VERSION, "scene": scene.name, "scene_source": source,
            "scene_fingerprint": scene.fingerprint(), "bmin": [float(v) for v in m.bmin],
-           "bsize": [float(v) for v in m.bsize]}
+           "bsize": [float(v) for v in m.bsize], "scene_parts": scene.fingerprint_parts(),
+           "scene_spec": scene.spec()}
     path = Path(run_dir) / RUN_DOMAIN_FILE
     atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
     return path
 
 
-def _run_domain(run_dir: Path, fingerprint: str, scene: Scene | None) -> tuple[list[float], list[float]]:
+def _run_domain(run_dir: Path, fingerprint: str, scene: Scene | None) -> tuple[list[float], list[float],
+                                                                               dict[str, Any]]:
+    """The world box and the manifest's ``scene`` record, from ``scene`` (checked against the checkpoint's
+    fingerprint) or from the run's ``domain.json`` (version 1 has no parts or spec: they stay unknown)."""
     if scene is not None:
         if scene.fingerprint() != fingerprint:
             raise InputError("--scene", f"'{scene.name}' is not the scene the checkpoint was trained for "
                              "(fingerprint mismatch: volume, transfer function or lights differ)")
         m = scene.medium()
-        return [float(v) for v in m.bmin], [float(v) for v in m.bsize]
+        return ([float(v) for v in m.bmin], [float(v) for v in m.bsize],
+                scene_record(scene.name, scene.fingerprint_parts(), scene.spec()))
     path = run_dir / RUN_DOMAIN_FILE
     if not path.is_file():
         raise InputError(str(run_dir), f"no {RUN_DOMAIN_FILE} (the world box training normalized positions "
                          "with); pass --scene SCENE")
     try:
         doc = json.loads(path.read_text())
-        if doc.get("format") != RUN_DOMAIN_FORMAT:
-            raise ValueError("not a run-domain file")
+    except (OSError, ValueError) as exc:
+        raise InputError(str(path), f"unreadable: {exc}; pass --scene SCENE") from None
+    if not isinstance(doc, dict) or doc.get("format") != RUN_DOMAIN_FORMAT:
+        raise InputError(str(path), f"not a run-domain file (format {RUN_DOMAIN_FORMAT!r}); pass --scene SCENE")
+    version = doc.get("version")
+    if version not in _RUN_DOMAIN_KEYS:
+        raise InputError(str(path), f"version {version!r} is not supported (this build reads versions "
+                         f"{', '.join(map(str, _RUN_DOMAIN_KEYS))}); pass --scene SCENE")
+    check_keys(doc, _RUN_DOMAIN_KEYS[version], str(path),
+               required=("format", "version", "scene_fingerprint", "bmin", "bsize"))
+    try:
         bmin = [float(v) for v in doc["bmin"]]
         bsize = [float(v) for v in doc["bsize"]]
         if len(bmin) != 3 or len(bsize) != 3 or not all(np.isfinite(bmin + bsize)) or min(bsize) <= 0:
             raise ValueError("bmin and bsize must be 3 finite numbers, bsize > 0")
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+    except (ValueError, TypeError) as exc:
         raise InputError(str(path), f"unreadable: {exc}; pass --scene SCENE") from None
     if doc.get("scene_fingerprint") != fingerprint:
         raise InputError(str(path), "belongs to another scene than the checkpoint (fingerprint mismatch)")
-    return bmin, bsize
+    name = doc.get("scene")
+    record = {"name": name if isinstance(name, str) else None, "parts": doc.get("scene_parts"),
+              "spec": doc.get("scene_spec")}
+    try:
+        validate_scene_record(record)
+    except BundleError as err:
+        raise InputError(f"{path} {err.what}", err.problem) from None
+    return bmin, bsize, record
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -274,12 +306,32 @@ class ExportResult:
 
 
 def _read_log(run_dir: Path, fingerprint: str) -> dict[str, Any]:
+    """The run's ``log.json`` if it belongs to the checkpoint's scene (only preset and batch come from it;
+    a run folder without one exports without them). Unreadable, or with keys ``pfn-train fit`` does not
+    write, or with a preset / batch of the wrong type: refused in one line, not silently dropped."""
     path = run_dir / "log.json"
+    if not path.exists():
+        return {}
     try:
         log = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}  # optional: only preset and batch come from it
-    return log if isinstance(log, dict) and log.get("scene_fingerprint") == fingerprint else {}
+    except (OSError, ValueError) as exc:
+        raise InputError(str(path), f"unreadable run log ({exc}); fix or remove it to export without its "
+                         "preset and batch") from None
+    if not isinstance(log, dict):
+        raise InputError(str(path), "a run log must be a JSON object")
+    check_keys(log, LOG_KEYS, str(path))
+    if log.get("scene_fingerprint") != fingerprint:
+        return {}
+    settings = log.get("settings")
+    if settings is not None:
+        if not isinstance(settings, dict):
+            raise InputError(f"{path} settings", "must be an object")
+        preset, batch = settings.get("preset"), settings.get("batch")
+        if preset is not None and not isinstance(preset, str):
+            raise InputError(f"{path} settings preset", f"must be a preset name, got {preset!r}")
+        if batch is not None and (isinstance(batch, bool) or not isinstance(batch, int) or batch < 1):
+            raise InputError(f"{path} settings batch", f"must be a positive integer, got {batch!r}")
+    return log
 
 
 def _check_out(out: Path, force: bool) -> None:
@@ -324,7 +376,7 @@ def export_bundle(run_dir: str | Path, out: str | Path | None = None, *, scene: 
     model, data = load_checkpoint(ckpt)
     model.eval()
     fingerprint = str(data.get("scene_fingerprint", ""))
-    bmin, bsize = _run_domain(run, fingerprint, scene)
+    bmin, bsize, scene_rec = _run_domain(run, fingerprint, scene)
     log = _read_log(run, fingerprint)
     summary = data.get("summary") or {}
     settings = log.get("settings") or {}
@@ -349,7 +401,7 @@ def export_bundle(run_dir: str | Path, out: str | Path | None = None, *, scene: 
             digest, size = file_digest(staging / name)
             files[name] = {"sha256": digest, "bytes": size}
         manifest = build_manifest(model.cfg, bmin=bmin, bsize=bsize, scene_fingerprint=fingerprint,
-                                  training=training, tables_dtype=tables_dtype, files=files)
+                                  training=training, tables_dtype=tables_dtype, files=files, scene=scene_rec)
         validate_manifest(manifest)  # the exporter holds itself to the reader's rules
         (staging / MANIFEST_FILE).write_text(manifest_text(manifest))
         for name in BUNDLE_FILES:

@@ -113,7 +113,7 @@ from tqdm import tqdm
 from models_spec.encoding import DEFAULT_PSI, FieldConfig
 from models_spec.hashgrid import PAPER_DIRECTION, PAPER_POSITION, HashGridConfig
 from runtime.atomic import atomic_path, atomic_write_text
-from runtime.errors import InputError
+from runtime.errors import InputError, check_keys
 from runtime.photon_estimate import DEFAULT_K, check_map_matches_scene
 from runtime.photon_map import PhotonMap
 from runtime.scene import Scene
@@ -123,6 +123,12 @@ from train.targets import SAMPLING_MODES, TargetBatch, TargetSampler, check_phas
 
 CHECKPOINT_FORMAT = "photon-fields/checkpoint"
 CHECKPOINT_VERSION = 1
+#: The keys of a checkpoint's dict (all written, all required when read).
+CHECKPOINT_KEYS = ("format", "version", "state_dict", "field_config", "scene_fingerprint", "phases", "step", "summary")
+#: Top-level keys of ``log.json`` (read back by the export for the preset and batch).
+LOG_KEYS = ("scene", "scene_fingerprint", "photons", "phases", "settings", "field_config", "schedule",
+            "schedule_boundaries", "status", "threads", "parameters", "validation_points", "validation_targets_s",
+            "per_step", "validation", "totals")
 RELATIVE_L2_EPS = 0.01  # tcnn RelativeL2: prediction^2 + 1e-2
 ADAM_BETAS = (0.9, 0.99)
 ADAM_EPS = 1e-15
@@ -350,7 +356,9 @@ def _save_checkpoint(path: Path, model: PhotonField, scene_fp: str, step: int, s
 
 
 def load_checkpoint(path: str | Path, expected_fingerprint: str | None = None) -> tuple[PhotonField, dict[str, Any]]:
-    """Rebuild the field of a ``checkpoint.pt`` (refusing another scene's with ``expected_fingerprint``)."""
+    """Rebuild the field of a ``checkpoint.pt`` (refusing another scene's with ``expected_fingerprint``).
+    Its metadata is as strict as the JSON files: unknown or missing keys, a field config that does not
+    parse or weights that do not fit it are one-line errors naming the file."""
     p = Path(path)
     try:
         data = torch.load(p, map_location="cpu", weights_only=True)
@@ -360,10 +368,14 @@ def load_checkpoint(path: str | Path, expected_fingerprint: str | None = None) -
         raise InputError(str(p), "not a photon-field checkpoint")
     if data.get("version") != CHECKPOINT_VERSION:
         raise InputError(str(p), f"checkpoint version {data.get('version')!r} is not supported")
+    check_keys(data, CHECKPOINT_KEYS, str(p), required=CHECKPOINT_KEYS)
     if expected_fingerprint is not None and data.get("scene_fingerprint") != expected_fingerprint:
         raise InputError(str(p), "checkpoint was trained for another scene (fingerprint mismatch)")
-    model = PhotonField(FieldConfig.from_dict(data["field_config"]))
-    model.load_state_dict(data["state_dict"])
+    try:
+        model = PhotonField(FieldConfig.from_dict(data["field_config"]))
+        model.load_state_dict(data["state_dict"])
+    except (ValueError, TypeError, KeyError, RuntimeError) as exc:
+        raise InputError(str(p), f"field_config or state_dict unusable: {' '.join(str(exc).split())[:300]}") from None
     return model, data
 
 
@@ -552,4 +564,4 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
 
 def load_map_for(scene: Scene, path: str | Path) -> PhotonMap:
     """Load a photon map and refuse one traced for another scene, in one line."""
-    return PhotonMap.load(path, expected_fingerprint=scene.fingerprint())
+    return PhotonMap.load(path, expected_fingerprint=scene.fingerprint(), expected_parts=scene.fingerprint_parts())
