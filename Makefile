@@ -18,8 +18,9 @@ $(STAMP): pyproject.toml Makefile
 install: $(STAMP)
 
 # Trace, train, export, render (neural, photon map, path-traced reference) and compare: ~3-5 min on 2 cores.
+# demo_out/ is this target's own folder: each `make demo` replaces the previous one (--force).
 demo: $(STAMP)
-	$(VENV)/bin/pfn-demo --scene vortex --out $(DEMO_OUT)
+	$(VENV)/bin/pfn-demo --scene vortex --out $(DEMO_OUT) --force
 	@echo "demo outputs: $(DEMO_OUT)/ (comparison.png, summary.txt, neural.exr/.png, run/field.pfn, run/loss.png)"
 
 test: $(STAMP)

@@ -22,7 +22,16 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from runtime.cli_common import OneLineArgumentParser, check_seed, guarded, positive_int, prepare_output, set_threads
+from runtime.cli_common import (
+    OneLineArgumentParser,
+    check_seed,
+    guarded,
+    make_parent,
+    positive_int,
+    prepare_output,
+    refuse_to_replace,
+    set_threads,
+)
 from runtime.errors import InputError
 
 METHODS = ("pt", "raymarch", "photonmap", "field")
@@ -68,19 +77,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help="field: render N frames orbiting the volume to numbered files OUT_0000.exr ...")
     p.add_argument("--orbit-degrees", type=float, default=360.0, help="field: total orbit angle")
     p.add_argument("--force", action="store_true",
-                   help="photonmap / field: use a map or bundle made for another scene")
+                   help="replace existing output files; photonmap / field: also use a map or bundle made for "
+                        "another scene (a warning names what differs)")
     p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     p.add_argument("--batch-size", type=int, default=1 << 18, help="work items per wavefront batch (memory bound)")
-    p.add_argument("--exposure", type=float, default=None, help="PNG exposure in stops (default: automatic)")
+    p.add_argument("--exposure", type=float, default=None,
+                   help="PNG exposure in stops (default: automatic; the JSON report records the one used)")
+    p.add_argument("--exposure-from", default=None, metavar="REPORT.json",
+                   help="PNG exposure recorded in an earlier render's JSON report (or an orbit's timings file), "
+                        "so two renders are shown alike")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--out", default="render.exr", help="output EXR path; a .png and a .json are written beside it")
+    p.add_argument("--out", default="render.exr",
+                   help="output image, NAME.exr or NAME.png: the EXR (layers), the PNG (tone-mapped L) and a "
+                        "NAME.json report are written side by side")
     return p
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     from runtime.scene import load_scene
 
-    out = Path(args.out)
+    out = output_exr_path(args.out)
     spp = positive_int("--spp", args.spp, 1 << 16)
     positive_int("--batch-size", args.batch_size)
     positive_int("--max-depth", args.max_depth, 1 << 16)
@@ -94,8 +110,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
         check_g(args.g, "--g")
     check_seed(args.seed)
-    if args.exposure is not None and not math.isfinite(args.exposure):
-        raise InputError("--exposure", f"must be a finite number of stops, got {args.exposure}")
+    exposure, exposure_mode = resolve_exposure_options(args)
     if args.method == "photonmap":
         if args.map is None:
             raise InputError("--map", "--method photonmap needs a photon map (pfn-train trace SCENE --out map.npz)")
@@ -116,6 +131,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         positive_int("--orbit", args.orbit, 100_000)
         if not math.isfinite(args.orbit_degrees):
             raise InputError("--orbit-degrees", f"must be a finite angle, got {args.orbit_degrees}")
+    check_outputs(args, out)
     set_threads(args.threads)
     # No --scene: a bundle rebuilds the scene it records (else the default, and a mismatch says so).
     scene_from = "--scene" if args.scene is not None else "default"
@@ -151,9 +167,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     warnings = [w for w in warnings if w]
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
+    make_parent(out)
     if args.orbit is not None:
-        return run_orbit(args, scene, field, out, spp)
-    prepare_output(out, ".exr", (".png", ".json"))
+        return run_orbit(args, scene, field, out, spp, exposure)
 
     t0 = time.perf_counter()
     if args.method == "pt":
@@ -184,11 +200,13 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if field is not None:
         report["field"] = field.describe()
     from runtime.atomic import atomic_write_text
-    from runtime.image_io import write_image_set
+    from runtime.image_io import resolve_exposure, write_image_set
 
     meta = {"photon_fields.method": args.method, "photon_fields.scene": scene.name,
             "photon_fields.spp": str(spp), "photon_fields.seed": str(args.seed), "photon_fields.g": repr(scene.g)}
-    written = write_image_set(out, result.layers, metadata=meta, exposure=args.exposure)
+    exposure = resolve_exposure(result.layers["L"], exposure)
+    report["exposure"] = {"stops": exposure, "mode": exposure_mode}
+    written = write_image_set(out, result.layers, metadata=meta, exposure=exposure)
     json_path = out.with_suffix(".json")
     try:
         atomic_write_text(json_path, json.dumps(report, indent=2) + "\n")
@@ -198,13 +216,74 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return {"wall_s": wall, "written": [str(p) for p in written], "timings_ms": result.timings_ms}
 
 
-def run_orbit(args: argparse.Namespace, scene: Any, field: Any, out: Path, spp: int) -> dict[str, Any]:
-    """``--orbit N``: N frames orbiting the volume, numbered files beside ``out``, a timings JSON."""
-    from runtime.neural_renderer import orbit_frame_paths, render_orbit
+def output_exr_path(text: str) -> Path:
+    """``--out``: NAME.exr, or NAME.png (the EXR is written beside it); the EXR path either way."""
+    out = Path(text)
+    if out.suffix.lower() == ".png":
+        return out.with_suffix(".exr")
+    if out.suffix.lower() != ".exr":
+        raise InputError("--out", f"must end in .exr or .png (both are written, with a .json report), got {text!r}")
+    return out
 
-    prepare_output(orbit_frame_paths(out, args.orbit)[0], ".exr", (".png",))
+
+def check_outputs(args: argparse.Namespace, out: Path) -> None:
+    """Before any work: the files this render writes, refused if they exist unless ``--force``."""
+    if args.orbit is None:
+        prepare_output(out, ".exr", (".png", ".json"), force=args.force, what="an earlier render", create=False)
+        return
+    from runtime.neural_renderer import orbit_frame_paths, orbit_timings_path
+
+    frames = orbit_frame_paths(out, args.orbit)
+    prepare_output(frames[0], ".exr", (".png",), force=args.force, what="an earlier orbit", create=False)
+    refuse_to_replace([*frames, *(f.with_suffix(".png") for f in frames), orbit_timings_path(out)], args.force,
+                      "an earlier orbit")
+
+
+def resolve_exposure_options(args: argparse.Namespace) -> tuple[float | None, str]:
+    """``--exposure`` / ``--exposure-from``: the fixed exposure (None: automatic) and how it was chosen."""
+    if args.exposure is not None and args.exposure_from is not None:
+        raise InputError("--exposure-from", "give --exposure or --exposure-from, not both")
+    if args.exposure is not None:
+        if not math.isfinite(args.exposure):
+            raise InputError("--exposure", f"must be a finite number of stops, got {args.exposure}")
+        return args.exposure, "--exposure"
+    if args.exposure_from is not None:
+        return exposure_from_report(args.exposure_from), f"--exposure-from {args.exposure_from}"
+    return None, "auto"
+
+
+def exposure_from_report(path_text: str) -> float:
+    """The PNG exposure (stops) recorded in a render's JSON report (``exposure``) or an orbit's timings file
+    (``exposure_stops``)."""
+    from runtime.errors import check_keys
+
+    path = Path(path_text)
+    what = f"--exposure-from {path_text}"
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(what, "file not found") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(what, f"not a JSON report of pfn-render: {exc}") from None
+    if isinstance(doc, dict) and isinstance(doc.get("exposure"), dict):
+        check_keys(doc["exposure"], ("stops", "mode"), f"{what} exposure", required=("stops",))
+        stops = doc["exposure"]["stops"]
+    elif isinstance(doc, dict) and "exposure_stops" in doc:
+        stops = doc["exposure_stops"]
+    else:
+        raise InputError(what, "records no exposure (expected the JSON report of a pfn-render image or orbit)")
+    if isinstance(stops, bool) or not isinstance(stops, (int, float)) or not math.isfinite(stops):
+        raise InputError(what, f"exposure must be a finite number of stops, got {stops!r}")
+    return float(stops)
+
+
+def run_orbit(args: argparse.Namespace, scene: Any, field: Any, out: Path, spp: int,
+              exposure: float | None) -> dict[str, Any]:
+    """``--orbit N``: N frames orbiting the volume, numbered files beside ``out``, a timings JSON."""
+    from runtime.neural_renderer import render_orbit
+
     summary = render_orbit(scene, field.estimator(), out, frames=args.orbit, spp=spp, seed=args.seed,
-                           batch_size=args.batch_size, degrees=args.orbit_degrees, exposure=args.exposure,
+                           batch_size=args.batch_size, degrees=args.orbit_degrees, exposure=exposure,
                            progress=not args.quiet)
     files = summary["files"]
     return {"wall_s": float(sum(summary["frame_s"])), "timings_ms": summary["stage_ms_per_frame"],

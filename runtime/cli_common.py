@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import re
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 from runtime.errors import InputError
@@ -63,15 +63,34 @@ def set_threads(threads: int | None, name: str = "--threads") -> None:
     numba.set_num_threads(threads)
 
 
-def prepare_output(out: Path, suffix: str, siblings: Sequence[str] = (), name: str = "--out") -> None:
+def prepare_output(out: Path, suffix: str, siblings: Sequence[str] = (), name: str = "--out", *,
+                   force: bool = False, what: str = "an earlier result", create: bool = True) -> None:
     """Fail before the work, not after: check the suffix, that no folder sits where an output file goes,
-    and create the parent folder."""
+    that no earlier output would be replaced without ``force`` (:func:`refuse_to_replace`), and create the
+    parent folder (``create=False``: leave that to :func:`make_parent`, once the other inputs passed)."""
     if out.suffix.lower() != suffix:
         raise InputError(name, f"must end in {suffix}, got {str(out)!r}")
-    for target in (out, *(out.with_suffix(s) for s in siblings)):
+    targets = [out, *(out.with_suffix(s) for s in siblings)]
+    for target in targets:
         if target.is_dir():
             raise InputError(name, f"{str(target)!r} is a folder, cannot write an output file there")
+    refuse_to_replace(targets, force, what, name)
+    if create:
+        make_parent(out, name)
+
+
+def make_parent(out: Path, name: str = "--out") -> None:
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(name, f"cannot create the folder {str(out.parent)!r}: {exc.strerror or exc}") from None
+
+
+def refuse_to_replace(paths: Iterable[Path], force: bool, what: str, name: str = "--out") -> list[Path]:
+    """Nothing already on disk is lost without ``--force``: refuse, in one line naming what exists, when
+    any of ``paths`` exists. Returns the existing paths (which ``force`` lets the command replace)."""
+    found = [p for p in paths if p.exists() or p.is_symlink()]
+    if found and not force:
+        shown = ", ".join(str(p) for p in found[:3]) + (f" and {len(found) - 3} more" if len(found) > 3 else "")
+        raise InputError(name, f"{what} exists ({shown}); pass --force to replace it")
+    return found

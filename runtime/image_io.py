@@ -307,6 +307,8 @@ def write_image_set(
 ) -> list[Path]:
     """Write the EXR and, beside it (same stem, ``.png``), a tonemapped PNG preview of ``png_layer``.
 
+    The exposure used (``exposure``, or the automatic one of ``png_layer``) is recorded in the EXR header
+    (:data:`EXPOSURE_METADATA`), so the PNG can be reproduced from the EXR and other renders shown alike.
     The preview is computed before anything is written, so a bad ``png_layer`` writes nothing.
     Returns ``[exr_path, png_path]``.
     """
@@ -316,5 +318,17 @@ def write_image_set(
         raise ValueError(f"the EXR path {exr} must not end in .png (the preview would overwrite it)")
     if png_layer not in layers:
         raise ValueError(f"png_layer {png_layer!r} is not one of the layers {sorted(layers)}")
-    preview = tonemap_srgb(layers[png_layer], exposure)
+    stops = resolve_exposure(layers[png_layer], exposure)
+    preview = tonemap_srgb(layers[png_layer], stops)
+    metadata = {**(metadata or {}), EXPOSURE_METADATA: repr(stops)}
     return [write_exr(exr, layers, metadata), write_png(png, preview)]
+
+
+#: EXR header attribute holding the exposure (stops) the PNG beside it was tone-mapped with.
+EXPOSURE_METADATA = "photon_fields.png_exposure_stops"
+
+
+def resolve_exposure(rgb: np.ndarray, exposure: float | None) -> float:
+    """The exposure (stops) a PNG of ``rgb`` is tone-mapped with: ``exposure`` if given, else the automatic
+    one (:func:`auto_exposure_stops`). Resolved once so it can be recorded and reused for other images."""
+    return float(exposure) if exposure is not None else auto_exposure_stops(rgb)

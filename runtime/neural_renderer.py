@@ -132,6 +132,11 @@ def orbit_frame_paths(out: Path, frames: int) -> list[Path]:
     return [out.with_name(f"{out.stem}_{i:0{width}d}{out.suffix}") for i in range(frames)]
 
 
+def orbit_timings_path(out: Path) -> Path:
+    """``dir/name.exr`` -> ``dir/name_timings.json``, the orbit's timings and exposure."""
+    return out.with_name(f"{out.stem}_timings.json")
+
+
 def render_orbit(scene: Scene, estimator: IndirectEstimator | None, out: Path, *, frames: int, spp: int = 1,
                  seed: int = 0, batch_size: int = DEFAULT_BATCH, degrees: float = 360.0, exposure: float | None = None,
                  progress: bool = True) -> dict[str, Any]:
@@ -162,7 +167,7 @@ def render_orbit(scene: Scene, estimator: IndirectEstimator | None, out: Path, *
                "p95_s": float(np.percentile(w, 95)), "fps": float(1.0 / w.mean()),
                "stage_ms_per_frame": {k: v / frames for k, v in stages.items()},
                "files": [str(p) for p in paths]}
-    timing_path = out.with_name(f"{out.stem}_timings.json")
+    timing_path = orbit_timings_path(out)
     atomic_write_text(timing_path, json.dumps(summary, indent=2) + "\n")
     summary["timings_file"] = str(timing_path)
     return summary

@@ -140,7 +140,7 @@ CASES: list[Case] = [
     (R, lambda a, d, o: ["--spp", "0", "--out", str(o / "r.exr")], "--spp"),
     (R, lambda a, d, o: ["--size", "0x8", "--out", str(o / "r.exr")], "--size"),
     (R, lambda a, d, o: ["--g", "1.01", "--out", str(o / "r.exr")], "--g"),
-    (R, lambda a, d, o: ["--out", str(o / "r.png")], "--out"),
+    (R, lambda a, d, o: ["--out", str(o / "r.tif")], "--out"),
     # photon maps
     (R, lambda a, d, o: ["--method", "photonmap", "--out", str(o / "r.exr")], "--map"),
     (R, lambda a, d, o: ["--method", "photonmap", "--map", str(d / "none.npz"), "--scene", str(a["scene"]), *SIZE,
@@ -268,6 +268,34 @@ CASES += [
                          str(o / "f.pfn")], "log.json: unknown key 'setings'"),
 ]
 
+
+
+def existing(path: Path, *names: str) -> str:
+    """An earlier result at ``path`` (a file, or a folder holding ``names``), for the no-overwrite cases."""
+    if names:
+        path.mkdir(parents=True, exist_ok=True)
+        for name in names:
+            (path / name).write_bytes(b"earlier")
+    else:
+        path.write_bytes(b"earlier")
+    return str(path)
+
+
+# Earlier results are not replaced without --force (their bytes are checked in tests/test_no_overwrite.py).
+CASES += [
+    (R, lambda a, d, o: [*SIZE, "--out", existing(d / "r.json") and str(d / "r.exr")], "--force"),
+    (R, lambda a, d, o: ["--exposure-from", str(d / "none.json"), *SIZE, "--out", str(o / "r.exr")], "none.json"),
+    (R, lambda a, d, o: ["--exposure", "1", "--exposure-from", str(d / "r.json"), *SIZE, "--out", str(o / "r.exr")],
+     "not both"),
+    (T, lambda a, d, o: ["trace", str(a["scene"]), "--photons", "3k", "--out", existing(d / "m.npz")], "--force"),
+    (T, lambda a, d, o: ["fit", str(a["scene"]), "--map", str(a["map"]), "--preset", "tiny", "--out",
+                         existing(d / "run", "checkpoint.pt")], "--force"),
+    (T, lambda a, d, o: ["all", str(a["scene"]), "--photons", "3k", "--preset", "tiny", "--out",
+                         existing(d / "run", "map.npz")], "--force"),
+    (D, lambda a, d, o: ["--scene", "blobs", "--out", existing(d / "demo", "summary.json")], "--force"),
+    (E, lambda a, d, o: ["--quick", "--out", existing(d / "docs", "results.md"), "--work", str(o / "w")], "--force"),
+]
+
 MAINS = {R: render_main, T: train_main, D: demo_main, E: eval_main}
 
 
@@ -347,7 +375,7 @@ def test_fuzz_manifest_fields(manifest_doc: dict, data: st.DataObject, value: ob
 
 
 def test_killed_render_leaves_earlier_outputs_intact(tmp_path: Path) -> None:
-    """SIGKILL a long render that would overwrite earlier outputs: they stay byte for byte."""
+    """SIGKILL a long --force render that would overwrite earlier outputs: they stay byte for byte."""
     import os
     import signal
     import subprocess
@@ -359,7 +387,7 @@ def test_killed_render_leaves_earlier_outputs_intact(tmp_path: Path) -> None:
     for s, data in old.items():
         out.with_suffix(s).write_bytes(data)
     cmd = [sys.executable, "-c", "from runtime.cli import main; main()", "--scene", "blobs", "--size", "256x256",
-           "--spp", "4096", "--quiet", "--out", str(out)]
+           "--spp", "4096", "--quiet", "--force", "--out", str(out)]
     proc = subprocess.Popen(cmd, cwd=Path(__file__).resolve().parents[1], stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])})
     time.sleep(4.0)

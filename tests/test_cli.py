@@ -18,7 +18,7 @@ import pytest
 from PIL import Image
 
 from runtime.cli import _main
-from runtime.image_io import read_exr
+from runtime.image_io import EXPOSURE_METADATA, auto_exposure_stops, read_exr, tonemap_srgb
 from runtime.scene import BUILTIN_SCENES
 
 TINY = ["--size", "16x16", "--spp", "1", "--quiet"]
@@ -171,14 +171,72 @@ def test_json_scene_file(tmp_path: Path, tiny_scene: Path, monkeypatch: pytest.M
     assert report["scene_description"]["volume"]["dims"] == [16, 16, 16]
 
 
-def test_overwrite_replaces_all_three(tmp_path: Path, warm: Path) -> None:
+@pytest.mark.parametrize("existing", [".exr", ".png", ".json"])
+def test_an_earlier_render_is_kept_unless_forced(tmp_path: Path, warm: Path, existing: str,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """Any one of the three outputs existing is refused in one line naming it; its bytes stay; --force
+    replaces all three."""
     out = tmp_path / "r.exr"
-    for suffix in (".exr", ".png", ".json"):
-        out.with_suffix(suffix).write_bytes(b"old")
-    assert render(out) == 0
+    out.with_suffix(existing).write_bytes(b"old")
+    assert render(out) == 2
+    line = one_error_line(capsys.readouterr().err)
+    assert "--force" in line and str(out.with_suffix(existing)) in line
+    assert files_in(tmp_path) == [f"r{existing}"] and out.with_suffix(existing).read_bytes() == b"old"
+    assert render(out, "--force") == 0
     assert files_in(tmp_path) == ["r.exr", "r.json", "r.png"]
     for suffix in (".exr", ".png", ".json"):
         assert out.with_suffix(suffix).read_bytes() != b"old"
+
+
+def test_png_out_writes_the_exr_and_report_beside_it(tmp_path: Path, warm: Path) -> None:
+    assert render(tmp_path / "r.png", "--seed", "3") == 0
+    assert files_in(tmp_path) == ["r.exr", "r.json", "r.png"]
+    assert np.array_equal(read_exr(tmp_path / "r.exr")[0]["L"], read_exr(warm)[0]["L"])
+
+
+def test_the_recorded_exposure_reproduces_the_png(tmp_path: Path, warm: Path) -> None:
+    """The report and the EXR header record the exposure the PNG was made with; tone-mapping the EXR with
+    it gives the PNG byte for byte. Automatic exposure is the image's own (auto_exposure_stops)."""
+    report = json.loads(warm.with_suffix(".json").read_text())
+    layers, meta = read_exr(warm)
+    stops = report["exposure"]["stops"]
+    assert report["exposure"]["mode"] == "auto" and stops == pytest.approx(auto_exposure_stops(layers["L"]))
+    assert float(meta[EXPOSURE_METADATA]) == stops
+    png = np.asarray(Image.open(warm.with_suffix(".png")).convert("RGB"))
+    assert np.array_equal(png, tonemap_srgb(layers["L"], stops))
+
+
+def test_exposure_from_shows_two_renders_alike(tmp_path: Path, warm: Path) -> None:
+    """Two renders of one scene with other spp get different automatic exposures; --exposure-from the
+    first's report gives the second the same one, so equal radiance shows as equal PNG values."""
+    other = tmp_path / "other.exr"
+    assert render(other, "--seed", "4", "--spp", "1", "--method", "raymarch") == 0
+    auto = json.loads(other.with_suffix(".json").read_text())["exposure"]["stops"]
+    first = json.loads(warm.with_suffix(".json").read_text())["exposure"]["stops"]
+    assert auto != first  # the case the option exists for
+    same = tmp_path / "same.exr"
+    assert render(same, "--seed", "4", "--spp", "1", "--method", "raymarch",
+                  "--exposure-from", str(warm.with_suffix(".json"))) == 0
+    report = json.loads(same.with_suffix(".json").read_text())
+    assert report["exposure"]["stops"] == first and report["exposure"]["mode"].startswith("--exposure-from")
+    png = np.asarray(Image.open(same.with_suffix(".png")).convert("RGB"))
+    assert np.array_equal(png, tonemap_srgb(read_exr(same)[0]["L"], first))
+
+
+@pytest.mark.parametrize(("content", "match"), [
+    (None, "not found"), ("{", "JSON"), ('{"method": "pt"}', "records no exposure"),
+    ('{"exposure": {"stops": "bright"}}', "finite number"), ('{"exposure": {"stops": 1, "stop": 2}}', "stop"),
+])
+def test_exposure_from_refuses_a_bad_report(tmp_path: Path, content: str | None, match: str,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    report = tmp_path / "rep.json"
+    if content is not None:
+        report.write_text(content)
+    out = tmp_path / "o" / "r.exr"
+    assert render(out, "--exposure-from", str(report)) == 2
+    line = one_error_line(capsys.readouterr().err)
+    assert "--exposure-from" in line and match in line
+    assert files_in(tmp_path / "o") == []
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -198,7 +256,8 @@ BAD_ARGS = [
     (["--g", "-1.5"], "--g"),
     (["--g", "nan"], "--g"),
     (["--g", "forward"], "--g"),
-    (["--out", "{tmp}/x.png"], "--out"),
+    (["--out", "{tmp}/x.tiff"], "--out"),
+    (["--exposure", "1", "--exposure-from", "{tmp}/r.json"], "--exposure-from"),
     (["--out", "{tmp}/x"], "--out"),
     (["--scene", "teapot"], "teapot"),
     (["--scene", "{tmp}/missing.json"], "missing.json"),

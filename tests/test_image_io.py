@@ -13,7 +13,9 @@ from PIL import Image
 
 from runtime.errors import InputError
 from runtime.image_io import (
+    EXPOSURE_METADATA,
     aces_fitted,
+    auto_exposure_stops,
     read_exr,
     srgb_oetf,
     tonemap_srgb,
@@ -311,7 +313,9 @@ def test_write_image_set_paths_and_png(tmp_path: Path) -> None:
         assert im.format == "PNG" and im.mode == "RGB" and im.size == (34, 21)
         assert np.array_equal(np.asarray(im), tonemap_srgb(layers["L"]))
     got, meta = read_exr(paths[0])
-    assert meta == {"seed": "1"} and np.array_equal(got["L"], layers["L"], equal_nan=True)
+    # The header records the exposure the PNG was made with (the automatic one here).
+    assert meta == {"seed": "1", EXPOSURE_METADATA: repr(auto_exposure_stops(layers["L"]))}
+    assert np.array_equal(got["L"], layers["L"], equal_nan=True)
     assert _leftovers(tmp_path, {"render.exr", "render.png"}) == []
 
 

@@ -190,7 +190,7 @@ def test_pfn_render_field_cli_and_foreign_scene_refusal(trained, tmp_path, capsy
     other["lights"][0]["power"] = 5.0
     other_file = tmp_path / "other.json"
     other_file.write_text(_json.dumps(other))
-    out2 = tmp_path / "other.exr"
+    out2 = tmp_path / "foreign.exr"  # not other.exr: its report other.json would be the scene file
     assert _main(["--method", "field", "--bundle", str(bundle), "--scene", str(other_file), "--out", str(out2),
                   "--quiet", "--size", "8x8"]) == 2
     err = capsys.readouterr().err

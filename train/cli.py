@@ -34,7 +34,14 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from models_spec import DEFAULT_PHASES
-from runtime.cli_common import OneLineArgumentParser, check_seed, guarded, prepare_output, set_threads
+from runtime.cli_common import (
+    OneLineArgumentParser,
+    check_seed,
+    guarded,
+    prepare_output,
+    refuse_to_replace,
+    set_threads,
+)
 from runtime.errors import InputError
 
 _COUNT = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kKmMgG]?)\s*$")
@@ -61,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.add_argument("--out", required=True, help="output photon map (.npz)")
+    t.add_argument("--force", action="store_true", help="replace an existing photon map")
 
     f = sub.add_parser("fit", help="fit a photon field to a photon map (Sec. 3.5)",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -114,6 +122,7 @@ def _add_fit_options(f: argparse.ArgumentParser) -> None:
     f.add_argument("--seed", type=int, default=0, help="random seed: same seed, same field")
     f.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     f.add_argument("--quiet", action="store_true", help="no progress bar")
+    f.add_argument("--force", action="store_true", help="replace the results of an earlier run in --out")
 
 
 def cmd_trace(args: argparse.Namespace) -> int:
@@ -126,7 +135,7 @@ def cmd_trace(args: argparse.Namespace) -> int:
     check_seed(args.seed)
     set_threads(args.threads)
     scene = load_scene(args.scene)
-    prepare_output(out, ".npz")
+    prepare_output(out, ".npz", force=args.force, what="a photon map")
     pmap = trace_photons(scene, photons, phases=args.phases, max_bounces=args.max_bounces, seed=args.seed,
                          progress=not args.quiet)
     pmap.save(out)
@@ -149,9 +158,17 @@ def _fit_settings(args: argparse.Namespace):  # noqa: ANN202  (train.fit is impo
     return settings
 
 
-def _prepare_run_folder(out: Path) -> None:
+#: What ``fit`` writes into a run folder, and what ``all`` adds (the map it traced and the bundle).
+FIT_OUTPUTS = ("checkpoint.pt", "log.json", "loss.png", "domain.json")
+ALL_OUTPUTS = (*FIT_OUTPUTS, "map.npz", "field.pfn")
+
+
+def _prepare_run_folder(out: Path, force: bool, outputs: Sequence[str]) -> None:
+    """Refuse (before any work) a file where the run folder goes, and a folder holding an earlier run's
+    results unless ``force``; then create it."""
     if out.exists() and not out.is_dir():
         raise InputError("--out", f"{str(out)!r} is a file; --out names a run folder")
+    refuse_to_replace([out / name for name in outputs], force, f"an earlier run in {str(out)!r}")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -193,7 +210,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
     _set_all_threads(args.threads)
     scene = load_scene(args.scene)
     pmap = load_map_for(scene, args.map)
-    _prepare_run_folder(Path(args.out))
+    out = Path(args.out)
+    _prepare_run_folder(out, args.force, (*FIT_OUTPUTS, "field.pfn"))
+    if (out / "field.pfn").exists():
+        print(f"note: {out / 'field.pfn'} is the earlier fit's bundle; re-export it with "
+              f"pfn-train export {out} --force", file=sys.stderr)
     return _run_fit(args, scene, pmap, settings)
 
 
@@ -207,7 +228,7 @@ def cmd_all(args: argparse.Namespace) -> int:
     _set_all_threads(args.threads)
     scene = load_scene(args.scene)
     out = Path(args.out)
-    _prepare_run_folder(out)
+    _prepare_run_folder(out, args.force, ALL_OUTPUTS)
     pmap = trace_photons(scene, photons, phases=args.phases, max_bounces=args.max_bounces, seed=args.seed,
                          progress=not args.quiet)
     map_path = pmap.save(out / "map.npz")

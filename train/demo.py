@@ -33,7 +33,14 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see train.cli
 
 import numpy as np  # noqa: E402
 
-from runtime.cli_common import OneLineArgumentParser, check_seed, guarded, positive_int, set_threads  # noqa: E402
+from runtime.cli_common import (  # noqa: E402
+    OneLineArgumentParser,
+    check_seed,
+    guarded,
+    positive_int,
+    refuse_to_replace,
+    set_threads,
+)
 from runtime.errors import InputError  # noqa: E402
 
 
@@ -51,12 +58,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--out", default="demo_out", help="output folder")
+    p.add_argument("--force", action="store_true", help="replace an earlier demo's outputs in --out")
     return p
 
 
-def comparison_figure(path: Path, images: dict[str, dict[str, np.ndarray]], reference: str, title: str) -> None:
+def comparison_figure(path: Path, images: dict[str, dict[str, np.ndarray]], reference: str,
+                      title: str) -> dict[str, float]:
     """Rows L and L_i, one column per renderer, tone-mapped with the reference's exposure per row; a last
-    column with the neural L's error against the reference (relative to the reference's mean luminance)."""
+    column with the neural L's error against the reference (relative to the reference's mean luminance).
+    Returns each row's exposure (stops) by layer."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -67,8 +77,9 @@ def comparison_figure(path: Path, images: dict[str, dict[str, np.ndarray]], refe
 
     names = list(images)
     fig, axes = plt.subplots(2, len(names) + 1, figsize=(3.2 * (len(names) + 1), 6.8))
+    row_stops: dict[str, float] = {}
     for row, layer in enumerate(("L", "L_i")):
-        stops = auto_exposure_stops(images[reference][layer])
+        stops = row_stops[layer] = auto_exposure_stops(images[reference][layer])
         for col, name in enumerate(names):
             ax = axes[row, col]
             ax.imshow(tonemap_srgb(images[name][layer], stops))
@@ -86,6 +97,7 @@ def comparison_figure(path: Path, images: dict[str, dict[str, np.ndarray]], refe
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=90)
     plt.close(fig)
+    return row_stops
 
 
 def run_demo(args: argparse.Namespace) -> dict[str, Any]:
@@ -104,9 +116,13 @@ def run_demo(args: argparse.Namespace) -> dict[str, Any]:
     settings = FitSettings.from_preset(args.preset, steps=args.steps, seed=args.seed)
     settings.validate()
     set_threads(args.threads)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError("--out", f"{str(out)!r} is a file; --out names the demo's folder")
+    refuse_to_replace(sorted(out.iterdir()) if out.is_dir() else [], args.force, f"an earlier demo in {str(out)!r}")
 
     from runtime.field import PhotonField
-    from runtime.image_io import write_image_set
+    from runtime.image_io import auto_exposure_stops, write_image_set
     from runtime.metrics import relative_l2, ssim
     from runtime.neural_renderer import render_neural
     from runtime.path_tracer import render_path_traced
@@ -117,7 +133,6 @@ def run_demo(args: argparse.Namespace) -> dict[str, Any]:
     from train.photon_tracing import trace_photons
 
     scene = load_scene(args.scene).with_overrides(width=width, height=height)
-    out = Path(args.out)
     run = out / "run"
     run.mkdir(parents=True, exist_ok=True)
     progress = not args.quiet
@@ -166,8 +181,11 @@ def run_demo(args: argparse.Namespace) -> dict[str, Any]:
     times["render_path_traced_equal_time"] = time.perf_counter() - t
 
     files = {"neural": "neural.exr", "photon map": "photonmap.exr", "path traced": "pathtraced.exr"}
-    written = [str(p) for name, r in renders.items() for p in write_image_set(out / files[name], r.layers)]
-    written += [str(p) for p in write_image_set(out / "pathtraced_equal_time.exr", equal_time.layers)]
+    # One exposure for every PNG (the reference's L): equal radiance shows as equal pixel values.
+    stops = auto_exposure_stops(renders["path traced"].layers["L"])
+    written = [str(p) for name, r in renders.items()
+               for p in write_image_set(out / files[name], r.layers, exposure=stops)]
+    written += [str(p) for p in write_image_set(out / "pathtraced_equal_time.exr", equal_time.layers, exposure=stops)]
     ref = renders["path traced"].layers
 
     def score(img: dict[str, np.ndarray], against: dict[str, np.ndarray], layer: str = "L") -> dict[str, float]:
@@ -180,14 +198,15 @@ def run_demo(args: argparse.Namespace) -> dict[str, Any]:
         "neural_L_i_vs_photon_map_L_i": score(renders["neural"].layers, renders["photon map"].layers, "L_i"),
     }
     figure = out / "comparison.png"
-    comparison_figure(figure, {k: r.layers for k, r in renders.items()}, "path traced",
+    row_stops = comparison_figure(figure, {k: r.layers for k, r in renders.items()}, "path traced",
                       f"{scene.name} {width}x{height}, g = {scene.g:g}: neural {spp} spp "
                       f"({times['render_neural']:.2f} s), photon map {spp} spp, path traced {ref_spp} spp")
     summary = {"scene": scene.name, "size": [width, height], "seed": args.seed, "photons": len(pmap),
                "preset": settings.preset, "steps": settings.steps, "spp": spp, "reference_spp": ref_spp,
                "seconds": times, "total_s": sum(times.values()), "metrics": metrics,
                "neural_stages_ms": renders["neural"].timings_ms, "fit": result.log["totals"],
-               "bundle": str(bundle), "files": [*written, str(figure), str(run / "loss.png")]}
+               "bundle": str(bundle), "files": [*written, str(figure), str(run / "loss.png")],
+               "exposure_stops": {"png": stops, "comparison_rows": row_stops, "from": "the path-traced reference"}}
     text = summary_text(summary)
     from runtime.atomic import atomic_write_text
 

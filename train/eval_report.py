@@ -41,7 +41,14 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see train.cli
 
 import numpy as np  # noqa: E402
 
-from runtime.cli_common import OneLineArgumentParser, check_seed, guarded, positive_int, set_threads  # noqa: E402
+from runtime.cli_common import (  # noqa: E402
+    OneLineArgumentParser,
+    check_seed,
+    guarded,
+    positive_int,
+    refuse_to_replace,
+    set_threads,
+)
 from runtime.errors import InputError  # noqa: E402
 from runtime.scene import BUILTIN_SCENES  # noqa: E402
 
@@ -85,7 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="base seed of every stage")
     p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     p.add_argument("--out", default="docs", help="report folder (results.md, results.json, results/*.png)")
-    p.add_argument("--work", default="eval_work", help="maps, runs, bundles and EXRs")
+    p.add_argument("--work", default="eval_work", help="maps, runs, bundles and EXRs (finished runs are reused)")
+    p.add_argument("--force", action="store_true", help="replace an earlier report in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p
 
@@ -305,12 +313,14 @@ class Evaluation:
                 "path tracer": render_path_traced(scene, spp=self.plan.reference_spp, seed=self.seed + 1,
                                                   progress=self.progress),
             }
-            for method, r in renders.items():
-                write_image_set(self.work / name / f"fig8_{method.replace(' ', '_')}.exr", r.layers)
             ref = renders["path tracer"].layers
+            row_stops = {layer: auto_exposure_stops(ref[layer]) for layer in ("L_d", "L_i", "L")}
+            for method, r in renders.items():  # one exposure for every PNG: the reference's L
+                write_image_set(self.work / name / f"fig8_{method.replace(' ', '_')}.exr", r.layers,
+                                exposure=row_stops["L"])
             fig, axes = plt.subplots(3, 4, figsize=(12, 9.4))
             for row, layer in enumerate(("L_d", "L_i", "L")):
-                stops = auto_exposure_stops(ref[layer])
+                stops = row_stops[layer]
                 for col, (method, r) in enumerate(renders.items()):
                     axes[row, col].imshow(tonemap_srgb(r.layers[layer], stops))
                     axes[row, col].set_title(f"{method}: {layer}", fontsize=9)
@@ -329,7 +339,7 @@ class Evaluation:
                          scores["neural_L_i_vs_photon_map_L_i"]["ssim"],
                          *(scores[f"{m}_L_vs_path_tracer"][k] for m in ("neural", "photon map", "ray marcher")
                            for k in ("rel_l2", "ssim"))])
-            data[name] = scores
+            data[name] = {**scores, "exposure_stops": row_stops}
             md.append(f"![{name}](results/{png})\n")
         self.data["images"] = data
         md.insert(1, _md_table(["scene", "g", "neural L_i vs PM: rel. L2", "SSIM", "neural L: rel. L2", "SSIM",
@@ -432,6 +442,8 @@ def run_eval(args: argparse.Namespace) -> Path:
         plan = EvalPlan(**{**plan.__dict__, "image_spp": positive_int("--spp", args.spp, 1 << 16)})
     set_threads(args.threads)
     out, work = Path(args.out), Path(args.work)
+    # The report is replaced only with --force; maps and runs in --work are reused on purpose, not replaced.
+    refuse_to_replace([out / "results.md", out / "results.json"], args.force, f"an earlier report in {str(out)!r}")
     for s in plan.scenes:
         (work / s).mkdir(parents=True, exist_ok=True)
     ev = Evaluation(plan, out, work, args.seed, args.threads, not args.quiet)
