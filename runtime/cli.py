@@ -193,10 +193,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         result = render_neural(scene, field.estimator(), spp=spp, seed=args.seed, batch_size=args.batch_size,
                                progress=not args.quiet)
     wall = time.perf_counter() - t0
+    from runtime.machine import cpu_record
+
     report = {"scene": scene.name, "method": args.method, "spp": spp, "seed": args.seed, "g": scene.g,
               "size": [scene.camera.width, scene.camera.height], "wall_s": wall,
               "timings_ms": result.timings_ms, "stats": result.stats, "scene_description": scene.to_dict(),
-              "scene_from": scene_from, "warnings": warnings}
+              "scene_from": scene_from, "warnings": warnings, "cpu": cpu_record()}
     if field is not None:
         report["field"] = field.describe()
     from runtime.atomic import atomic_write_text

@@ -57,3 +57,9 @@ def cpu_summary() -> str:
     """One line for logs and reports: model and the ISA extensions, e.g. ``AMD EPYC (avx2, avx512f, ...)``."""
     info = cpu_info()
     return f"{info['model']} ({', '.join(info['isa']) or 'no SIMD extensions detected'})"
+
+
+def cpu_record() -> dict[str, Any]:
+    """The short form for reports with timings (renders, demo, evaluation): model and ISA extensions."""
+    info = cpu_info()
+    return {"model": info["model"], "isa": info["isa"], "logical_cpus": info["logical_cpus"]}

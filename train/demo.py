@@ -123,6 +123,7 @@ def run_demo(args: argparse.Namespace) -> dict[str, Any]:
 
     from runtime.field import PhotonField
     from runtime.image_io import auto_exposure_stops, write_image_set
+    from runtime.machine import cpu_record
     from runtime.metrics import relative_l2, ssim
     from runtime.neural_renderer import render_neural
     from runtime.path_tracer import render_path_traced
@@ -206,6 +207,7 @@ def run_demo(args: argparse.Namespace) -> dict[str, Any]:
                "seconds": times, "total_s": sum(times.values()), "metrics": metrics,
                "neural_stages_ms": renders["neural"].timings_ms, "fit": result.log["totals"],
                "bundle": str(bundle), "files": [*written, str(figure), str(run / "loss.png")],
+               "cpu": cpu_record(),
                "exposure_stops": {"png": stops, "comparison_rows": row_stops, "from": "the path-traced reference"}}
     text = summary_text(summary)
     from runtime.atomic import atomic_write_text
