@@ -28,7 +28,7 @@ Usage::
 
 Adding a mutant: append a :class:`Mutant` to :data:`MUTANTS` with the file, the exact original text (a whole
 line or a unique fragment of one; indentation included if the replacement spans lines), its replacement, the
-node ids of the tests that must catch it (``tests/test_x.py::test_name[param]``) and a sentence on the bug.
+node ids of the tests that must catch it (``tests/test_<file>.py::test_<name>[<param>]``) and a sentence on the bug.
 """
 
 from __future__ import annotations

@@ -12,8 +12,9 @@ only if both are right. Each light kind gets its own scene, because each has its
 
 The medium has a coloured albedo that varies with density (three transfer-function points with different RGB
 albedo), so a missing or misapplied albedo factor (at the camera vertex or along the photon paths) shifts the
-per-channel means by 10-60 %; g != 0 (-0.5, 0.75, 0.4), so a flipped phase convention in the photon estimate
-shifts them by 10-100 % (measured). L_i is rendered by :func:`runtime.neural_renderer.render_neural` with the
+per-channel means (dropping it at the camera vertex: +11 %, +92 %, +53 % in R, G, B); g != 0 (-0.5, 0.75,
+0.4), so a flipped phase convention in the photon estimate shifts them too (+25 %, +51-112 %, -9 to -16 %:
+measured). L_i is rendered by :func:`runtime.neural_renderer.render_neural` with the
 photon map in place of the field: the neural renderer's own composition (L_i = albedo x Q) is what is checked.
 
 Bounds from measured noise: 5 seeds of everything (map, photon-map render, path tracer) per light kind. The
