@@ -120,6 +120,13 @@ MUTANTS: tuple[Mutant, ...] = (
            "                pass\n",
            ("tests/test_path_tracer.py::test_white_furnace",),
            "path-tracer survivors of Russian roulette not divided by the survival probability"),
+    Mutant("pt_last_vertex_env_mis_share", "runtime/path_tracer.py",
+           "add_direct_light(film, m, lights, scene.g, rays, last_vertex)",
+           "add_direct_light(film, m, lights, scene.g, rays)",
+           ("tests/test_path_depth.py::test_environment_nee_and_phase_sampling_agree_at_every_depth",
+            "tests/test_path_depth.py::test_single_scattering_does_not_depend_on_max_depth"),
+           "the path tracer's last vertex gives the environment's NEE only its MIS share, although no "
+           "phase-sampled escape follows (the bug fixed in issue 11: 35 % of single scattering lost at depth 1)"),
     Mutant("support_correction_dropped", "runtime/photon_estimate.py",
            "est /= support_fraction(self.medium, xq, np.where(np.isfinite(r), r, 0.0), self._pattern)[:, None]",
            "pass",
