@@ -277,6 +277,18 @@ def _type_phrase(types: Sequence[str]) -> str:
     return " or ".join(words[t] for t in types)
 
 
+def _json_equal(a: Any, b: Any) -> bool:
+    """JSON Schema equality for const / enum: like ==, except that true / false never equal the numbers 1 / 0
+    (Python's True == 1 let ``true`` pass a ``const`` of 1; found by comparing with jsonschema)."""
+    if isinstance(a, bool) or isinstance(b, bool):
+        return type(a) is type(b) and a == b
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_json_equal(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_json_equal(a[k], b[k]) for k in a)
+    return a == b
+
+
 def _schema_check(value: Any, schema: Mapping[str, Any], path: str, root: Mapping[str, Any]) -> None:
     """Raise BundleError(path, problem) for the first violation, in schema order."""
     if "$ref" in schema:
@@ -288,9 +300,9 @@ def _schema_check(value: Any, schema: Mapping[str, Any], path: str, root: Mappin
         types = [schema["type"]] if isinstance(schema["type"], str) else list(schema["type"])
         if not any(_is_type(value, t) for t in types):
             raise BundleError(where, f"must be {_type_phrase(types)}, got {_show(value)}")
-    if "const" in schema and value != schema["const"]:
+    if "const" in schema and not _json_equal(value, schema["const"]):
         raise BundleError(where, f"must be {_show(schema['const'])}, got {_show(value)}")
-    if "enum" in schema and value not in schema["enum"]:
+    if "enum" in schema and not any(_json_equal(value, v) for v in schema["enum"]):
         raise BundleError(where, f"must be one of {', '.join(_show(v) for v in schema['enum'])}, got {_show(value)}")
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         if "minimum" in schema and value < schema["minimum"]:

@@ -9,6 +9,7 @@ wrong column, corner, level order or weight transpose shows up as an O(0.1) diff
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 
@@ -157,6 +158,52 @@ def test_parity_cpu_preset_in_a_non_unit_box(tmp_path: Path) -> None:
     g = 0.35  # a scalar g, not in G
     want = torch_reference(model, x, d, np.full(4000, g), bmin, bsize)
     assert np.abs(field.query_encoded(x, d, g) - want).max() <= 1e-5
+
+
+@pytest.mark.parametrize("psi", [3.0, 7.0])
+def test_bundle_decodes_with_its_own_psi(tmp_path: Path, psi: float) -> None:
+    """A field trained with psi != 5 (Eq. 6/7's decades) decodes with the bundle's psi, not the default:
+    the runtime's radiance equals the torch model's decoded radiance and Eq. 7 written out with that psi.
+    (Decoding with psi = 5 instead is off by a factor 10^(L' (5 - psi)): up to ~100x here.)"""
+    cfg = dataclasses.replace(SMALL, psi=psi)
+    model = make_model(cfg, seed=6)
+    path = export_bundle(make_run(tmp_path / "run", model, [0.0, 0.0, 0.0], [1.0, 1.0, 1.0])).path
+    assert json.loads((path / "manifest.json").read_text())["field"]["psi"] == psi
+    field = PhotonField.load(path)
+    rng = np.random.default_rng(7)
+    x, d, g = rng.random((3000, 3)), unit(rng.standard_normal((3000, 3))), rng.uniform(-1, 1, 3000)
+    Lp = torch_reference(model, x, d, g, np.zeros(3), np.ones(3)).astype(np.float64)
+    with torch.no_grad():
+        torch_L = model.radiance(torch.from_numpy(normalize_position(x, np.zeros(3), np.ones(3))),
+                                 torch.from_numpy(direction_input(d)),
+                                 torch.from_numpy(g.astype(np.float32).reshape(-1, 1))).numpy().astype(np.float64)
+    eq7 = 10.0 ** (-Lp * psi)
+    got = field.query(x, d, g).astype(np.float64)
+    # L' within 1e-5 (the parity bound) is a relative radiance error of ln(10) psi 1e-5 <= 1.7e-4.
+    assert np.max(np.abs(got / torch_L - 1.0)) <= 2e-4
+    assert np.max(np.abs(got / eq7 - 1.0)) <= 2e-4
+    assert np.max(np.abs(np.log10(eq7) - np.log10(10.0 ** (-Lp * 5.0)))) > 0.5  # the default psi would be caught
+
+
+def test_fit_records_its_psi_and_the_bundle_decodes_with_it(tmp_path: Path) -> None:
+    """psi from the fit settings reaches the checkpoint and the manifest (a tiny fit, a few steps)."""
+    from conftest import tiny_scene_dict
+
+    from runtime.scene import scene_from_dict
+    from train.fit import FitSettings, fit
+    from train.photon_tracing import trace_photons
+
+    scene = scene_from_dict(tiny_scene_dict(), tmp_path)
+    pmap = trace_photons(scene, 20_000, seed=1, progress=False)
+    settings = FitSettings.from_preset("tiny", steps=3, batch=256, val_points=256, k=32)
+    settings.psi = 3.5
+    fit(scene, pmap, tmp_path / "run", settings, progress=False)
+    field = PhotonField.load(export_bundle(tmp_path / "run", tmp_path / "f.pfn", scene=scene).path)
+    assert field.config.psi == 3.5
+    x = np.array([[0.0, 0.0, 0.0], [0.1, -0.2, 0.3]])
+    d = unit(np.array([[0.0, 0.0, 1.0], [1.0, 1.0, 0.0]]))
+    Lp = field.query_encoded(x, d, 0.0).astype(np.float64)
+    np.testing.assert_allclose(field.query(x, d, 0.0), 10.0 ** (-Lp * 3.5), rtol=1e-5)
 
 
 def test_float16_tables_equal_the_rounded_torch_model(small: tuple, tmp_path: Path) -> None:

@@ -10,6 +10,7 @@ parses or raises the one-line error type, never anything else.
 
 from __future__ import annotations
 
+import argparse
 import json
 import shutil
 from collections.abc import Callable
@@ -284,7 +285,8 @@ def existing(path: Path, *names: str) -> str:
 # Earlier results are not replaced without --force (their bytes are checked in tests/test_no_overwrite.py).
 CASES += [
     (R, lambda a, d, o: [*SIZE, "--out", existing(d / "r.json") and str(d / "r.exr")], "--force"),
-    (R, lambda a, d, o: ["--exposure-from", str(d / "none.json"), *SIZE, "--out", str(o / "r.exr")], "none.json"),
+    (R, lambda a, d, o: ["--exposure-from", str(d / "none.json"), *SIZE, "--out", str(o / "r.exr")],
+     "--exposure-from"),
     (R, lambda a, d, o: ["--exposure", "1", "--exposure-from", str(d / "r.json"), *SIZE, "--out", str(o / "r.exr")],
      "not both"),
     (T, lambda a, d, o: ["trace", str(a["scene"]), "--photons", "3k", "--out", existing(d / "m.npz")], "--force"),
@@ -296,11 +298,101 @@ CASES += [
     (E, lambda a, d, o: ["--quick", "--out", existing(d / "docs", "results.md"), "--work", str(o / "w")], "--force"),
 ]
 
+HUGE_SEED = str(1 << 64)
+
+
+def FIELD(a: dict[str, Path]) -> list[str]:  # noqa: N802
+    return ["--method", "field", "--bundle", str(a["bundle"]), "--scene", str(a["scene"])]
+
+
+def PHOTONMAP(a: dict[str, Path]) -> list[str]:  # noqa: N802
+    return ["--method", "photonmap", "--map", str(a["map"]), "--scene", str(a["scene"])]
+
+
+def FIT(a: dict[str, Path]) -> list[str]:  # noqa: N802
+    return ["fit", str(a["scene"]), "--map", str(a["map"])]
+
+
+# Every option that takes a checked value, refused by name (test_catalogue_covers_every_cli_and_option).
+CASES += [
+    (R, lambda a, d, o: ["--method", "teleport", *SIZE, "--out", str(o / "r.exr")], "--method"),
+    (R, lambda a, d, o: ["--max-depth", "0", *SIZE, "--out", str(o / "r.exr")], "--max-depth"),
+    (R, lambda a, d, o: ["--method", "raymarch", "--step", "0", *SIZE, "--out", str(o / "r.exr")], "--step"),
+    (R, lambda a, d, o: [*PHOTONMAP(a), "--k", "0", *SIZE, "--out", str(o / "r.exr")], "--k"),
+    (R, lambda a, d, o: [*PHOTONMAP(a), "--radius", "-1", *SIZE, "--out", str(o / "r.exr")], "--radius"),
+    (R, lambda a, d, o: [*FIELD(a), "--precision", "int4", *SIZE, "--out", str(o / "r.exr")], "--precision"),
+    (R, lambda a, d, o: [*FIELD(a), "--orbit", "0", *SIZE, "--out", str(o / "r.exr")], "--orbit"),
+    (R, lambda a, d, o: [*FIELD(a), "--orbit", "2", "--orbit-degrees", "nan", *SIZE, "--out", str(o / "r.exr")],
+     "--orbit-degrees"),
+    (R, lambda a, d, o: ["--threads", "0", *SIZE, "--out", str(o / "r.exr")], "--threads"),
+    (R, lambda a, d, o: ["--batch-size", "0", *SIZE, "--out", str(o / "r.exr")], "--batch-size"),
+    (R, lambda a, d, o: ["--exposure", "nan", *SIZE, "--out", str(o / "r.exr")], "--exposure"),
+    (R, lambda a, d, o: ["--seed", HUGE_SEED, *SIZE, "--out", str(o / "r.exr")], "--seed"),
+    (T, lambda a, d, o: ["trace", "blobs", "--max-bounces", "1", "--out", str(o / "m.npz")], "max_bounces"),
+    (T, lambda a, d, o: ["trace", "blobs", "--threads", "0", "--out", str(o / "m.npz")], "--threads"),
+    (T, lambda a, d, o: ["trace", "blobs", "--seed", HUGE_SEED, "--out", str(o / "m.npz")], "--seed"),
+    (T, lambda a, d, o: [*FIT(a), "--batch", "0", "--out", str(o / "run")], "--batch"),
+    (T, lambda a, d, o: [*FIT(a), "--lr", "-1", "--out", str(o / "run")], "--lr"),
+    (T, lambda a, d, o: [*FIT(a), "--k", "0", "--out", str(o / "run")], "--k"),
+    (T, lambda a, d, o: [*FIT(a), "--sampling", "magic", "--out", str(o / "run")], "--sampling"),
+    (T, lambda a, d, o: [*FIT(a), "--checkpoint-every", "0", "--out", str(o / "run")], "--checkpoint-every"),
+    (T, lambda a, d, o: [*FIT(a), "--preset", "huge", "--out", str(o / "run")], "--preset"),
+    (T, lambda a, d, o: ["export", str(a["run"]), "--tables-dtype", "int8", "--out", str(o / "f.pfn")],
+     "--tables-dtype"),
+    (D, lambda a, d, o: ["--photons", "lots", "--out", str(o / "demo")], "--photons"),
+    (D, lambda a, d, o: ["--preset", "huge", "--out", str(o / "demo")], "--preset"),
+    (D, lambda a, d, o: ["--steps", "0", "--out", str(o / "demo")], "--steps"),
+    (D, lambda a, d, o: ["--size", "0x10", "--out", str(o / "demo")], "--size"),
+    (D, lambda a, d, o: ["--reference-spp", "0", "--out", str(o / "demo")], "--reference-spp"),
+    (D, lambda a, d, o: ["--threads", "0", "--out", str(o / "demo")], "--threads"),
+    (D, lambda a, d, o: ["--seed", HUGE_SEED, "--out", str(o / "demo")], "--seed"),
+    (E, lambda a, d, o: ["--quick", "--spp", "0", "--out", str(o / "docs"), "--work", str(o / "w")], "--spp"),
+    (E, lambda a, d, o: ["--quick", "--threads", "0", "--out", str(o / "docs"), "--work", str(o / "w")],
+     "--threads"),
+    (E, lambda a, d, o: ["--quick", "--seed", HUGE_SEED, "--out", str(o / "docs"), "--work", str(o / "w")],
+     "--seed"),
+]
+
 MAINS = {R: render_main, T: train_main, D: demo_main, E: eval_main}
+#: Options whose refusals name the offending value (a file, folder or scene name), not the option: their
+#: cases are the scene-file, volume, photon-map, bundle and run-folder sections above.
+NAMED_BY_VALUE = {"--scene", "--map", "--bundle", "--out", "--work", "--scenes"}
 
 
-def test_catalogue_is_broad() -> None:
-    assert len(CASES) >= 30 and {c[0] for c in CASES} == set(MAINS)
+def _value_options(parser: argparse.ArgumentParser) -> set[str]:
+    """Long names of the options that take a value, subcommands included."""
+    out: set[str] = set()
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                out |= _value_options(sub)
+        elif action.option_strings and action.nargs != 0:
+            out.add(action.option_strings[-1])
+    return out
+
+
+def test_catalogue_covers_every_cli_and_option() -> None:
+    """Every console script the package installs (pyproject.toml [project.scripts]) is a catalogued command,
+    and every option of every command that takes a value has a case refusing a bad value by the option's name
+    (or is named by value). A new command or option without a refusal case fails here."""
+    import importlib
+    from importlib import metadata
+
+    from runtime.cli import build_parser as render_parser
+    from train.cli import build_parser as train_parser
+    from train.demo import build_parser as demo_parser
+    from train.eval_report import build_parser as eval_parser
+
+    scripts = metadata.distribution("photon-fields").entry_points.select(group="console_scripts")
+    assert len(scripts) >= len(MAINS)
+    for script in scripts:
+        module = importlib.import_module(script.module)
+        assert any(module._main is m for m in MAINS.values()), f"{script.name} ({script.value}) has no cases"
+    parsers = {R: render_parser(), T: train_parser(), D: demo_parser(), E: eval_parser()}
+    for cli, parser in parsers.items():
+        needles = {c[2].lstrip("-").replace("_", "-") for c in CASES if c[0] == cli}
+        missing = sorted(opt for opt in _value_options(parser) - NAMED_BY_VALUE if opt.lstrip("-") not in needles)
+        assert not missing, f"{cli}: no case refuses a bad value of {missing}"
 
 
 @pytest.mark.parametrize(("cli", "build", "needle"), CASES, ids=[f"{i:02d}-{c[0]}-{c[2]}" for i, c in enumerate(CASES)])

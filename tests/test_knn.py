@@ -202,6 +202,29 @@ def test_radiance_matches_brute_force(g: float, cell_size: float | None) -> None
             assert (radius[found < k] == r_max).all()
 
 
+@pytest.mark.parametrize("g", [0.75, -0.5])
+def test_radiance_phase_turns_photons_towards_the_camera(g: float) -> None:
+    """The phase convention from the physics, not from the code (the brute-force reference above copies the
+    code's cosine): a camera ray travels along d, so light reaching the camera travels along -d after
+    scattering. A photon already travelling along -d goes straight on (HG at cos = 1, the forward peak
+    (1 + g) / (4 pi (1 - g)^2)); one travelling along d turns back (cos = -1: (1 - g) / (4 pi (1 + g)^2)); one
+    travelling across turns by 90 degrees ((1 - g^2) / (4 pi (1 + g^2)^1.5)). One photon of weight 1 per
+    query, r_max 0.5 (fewer than K photons: the ball of radius r_max)."""
+    d = np.array([0.6, 0.0, 0.8])
+    across = np.array([0.0, 1.0, 0.0])
+    grid = build_photon_grid(np.zeros((1, 3)))
+    vol = 4.0 / 3.0 * math.pi * 0.5**3
+    for photon_dir, cos in ((-d, 1.0), (d, -1.0), (across, 0.0)):
+        est, _, found = knn_radiance(grid, photon_dir[None, :], np.ones((1, 3)), np.zeros((1, 3)), d[None, :], g,
+                                     4, 0.5)
+        want = (1 - g * g) / (4 * math.pi * (1 + g * g - 2 * g * cos) ** 1.5) / vol
+        assert found[0] == 1
+        np.testing.assert_allclose(est[0], want, rtol=1e-12)
+    forward = (1 + g) / (4 * math.pi * (1 - g) ** 2) / vol
+    est, _, _ = knn_radiance(grid, -d[None, :], np.ones((1, 3)), np.zeros((1, 3)), d[None, :], g, 4, 0.5)
+    np.testing.assert_allclose(est[0], forward, rtol=1e-12)
+
+
 def test_radiance_zero_photons_and_infinite_r_max(rng: np.random.Generator) -> None:
     pts = rng.uniform(0, 1, (100, 3))
     dirs, wts = unit(100, rng), np.ones((100, 3))

@@ -45,10 +45,51 @@ def test_schema_file_is_generated_from_the_dict() -> None:
     assert MANIFEST_SCHEMA["properties"]["hash_primes"]["const"] == [int(p) for p in HASH_PRIMES]
 
 
-def test_schema_agrees_with_jsonschema_if_installed() -> None:
-    jsonschema = pytest.importorskip("jsonschema")
+def _leaf_paths(doc: object, prefix: tuple = ()) -> list[tuple]:
+    out = [prefix] if prefix else []
+    if isinstance(doc, dict):
+        for k, v in doc.items():
+            out += _leaf_paths(v, (*prefix, k))
+    elif isinstance(doc, list):
+        for i, v in enumerate(doc):
+            out += _leaf_paths(v, (*prefix, i))
+    return out
+
+
+def test_schema_agrees_with_jsonschema() -> None:
+    """The in-house validator interprets a subset of JSON Schema (models_spec.bundle): it must accept and refuse
+    exactly what the reference implementation does, on the good manifest and on every single-field damage of
+    it (each field deleted or replaced by a value of another type or out of range). jsonschema is a test
+    dependency (pyproject's test extra), so this runs everywhere."""
+    import jsonschema
+
+    from models_spec.bundle import _schema_check
+
     jsonschema.Draft202012Validator.check_schema(MANIFEST_SCHEMA)
-    jsonschema.validate(good_manifest(), MANIFEST_SCHEMA)
+    reference = jsonschema.Draft202012Validator(MANIFEST_SCHEMA)
+    good = good_manifest()
+    reference.validate(good)
+    checked = 0
+    for path in _leaf_paths(good):
+        for value in (None, "x", -1, 0.5, 10**12, True, [], {}, "delete"):
+            doc = copy.deepcopy(good)
+            node = doc
+            for k in path[:-1]:
+                node = node[k]
+            if value == "delete":
+                if not isinstance(node, dict):
+                    continue
+                del node[path[-1]]
+            else:
+                node[path[-1]] = value
+            try:
+                _schema_check(doc, MANIFEST_SCHEMA, "", MANIFEST_SCHEMA)
+                ours = True
+            except BundleError:
+                ours = False
+            assert ours == reference.is_valid(doc), (path, value, ours)
+            checked += 1
+    assert checked > 500
 
 
 def test_good_manifest_round_trips() -> None:

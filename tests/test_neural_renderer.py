@@ -145,11 +145,19 @@ def trained(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
 
 
 def test_neural_render_is_close_to_the_path_tracer(trained) -> None:  # noqa: ANN001
-    """The method is biased (KNN blur, network error): a regression bound, not equality. Metric: relative
-    L2 of L over 4x4-pixel block means (so the bias, not the noise, is measured), neural at 32 spp vs the
-    path tracer at 512 spp, 32x32 pixels. Measured: g = 0 (in G) 0.076 (photon-map renderer, same map:
-    0.050), g = 0.35 (outside G, interpolated by the field) 0.158; two path-traced images differ by 0.011
-    / 0.016, so these are the method's bias. Bounds: 0.12 and 0.25."""
+    """The method is biased (KNN blur, network error, and the log-space fit (Eq. 6), which learns a geometric
+    mean and so reads low): a regression bound, not equality. Neural at 32 spp vs the path tracer at 512 spp,
+    32x32 pixels; relative L2 of L over 4x4-pixel block means (so the bias, not the noise, is measured).
+
+    Measured at the fixture's seeds: g = 0 (in G) 0.074, mean L ratio 0.929 (the photon-map renderer with the
+    same map: 0.050, 0.954); g = 0.35 (outside G, interpolated) 0.161. Two path-traced images differ by 0.011
+    / 0.016. Over 6 other training + map seeds: 0.050-0.103, mean ratio 0.902-0.955, and 0.096-0.236 at
+    g = 0.35 (training noise, not rendering noise: 800 steps instead of 300 did not narrow it). Perturbing the
+    initial weights by 1e-6 (what another CPU's rounding does) moved them by < 0.004; the thread count
+    changes nothing. Bounds: relative L2 0.11 and 0.25 (every seed passes); mean ratio of L at g = 0 in
+    [0.895, 0.965], which a 5 % scale error of L fails at these seeds (0.882 / 0.975), as does a 7 % error of
+    L_i alone (at g = 0.35 only a sanity range, 0.7-1.05: measured 0.845, seeds 0.77-0.92). Scale errors of L_i
+    are caught independently by tests/test_light_kinds.py."""
     from runtime.field import PhotonField
     from runtime.metrics import relative_l2
 
@@ -158,13 +166,14 @@ def test_neural_render_is_close_to_the_path_tracer(trained) -> None:  # noqa: AN
 
     scene, _, bundle = trained
     field = PhotonField.load(bundle, expected_fingerprint=scene.fingerprint())
-    for g, bound in ((0.0, 0.12), (0.35, 0.25)):
+    for g, bound in ((0.0, 0.11), (0.35, 0.25)):
         sc = scene.with_overrides(g=g)
         neural = render_neural(sc, field.estimator(), spp=32, seed=1, progress=False).layers
         pt = render_path_traced(sc, spp=512, seed=2, progress=False).layers
         err = relative_l2(blocks(neural["L"]), blocks(pt["L"]))
         assert err < bound, (g, err)
-        assert neural["L_i"].mean() > 0.5 * pt["L_i"].mean()
+        ratio = float(neural["L"].mean() / pt["L"].mean())
+        assert (0.895 < ratio < 0.965) if g == 0.0 else (0.7 < ratio < 1.05), (g, ratio)
 
 
 def test_pfn_render_field_cli_and_foreign_scene_refusal(trained, tmp_path, capsys) -> None:  # noqa: ANN001

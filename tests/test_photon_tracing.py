@@ -7,7 +7,7 @@ import math
 import numba
 import numpy as np
 import pytest
-from conftest import constant_tf, small_camera
+from conftest import coloured_tf, constant_tf, small_camera, smooth_field
 from scipy import stats
 
 from runtime.errors import InputError
@@ -126,6 +126,27 @@ def test_directional_light_flux_covers_the_box() -> None:
     flux, _ = light_fluxes(scene)
     r = 0.5 * math.sqrt(3)
     np.testing.assert_allclose(flux[0], 2.0 * math.pi * r * r)
+
+
+def test_distant_point_light_carries_the_power_of_a_directional_light() -> None:
+    """A point light of intensity E D^2 at distance D = 1000 in direction -d lights the volume like a directional
+    light of irradiance E travelling along d (up to O(box / D) = 0.1 %). The two emit by different code: the
+    point light samples the cone towards the bounding sphere (solid-angle fraction ~4e-7 of its 4 pi I) and
+    scales the photons' power by that fraction, the directional light samples a disk of flux E pi R^2. Their
+    maps must carry the same stored power per channel, and the same power-weighted centroid. Measured over
+    4 independent seed pairs (200k records, coloured albedo): ratios within 1.1 % of 1, centroids within
+    0.0023 box units. Bounds 2.5 % and 0.01."""
+    vol = make_volume(smooth_field(24), window=(0.0, 1.0), name="smooth")
+    d = np.array([-0.5, -1.0, -0.3]) / np.linalg.norm([-0.5, -1.0, -0.3])
+    D, E = 1000.0, 2.0
+    maps = [trace_photons(Scene(vol, coloured_tf(), (light,), small_camera(), 0.0, "far"), 200_000, phases=(0.0,),
+                          seed=seed, progress=False)
+            for seed, light in ((1, DirectionalLight(d, [1.0, 0.9, 0.8], E)),
+                                (2, PointLight(-D * d, [1.0, 0.9, 0.8], E * D * D)))]
+    total = [m.power.astype(np.float64).sum(axis=0) for m in maps]
+    centroid = [(m.position * m.power[:, :1]).sum(axis=0) / m.power[:, 0].sum() for m in maps]
+    assert np.all(np.abs(total[1] / total[0] - 1.0) < 0.025), total
+    assert np.all(np.abs(centroid[1] - centroid[0]) < 0.01), centroid
 
 
 def test_save_load_round_trip_and_refusals(tmp_path) -> None:  # noqa: ANN001

@@ -1,0 +1,291 @@
+"""Mutation check: plant known, plausible bugs one at a time and check that the tests named for each catch it.
+
+Each mutant in :data:`MUTANTS` is an exact text replacement in one file plus the pytest node ids that must fail
+with it. For every mutant the script
+
+1. copies the repository (``git ls-files``: tracked files plus untracked, not ignored ones, as they are in the
+   working tree) to a fresh temporary folder;
+2. applies the replacement, refusing (exit 2, before anything runs) when the original text does not occur
+   exactly once: after a refactor the table must be updated, it never passes silently;
+3. runs the named tests there with this interpreter (the project's ``.venv``), ``PYTHONPATH`` at the copy and
+   ``NUMBA_CACHE_DIR`` at a fresh empty folder (numba's ``cache=True`` does not recompile a caller in another
+   module when an ``inline="always"`` kernel it uses changes, so a shared cache could hide a mutant);
+4. reports **killed** (some named test failed or errored), **survived** (all passed) or **error** (pytest could
+   not run them: usage error, no tests collected; or the timeout).
+
+Before the mutants, the same tests run once on an unmodified copy and must pass (otherwise "killed" would mean
+nothing), and every run first checks that ``runtime``, ``train``, ``models_spec`` and the tests are imported
+from the copy, not from the editable install. Results: a table on stdout and ``bench/results/mutants.json``
+(per mutant: status, the tests that failed, seconds; the machine: CPU model and ISA, cores, versions). Exit
+status 1 if any mutant survived or errored.
+
+Usage::
+
+    .venv/bin/python bench/mutants.py                       # every mutant (~1-2 min each on 2 cores)
+    .venv/bin/python bench/mutants.py --only default_psi li_without_albedo
+    .venv/bin/python bench/mutants.py --list                # the table, nothing run
+    .venv/bin/python bench/mutants.py --check               # only check that every original text is found
+
+Adding a mutant: append a :class:`Mutant` to :data:`MUTANTS` with the file, the exact original text (a whole
+line or a unique fragment of one; indentation included if the replacement spans lines), its replacement, the
+node ids of the tests that must catch it (``tests/test_<file>.py::test_<name>[<param>]``) and a sentence on the bug.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_OUT = ROOT / "bench" / "results" / "mutants.json"
+LIGHTS = "tests/test_light_kinds.py::test_photon_map_li_matches_path_tracer_per_light_kind"
+
+
+@dataclass(frozen=True)
+class Mutant:
+    name: str
+    file: str  # relative to the repository root
+    original: str  # exact text, found exactly once in the file
+    replacement: str
+    tests: tuple[str, ...]  # pytest node ids; at least one must fail
+    bug: str  # what the mutant plants
+
+
+MUTANTS: tuple[Mutant, ...] = (
+    # The four planted in issue 11, section 6.
+    Mutant("point_cone_fraction", "train/photon_tracing.py",
+           "flux[i] = 4 * math.pi * rgb[i] * (1.0 - cos_max[i]) / 2.0", "flux[i] = 4 * math.pi * rgb[i]",
+           (f"{LIGHTS}[point_outside]",
+            "tests/test_photon_tracing.py::test_distant_point_light_carries_the_power_of_a_directional_light"),
+           "point-light photons keep the full 4 pi I although only the cone towards the volume is sampled "
+           "(5.2x too strong for a light at distance 1.1)"),
+    Mutant("default_psi", "runtime/field.py", "L = decode_radiance(Lp, self.config.psi)", "L = decode_radiance(Lp)",
+           ("tests/test_bundle.py::test_bundle_decodes_with_its_own_psi",
+            "tests/test_bundle.py::test_fit_records_its_psi_and_the_bundle_decodes_with_it"),
+           "the runtime decodes Eq. 7 with the default psi = 5 instead of the bundle's"),
+    Mutant("li_without_albedo", "runtime/first_interaction.py",
+           'film.splat("L_i", fi.pixel, q, distinct, weight=fi.albedo)', 'film.splat("L_i", fi.pixel, q, distinct)',
+           (f"{LIGHTS}[point_outside]", f"{LIGHTS}[directional]", f"{LIGHTS}[environment]"),
+           "L_i composed without the albedo at the camera vertex (neural and photon-map renderers)"),
+    Mutant("hg_cos_sign", "runtime/phase.py", "denom = 1.0 + g * g - 2.0 * g * cos_theta",
+           "denom = 1.0 + g * g + 2.0 * g * cos_theta",
+           ("tests/test_phase.py::test_sampler_pdf_matches_eval", "tests/test_phase.py::test_mean_cosine_equals_g",
+            f"{LIGHTS}[directional]"),
+           "Henyey-Greenstein evaluated with the cosine's sign flipped (g > 0 scatters backwards)"),
+    # More plausible bugs in the same code.
+    Mutant("env_photon_power", "train/photon_tracing.py", "flux[i] = rgb[i] * 4 * math.pi**2 * radius**2",
+           "flux[i] = rgb[i] * 4 * math.pi * radius**2",
+           ("tests/test_photon_estimate.py::test_photon_map_white_furnace_under_an_environment_light",
+            f"{LIGHTS}[environment]"),
+           "environment photons carry 4 pi R^2 L (the sphere's area) instead of 4 pi^2 R^2 L (its flux)"),
+    Mutant("photon_weight_without_1_over_sigma", "runtime/photon_estimate.py",
+           "weights = sub.power.astype(np.float64) / np.maximum(sigma, 1e-12)[:, None]",
+           "weights = sub.power.astype(np.float64)",
+           ("tests/test_photon_estimate.py::test_photon_map_li_converges_to_path_tracer", f"{LIGHTS}[directional]"),
+           "Eq. 5 without the 1 / sigma_t weight that turns collision density into radiance"),
+    Mutant("knn_phase_cos_sign", "runtime/knn.py",
+           "p = hg_eval(g, -(dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz))",
+           "p = hg_eval(g, dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz)",
+           ("tests/test_knn.py::test_radiance_phase_turns_photons_towards_the_camera",
+            f"{LIGHTS}[point_outside]", f"{LIGHTS}[directional]"),
+           "the photon estimate's phase cosine taken between the photon and the camera ray instead of the "
+           "light's path towards the camera (invisible at g = 0)"),
+    Mutant("first_collision_stored", "train/photon_tracing.py", "if bounce >= 1:  # Alg. 1",
+           "if bounce >= 0:  # Alg. 1",
+           ("tests/test_photon_tracing.py::test_stored_energy_matches_analytic_series", f"{LIGHTS}[directional]"),
+           "photons recorded from their first collision, counting single scattering twice (NEE has it)"),
+    Mutant("photon_roulette_not_reweighted", "train/photon_tracing.py",
+           "br, bg, bb = br * a0 / q, bg * a1 / q, bb * a2 / q", "br, bg, bb = br * a0, bg * a1, bb * a2",
+           ("tests/test_photon_tracing.py::test_stored_energy_matches_analytic_series", f"{LIGHTS}[environment]"),
+           "surviving photons not divided by the Russian-roulette survival probability"),
+    Mutant("photon_albedo_channels_swapped", "train/photon_tracing.py",
+           "br, bg, bb = br * a0 / q, bg * a1 / q, bb * a2 / q", "br, bg, bb = br * a2 / q, bg * a1 / q, bb * a0 / q",
+           (f"{LIGHTS}[point_outside]", f"{LIGHTS}[directional]", f"{LIGHTS}[environment]"),
+           "red and blue albedo swapped along photon paths (invisible with a grey albedo)"),
+    Mutant("nee_without_transmittance", "runtime/direct_light.py", "c = f * scale * tr", "c = f * scale",
+           ("tests/test_path_tracer.py::test_absorbing_furnace_loses_energy",
+            "tests/test_path_tracer.py::test_ray_marcher_matches_single_scattering"),
+           "next-event estimation ignores the shadow ray's transmittance"),
+    Mutant("pt_roulette_not_reweighted", "runtime/path_tracer.py",
+           "                beta[0, i] /= q\n                beta[1, i] /= q\n                beta[2, i] /= q\n",
+           "                pass\n",
+           ("tests/test_path_tracer.py::test_white_furnace",),
+           "path-tracer survivors of Russian roulette not divided by the survival probability"),
+    Mutant("pt_last_vertex_env_mis_share", "runtime/path_tracer.py",
+           "add_direct_light(film, m, lights, scene.g, rays, last_vertex)",
+           "add_direct_light(film, m, lights, scene.g, rays)",
+           ("tests/test_path_depth.py::test_environment_nee_and_phase_sampling_agree_at_every_depth",
+            "tests/test_path_depth.py::test_single_scattering_does_not_depend_on_max_depth"),
+           "the path tracer's last vertex gives the environment's NEE only its MIS share, although no "
+           "phase-sampled escape follows (the bug fixed in issue 11: 35 % of single scattering lost at depth 1)"),
+    Mutant("support_correction_dropped", "runtime/photon_estimate.py",
+           "est /= support_fraction(self.medium, xq, np.where(np.isfinite(r), r, 0.0), self._pattern)[:, None]",
+           "pass",
+           ("tests/test_photon_estimate.py::test_photon_map_white_furnace_under_an_environment_light",
+            "tests/test_photon_estimate.py::test_photon_map_li_converges_to_path_tracer"),
+           "the photon estimate's boundary correction (part of the search ball outside the medium) not applied"),
+)
+
+
+def repo_files(root: Path) -> list[str]:
+    """Tracked files and untracked, not ignored ones, as they are in the working tree."""
+    out = subprocess.run(["git", "-C", str(root), "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+                         check=True, capture_output=True).stdout.decode()
+    return sorted({f for f in out.split("\0") if f and (root / f).is_file()})
+
+
+def check_mutant(root: Path, m: Mutant) -> str | None:
+    """None if the mutant applies (original found exactly once), else the reason."""
+    path = root / m.file
+    if not path.is_file():
+        return f"{m.file} does not exist"
+    count = path.read_text().count(m.original)
+    if count != 1:
+        return f"the original text occurs {count} times in {m.file} (must be exactly once): {m.original!r}"
+    if not m.tests:
+        return "no tests named"
+    return None
+
+
+def make_copy(root: Path, files: list[str], dest: Path, mutant: Mutant | None) -> None:
+    for f in files:
+        target = dest / f
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(root / f, target)
+    if mutant is not None:
+        path = dest / mutant.file
+        text = path.read_text()
+        assert text.count(mutant.original) == 1
+        path.write_text(text.replace(mutant.original, mutant.replacement))
+
+
+def run_env(copy: Path, cache: Path) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_CACHE_DIR", "PYTHONPATH"))}
+    env.update({"PYTHONPATH": str(copy), "NUMBA_CACHE_DIR": str(cache), "PYTHONDONTWRITEBYTECODE": "1"})
+    return env
+
+
+IMPORT_CHECK = """
+import sys
+sys.path.insert(0, 'tests')
+import conftest, models_spec, runtime, train
+for mod in (conftest, models_spec, runtime, train):
+    print(mod.__file__)
+"""
+
+
+def check_imports(python: str, copy: Path, env: dict[str, str]) -> None:
+    """The copy's modules, not the editable install's (a mutant there would be tested against clean code)."""
+    out = subprocess.run([python, "-c", IMPORT_CHECK], cwd=copy, env=env, capture_output=True, text=True, check=True)
+    for line in out.stdout.split():
+        if not Path(line).resolve().is_relative_to(copy.resolve()):
+            raise SystemExit(f"error: {line} is imported from outside the copy {copy}: the check would be void")
+
+
+def run_tests(python: str, copy: Path, tests: tuple[str, ...], timeout: float) -> tuple[str, list[str], float, str]:
+    """(status, failed node ids, seconds, output tail) for ``tests`` in ``copy`` with a fresh numba cache."""
+    with tempfile.TemporaryDirectory(prefix="numba-cache-") as cache:
+        env = run_env(copy, Path(cache))
+        check_imports(python, copy, env)
+        cmd = [python, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-rfE", "--tb=line", *tests]
+        t0 = time.perf_counter()
+        try:
+            proc = subprocess.run(cmd, cwd=copy, env=env, capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return "timeout", [], time.perf_counter() - t0, ""
+        seconds = time.perf_counter() - t0
+    output = proc.stdout + proc.stderr
+    failed = sorted({m.group(2) for m in re.finditer(r"^(FAILED|ERROR) (\S+)", output, re.MULTILINE)})
+    status = {0: "passed", 1: "failed", 2: "failed"}.get(proc.returncode, f"pytest exit {proc.returncode}")
+    return status, failed, seconds, "\n".join(output.strip().splitlines()[-15:])
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--only", nargs="+", metavar="NAME", help="run these mutants only")
+    p.add_argument("--list", action="store_true", help="print the table and exit")
+    p.add_argument("--check", action="store_true", help="only check that every mutant applies")
+    p.add_argument("--no-baseline", action="store_true", help="skip the run on the unmodified copy")
+    p.add_argument("--timeout", type=float, default=1800.0, help="seconds per pytest run")
+    p.add_argument("--python", default=sys.executable, help="interpreter with the project's dependencies")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON report")
+    args = p.parse_args(argv)
+
+    mutants = list(MUTANTS)
+    if args.only:
+        unknown = sorted(set(args.only) - {m.name for m in MUTANTS})
+        if unknown:
+            p.error(f"unknown mutants {unknown}; known: {', '.join(m.name for m in MUTANTS)}")
+        mutants = [m for m in MUTANTS if m.name in args.only]
+    if args.list:
+        for m in mutants:
+            print(f"{m.name:34s} {m.file:30s} {m.bug}\n{'':34s} tests: {', '.join(m.tests)}")
+        return 0
+    problems = [(m.name, why) for m in mutants if (why := check_mutant(ROOT, m))]
+    for name, why in problems:
+        print(f"error: mutant {name}: {why}", file=sys.stderr)
+    if problems:
+        return 2
+    if args.check:
+        print(f"all {len(mutants)} mutants apply")
+        return 0
+
+    sys.path.insert(0, str(ROOT / "bench"))
+    from common import machine_info, write_report
+
+    info = machine_info()
+    files = repo_files(ROOT)
+    results: list[dict[str, Any]] = []
+    baseline: dict[str, Any] | None = None
+    with tempfile.TemporaryDirectory(prefix="pfn-mutants-") as tmp:
+        if not args.no_baseline:
+            tests = tuple(dict.fromkeys(t for m in mutants for t in m.tests))
+            copy = Path(tmp) / "baseline"
+            make_copy(ROOT, files, copy, None)
+            print(f"baseline: {len(tests)} tests on an unmodified copy ...", flush=True)
+            status, failed, seconds, tail = run_tests(args.python, copy, tests, args.timeout)
+            baseline = {"status": status, "failed": failed, "seconds": round(seconds, 1)}
+            print(f"baseline: {status} in {seconds:.0f} s", flush=True)
+            shutil.rmtree(copy)
+            if status != "passed":
+                print(f"error: the named tests do not pass without mutants:\n{tail}", file=sys.stderr)
+                return 2
+        for m in mutants:
+            copy = Path(tmp) / m.name
+            make_copy(ROOT, files, copy, m)
+            print(f"{m.name}: {len(m.tests)} tests ...", end=" ", flush=True)
+            status, failed, seconds, tail = run_tests(args.python, copy, m.tests, args.timeout)
+            verdict = {"failed": "killed", "passed": "survived", "timeout": "killed"}.get(status, "error")
+            print(f"{verdict} ({seconds:.0f} s){': ' + ', '.join(failed) if failed else ''}", flush=True)
+            if verdict == "error":
+                print(tail, file=sys.stderr)
+            results.append({**asdict(m), "status": verdict, "pytest": status, "killed_by": failed,
+                            "seconds": round(seconds, 1)})
+            shutil.rmtree(copy)
+
+    print(f"\n{'mutant':34s} {'status':9s} killed by")
+    for r in results:
+        names = [t.split("::", 1)[1] for t in r["killed_by"]]
+        print(f"{r['name']:34s} {r['status']:9s} {', '.join(names)}")
+    bad = [r["name"] for r in results if r["status"] != "killed"]
+    write_report(args.out, "mutants", info,
+                 {"python": args.python, "timeout_s": args.timeout, "files_copied": len(files)},
+                 baseline=baseline, mutants=results, survived_or_error=bad)
+    if bad:
+        print(f"NOT KILLED: {', '.join(bad)}", file=sys.stderr)
+        return 1
+    print(f"all {len(results)} mutants killed")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
