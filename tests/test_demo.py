@@ -65,6 +65,19 @@ def test_demo_writes_renders_figure_and_summary(tmp_path, capsys) -> None:  # no
     per_spp = sec["render_path_traced"] / summary["reference_spp"]
     assert eq_spp >= 1 and (eq_spp == 1 or eq_spp * per_spp <= sec["render_neural"] < (eq_spp + 1) * per_spp)
     assert sec["render_path_traced_equal_time"] < 4.0 * sec["render_neural"] + 0.1
+    # One exposure for every PNG: the reference's L, recorded; equal radiance shows as equal pixel values.
+    from PIL import Image
+
+    from runtime.image_io import EXPOSURE_METADATA, auto_exposure_stops, tonemap_srgb
+
+    stops = summary["exposure_stops"]["png"]
+    assert stops == pytest.approx(auto_exposure_stops(ref["L"]))
+    assert summary["exposure_stops"]["comparison_rows"]["L"] == pytest.approx(stops)
+    for name, layers in img.items():
+        assert float(read_exr(out / f"{name}.exr")[1][EXPOSURE_METADATA]) == stops
+        png = np.asarray(Image.open(out / f"{name}.png").convert("RGB"))
+        assert np.array_equal(png, tonemap_srgb(layers["L"], stops)), name
+    assert summary["cpu"]["model"]
 
 
 def test_demo_refuses_bad_settings_in_one_line(tmp_path, capsys) -> None:  # noqa: ANN001

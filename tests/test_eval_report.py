@@ -53,6 +53,12 @@ def test_quick_evaluation_writes_every_section_and_figure_with_sane_numbers(tmp_
     assert img["neural_L_vs_path_tracer"]["rel_l2"] < 0.6 and img["photon map_L_vs_path_tracer"]["rel_l2"] < 0.6
     assert img["photon map_L_vs_path_tracer"]["rel_l2"] < img["ray marcher_L_vs_path_tracer"]["rel_l2"] < 1.0
     assert img["neural_L_vs_path_tracer"]["ssim"] > 0.7
+    # Every fig-8 PNG of a scene shares the reference's L exposure (recorded), so rows compare by eye.
+    from runtime.image_io import EXPOSURE_METADATA, read_exr
+
+    recorded = {float(read_exr(p)[1][EXPOSURE_METADATA]) for p in (work / "blobs").glob("fig8_*.exr")}
+    assert len(recorded) == 1 and recorded == {img["exposure_stops"]["L"]}
+    assert data["cpu"]["model"]
     # 5. noise: the path tracer's error falls with spp (~1 / sqrt(spp) while noise dominates).
     pt = {spp: err for spp, _, err in data["noise"]["curves"]["path tracer"]}
     assert pt[1] > pt[4] > pt[16] and pt[1] > 2.0 * pt[16]
