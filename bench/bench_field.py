@@ -1,9 +1,9 @@
 """Photon-field queries per second in the runtime (no torch at query time): encode + MLP + decode.
 
 For each architecture (``--archs``: ``cpu``, the default preset's field, 45 -> 64x3 -> 3; ``paper``, Sec. 3.4's
-16x8 / 2^19 encodings, 257 -> 64x4 -> 3) a bundle is exported (``train.export``) from a field with random
+16x8 / 2^19 encodings, 257 -> 64x4 -> 3) a bundle is exported (``train.export.bundle``) from a field with random
 tables (uniform in [-1, 1]) and Xavier weights: speed does not depend on the values. It is loaded with
-``runtime.field.PhotonField.load`` and queried end to end with ``query`` (world positions uniform in the
+``runtime.field.field.PhotonField.load`` and queried end to end with ``query`` (world positions uniform in the
 box, uniform random unit directions, g uniform in [-1, 1]: the worst case for the caches), at each batch
 (``--batches``, default 2^14, 2^16, 2^18), reporting queries/s and the split of the time into the
 field's own stage timers: position encoding (``normalize_position`` + hash grid), direction encoding
@@ -40,7 +40,7 @@ from __future__ import annotations
 import argparse
 import os
 
-# Before numba / torch load their OpenMP runtime (see train.fit): passive waiting when pools alternate.
+# Before numba / torch load their OpenMP runtime (see train.fit.loop): passive waiting when pools alternate.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import json  # noqa: E402
@@ -56,9 +56,9 @@ import numpy as np  # noqa: E402
 # bench/ is on sys.path when this file is run as a script, so the sibling module imports directly.
 from common import Contention, finish_info, machine_info, write_report  # noqa: E402
 
-from models_spec.encoding import decode_radiance, direction_input, normalize_position  # noqa: E402
-from runtime.field import PhotonField, _session  # noqa: E402
-from runtime.hashgrid import encode  # noqa: E402
+from photon_fields.models_spec.encoding import decode_radiance, direction_input, normalize_position  # noqa: E402
+from photon_fields.runtime.field.field import PhotonField, _session  # noqa: E402
+from photon_fields.runtime.field.hashgrid import encode  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "field.json"
 BMIN, BSIZE = [-0.5, -0.35, -0.45], [1.0, 0.7, 0.9]
@@ -68,9 +68,9 @@ def make_bundle(arch: str, folder: Path, tables_dtype: str = "float32") -> Path:
     """Export a random field of the preset's architecture (torch is only needed here, not to query)."""
     import torch
 
-    from train.export import RUN_DOMAIN_FORMAT, export_bundle
-    from train.field import PhotonField as TorchField
-    from train.fit import PRESETS, _save_checkpoint, field_config_for
+    from photon_fields.train.export.bundle import RUN_DOMAIN_FORMAT, export_bundle
+    from photon_fields.train.field.network import PhotonField as TorchField
+    from photon_fields.train.fit.loop import PRESETS, _save_checkpoint, field_config_for
 
     run = folder / f"run_{arch}"
     if not (run / "checkpoint.pt").is_file():

@@ -1,4 +1,4 @@
-"""Hash-grid encoding speed: forward and forward + backward of train.hashgrid.HashGridEncoding on the CPU.
+"""Hash-grid encoding speed: forward and forward + backward of train.field.hashgrid.HashGridEncoding on the CPU.
 
 Training (paper Sec. 3.5) evaluates the position (D=3) and direction (D=2) encodings of every batch and
 back-propagates into their tables, so both directions matter. For each configuration below, ``--points``
@@ -53,8 +53,8 @@ import torch
 # bench/ is on sys.path when this file is run as a script, so the sibling module imports directly.
 from common import Contention, load_average, machine_info
 
-from models_spec.hashgrid import HASH_PRIMES, PAPER_DIRECTION, PAPER_POSITION, HashGridConfig, level_specs
-from train.hashgrid import HashGridEncoding
+from photon_fields.models_spec.hashgrid import HASH_PRIMES, PAPER_DIRECTION, PAPER_POSITION, HashGridConfig, level_specs
+from photon_fields.train.field.hashgrid import HashGridEncoding
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "hashgrid.json"
 CONFIGS: dict[str, HashGridConfig] = {

@@ -1,6 +1,6 @@
 """Reference path tracer throughput: samples per second and frame times per builtin scene.
 
-For each scene, :func:`runtime.path_tracer.render_path_traced` renders a ``--size`` frame (default
+For each scene, :func:`runtime.renderers.path_tracer.render_path_traced` renders a ``--size`` frame (default
 256x256) at each of ``--spp`` (default 1 and 16 samples per pixel) with ``max_depth`` 16, NEE on, the
 default batch size. A tiny render (16x16, 1 spp) of the same scene runs first, so numba compilation
 or cache loading is not timed. Each frame is rendered ``--repeats`` times with the same seed (identical
@@ -34,8 +34,8 @@ from typing import Any
 # bench/ is on sys.path when this file is run as a script, so the sibling module imports directly.
 from common import Contention, finish_info, machine_info, parse_scenes, write_report
 
-from runtime.path_tracer import RenderResult, render_path_traced
-from runtime.scene import BUILTIN_SCENES, Scene, builtin_scene
+from photon_fields.runtime.renderers.path_tracer import RenderResult, render_path_traced
+from photon_fields.runtime.scene.scene import BUILTIN_SCENES, Scene, builtin_scene
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "pathtracer.json"
 WARMUP_SIZE = 16

@@ -1,7 +1,7 @@
 """Photon tracing speed (paper Table 3) and photon-map convergence to the path tracer.
 
 1. Tracing: for each builtin scene at ``--resolution`` (default 128^3, the paper's VORTICES size), the
-   wall time of :func:`train.photon_tracing.trace_photons` for each of ``--photons`` (default 1M), best
+   wall time of :func:`photon_fields.train.photons.tracing.trace_photons` for each of ``--photons`` (default 1M), best
    of ``--repeats``, with records/s and emitted paths. A tiny trace runs first so numba compilation is
    not timed. Goal (issue 3): 1M photons in at most 10 s on 2 cores.
 2. Convergence (``--convergence``, default on): on a small optically thin scene, the relative L2 error
@@ -22,11 +22,11 @@ from typing import Any
 
 from common import Contention, finish_info, machine_info, parse_scenes, write_report
 
-from runtime.path_tracer import render_path_traced
-from runtime.photon_estimate import render_photon_mapped
-from runtime.scene import Scene, builtin_scene
-from train.cli import parse_count
-from train.photon_tracing import trace_photons
+from photon_fields.runtime.photons.estimate import render_photon_mapped
+from photon_fields.runtime.renderers.path_tracer import render_path_traced
+from photon_fields.runtime.scene.scene import Scene, builtin_scene
+from photon_fields.train.cli.train import parse_count
+from photon_fields.train.photons.tracing import trace_photons
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "photons.json"
 
@@ -55,10 +55,10 @@ def bench_tracing(name: str, resolution: int, counts: list[int], repeats: int) -
 def convergence_scene() -> Scene:
     import numpy as np
 
-    from runtime.camera import Camera
-    from runtime.lights import DirectionalLight
-    from runtime.transfer import TransferFunction
-    from runtime.volume import make_volume
+    from photon_fields.runtime.scene.camera import Camera
+    from photon_fields.runtime.scene.lights import DirectionalLight
+    from photon_fields.runtime.scene.transfer import TransferFunction
+    from photon_fields.runtime.scene.volume import make_volume
 
     n = 32
     x = (np.arange(n) + 0.5) / n

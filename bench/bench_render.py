@@ -32,9 +32,9 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
 
-from runtime.field import PhotonField  # noqa: E402
-from runtime.scene import Scene, builtin_scene  # noqa: E402
-from runtime.timing import time_renderers  # noqa: E402
+from photon_fields.runtime.eval.timing import time_renderers  # noqa: E402
+from photon_fields.runtime.field.field import PhotonField  # noqa: E402
+from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "results" / "render.json"
@@ -49,12 +49,12 @@ def bundle_for(name: str, scene: Scene, given: dict[str, str]) -> Path:
     path = BUNDLES / f"{name}.pfn"
     if path.exists():
         return path
-    from train.export import export_bundle, write_run_domain
+    from photon_fields.train.export.bundle import export_bundle, write_run_domain
 
     run = TRAINING / name / "cpu"
     if not (run / "checkpoint.pt").exists():
-        from train.fit import FitSettings, fit
-        from train.photon_tracing import trace_photons
+        from photon_fields.train.fit.loop import FitSettings, fit
+        from photon_fields.train.photons.tracing import trace_photons
 
         run = BUNDLES / f"{name}_run"
         print(f"{name}: no trained field yet, tracing 1M photons and training the cpu preset into {run}")

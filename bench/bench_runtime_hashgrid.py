@@ -1,16 +1,16 @@
-"""Inference hash encoding speed: runtime.hashgrid.encode points/s (numba, no torch) against the numpy reference.
+"""Inference hash encoding speed: runtime.field.hashgrid.encode points/s (numba, no torch) against the numpy reference.
 
 For each configuration (the paper's D=3 position and D=2 direction encodings, plus smaller tables and
-narrower rows), ``runtime.hashgrid.encode`` encodes uniform random points (worst case for the caches:
+narrower rows), ``runtime.field.hashgrid.encode`` encodes uniform random points (worst case for the caches:
 consecutive points share no cells) at several batch sizes with 1 and 2 numba threads, into a
 preallocated output (as the renderer does). The D=2 configs get ``direction_to_unit_square`` of uniform
-random directions. Tables are random float32 in [-1, 1], 64-byte aligned (``runtime.hashgrid.aligned_table``,
-what a loader should do). The numpy reference (``models_spec.hashgrid.encode_reference``, single
+random directions. Tables are random float32 in [-1, 1], 64-byte aligned (``runtime.field.hashgrid.aligned_table``,
+what a loader should do). The numpy reference (``photon_fields.models_spec.hashgrid.encode_reference``, single
 threaded) runs at the smallest batch only, and its output is compared with the kernel's (it must be
 bit-identical). Two more sections explain the kernel's design:
 
 - ``layouts``: the paper configs at ``--layout-batch`` points and 2 threads with each loop layout of
-  ``runtime.hashgrid.encode_with_layout``: ``blocks`` (the default) at several block sizes, ``blocks`` with
+  ``runtime.field.hashgrid.encode_with_layout``: ``blocks`` (the default) at several block sizes, ``blocks`` with
   block 1 (points outside, levels inside) and ``levels`` (levels outside, ``prange`` over blocks inside);
 - ``alignment``: the same default kernel on the same table placed 64-byte aligned and 16 bytes past a
   64-byte boundary (where numpy puts large arrays), at ``--layout-batch`` points and 2 threads;
@@ -57,7 +57,7 @@ import numpy as np
 # bench/ is on sys.path when this file is run as a script, so the sibling module imports directly.
 from common import Contention, finish_info, machine_info, write_report
 
-from models_spec.hashgrid import (
+from photon_fields.models_spec.hashgrid import (
     PAPER_DIRECTION,
     PAPER_POSITION,
     HashGridConfig,
@@ -65,7 +65,7 @@ from models_spec.hashgrid import (
     encode_reference,
     total_table_rows,
 )
-from runtime.hashgrid import aligned_table, encode, encode_with_layout
+from photon_fields.runtime.field.hashgrid import aligned_table, encode, encode_with_layout
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "runtime_hashgrid.json"
 CONFIGS: dict[str, HashGridConfig] = {

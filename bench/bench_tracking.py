@@ -5,11 +5,11 @@ a benchmark shows it pays". This is that benchmark for the innermost loop of eve
 
 For each builtin scene's medium, ``--rays`` random rays cross the volume box: origins uniformly on a
 sphere around the box, aimed at uniform points inside it, clipped to the box with
-:func:`runtime.rays.clip_rays_to_volume` (so every ray spans [0, box exit]). Both back ends track the
-same rays with the same random streams (``runtime.rng.stream_states``):
+:func:`runtime.wavefront.rays.clip_rays_to_volume` (so every ray spans [0, box exit]). Both back ends track the
+same rays with the same random streams (``photon_fields.runtime.transport.rng.stream_states``):
 
-- numpy: :mod:`runtime.tracking_numpy` (global majorant, vectorized over the active rays);
-- numba: :mod:`runtime.tracking` (``delta_track_batch`` / ``ratio_track_batch``: majorant-grid DDA,
+- numpy: :mod:`runtime.transport.tracking_numpy_baseline` (global majorant, vectorized over the active rays);
+- numba: :mod:`runtime.transport.tracking` (``delta_track_batch`` / ``ratio_track_batch``: majorant-grid DDA,
   ``prange`` over rays, so it uses all of numba's threads);
 - numba_global: the same numba kernels on a medium built with a single macrocell, i.e. with the
   numpy baseline's global majorant. ``numba_global / numpy`` is what compilation alone buys;
@@ -43,12 +43,12 @@ from typing import Any
 import numpy as np
 from common import Contention, finish_info, machine_info, parse_scenes, write_report
 
-from runtime.medium import Medium, build_medium
-from runtime.rays import RayBatch, clip_rays_to_volume
-from runtime.rng import stream_states
-from runtime.scene import builtin_scene
-from runtime.tracking import delta_track_batch, ratio_track_batch
-from runtime.tracking_numpy import delta_track_numpy, ratio_track_numpy
+from photon_fields.runtime.scene.scene import builtin_scene
+from photon_fields.runtime.transport.medium import Medium, build_medium
+from photon_fields.runtime.transport.rng import stream_states
+from photon_fields.runtime.transport.tracking import delta_track_batch, ratio_track_batch
+from photon_fields.runtime.transport.tracking_numpy_baseline import delta_track_numpy, ratio_track_numpy
+from photon_fields.runtime.wavefront.rays import RayBatch, clip_rays_to_volume
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "tracking.json"
 SPHERE_RADIUS = 1.5  # the box's longest side is 1, so its half-diagonal is at most ~0.87

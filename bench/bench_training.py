@@ -4,13 +4,13 @@ For each scene (default: vortex, blobs) one 1M-photon training map (seed 0) and 
 g = -0.35 / 0.35 (seed 1, same photons per phase) are traced and cached in ``--work`` (default
 ``bench/results/training/<scene>/``). Each configuration is a preset plus overrides (:data:`CONFIGS`);
 it is trained into ``<work>/<scene>/<config>/`` (checkpoint, log.json, loss.png) and judged by
-:func:`train.evaluate.evaluate_field`: relative L2 and SSIM of the field's L_i against the photon-map
+:func:`train.eval.field_images.evaluate_field`: relative L2 and SSIM of the field's L_i against the photon-map
 renderer's L_i on two held-out views, for g in G = {-0.75, 0, 0.75} and for g = +-0.35 (not in G).
 
 Reported per configuration: trace seconds (the map's), fit wall seconds, their sum, final training loss,
 validation loss / relative L1 (held-out points, from the fit log), the image errors, and whether it is on
 the Pareto front of (trace + fit seconds, relative L2 in G). Independent-map scores (g in G against a
-second map, seed 1) are the like-for-like partner of the outside-G scores (:mod:`train.evaluate`).
+second map, seed 1) are the like-for-like partner of the outside-G scores (:mod:`train.eval.field_images`).
 Staggered vs naive: the ``cpu-staggered`` row against ``cpu`` (same everything but the schedule), plus
 the wall time at which the naive run first reached the staggered run's final validation loss.
 
@@ -32,16 +32,16 @@ import time
 from pathlib import Path
 from typing import Any
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see train.cli: torch and numba pools share 2 cores
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see train.cli.train: torch and numba pools share 2 cores
 
 from common import Contention, finish_info, machine_info, parse_scenes, write_report  # noqa: E402
 
-from models_spec.hashgrid import HashGridConfig  # noqa: E402
-from runtime.photon_map import PhotonMap  # noqa: E402
-from runtime.scene import Scene, builtin_scene  # noqa: E402
-from train.evaluate import OUTSIDE_G, evaluate_field, reference_maps  # noqa: E402
-from train.fit import PRESETS, FitSettings, Preset, finished_run, fit, load_checkpoint  # noqa: E402
-from train.photon_tracing import trace_photons  # noqa: E402
+from photon_fields.models_spec.hashgrid import HashGridConfig  # noqa: E402
+from photon_fields.runtime.photons.photon_map import PhotonMap  # noqa: E402
+from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
+from photon_fields.train.eval.field_images import OUTSIDE_G, evaluate_field, reference_maps  # noqa: E402
+from photon_fields.train.fit.loop import PRESETS, FitSettings, Preset, finished_run, fit, load_checkpoint  # noqa: E402
+from photon_fields.train.photons.tracing import trace_photons  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "results" / "training.json"
@@ -138,7 +138,7 @@ def bench_scene(name: str, configs: list[str], args: argparse.Namespace) -> dict
     work = Path(args.work) / name
     work.mkdir(parents=True, exist_ok=True)
     pmap = cached_map(work / "map_1M_s0.npz", lambda: trace_photons(scene, 1_000_000, seed=0, progress=False))
-    # Independent noise at G and +-0.35, the training map's photons per phase (train.evaluate).
+    # Independent noise at G and +-0.35, the training map's photons per phase (photon_fields.train.eval.field_images).
     ref_map = cached_map(work / "map_1M_indep_s1.npz",
                          lambda: reference_maps(scene, pmap, tuple(pmap.phases) + OUTSIDE_G))
     cache: dict[Any, Any] = {}

@@ -18,9 +18,9 @@ from typing import Any
 import numba
 import numpy as np
 
-from runtime.machine import cpu_info
-from runtime.scene import BUILTIN_SCENES
-from runtime.timing import Contention  # noqa: F401  (re-exported for the benchmarks)
+from photon_fields.runtime.eval.machine import cpu_info
+from photon_fields.runtime.eval.timing import Contention  # noqa: F401  (re-exported for the benchmarks)
+from photon_fields.runtime.scene.scene import BUILTIN_SCENES
 
 BUSY_FRACTION = 0.2  # foreign load (in cores per usable core) above which a scene's figures are flagged
 

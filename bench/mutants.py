@@ -14,8 +14,8 @@ with it. For every mutant the script
    not run them: usage error, no tests collected; or the timeout).
 
 Before the mutants, the same tests run once on an unmodified copy and must pass (otherwise "killed" would mean
-nothing), and every run first checks that ``runtime``, ``train``, ``models_spec`` and the tests are imported
-from the copy, not from the editable install. Results: a table on stdout and ``bench/results/mutants.json``
+nothing), and every run first checks that ``photon_fields.runtime``, ``.train``, ``.models_spec`` and the tests
+are imported from the copy, not from the editable install. Results: a table on stdout and ``bench/results/mutants.json``
 (per mutant: status, the tests that failed, seconds; the machine: CPU model and ISA, cores, versions). Exit
 status 1 if any mutant survived or errored.
 
@@ -47,7 +47,7 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = ROOT / "bench" / "results" / "mutants.json"
-LIGHTS = "tests/test_light_kinds.py::test_photon_map_li_matches_path_tracer_per_light_kind"
+LIGHTS = "tests/runtime/photons/test_light_kinds.py::test_photon_map_li_matches_path_tracer_per_light_kind"
 
 
 @dataclass(frozen=True)
@@ -62,78 +62,85 @@ class Mutant:
 
 MUTANTS: tuple[Mutant, ...] = (
     # The four planted in issue 11, section 6.
-    Mutant("point_cone_fraction", "train/photon_tracing.py",
+    Mutant("point_cone_fraction", "train/photons/tracing.py",
            "flux[i] = 4 * math.pi * rgb[i] * (1.0 - cos_max[i]) / 2.0", "flux[i] = 4 * math.pi * rgb[i]",
            (f"{LIGHTS}[point_outside]",
-            "tests/test_photon_tracing.py::test_distant_point_light_carries_the_power_of_a_directional_light"),
+            "tests/train/test_photon_tracing.py::test_distant_point_light_carries_the_power_of_a_directional_light"),
            "point-light photons keep the full 4 pi I although only the cone towards the volume is sampled "
            "(5.2x too strong for a light at distance 1.1)"),
-    Mutant("default_psi", "runtime/field.py", "L = decode_radiance(Lp, self.config.psi)", "L = decode_radiance(Lp)",
-           ("tests/test_bundle.py::test_bundle_decodes_with_its_own_psi",
-            "tests/test_bundle.py::test_fit_records_its_psi_and_the_bundle_decodes_with_it"),
+    Mutant("default_psi", "runtime/field/field.py", "L = decode_radiance(Lp, self.config.psi)",
+           "L = decode_radiance(Lp)",
+           ("tests/runtime/field/test_bundle.py::test_bundle_decodes_with_its_own_psi",
+            "tests/runtime/field/test_bundle.py::test_fit_records_its_psi_and_the_bundle_decodes_with_it"),
            "the runtime decodes Eq. 7 with the default psi = 5 instead of the bundle's"),
-    Mutant("li_without_albedo", "runtime/first_interaction.py",
+    Mutant("li_without_albedo", "runtime/wavefront/first_interaction.py",
            'film.splat("L_i", fi.pixel, q, distinct, weight=fi.albedo)', 'film.splat("L_i", fi.pixel, q, distinct)',
            (f"{LIGHTS}[point_outside]", f"{LIGHTS}[directional]", f"{LIGHTS}[environment]"),
            "L_i composed without the albedo at the camera vertex (neural and photon-map renderers)"),
-    Mutant("hg_cos_sign", "runtime/phase.py", "denom = 1.0 + g * g - 2.0 * g * cos_theta",
+    Mutant("hg_cos_sign", "runtime/transport/phase.py", "denom = 1.0 + g * g - 2.0 * g * cos_theta",
            "denom = 1.0 + g * g + 2.0 * g * cos_theta",
-           ("tests/test_phase.py::test_sampler_pdf_matches_eval", "tests/test_phase.py::test_mean_cosine_equals_g",
+           ("tests/runtime/transport/test_phase.py::test_sampler_pdf_matches_eval",
+            "tests/runtime/transport/test_phase.py::test_mean_cosine_equals_g",
             f"{LIGHTS}[directional]"),
            "Henyey-Greenstein evaluated with the cosine's sign flipped (g > 0 scatters backwards)"),
     # More plausible bugs in the same code.
-    Mutant("env_photon_power", "train/photon_tracing.py", "flux[i] = rgb[i] * 4 * math.pi**2 * radius**2",
+    Mutant("env_photon_power", "train/photons/tracing.py", "flux[i] = rgb[i] * 4 * math.pi**2 * radius**2",
            "flux[i] = rgb[i] * 4 * math.pi * radius**2",
-           ("tests/test_photon_estimate.py::test_photon_map_white_furnace_under_an_environment_light",
+           ("tests/runtime/photons/test_photon_estimate.py::test_photon_map_white_furnace_under_an_environment_light",
             f"{LIGHTS}[environment]"),
            "environment photons carry 4 pi R^2 L (the sphere's area) instead of 4 pi^2 R^2 L (its flux)"),
-    Mutant("photon_weight_without_1_over_sigma", "runtime/photon_estimate.py",
+    Mutant("photon_weight_without_1_over_sigma", "runtime/photons/estimate.py",
            "weights = sub.power.astype(np.float64) / np.maximum(sigma, 1e-12)[:, None]",
            "weights = sub.power.astype(np.float64)",
-           ("tests/test_photon_estimate.py::test_photon_map_li_converges_to_path_tracer", f"{LIGHTS}[directional]"),
+           ("tests/runtime/photons/test_photon_estimate.py::test_photon_map_li_converges_to_path_tracer",
+            f"{LIGHTS}[directional]"),
            "Eq. 5 without the 1 / sigma_t weight that turns collision density into radiance"),
-    Mutant("knn_phase_cos_sign", "runtime/knn.py",
+    Mutant("knn_phase_cos_sign", "runtime/photons/knn.py",
            "p = hg_eval(g, -(dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz))",
            "p = hg_eval(g, dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz)",
-           ("tests/test_knn.py::test_radiance_phase_turns_photons_towards_the_camera",
+           ("tests/runtime/photons/test_knn.py::test_radiance_phase_turns_photons_towards_the_camera",
             f"{LIGHTS}[point_outside]", f"{LIGHTS}[directional]"),
            "the photon estimate's phase cosine taken between the photon and the camera ray instead of the "
            "light's path towards the camera (invisible at g = 0)"),
-    Mutant("first_collision_stored", "train/photon_tracing.py", "if bounce >= 1:  # Alg. 1",
+    Mutant("first_collision_stored", "train/photons/tracing.py", "if bounce >= 1:  # Alg. 1",
            "if bounce >= 0:  # Alg. 1",
-           ("tests/test_photon_tracing.py::test_stored_energy_matches_analytic_series", f"{LIGHTS}[directional]"),
+           ("tests/train/test_photon_tracing.py::test_stored_energy_matches_analytic_series", f"{LIGHTS}[directional]"),
            "photons recorded from their first collision, counting single scattering twice (NEE has it)"),
-    Mutant("photon_roulette_not_reweighted", "train/photon_tracing.py",
+    Mutant("photon_roulette_not_reweighted", "train/photons/tracing.py",
            "br, bg, bb = br * a0 / q, bg * a1 / q, bb * a2 / q", "br, bg, bb = br * a0, bg * a1, bb * a2",
-           ("tests/test_photon_tracing.py::test_stored_energy_matches_analytic_series", f"{LIGHTS}[environment]"),
+           ("tests/train/test_photon_tracing.py::test_stored_energy_matches_analytic_series", f"{LIGHTS}[environment]"),
            "surviving photons not divided by the Russian-roulette survival probability"),
-    Mutant("photon_albedo_channels_swapped", "train/photon_tracing.py",
+    Mutant("photon_albedo_channels_swapped", "train/photons/tracing.py",
            "br, bg, bb = br * a0 / q, bg * a1 / q, bb * a2 / q", "br, bg, bb = br * a2 / q, bg * a1 / q, bb * a0 / q",
            (f"{LIGHTS}[point_outside]", f"{LIGHTS}[directional]", f"{LIGHTS}[environment]"),
            "red and blue albedo swapped along photon paths (invisible with a grey albedo)"),
-    Mutant("nee_without_transmittance", "runtime/direct_light.py", "c = f * scale * tr", "c = f * scale",
-           ("tests/test_path_tracer.py::test_absorbing_furnace_loses_energy",
-            "tests/test_path_tracer.py::test_ray_marcher_matches_single_scattering"),
+    Mutant("nee_without_transmittance", "runtime/transport/direct_light.py", "c = f * scale * tr", "c = f * scale",
+           ("tests/runtime/renderers/test_path_tracer.py::test_absorbing_furnace_loses_energy",
+            "tests/runtime/renderers/test_path_tracer.py::test_ray_marcher_matches_single_scattering"),
            "next-event estimation ignores the shadow ray's transmittance"),
-    Mutant("pt_roulette_not_reweighted", "runtime/path_tracer.py",
+    Mutant("pt_roulette_not_reweighted", "runtime/renderers/path_tracer.py",
            "                beta[0, i] /= q\n                beta[1, i] /= q\n                beta[2, i] /= q\n",
            "                pass\n",
-           ("tests/test_path_tracer.py::test_white_furnace",),
+           ("tests/runtime/renderers/test_path_tracer.py::test_white_furnace",),
            "path-tracer survivors of Russian roulette not divided by the survival probability"),
-    Mutant("pt_last_vertex_env_mis_share", "runtime/path_tracer.py",
+    Mutant("pt_last_vertex_env_mis_share", "runtime/renderers/path_tracer.py",
            "add_direct_light(film, m, lights, scene.g, rays, last_vertex)",
            "add_direct_light(film, m, lights, scene.g, rays)",
-           ("tests/test_path_depth.py::test_environment_nee_and_phase_sampling_agree_at_every_depth",
-            "tests/test_path_depth.py::test_single_scattering_does_not_depend_on_max_depth"),
+           ("tests/runtime/renderers/test_path_depth.py::test_environment_nee_and_phase_sampling_agree_at_every_depth",
+            "tests/runtime/renderers/test_path_depth.py::test_single_scattering_does_not_depend_on_max_depth"),
            "the path tracer's last vertex gives the environment's NEE only its MIS share, although no "
            "phase-sampled escape follows (the bug fixed in issue 11: 35 % of single scattering lost at depth 1)"),
-    Mutant("support_correction_dropped", "runtime/photon_estimate.py",
+    Mutant("support_correction_dropped", "runtime/photons/estimate.py",
            "est /= support_fraction(self.medium, xq, np.where(np.isfinite(r), r, 0.0), self._pattern)[:, None]",
            "pass",
-           ("tests/test_photon_estimate.py::test_photon_map_white_furnace_under_an_environment_light",
-            "tests/test_photon_estimate.py::test_photon_map_li_converges_to_path_tracer"),
+           ("tests/runtime/photons/test_photon_estimate.py::test_photon_map_white_furnace_under_an_environment_light",
+            "tests/runtime/photons/test_photon_estimate.py::test_photon_map_li_converges_to_path_tracer"),
            "the photon estimate's boundary correction (part of the search ball outside the medium) not applied"),
 )
+
+
+#: Folder inside a copy holding the photon_fields namespace (symlinks to the copy's fixed folders).
+PACKAGE_ROOT = "_namespace"
 
 
 def repo_files(root: Path) -> list[str]:
@@ -161,6 +168,12 @@ def make_copy(root: Path, files: list[str], dest: Path, mutant: Mutant | None) -
         target = dest / f
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(root / f, target)
+    # The fixed folders are installed as photon_fields.runtime / .train / .models_spec (package-dir in
+    # pyproject.toml): the same namespace over the copy's folders, first on PYTHONPATH (run_env).
+    namespace = dest / PACKAGE_ROOT / "photon_fields"
+    namespace.mkdir(parents=True)
+    for folder in ("runtime", "train", "models_spec"):
+        (namespace / folder).symlink_to(dest / folder, target_is_directory=True)
     if mutant is not None:
         path = dest / mutant.file
         text = path.read_text()
@@ -170,15 +183,17 @@ def make_copy(root: Path, files: list[str], dest: Path, mutant: Mutant | None) -
 
 def run_env(copy: Path, cache: Path) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_CACHE_DIR", "PYTHONPATH"))}
-    env.update({"PYTHONPATH": str(copy), "NUMBA_CACHE_DIR": str(cache), "PYTHONDONTWRITEBYTECODE": "1"})
+    env.update({"PYTHONPATH": os.pathsep.join([str(copy / PACKAGE_ROOT), str(copy)]), "NUMBA_CACHE_DIR": str(cache),
+                "PYTHONDONTWRITEBYTECODE": "1"})
     return env
 
 
 IMPORT_CHECK = """
 import sys
 sys.path.insert(0, 'tests')
-import conftest, models_spec, runtime, train
-for mod in (conftest, models_spec, runtime, train):
+import conftest
+import photon_fields.models_spec, photon_fields.runtime.scene.scene, photon_fields.train.fit.loop
+for mod in (conftest, photon_fields.models_spec, photon_fields.runtime.scene.scene, photon_fields.train.fit.loop):
     print(mod.__file__)
 """
 

@@ -2,12 +2,12 @@
 
 Everything both sides must agree on lives here, once: file-format names and versions, the default phase
 set, the scene fingerprint, the field's input conventions and target encoding (Eq. 6 / 7), the field
-bundle's layout and manifest schema (:mod:`models_spec.bundle`). This package
+bundle's layout and manifest schema (:mod:`photon_fields.models_spec.bundle`). This package
 depends on nothing but numpy and the standard library, so the runtime can import it with torch absent.
 """
 
-from models_spec.bundle import BUNDLE_FORMAT, BUNDLE_VERSION
-from models_spec.encoding import (
+from photon_fields.models_spec.bundle import BUNDLE_FORMAT, BUNDLE_VERSION
+from photon_fields.models_spec.encoding import (
     DEFAULT_PSI,
     FieldConfig,
     decode_radiance,
@@ -15,8 +15,13 @@ from models_spec.encoding import (
     encode_radiance,
     normalize_position,
 )
-from models_spec.fingerprint import FINGERPRINT_PARTS, fingerprint_parts, mismatch_detail, scene_fingerprint
-from models_spec.photon_map import DEFAULT_PHASES, PHOTON_MAP_FORMAT, PHOTON_MAP_VERSION
+from photon_fields.models_spec.fingerprint import (
+    FINGERPRINT_PARTS,
+    fingerprint_parts,
+    mismatch_detail,
+    scene_fingerprint,
+)
+from photon_fields.models_spec.photon_map import DEFAULT_PHASES, PHOTON_MAP_FORMAT, PHOTON_MAP_VERSION
 
 __all__ = ["scene_fingerprint", "fingerprint_parts", "mismatch_detail", "FINGERPRINT_PARTS",
            "DEFAULT_PHASES", "PHOTON_MAP_FORMAT", "PHOTON_MAP_VERSION", "DEFAULT_PSI",

@@ -19,10 +19,10 @@ file                contents
                     ``np.load(allow_pickle=False)``)
 ==================  ================================================================================
 
-Evaluating a bundle (what ``runtime.field.PhotonField.query`` does, and what any other runtime must do):
+Evaluating a bundle (what ``runtime.field.field.PhotonField.query`` does, and what any other runtime must do):
 world position x -> ``normalize_position(x, bmin, bsize)`` (the manifest's ``domain``), unit camera-ray
-travel direction d -> ``direction_input(d)`` (:mod:`models_spec.encoding`), both hash-encoded exactly as
-:mod:`models_spec.hashgrid` defines (tiny-cuda-nn's HashGrid; the primes are repeated in the manifest),
+travel direction d -> ``direction_input(d)`` (:mod:`photon_fields.models_spec.encoding`), both hash-encoded exactly as
+:mod:`photon_fields.models_spec.hashgrid` defines (tiny-cuda-nn's HashGrid; the primes are repeated in the manifest),
 concatenated with g in the column order of ``inputs.layout``, the ONNX MLP gives L', and Eq. 7
 (``decode_radiance``, psi from the manifest) gives the radiance Q(x, d, g) that the photon-map estimate
 (Eq. 5) supplies during training.
@@ -32,9 +32,9 @@ Manifest (version :data:`BUNDLE_VERSION`; :data:`MANIFEST_SCHEMA` is its JSON Sc
 ----------------------------------------------------------------------------------------------------
 - ``format`` = :data:`BUNDLE_FORMAT`, ``version`` = :data:`BUNDLE_VERSION` (an integer; a reader refuses
   a newer version instead of guessing);
-- ``field``: :meth:`models_spec.encoding.FieldConfig.to_dict` (both encodings: levels, features,
+- ``field``: :meth:`photon_fields.models_spec.encoding.FieldConfig.to_dict` (both encodings: levels, features,
   log2 table size, base resolution, per-level scale; MLP hidden width and layers; psi; the phase set G);
-- ``hash_primes``: tcnn's primes (:data:`models_spec.hashgrid.HASH_PRIMES`), listed so that a foreign
+- ``hash_primes``: tcnn's primes (:data:`photon_fields.models_spec.hashgrid.HASH_PRIMES`), listed so that a foreign
   runtime needs nothing but the manifest; a reader refuses other values;
 - ``encodings``: per encoding the derived geometry (table rows, per-level resolution, table size, whether
   hashed): redundant with ``field``, and checked against it, so a definition drift cannot go unnoticed;
@@ -43,11 +43,11 @@ Manifest (version :data:`BUNDLE_VERSION`; :data:`MANIFEST_SCHEMA` is its JSON Sc
   column order), the ONNX tensor names and batch axis name;
 - ``output``: 3 channels, ``encoding`` "eq6-log10" (decode: ``10^(-L' psi)``);
 - ``tables``: file, ``dtype`` (float32 | float16), array shapes;
-- ``scene_fingerprint``: :func:`models_spec.fingerprint.scene_fingerprint` of the scene trained for;
+- ``scene_fingerprint``: :func:`photon_fields.models_spec.fingerprint.scene_fingerprint` of the scene trained for;
 - ``scene`` (version 2): the scene trained for, each entry null when unknown: ``name``; ``parts``, its
-  per-part fingerprints ``{"volume", "transfer_function", "lights"}`` (:func:`models_spec.fingerprint.
+  per-part fingerprints ``{"volume", "transfer_function", "lights"}`` (:func:`photon_fields.models_spec.fingerprint.
   fingerprint_parts`), so that a bundle used for another scene can name what differs; ``spec``, the scene
-  file that rebuilds it (``runtime.scene`` format: volume by builtin name or absolute path, transfer
+  file that rebuilds it (``photon_fields.runtime.scene.scene`` format: volume by builtin name or absolute path, transfer
   function, lights, camera, phase; checked by that reader when used), so that ``pfn-render --method
   field`` without ``--scene`` renders the scene the field was trained for;
 - ``training``: preset, steps, batch, final loss, validation (val_loss, val_rel_l1) or null, wall time;
@@ -84,9 +84,9 @@ from typing import Any
 
 import numpy as np
 
-from models_spec.encoding import OUTPUT_CHANNELS, FieldConfig
-from models_spec.fingerprint import FINGERPRINT_PARTS
-from models_spec.hashgrid import HASH_PRIMES, HashGridConfig, level_specs, total_table_rows
+from photon_fields.models_spec.encoding import OUTPUT_CHANNELS, FieldConfig
+from photon_fields.models_spec.fingerprint import FINGERPRINT_PARTS
+from photon_fields.models_spec.hashgrid import HASH_PRIMES, HashGridConfig, level_specs, total_table_rows
 
 BUNDLE_FORMAT = "photon-fields/field-bundle"
 BUNDLE_VERSION = 2
@@ -116,7 +116,7 @@ _SHA256 = "^[0-9a-f]{64}$"
 
 class BundleError(ValueError):
     """A bundle (or a manifest) is not acceptable. ``str(err)`` is one line: ``'<what>: <problem>'``; the
-    runtime re-raises it as ``runtime.errors.InputError`` with the same text."""
+    runtime re-raises it as ``photon_fields.runtime.errors.InputError`` with the same text."""
 
     def __init__(self, what: str, problem: str) -> None:
         self.what = str(what)

@@ -1,6 +1,6 @@
 """The photon field's input and output conventions (paper Sec. 3.1, 3.3.2, 3.4), shared by training and runtime.
 
-numpy only (no torch): ``train.field`` has bit-identical torch twins of :func:`encode_radiance` and
+numpy only (no torch): ``train.field.network`` has bit-identical torch twins of :func:`encode_radiance` and
 :func:`decode_radiance` (tested), and the runtime evaluates a trained field with exactly these functions.
 
 Output: the log target encoding (Eq. 6 / Eq. 7)
@@ -29,8 +29,8 @@ Inputs (Sec. 3.1, Eq. 2: ``P(x, g, omega)``)
   paper's grid coordinates; non-cubic boxes are stretched to the unit cube, so every grid level covers
   the whole volume with no unused table entries);
 - direction: :func:`direction_input`, the camera ray's unit *travel* direction d (the direction the
-  radiance estimate Q(x, d, g) of :mod:`runtime.photon_estimate` is queried with, light arriving at the
-  camera travels along -d) -> :func:`models_spec.hashgrid.direction_to_unit_square` (normalized
+  radiance estimate Q(x, d, g) of :mod:`photon_fields.runtime.photons.estimate` is queried with, light arriving at the
+  camera travels along -d) -> :func:`photon_fields.models_spec.hashgrid.direction_to_unit_square` (normalized
   spherical coordinates, as in Sec. 3.1);
 - phase: g in [-1, 1], unencoded ("a unitless scale", Sec. 3.4).
 
@@ -59,8 +59,8 @@ from typing import Any
 
 import numpy as np
 
-from models_spec.hashgrid import PAPER_DIRECTION, PAPER_POSITION, HashGridConfig, direction_to_unit_square
-from models_spec.photon_map import DEFAULT_PHASES
+from photon_fields.models_spec.hashgrid import PAPER_DIRECTION, PAPER_POSITION, HashGridConfig, direction_to_unit_square
+from photon_fields.models_spec.photon_map import DEFAULT_PHASES
 
 DEFAULT_PSI = 5.0
 FIELD_CONFIG_VERSION = 1

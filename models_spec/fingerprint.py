@@ -1,7 +1,7 @@
 """Scene fingerprints: what a photon map or a trained field was made for.
 
 A fingerprint hashes exactly what determines the light distribution in the volume: the normalized
-volume data (its own sha256, see ``runtime.volume.Volume.fingerprint``), the transfer function and the
+volume data (its own sha256, see ``runtime.scene.volume.Volume.fingerprint``), the transfer function and the
 lights. It excludes the camera and the phase coefficient g, which a field is meant to vary over.
 
 Beside the combined :func:`scene_fingerprint`, photon maps and bundles record one fingerprint per part

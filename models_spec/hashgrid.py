@@ -1,6 +1,6 @@
 """Multiresolution hash encoding (paper Sec. 3.4), bit-for-bit as tiny-cuda-nn's ``HashGrid`` defines it.
 
-This is the contract between training (``train.hashgrid.HashGridEncoding``, torch) and any runtime
+This is the contract between training (``photon_fields.train.field.hashgrid.HashGridEncoding``, torch) and any runtime
 evaluator: the level geometry, the table layout and a plain-numpy reference encoder. numpy only, no torch.
 
 Parameters (:class:`HashGridConfig`, tcnn's names in brackets)
@@ -47,7 +47,7 @@ Exactness notes
   float32 rounding exact (53 >= 24 + 2). The result equals a hardware ``fmaf`` for all finite inputs.
 - The feature accumulation uses fma because that is what runs in practice: nvcc contracts tcnn's
   ``result += weight * data`` into an fma by default, torch's CPU ``embedding_bag`` (fbgemm) accumulates
-  with fma too, and ``train.hashgrid``'s kernels use ``llvm.fma``, so they match this reference bit for bit.
+  with fma too, and ``train.field.hashgrid``'s kernels use ``llvm.fma``, so they match this reference bit for bit.
 - ``exp2`` is evaluated in float64 and rounded to float32 (CUDA's ``exp2f`` has up to 2 ulp error): for
   power-of-two ``b`` (the paper's 2.0) every scale is exact and identical to tcnn's; for other ``b`` the
   last bit of ``scale`` may differ from a GPU run.
@@ -371,7 +371,7 @@ def table_gradient_reference(cfg: HashGridConfig, x: np.ndarray, grad_out: np.nd
     to its row.
 
     The additions to one row happen in occurrence order (point, then level, then corner) and each is an
-    fma, ``g_row = fma(w, grad, g_row)``: what ``train.hashgrid``'s backward computes (and torch's CPU
+    fma, ``g_row = fma(w, grad, g_row)``: what ``train.field.hashgrid``'s backward computes (and torch's CPU
     ``embedding_bag`` backward, too); ``np.add.at`` of float32 products gives the same up to rounding."""
     x = _as_points(cfg, x)
     grad_out = np.asarray(grad_out, dtype=np.float32)

@@ -1,4 +1,4 @@
-"""Photon-map file format (written by ``train.photon_tracing``, read by ``runtime.photon_map``).
+"""Photon-map file format (written by ``train.photons.tracing``, read by ``runtime.photons.photon_map``).
 
 A photon map is one ``.npz`` file (loaded with ``allow_pickle=False``) holding:
 
@@ -18,7 +18,7 @@ Metadata keys (:data:`PHOTON_MAP_META_KEYS`; a reader refuses any other key, nam
 (= PHOTON_MAP_FORMAT), ``version`` (= PHOTON_MAP_VERSION), ``scene_fingerprint``, ``phases`` (the set G),
 ``emitted`` (photon paths traced), ``stored`` (records), ``per_phase`` (records per phase), ``seed``,
 ``max_bounces``, ``trace_seconds``, ``scene_name``, ``emitted_per_phase`` and ``scene_parts``: the
-per-part fingerprints ``{"volume", "transfer_function", "lights"}`` (:func:`models_spec.fingerprint.
+per-part fingerprints ``{"volume", "transfer_function", "lights"}`` (:func:`photon_fields.models_spec.fingerprint.
 fingerprint_parts`), so that a map used for another scene can say what differs. ``scene_parts`` was added
 without a version change: it is optional (maps traced before it lack it; their mismatches say the parts
 cannot be compared), and readers of version 1 that predate it ignore metadata keys they do not use.

@@ -3,18 +3,22 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 # torch's and numba's OpenMP pools spin after parallel regions and steal each other's core on 2 cores
-# (train.fit); pfn-train sets this itself, the test process must set it before either library loads.
+# (train.fit.loop); pfn-train sets this itself, the test process must set it before either library loads.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
 import pytest
 
-from runtime.camera import Camera
-from runtime.medium import build_medium
-from runtime.transfer import TransferFunction
-from runtime.volume import make_volume
+from photon_fields.runtime.scene.camera import Camera
+from photon_fields.runtime.scene.transfer import TransferFunction
+from photon_fields.runtime.scene.volume import make_volume
+from photon_fields.runtime.transport.medium import build_medium
+
+#: The repository's root (the tests live in tests/<package>/...).
+REPO = Path(__file__).resolve().parents[1]
 
 
 def constant_tf(sigma: float, albedo: float | tuple[float, float, float] = 1.0) -> TransferFunction:
@@ -25,7 +29,7 @@ def constant_tf(sigma: float, albedo: float | tuple[float, float, float] = 1.0) 
 
 #: Albedo rows at normalized density 0, 0.5, 1 of :func:`coloured_tf`: every channel differs and each varies
 #: with density, so a dropped, swapped or misplaced albedo factor changes the per-channel means (by 11-92 %
-#: when the camera vertex's albedo is dropped, tests/test_light_kinds.py).
+#: when the camera vertex's albedo is dropped, tests/runtime/photons/test_light_kinds.py).
 COLOURED_ALBEDO = np.array([[0.35, 0.6, 0.9], [0.9, 0.45, 0.7], [0.97, 0.9, 0.3]])
 
 
@@ -64,3 +68,70 @@ def tiny_scene_dict(name: str = "blobs") -> dict:
                         "power": 3.0}],
             "camera": {"eye": [1.25, 0.75, 1.45], "target": [0, 0, 0], "up": [0, 1, 0], "fov": 38,
                        "width": 32, "height": 32}}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The Henyey-Greenstein cosine distribution in closed form (chi-square tests of the samplers)
+
+
+def hg_cdf(g: float, mu: np.ndarray) -> np.ndarray:
+    """Closed-form CDF of the HG scattering cosine: integral of 2 pi p_g over [-1, mu]."""
+    if abs(g) < 1e-9:
+        return (mu + 1) / 2
+    return (1 - g * g) / (2 * g) * (1 / np.sqrt(1 + g * g - 2 * g * mu) - 1 / (1 + g))
+
+
+def equal_probability_edges(g: float, bins: int) -> np.ndarray:
+    """Bin edges in the scattering cosine holding equal HG probability (the CDF inverted numerically)."""
+    # Invert the CDF on a grid refined towards both poles, where |g| near 1 puts all the mass.
+    t = np.geomspace(1e-9, 1.0, 20000)
+    grid = np.unique(np.concatenate([-1 + t, 1 - t, [-1.0, 1.0]]))
+    edges = np.interp(np.linspace(0, 1, bins + 1), hg_cdf(g, grid), grid)
+    edges[0], edges[-1] = -1.0, 1.0
+    return edges
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Small fields and run folders for the bundle tests (torch is imported only when they are used)
+
+PHASES = (-0.75, 0.0, 0.75)
+FP = "f" * 64
+
+
+def small_field_config():  # noqa: ANN201  (models_spec.encoding.FieldConfig)
+    """Position: levels 0-2 dense, 3-5 hashed (2^9 rows); direction: dense then hashed; odd scale factors."""
+    from photon_fields.models_spec.encoding import FieldConfig
+    from photon_fields.models_spec.hashgrid import HashGridConfig
+
+    return FieldConfig(HashGridConfig(3, 6, 2, 9, 4, 1.7), HashGridConfig(2, 4, 4, 6, 3, 1.9), 32, 3, 5.0, PHASES)
+
+
+def make_model(cfg, seed: int = 0):  # noqa: ANN001, ANN201  (FieldConfig -> the torch field)
+    """The torch field of ``cfg`` with its hash tables uniform in [-1, 1], so errors cannot hide."""
+    import torch
+
+    from photon_fields.train.field.network import PhotonField as TorchField
+
+    model = TorchField(cfg, seed=seed)
+    gen = torch.Generator().manual_seed(seed + 100)
+    with torch.no_grad():
+        for t in model.table_parameters():
+            t.copy_(torch.rand(t.shape, generator=gen) * 2 - 1)
+    return model.eval()
+
+
+def make_run(folder: Path, model, bmin: list[float], bsize: list[float], fp: str = FP) -> Path:  # noqa: ANN001
+    """A run folder as ``pfn-train fit`` leaves it (checkpoint, version 1 domain.json, log.json)."""
+    import json
+
+    from photon_fields.train.export.bundle import RUN_DOMAIN_FORMAT
+    from photon_fields.train.fit.loop import _save_checkpoint
+
+    folder.mkdir(parents=True, exist_ok=True)
+    _save_checkpoint(folder / "checkpoint.pt", model, fp, 40,
+                     {"final_loss": 0.05, "wall_s": 12.5, "final_validation": {"step": 40, "val_loss": 0.06}})
+    (folder / "domain.json").write_text(json.dumps({"format": RUN_DOMAIN_FORMAT, "version": 1, "scene": "test",
+                                                    "scene_fingerprint": fp, "bmin": bmin, "bsize": bsize}))
+    (folder / "log.json").write_text(json.dumps({"scene_fingerprint": fp,
+                                                 "settings": {"preset": "tiny", "batch": 512}}))
+    return folder

@@ -12,11 +12,11 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_cited_test_files_exist() -> None:
     """Docstrings and docs cite the tests that back their claims by path; each cited file must exist (one
     cited a file that never did)."""
-    sources = [*ROOT.glob("runtime/*.py"), *ROOT.glob("train/*.py"), *ROOT.glob("models_spec/*.py"),
-               *ROOT.glob("bench/*.py"), *ROOT.glob("tests/*.py"), *ROOT.glob("docs/*.md"), *ROOT.glob("*.md"),
+    sources = [*ROOT.glob("runtime/**/*.py"), *ROOT.glob("train/**/*.py"), *ROOT.glob("models_spec/*.py"),
+               *ROOT.glob("bench/*.py"), *ROOT.glob("tests/**/*.py"), *ROOT.glob("docs/*.md"), *ROOT.glob("*.md"),
                *ROOT.glob("bench/*.md")]
     cited = {(src.relative_to(ROOT), m) for src in sources
-             for m in re.findall(r"tests/test_\w+\.py", src.read_text(encoding="utf-8"))}
+             for m in re.findall(r"tests/(?:\w+/)*test_\w+\.py", src.read_text(encoding="utf-8"))}
     assert len(cited) > 10
     missing = sorted(f"{src} cites {name}" for src, name in cited if not (ROOT / name).is_file())
     assert not missing, missing

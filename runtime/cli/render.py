@@ -1,0 +1,317 @@
+"""``pfn-render``: render a scene to EXR (layers L, L_d, L_i, L_e) + a tone-mapped PNG + a JSON report.
+
+Examples::
+
+    pfn-render --scene vortex --method pt --spp 64 --size 512x512 --out out/vortex.exr
+    pfn-render --scene my_scene.json --method raymarch --g 0.5 --out out/marched.exr
+    pfn-render --method field --bundle run/field.pfn --scene vortex --g 0.3 --spp 4 --size 512x512 --out img.exr
+    pfn-render --method field --bundle run/field.pfn --out img.exr     # the scene the bundle was trained for
+    pfn-render --method field --bundle run/field.pfn --scene vortex --orbit 120 --out orbit/frame.exr
+
+Bad input exits with status 2 and one line on stderr: ``error: <input>: <problem>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from photon_fields.runtime.cli.common import (
+    OneLineArgumentParser,
+    check_seed,
+    guarded,
+    make_parent,
+    positive_int,
+    prepare_output,
+    refuse_to_replace,
+    set_threads,
+)
+from photon_fields.runtime.errors import InputError
+
+METHODS = ("pt", "raymarch", "photonmap", "field")
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    parts = text.lower().split("x")
+    try:
+        w, h = (int(p) for p in parts)
+    except ValueError:
+        raise InputError("--size", f"expected WIDTHxHEIGHT such as 512x512, got {text!r}") from None
+    if not (1 <= w <= 16384 and 1 <= h <= 16384):
+        raise InputError("--size", f"width and height must be in [1, 16384], got {text!r}")
+    return w, h
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = OneLineArgumentParser(prog="pfn-render", description=__doc__.split("\n")[0],
+                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--scene", default=None, help="builtin scene name (vortex, blobs, shell) or a scene JSON file "
+                   "(default: with --method field the scene the bundle records, else vortex)")
+    p.add_argument("--method", choices=METHODS, default="pt", help="pt: volumetric path tracer (reference); "
+                   "raymarch: single-scattering ray marcher with global shadows; photonmap: first interactions "
+                   "+ NEE + the photon-map estimate of L_i (needs --map); field: the neural renderer (Alg. 2), "
+                   "first interactions + NEE + the photon field's L_i (needs --bundle)")
+    p.add_argument("--spp", type=int, default=16, help="samples (passes) per pixel")
+    p.add_argument("--size", default=None, help="WIDTHxHEIGHT (default: the scene camera's)")
+    p.add_argument("--g", type=float, default=None, help="Henyey-Greenstein g in [-1, 1] (default: the scene's)")
+    p.add_argument("--seed", type=int, default=0, help="random seed: same seed, same image")
+    p.add_argument("--max-depth", type=int, default=16,
+                   help="pt: max scattering vertices per path, with or without --no-nee (1: single scattering)")
+    p.add_argument("--no-nee", action="store_true",
+                   help="pt: pure phase sampling (no next-event estimation; reaches the environment light only)")
+    p.add_argument("--step", type=float, default=0.5, help="raymarch: step length in voxels")
+    p.add_argument("--map", default=None, help="photonmap: photon map (.npz) from `pfn-train trace`")
+    p.add_argument("--k", type=int, default=1024, help="photonmap: photons per estimate (K)")
+    p.add_argument("--radius", type=float, default=0.05,
+                   help="photonmap: max search radius, in units of the volume box's longest side")
+    p.add_argument("--bundle", default=None, help="field: photon-field bundle (NAME.pfn) from `pfn-train export`")
+    p.add_argument("--precision", default="fp32",
+                   help="field: MLP precision; fp32 (exact) is the only one (int8 was removed: runtime/field/field.py)")
+    p.add_argument("--orbit", type=int, default=None,
+                   help="field: render N frames orbiting the volume to numbered files OUT_0000.exr ...")
+    p.add_argument("--orbit-degrees", type=float, default=360.0, help="field: total orbit angle")
+    p.add_argument("--force", action="store_true",
+                   help="replace existing output files; photonmap / field: also use a map or bundle made for "
+                        "another scene (a warning names what differs)")
+    p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
+    p.add_argument("--batch-size", type=int, default=1 << 18, help="work items per wavefront batch (memory bound)")
+    p.add_argument("--exposure", type=float, default=None,
+                   help="PNG exposure in stops (default: automatic; the JSON report records the one used)")
+    p.add_argument("--exposure-from", default=None, metavar="REPORT.json",
+                   help="PNG exposure recorded in an earlier render's JSON report (or an orbit's timings file), "
+                        "so two renders are shown alike")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--out", default="render.exr",
+                   help="output image, NAME.exr or NAME.png: the EXR (layers), the PNG (tone-mapped L) and a "
+                        "NAME.json report are written side by side")
+    return p
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    from photon_fields.runtime.scene.scene import load_scene
+
+    out = output_exr_path(args.out)
+    spp = positive_int("--spp", args.spp, 1 << 16)
+    positive_int("--batch-size", args.batch_size)
+    positive_int("--max-depth", args.max_depth, 1 << 16)
+    if not 0.01 <= args.step <= 100:
+        raise InputError("--step", f"must be in [0.01, 100] voxels, got {args.step}")
+    # Check every option before loading the scene and rendering: errors should name the option and come
+    # at once, not after minutes of rendering.
+    size = parse_size(args.size) if args.size is not None else (None, None)
+    if args.g is not None:
+        from photon_fields.runtime.transport.phase import check_g
+
+        check_g(args.g, "--g")
+    check_seed(args.seed)
+    exposure, exposure_mode = resolve_exposure_options(args)
+    if args.method == "photonmap":
+        if args.map is None:
+            raise InputError("--map", "--method photonmap needs a photon map (pfn-train trace SCENE --out map.npz)")
+        positive_int("--k", args.k, 1 << 16)
+        if not (0 < args.radius <= 2 and math.isfinite(args.radius)):
+            raise InputError("--radius", f"must be in (0, 2] box units, got {args.radius}")
+    if args.precision != "fp32":
+        from photon_fields.runtime.field.field import REMOVED_PRECISIONS
+
+        raise InputError("--precision", REMOVED_PRECISIONS.get(args.precision,
+                                                               f"fp32 is the only precision, got {args.precision!r}"))
+    if args.method == "field" and args.bundle is None:
+        raise InputError("--bundle", "--method field needs a bundle (pfn-train all SCENE --out run/ "
+                         "writes run/field.pfn)")
+    if args.orbit is not None:
+        if args.method != "field":
+            raise InputError("--orbit", "fly-around sequences are rendered with --method field")
+        positive_int("--orbit", args.orbit, 100_000)
+        if not math.isfinite(args.orbit_degrees):
+            raise InputError("--orbit-degrees", f"must be a finite angle, got {args.orbit_degrees}")
+    check_outputs(args, out)
+    set_threads(args.threads)
+    # No --scene: a bundle rebuilds the scene it records (else the default, and a mismatch says so).
+    scene_from = "--scene" if args.scene is not None else "default"
+    if args.scene is None and args.method == "field":
+        from photon_fields.runtime.field.field import scene_for_bundle
+
+        scene, scene_from = scene_for_bundle(args.bundle, force=args.force)
+    else:
+        from photon_fields.runtime.scene.scene import DEFAULT_SCENE
+
+        scene = load_scene(args.scene if args.scene is not None else DEFAULT_SCENE)
+    scene = scene.with_overrides(g=args.g, width=size[0], height=size[1])
+    warnings: list[str] = []  # forced mismatches: one line each on stderr, and in the JSON report
+    pmap = None
+    if args.method == "photonmap":
+        from photon_fields.runtime.photons.estimate import check_map_matches_scene
+        from photon_fields.runtime.photons.photon_map import PhotonMap
+
+        pmap = PhotonMap.load(args.map)
+        if scene_from == "default" and not args.force and pmap.scene_fingerprint != scene.fingerprint():
+            raise InputError(args.map, f"no --scene given, so the default scene '{scene.name}' was used; the map "
+                             f"was traced for {pmap.mismatch(scene.fingerprint_parts())}; pass --scene")
+        warnings.append(check_map_matches_scene(pmap, scene, args.force))
+        pmap.phase_index(scene.g, "--g")
+    field = None
+    if args.method == "field":
+        from photon_fields.runtime.field.field import PhotonField
+
+        field = PhotonField.load(args.bundle, threads=args.threads, precision=args.precision,
+                                 expected_fingerprint=scene.fingerprint(), force=args.force,
+                                 expected_parts=scene.fingerprint_parts())
+        warnings.append(field.scene_warning)
+    warnings = [w for w in warnings if w]
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    make_parent(out)
+    if args.orbit is not None:
+        return run_orbit(args, scene, field, out, spp, exposure)
+
+    t0 = time.perf_counter()
+    if args.method == "pt":
+        from photon_fields.runtime.renderers.path_tracer import render_path_traced
+
+        result = render_path_traced(scene, spp=spp, max_depth=args.max_depth, nee=not args.no_nee, seed=args.seed,
+                                    batch_size=args.batch_size, progress=not args.quiet)
+    elif args.method == "raymarch":
+        from photon_fields.runtime.renderers.ray_marcher import render_ray_marched
+
+        result = render_ray_marched(scene, spp=spp, step=args.step, seed=args.seed, batch_size=args.batch_size,
+                                    progress=not args.quiet)
+    elif args.method == "photonmap":
+        from photon_fields.runtime.photons.estimate import render_photon_mapped
+
+        result = render_photon_mapped(scene, pmap, k=args.k, radius=args.radius, spp=spp, seed=args.seed,
+                                      batch_size=args.batch_size, progress=not args.quiet, force=args.force)
+    else:
+        from photon_fields.runtime.renderers.neural import render_neural
+
+        result = render_neural(scene, field.estimator(), spp=spp, seed=args.seed, batch_size=args.batch_size,
+                               progress=not args.quiet)
+    wall = time.perf_counter() - t0
+    from photon_fields.runtime.eval.machine import cpu_record
+
+    report = {"scene": scene.name, "method": args.method, "spp": spp, "seed": args.seed, "g": scene.g,
+              "size": [scene.camera.width, scene.camera.height], "wall_s": wall,
+              "timings_ms": result.timings_ms, "stats": result.stats, "scene_description": scene.to_dict(),
+              "scene_from": scene_from, "warnings": warnings, "cpu": cpu_record()}
+    if field is not None:
+        report["field"] = field.describe()
+    from photon_fields.runtime.io.atomic import atomic_write_text
+    from photon_fields.runtime.io.images import resolve_exposure, write_image_set
+
+    meta = {"photon_fields.method": args.method, "photon_fields.scene": scene.name,
+            "photon_fields.spp": str(spp), "photon_fields.seed": str(args.seed), "photon_fields.g": repr(scene.g)}
+    exposure = resolve_exposure(result.layers["L"], exposure)
+    report["exposure"] = {"stops": exposure, "mode": exposure_mode}
+    written = write_image_set(out, result.layers, metadata=meta, exposure=exposure)
+    json_path = out.with_suffix(".json")
+    try:
+        atomic_write_text(json_path, json.dumps(report, indent=2) + "\n")
+    except OSError as exc:  # e.g. a full disk: one line, not a traceback
+        raise InputError(str(json_path), f"cannot write the JSON report: {exc.strerror or exc}") from None
+    written.append(json_path)
+    return {"wall_s": wall, "written": [str(p) for p in written], "timings_ms": result.timings_ms}
+
+
+def output_exr_path(text: str) -> Path:
+    """``--out``: NAME.exr, or NAME.png (the EXR is written beside it); the EXR path either way."""
+    out = Path(text)
+    if out.suffix.lower() == ".png":
+        return out.with_suffix(".exr")
+    if out.suffix.lower() != ".exr":
+        raise InputError("--out", f"must end in .exr or .png (both are written, with a .json report), got {text!r}")
+    return out
+
+
+def check_outputs(args: argparse.Namespace, out: Path) -> None:
+    """Before any work: the files this render writes, refused if they exist unless ``--force``."""
+    if args.orbit is None:
+        prepare_output(out, ".exr", (".png", ".json"), force=args.force, what="an earlier render", create=False)
+        return
+    from photon_fields.runtime.renderers.neural import orbit_frame_paths, orbit_timings_path
+
+    frames = orbit_frame_paths(out, args.orbit)
+    prepare_output(frames[0], ".exr", (".png",), force=args.force, what="an earlier orbit", create=False)
+    refuse_to_replace([*frames, *(f.with_suffix(".png") for f in frames), orbit_timings_path(out)], args.force,
+                      "an earlier orbit")
+
+
+def resolve_exposure_options(args: argparse.Namespace) -> tuple[float | None, str]:
+    """``--exposure`` / ``--exposure-from``: the fixed exposure (None: automatic) and how it was chosen."""
+    if args.exposure is not None and args.exposure_from is not None:
+        raise InputError("--exposure-from", "give --exposure or --exposure-from, not both")
+    if args.exposure is not None:
+        if not math.isfinite(args.exposure):
+            raise InputError("--exposure", f"must be a finite number of stops, got {args.exposure}")
+        return args.exposure, "--exposure"
+    if args.exposure_from is not None:
+        return exposure_from_report(args.exposure_from), f"--exposure-from {args.exposure_from}"
+    return None, "auto"
+
+
+def exposure_from_report(path_text: str) -> float:
+    """The PNG exposure (stops) recorded in a render's JSON report (``exposure``) or an orbit's timings file
+    (``exposure_stops``)."""
+    from photon_fields.runtime.errors import check_keys
+
+    path = Path(path_text)
+    what = f"--exposure-from {path_text}"
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(what, "file not found") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(what, f"not a JSON report of pfn-render: {exc}") from None
+    if isinstance(doc, dict) and isinstance(doc.get("exposure"), dict):
+        check_keys(doc["exposure"], ("stops", "mode"), f"{what} exposure", required=("stops",))
+        stops = doc["exposure"]["stops"]
+    elif isinstance(doc, dict) and "exposure_stops" in doc:
+        stops = doc["exposure_stops"]
+    else:
+        raise InputError(what, "records no exposure (expected the JSON report of a pfn-render image or orbit)")
+    if isinstance(stops, bool) or not isinstance(stops, (int, float)) or not math.isfinite(stops):
+        raise InputError(what, f"exposure must be a finite number of stops, got {stops!r}")
+    return float(stops)
+
+
+def run_orbit(args: argparse.Namespace, scene: Any, field: Any, out: Path, spp: int,
+              exposure: float | None) -> dict[str, Any]:
+    """``--orbit N``: N frames orbiting the volume, numbered files beside ``out``, a timings JSON."""
+    from photon_fields.runtime.renderers.neural import render_orbit
+
+    summary = render_orbit(scene, field.estimator(), out, frames=args.orbit, spp=spp, seed=args.seed,
+                           batch_size=args.batch_size, degrees=args.orbit_degrees, exposure=exposure,
+                           progress=not args.quiet)
+    files = summary["files"]
+    return {"wall_s": float(sum(summary["frame_s"])), "timings_ms": summary["stage_ms_per_frame"],
+            "written": [files[0], "...", files[-1], summary["timings_file"]] if len(files) > 2 else
+            [*files, summary["timings_file"]],
+            "orbit": f"{summary['frames']} frames, mean {summary['mean_s'] * 1e3:.0f} ms, median "
+                     f"{summary['median_s'] * 1e3:.0f} ms, p95 {summary['p95_s'] * 1e3:.0f} ms per frame"}
+
+
+def format_timings(timings_ms: dict[str, float]) -> str:
+    """Per-stage milliseconds in one line, largest first (the total last)."""
+    items = sorted(((k, v) for k, v in timings_ms.items() if k != "total"), key=lambda kv: -kv[1])
+    text = ", ".join(f"{k} {v:.0f}" for k, v in items)
+    return f"stages (ms): {text}" + (f"; total {timings_ms['total']:.0f}" if "total" in timings_ms else "")
+
+
+@guarded
+def _main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    info = run(args)
+    if "orbit" in info:
+        print(f"orbit: {info['orbit']}")
+    print(format_timings(info["timings_ms"]))
+    print(f"rendered in {info['wall_s']:.2f} s -> " + ", ".join(info["written"]))
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    sys.exit(_main(argv))

@@ -1,0 +1,743 @@
+"""K-nearest-photon search on a uniform grid and the fused volumetric radiance estimate (paper Eq. 5).
+
+Radiance estimate
+-----------------
+Jensen's adaptive-radius estimator for volumetric photon maps. At query point x with view direction d
+(the camera ray's *travel* direction, unit length) and Henyey-Greenstein coefficient g:
+
+    Q(x, d) = sum over the K nearest photons within r_max of  p_g(cos_n) * w_n / (4/3 pi r^3)
+    cos_n   = -dot(omega_n, d)   (photon n travels along omega_n and scatters towards the camera, along -d)
+    r       = distance to the K-th nearest photon if at least K photons lie within r_max,
+              otherwise r_max (the whole ball was searched: shrinking r to the farthest photon found would
+              overestimate the density).
+
+No photon within r_max gives Q = 0. ``r_max = inf`` is allowed (plain KNN); with fewer than K photons in
+the whole map the estimate is then 0 (the volume is infinite). If K photons coincide exactly with the
+query point, r = 0 and Q = +inf: that is the density of a point mass, not a bug of the search.
+
+Parameters
+----------
+positions : (n, 3) float array
+    Photon positions, stored as float64 in the grid (a float32 grid measured ~25 % slower: the scan
+    then converts every coordinate, and 12 MB per million photons is not worth that).
+directions, weights : (n, 3) float arrays, in the ORIGINAL photon order (the order of ``positions``)
+    Unit travel directions omega_n and RGB powers w_n. :func:`knn_radiance` gathers them into grid
+    order on every call (an O(n) copy, ~0.1 s per million photons here: as long as 2^16 queries at
+    r_max = 0.01 take). For repeated estimates over one photon map, :func:`build_photon_index` gathers
+    once and :func:`indexed_radiance` reuses it; a :class:`PhotonIndex` bundles the grid with its
+    gathered attributes, so sorted attributes can never be paired with the wrong grid or passed where
+    original-order ones are expected.
+view_dirs : (q, 3) float array
+    Unit travel directions d of the camera rays at the queries (not normalized here).
+g : float in [-1, 1]
+    HG coefficient (``photon_fields.runtime.transport.phase`` convention: cos is between travel directions).
+k : int >= 1
+    Number of neighbours (1024 is the paper's default).
+r_max : float > 0 (may be inf)
+    Search radius bound; photons at distance exactly r_max are included.
+cell_size : float or None
+    Grid cell edge; ``None`` picks the default rule below. Results never depend on it (only speed).
+
+Grid
+----
+The photons' bounding box is divided into ``dims`` cubic cells of edge h; photons are counting-sorted
+by linear cell index ``(ix * ny + iy) * nz + iz`` (stable, O(n)), so the cells of one (ix, iy) row are
+one contiguous run of photons and a row segment is scanned as a single span.
+
+Default cell size: h is chosen so that the *photon-weighted* mean cell occupancy,
+``sum_c count_c^2 / n`` -- the number of photons in the cell of a typical photon -- is about
+``TARGET_OCCUPANCY`` (= 32). Queries are drawn near photons (camera rays hit the medium where photons
+are), so it is the density around photons, not the bounding-box average, that sets the K-th distance;
+for clustered maps the two differ by orders of magnitude. The rule starts from the bounding-box
+average (number of cells ~ n / 32, solved with degenerate axes given one cell) and refines h twice by
+the measured occupancy (h *= (32 / occupancy)^(1/3), two ``bincount`` passes). With density rho = m /
+h^3 around a query, the K-th neighbour lies at r_K = h (3 K / (4 pi m))^(1/3), i.e. about 2 cells for
+K = 1024 and m = 32: the search then stops after 2-4 rings and scans ~3 K photons per query. On 1M
+clustered photons (bench/bench_knn.py data, K = 1024, r_max 0.01 to 0.1) the search cost was flat
+within the measurement noise (~15 %) for occupancies between ~15 and ~100, and 30-50 % higher at 5 or
+240 for the saturated radii; 32 sits in the middle of the flat range on a log scale.
+
+The number of cells is capped at ``max(4096, 4 n)`` (cell_start then costs at most 32 bytes per
+photon), which enlarges h when needed, a requested one included: strongly clustered maps with far
+outliers reach the cap before the target occupancy and pay in scanning, not in correctness. n = 0 or
+a zero-size bounding box gives a single cell (edge 1 unless requested).
+
+Search algorithm
+----------------
+Per query, the cells overlapping the r_max ball (clamped to the grid) are visited ring by ring around
+the query's cell (ring s = the cells at Chebyshev distance s from it). A ring is scanned row by row: a
+row (fixed ix, iy) is skipped if its distance to x exceeds the current bound and otherwise trimmed along
+z to the cells the bound's ball reaches, so a shell row is one contiguous span of photons and an
+interior row contributes its two end cells. Photons with distance^2 <= bound are appended to a
+per-worker candidate buffer (written unconditionally, kept by a conditional increment: no mispredicted
+branch per photon). The bound starts at r_max^2.
+
+After each ring the radius the searched block of cells certainly covers, ``safe`` (distance from x to
+the block's faces; faces at the grid's edge count as infinitely far), is known:
+
+- safe >= r_max: the whole ball has been searched, stop;
+- with at least K candidates, one pass counts them within eight radii safe + {-1, -3/4, -1/2, -1/4, 0,
+  1/2, 1, 2} h. K within ``safe``: stop; the smallest of the first five radii holding K and the one
+  below it then bracket the K-th distance, so the selection only has to look at the candidates in that
+  band (a few hundred for K = 1024 instead of ~2 K). Otherwise the bound tightens to the smallest of
+  the last three radii holding K, so the next ring scans only cells that can still matter;
+- the ring reached the r_max box's far corner: stop.
+
+The early stop is what makes small K-th distances cheap: a query in a dense cluster stops after a ring
+or two whatever r_max is. The K-th distance is then found by a quickselect on values only (out of place,
+branch-free partitions, ties dropped and counted, see ``_kth_value``), and the buffer is compacted to
+exactly K entries (those below the K-th distance plus as many ties at it as needed; ties are broken by
+scan order, i.e. arbitrarily). A buffer that fills up (capacity 4 K + 64, or n + 1 if smaller, so that
+a huge K costs no memory beyond the photon count) is compacted the same way mid-scan, and the bound
+becomes "strictly closer than that K-th". Correctness never depends on the cell size: large cells cost
+scanning, small ones loop overhead. Tiny geometric slacks (1e-9 h) guard against rounding at cell faces.
+
+Threads: queries are processed in blocks of ``_BLOCK`` in Morton order of their cells (neighbouring
+queries touch the same photons, which keeps the photon arrays in cache); ``prange`` runs one worker per
+numba thread, worker t taking blocks t, t + T, ... (interleaving balances clustered work under the
+static OpenMP schedule). Per-worker scratch is allocated once, outside the ``prange`` body. The fused
+estimator never materializes (q, K) arrays: its memory is O(q + T K).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from photon_fields.runtime.transport.phase import check_g, hg_eval
+
+TARGET_OCCUPANCY = 32.0  # photon-weighted mean photons per cell of the default cell size
+_REFINE_PASSES = 2
+_MIN_CELL_CAP = 4096
+_CELLS_PER_PHOTON_CAP = 4
+_BLOCK = 64  # queries per work block
+_SLACK = 1e-9  # relative (to the cell size) safety margin at cell faces
+_FOUR_THIRDS_PI = 4.0 / 3.0 * math.pi
+_SAMPLES = 15  # pivot sample size of the selection
+
+
+class PhotonGrid(NamedTuple):
+    """Photons counting-sorted into a uniform grid. Cell (ix, iy, iz) spans
+    ``origin + [ix, ix + 1) * cell_size`` (etc.) and holds sorted photons
+    ``cell_start[c] : cell_start[c + 1]`` with ``c = (ix * dims[1] + iy) * dims[2] + iz``."""
+
+    positions: np.ndarray  # (n, 3) float64, sorted by cell
+    order: np.ndarray  # (n,) int64: positions[i] == input_positions[order[i]]
+    cell_start: np.ndarray  # (ncells + 1,) int64
+    origin: np.ndarray  # (3,) float64
+    cell_size: float
+    dims: np.ndarray  # (3,) int64
+
+
+class PhotonIndex(NamedTuple):
+    """A grid plus the photon attributes gathered into its (cell-sorted) order; see build_photon_index."""
+
+    grid: PhotonGrid
+    directions: np.ndarray  # (n, 3) float64, grid order
+    weights: np.ndarray  # (n, 3) float64, grid order
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Grid construction
+
+
+@njit(cache=True)
+def _cell_ids(pos: np.ndarray, origin: np.ndarray, inv_h: float, dims: np.ndarray) -> np.ndarray:
+    n = pos.shape[0]
+    out = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        ix = _cell_coord(pos[i, 0], origin[0], inv_h, 0, dims[0] - 1)
+        iy = _cell_coord(pos[i, 1], origin[1], inv_h, 0, dims[1] - 1)
+        iz = _cell_coord(pos[i, 2], origin[2], inv_h, 0, dims[2] - 1)
+        out[i] = (ix * dims[1] + iy) * dims[2] + iz
+    return out
+
+
+@njit(cache=True)
+def _counting_sort(cell: np.ndarray, ncells: int) -> tuple[np.ndarray, np.ndarray]:
+    """Stable counting sort: (order, cell_start)."""
+    n = cell.shape[0]
+    start = np.zeros(ncells + 1, dtype=np.int64)
+    for i in range(n):
+        start[cell[i] + 1] += 1
+    for c in range(ncells):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        c = cell[i]
+        order[fill[c]] = i
+        fill[c] += 1
+    return order, start
+
+
+def _dims_for(extent: np.ndarray, h: float) -> np.ndarray:
+    return np.maximum(1, np.ceil(extent / h)).astype(np.int64)
+
+
+def _cap_cell_size(extent: np.ndarray, h: float, max_cells: int) -> float:
+    """Smallest h' >= h with prod(dims(h')) <= max_cells (bisection on log h; ncells is monotone in h)."""
+    if int(np.prod(_dims_for(extent, h))) <= max_cells:
+        return h
+    lo, hi = h, float(extent.max())  # hi: a single cell, which always fits
+    for _ in range(60):
+        mid = math.sqrt(lo * hi)
+        if int(np.prod(_dims_for(extent, mid))) <= max_cells:
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+def _default_cell_size(pos: np.ndarray, origin: np.ndarray, extent: np.ndarray, max_cells: int) -> float:
+    """The default rule of the module docstring: photon-weighted occupancy ~ TARGET_OCCUPANCY."""
+    n = pos.shape[0]
+    target_cells = max(1, int(n / TARGET_OCCUPANCY))
+    # Bounding-box average first: the smallest h with at most n / m cells (bisection from far below it;
+    # degenerate axes count one cell, so flat or linear maps get a sensible h too).
+    h = _cap_cell_size(extent, float(extent.max()) * 1e-6, target_cells)
+    for _ in range(_REFINE_PASSES):
+        dims = _dims_for(extent, h)
+        counts = np.bincount(_cell_ids(pos, origin, 1.0 / h, dims)).astype(np.float64)
+        occupancy = float(counts @ counts) / n
+        h_new = _cap_cell_size(extent, h * (TARGET_OCCUPANCY / occupancy) ** (1.0 / 3.0), max_cells)
+        if abs(h_new / h - 1.0) < 0.05:
+            break
+        h = h_new
+    return h
+
+
+def build_photon_grid(positions: np.ndarray, cell_size: float | None = None) -> PhotonGrid:
+    """Counting-sort photons into a uniform grid over their bounding box (see the module docstring)."""
+    pos = np.asarray(positions)
+    if pos.ndim != 2 or pos.shape[1] != 3:
+        raise ValueError(f"positions must have shape (n, 3), got {pos.shape}")
+    pos = np.ascontiguousarray(pos, dtype=np.float64)
+    n = pos.shape[0]
+    if n and not np.isfinite(pos).all():
+        raise ValueError("positions must be finite")
+    if cell_size is not None and not (math.isfinite(cell_size) and cell_size > 0.0):
+        raise ValueError(f"cell_size must be a positive finite number, got {cell_size!r}")
+    if n == 0:
+        return PhotonGrid(pos, np.zeros(0, dtype=np.int64), np.zeros(2, dtype=np.int64), np.zeros(3), 1.0,
+                          np.ones(3, dtype=np.int64))
+    origin = pos.min(axis=0).astype(np.float64)
+    extent = pos.max(axis=0).astype(np.float64) - origin
+    max_cells = max(_MIN_CELL_CAP, _CELLS_PER_PHOTON_CAP * n)
+    if extent.max() <= 0.0:
+        h = float(cell_size) if cell_size is not None else 1.0  # all photons in one spot: one cell
+    elif cell_size is None:
+        h = _default_cell_size(pos, origin, extent, max_cells)
+    else:
+        h = _cap_cell_size(extent, float(cell_size), max_cells)
+    dims = _dims_for(extent, h)
+    order, start = _counting_sort(_cell_ids(pos, origin, 1.0 / h, dims), int(np.prod(dims)))
+    return PhotonGrid(np.ascontiguousarray(pos[order]), order, start, origin, float(h), dims)
+
+
+def build_photon_index(positions: np.ndarray, directions: np.ndarray, weights: np.ndarray,
+                     cell_size: float | None = None) -> PhotonIndex:
+    """Grid + attributes gathered once into grid order (all three inputs in the same, original order)."""
+    grid = build_photon_grid(positions, cell_size)
+    return PhotonIndex(grid, *_gather_attributes(grid, directions, weights))
+
+
+def _gather_attributes(grid: PhotonGrid, directions: np.ndarray,
+                       weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    n = grid.order.shape[0]
+    out = []
+    for name, a in (("directions", directions), ("weights", weights)):
+        a = np.asarray(a, dtype=np.float64)
+        if a.shape != (n, 3):
+            raise ValueError(f"{name} must have shape ({n}, 3) like the grid's positions, got {a.shape}")
+        out.append(np.take(a, grid.order, axis=0))  # np.take: ~3x faster than a[order] here
+    return out[0], out[1]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Numba kernels
+
+
+@njit(cache=True)
+def _cell_coord(p: float, o: float, inv_h: float, lo: int, hi: int) -> int:
+    """floor((p - o) / h) clamped to [lo, hi]; clamped as a float first so inf never reaches int()."""
+    t = (p - o) * inv_h
+    if t < lo:
+        return lo
+    if t >= hi:
+        return hi
+    return int(math.floor(t))
+
+
+@njit(cache=True)
+def _gap(p: float, face_lo: float, h: float, slack: float) -> float:
+    """Distance from coordinate p to the interval [face_lo, face_lo + h], shrunk by slack."""
+    if p < face_lo:
+        return max(face_lo - p - slack, 0.0)
+    if p > face_lo + h:
+        return max(p - face_lo - h - slack, 0.0)
+    return 0.0
+
+
+@njit(cache=True, inline="always")
+def _pivot(src: np.ndarray, n: int, kk: int, smp: np.ndarray) -> float:
+    """Pivot for selecting rank kk of src[:n]: the sample quantile nearest kk of _SAMPLES evenly spaced
+    entries (insertion-sorted into smp), or a median of 3 for short ranges."""
+    if n < 4 * _SAMPLES:
+        a = src[0]
+        b = src[n >> 1]
+        c = src[n - 1]
+        return max(min(a, b), min(max(a, b), c))
+    stride = n // _SAMPLES
+    for s in range(_SAMPLES):
+        v = src[stride // 2 + s * stride]
+        t = s
+        while t > 0 and smp[t - 1] > v:
+            smp[t] = smp[t - 1]
+            t -= 1
+        smp[t] = v
+    return smp[min(_SAMPLES - 1, kk * _SAMPLES // n)]
+
+
+@njit(cache=True)
+def _kth_value(d2: np.ndarray, count: int, k: int, tmp: np.ndarray) -> tuple[float, int]:
+    """The k-th smallest of d2[:count] and how many entries are strictly smaller; d2 is left untouched.
+
+    Quickselect on values only, out of place: each pass streams the range once, appending the entries
+    < pivot to one row of tmp and those > pivot to another, both unconditionally with conditional cursor
+    increments -- no data-dependent branch and no store-to-load chain through the array (an in-place
+    Lomuto partition was 3x slower). Only the side holding rank k is kept; it becomes the next source
+    and the other two rows the next destinations. Entries equal to the pivot are dropped and counted,
+    so runs of ties (duplicate photons) end the search at once."""
+    kk = k - 1
+    below = 0
+    src_row = -1  # -1: d2 itself
+    n = count
+    while True:
+        src = d2[:n] if src_row < 0 else tmp[src_row, :n]
+        if n == 1:
+            return src[0], below
+        lo_row = 0 if src_row != 0 else 1
+        hi_row = 3 - lo_row - src_row if src_row >= 0 else 1
+        dlo = tmp[lo_row]
+        dhi = tmp[hi_row]
+        x = _pivot(src, n, kk, dlo)
+        nlo = 0
+        nhi = 0
+        for j in range(n):
+            v = src[j]
+            dlo[nlo] = v
+            dhi[nhi] = v
+            nlo += v < x
+            nhi += v > x
+        if kk < nlo:
+            src_row, n = lo_row, nlo
+        elif kk < n - nhi:
+            return x, below + nlo
+        else:
+            below += n - nhi
+            kk -= n - nhi
+            src_row, n = hi_row, nhi
+
+
+@njit(cache=True)
+def _heapsort(d2: np.ndarray, idx: np.ndarray, m: int) -> None:
+    """In-place ascending sort of d2/idx[:m] (no allocation: safe inside prange)."""
+    for start in range(m // 2 - 1, -1, -1):
+        _sift_down(d2, idx, start, m)
+    for end in range(m - 1, 0, -1):
+        d2[0], d2[end] = d2[end], d2[0]
+        idx[0], idx[end] = idx[end], idx[0]
+        _sift_down(d2, idx, 0, end)
+
+
+@njit(cache=True, inline="always")
+def _sift_down(d2: np.ndarray, idx: np.ndarray, root: int, m: int) -> None:
+    while True:
+        child = 2 * root + 1
+        if child >= m:
+            return
+        if child + 1 < m and d2[child + 1] > d2[child]:
+            child += 1
+        if d2[root] >= d2[child]:
+            return
+        d2[root], d2[child] = d2[child], d2[root]
+        idx[root], idx[child] = idx[child], idx[root]
+        root = child
+
+
+@njit(cache=True)
+def _keep_k(d2: np.ndarray, idx: np.ndarray, count: int, k: int, kth: float, below: int) -> int:
+    """Compact d2/idx[:count] in place to exactly k entries: those < kth and the first k - below ties at
+    kth. Branchless stream compactions (the write cursor never overtakes the read cursor); the usual case
+    -- a single entry at kth -- needs one pass keeping d2 <= kth. Returns k."""
+    w = _filter(d2, idx, count, kth)
+    if w == k:
+        return k
+    # More ties at kth than places: a second pass over the survivors (all <= kth) counts them.
+    ties = k - below
+    m = w
+    w = 0
+    for j in range(m):
+        v = d2[j]
+        t = idx[j]
+        d2[w] = v
+        idx[w] = t
+        tie = v == kth
+        keep = (v < kth) | (tie & (ties > 0))
+        ties -= tie & keep
+        w += keep
+    return w
+
+
+@njit(cache=True)
+def _filter(d2: np.ndarray, idx: np.ndarray, count: int, limit: float) -> int:
+    """Keep the entries of d2/idx[:count] with d2 <= limit, in place and in order; returns their count."""
+    w = 0
+    for j in range(count):
+        v = d2[j]
+        t = idx[j]
+        d2[w] = v
+        idx[w] = t
+        w += v <= limit
+    return w
+
+
+@njit(cache=True)
+def _band(d2: np.ndarray, count: int, lower: float, limit: float, out: np.ndarray) -> int:
+    """Copy the values of d2[:count] in (lower, limit] to out (branch-free); returns how many."""
+    nb = 0
+    for j in range(count):
+        v = d2[j]
+        out[nb] = v
+        nb += (v > lower) & (v <= limit)
+    return nb
+
+
+@njit(cache=True)
+def _compact(d2: np.ndarray, idx: np.ndarray, count: int, k: int, tmp: np.ndarray, bound: float) -> tuple[int, float]:
+    """Full buffer: keep the k closest; returns (k, new bound). Kept out of line: it runs rarely."""
+    kth, below = _kth_value(d2, count, k, tmp)
+    # Strictly closer than the K-th from now on: a tie cannot improve the set.
+    return _keep_k(d2, idx, count, k, kth, below), min(bound, np.nextafter(kth, -np.inf))
+
+
+@njit(cache=True)
+def _scan_chunk(pos: np.ndarray, j: int, n: int, x: float, y: float, z: float, d2: np.ndarray, idx: np.ndarray,
+                count: int, bound: float) -> int:
+    """Append sorted photons j..j+n-1 with distance^2 <= bound at d2/idx[count:] (room is the caller's job).
+
+    Unsigned indices spare numba's negative-index wraparound code, which doubled the cost of this loop."""
+    for t in range(n):
+        p = np.uint64(j + t)
+        dx = pos[p, 0] - x
+        dy = pos[p, 1] - y
+        dz = pos[p, 2] - z
+        dd = dx * dx + dy * dy + dz * dz
+        # Write unconditionally, keep conditionally: no mispredicted branch per photon.
+        c = np.uint64(count)
+        d2[c] = dd
+        idx[c] = j + t
+        count += dd <= bound
+    return count
+
+
+@njit(cache=True)
+def _search(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: float, dims: np.ndarray,
+            x: float, y: float, z: float, k: int, r_max: float, d2: np.ndarray, idx: np.ndarray,
+            tmp: np.ndarray) -> tuple[int, float]:
+    """K nearest photons of (x, y, z) within r_max into d2/idx (sorted-photon indices).
+
+    Returns (m, kth): m = min(k, count within r_max) entries in d2/idx[:m], unordered; kth = the K-th
+    distance^2 if m == k, else inf."""
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    inv_h = 1.0 / h
+    slack = _SLACK * h
+    r2max = r_max * r_max
+    cap = d2.shape[0]
+    # The query's cell, clamped to [-1, dims]: a query outside the grid then sits in a virtual cell just
+    # beyond it, which keeps the face distances below positive on the sides that still hold photons.
+    cx = _cell_coord(x, ox, inv_h, -1, nx)
+    cy = _cell_coord(y, oy, inv_h, -1, ny)
+    cz = _cell_coord(z, oz, inv_h, -1, nz)
+    # Cells overlapping the r_max ball, clamped to the grid.
+    lx = _cell_coord(x - r_max - slack, ox, inv_h, 0, nx - 1)
+    hx = _cell_coord(x + r_max + slack, ox, inv_h, 0, nx - 1)
+    ly = _cell_coord(y - r_max - slack, oy, inv_h, 0, ny - 1)
+    hy = _cell_coord(y + r_max + slack, oy, inv_h, 0, ny - 1)
+    lz = _cell_coord(z - r_max - slack, oz, inv_h, 0, nz - 1)
+    hz = _cell_coord(z + r_max + slack, oz, inv_h, 0, nz - 1)
+    gx = _gap(x, ox, nx * h, slack)
+    gy = _gap(y, oy, ny * h, slack)
+    gz = _gap(z, oz, nz * h, slack)
+    if gx * gx + gy * gy + gz * gz > r2max:
+        return 0, math.inf  # the ball misses the grid box
+    s_start = max(max(lx - cx, cx - hx, 0), max(ly - cy, cy - hy, 0), max(lz - cz, cz - hz, 0))
+    s_end = max(max(cx - lx, hx - cx), max(cy - ly, hy - cy), max(cz - lz, hz - cz))
+    count = 0
+    bound = r2max
+    # After the loop, if finite: the K-th distance^2 lies in (lower, limit], n_lower candidates <= lower.
+    limit = math.inf
+    lower = -1.0
+    n_lower = 0
+    for s in range(s_start, s_end + 1):
+        for ix in range(max(cx - s, lx), min(cx + s, hx) + 1):
+            gx = _gap(x, ox + ix * h, h, slack)
+            gx2 = gx * gx
+            if gx2 > bound:
+                continue
+            on_x = ix == cx - s or ix == cx + s
+            row = ix * ny
+            for iy in range(max(cy - s, ly), min(cy + s, hy) + 1):
+                gy = _gap(y, oy + iy * h, h, slack)
+                gxy2 = gx2 + gy * gy
+                if gxy2 > bound:
+                    continue
+                # Trim the row to the cells the current ball reaches along z.
+                rz = math.sqrt(bound - gxy2) + slack
+                z0 = max(_cell_coord(z - rz, oz, inv_h, 0, nz - 1), cz - s)
+                z1 = min(_cell_coord(z + rz, oz, inv_h, 0, nz - 1), cz + s)
+                base = (row + iy) * nz
+                shell = on_x or iy == cy - s or iy == cy + s
+                # A shell row of ring s is one contiguous span of photons (cells z0..z1); an interior row
+                # contributes only its two end cells. One scanning site for both on purpose: each site of
+                # a call taking arrays costs numba reference-count traffic (~8 atomics) per span.
+                for part in range(1 if shell else 2):
+                    za = z0 if shell else (cz - s if part == 0 else cz + s)
+                    zb = z1 if shell else za
+                    if za < z0 or zb > z1 or za > zb:
+                        continue
+                    j = cell_start[base + za]
+                    b = cell_start[base + zb + 1]
+                    while j < b:
+                        if count == cap:
+                            count, bound = _compact(d2, idx, count, k, tmp, bound)
+                        n = min(b - j, cap - count)  # cannot overflow the buffer
+                        count = _scan_chunk(pos, j, n, x, y, z, d2, idx, count, bound)
+                        j += n
+        # Radius certainly covered by the cells searched so far (faces at the grid's edge: infinite).
+        safe = math.inf
+        if cx - s > 0:
+            safe = min(safe, x - (ox + (cx - s) * h))
+        if cx + s + 1 < nx:
+            safe = min(safe, ox + (cx + s + 1) * h - x)
+        if cy - s > 0:
+            safe = min(safe, y - (oy + (cy - s) * h))
+        if cy + s + 1 < ny:
+            safe = min(safe, oy + (cy + s + 1) * h - y)
+        if cz - s > 0:
+            safe = min(safe, z - (oz + (cz - s) * h))
+        if cz + s + 1 < nz:
+            safe = min(safe, oz + (cz + s + 1) * h - z)
+        safe = max(safe - slack, 0.0)
+        if safe >= r_max:
+            break  # the whole r_max ball has been searched
+        if count >= k:
+            # Counts at a few radii around the searched one instead of a selection (one pass of compares).
+            # K within the searched radius: done, and the smallest radius a_i holding K together with the
+            # one below it bracket the K-th distance, so the selection runs on that band only. Otherwise
+            # tighten the bound to the smallest radius beyond that holds K, so the next ring scans less.
+            a0 = max(safe - h, 0.0) ** 2
+            a1 = max(safe - 0.75 * h, 0.0) ** 2
+            a2 = max(safe - 0.5 * h, 0.0) ** 2
+            a3 = max(safe - 0.25 * h, 0.0) ** 2
+            a4 = safe * safe
+            b1 = (safe + 0.5 * h) ** 2
+            b2 = (safe + h) ** 2
+            b3 = (safe + 2.0 * h) ** 2
+            n0 = 0
+            n1 = 0
+            n2 = 0
+            n3 = 0
+            n4 = 0
+            m1 = 0
+            m2 = 0
+            m3 = 0
+            for j in range(count):
+                v = d2[j]
+                n0 += v <= a0
+                n1 += v <= a1
+                n2 += v <= a2
+                n3 += v <= a3
+                n4 += v <= a4
+                m1 += v <= b1
+                m2 += v <= b2
+                m3 += v <= b3
+            if n4 >= k:
+                if n0 >= k:
+                    limit, lower, n_lower = a0, -1.0, 0
+                elif n1 >= k:
+                    limit, lower, n_lower = a1, a0, n0
+                elif n2 >= k:
+                    limit, lower, n_lower = a2, a1, n1
+                elif n3 >= k:
+                    limit, lower, n_lower = a3, a2, n2
+                else:
+                    limit, lower, n_lower = a4, a3, n3
+                break
+            if m1 >= k:
+                bound = min(bound, b1)
+            elif m2 >= k:
+                bound = min(bound, b2)
+            elif m3 >= k:
+                bound = min(bound, b3)
+    if count < k:
+        return count, math.inf
+    if limit < math.inf:
+        # Everything <= lower is in, everything > limit out: select within the band (lower, limit].
+        nb = _band(d2, count, lower, limit, tmp[2])
+        kth, below = _kth_value(tmp[2], nb, k - n_lower, tmp)  # its later passes may reuse row 2
+        below += n_lower
+    else:
+        kth, below = _kth_value(d2, count, k, tmp)
+    return _keep_k(d2, idx, count, k, kth, below), kth
+
+
+@njit(cache=True, parallel=True)
+def _knn_query_kernel(pos: np.ndarray, order: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: float,
+                      dims: np.ndarray, queries: np.ndarray, qorder: np.ndarray, k: int,
+                      r_max: float, nw: int, cap: int) -> tuple[np.ndarray, np.ndarray]:
+    q = queries.shape[0]
+    out_i = np.full((q, k), -1, dtype=np.int64)
+    out_d = np.full((q, k), np.inf)
+    d2 = np.empty((nw, cap))
+    idx = np.empty((nw, cap), dtype=np.int64)
+    tmp = np.empty((nw, 3, cap))
+    nblocks = (q + _BLOCK - 1) // _BLOCK
+    for w in prange(nw):
+        for blk in range(w, nblocks, nw):
+            for t in range(blk * _BLOCK, min(q, (blk + 1) * _BLOCK)):
+                i = qorder[t]
+                m, _ = _search(pos, cell_start, origin, h, dims, queries[i, 0], queries[i, 1], queries[i, 2], k,
+                               r_max, d2[w], idx[w], tmp[w])
+                _heapsort(d2[w], idx[w], m)
+                for j in range(m):
+                    out_d[i, j] = d2[w, j]
+                    out_i[i, j] = order[idx[w, j]]
+    return out_i, out_d
+
+
+@njit(cache=True, parallel=True)
+def _radiance_kernel(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: float, dims: np.ndarray,
+                     dirs: np.ndarray, wts: np.ndarray, queries: np.ndarray, view: np.ndarray, qorder: np.ndarray,
+                     g: float, k: int, r_max: float, nw: int, cap: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    q = queries.shape[0]
+    est = np.zeros((q, 3))
+    radius = np.full(q, r_max)
+    found = np.zeros(q, dtype=np.int64)
+    d2 = np.empty((nw, cap))
+    idx = np.empty((nw, cap), dtype=np.int64)
+    tmp = np.empty((nw, 3, cap))
+    nblocks = (q + _BLOCK - 1) // _BLOCK
+    for w in prange(nw):
+        for blk in range(w, nblocks, nw):
+            for t in range(blk * _BLOCK, min(q, (blk + 1) * _BLOCK)):
+                i = qorder[t]
+                m, kth = _search(pos, cell_start, origin, h, dims, queries[i, 0], queries[i, 1], queries[i, 2], k,
+                                 r_max, d2[w], idx[w], tmp[w])
+                found[i] = m
+                if m == 0:
+                    continue
+                r = r_max if m < k else math.sqrt(kth)
+                radius[i] = r
+                vx, vy, vz = view[i, 0], view[i, 1], view[i, 2]
+                sr = 0.0
+                sg = 0.0
+                sb = 0.0
+                for jj in range(m):
+                    j = np.uint64(idx[w, jj])
+                    p = hg_eval(g, -(dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz))
+                    sr += p * wts[j, 0]
+                    sg += p * wts[j, 1]
+                    sb += p * wts[j, 2]
+                inv_vol = 1.0 / (_FOUR_THIRDS_PI * r * r * r)
+                est[i, 0] = sr * inv_vol
+                est[i, 1] = sg * inv_vol
+                est[i, 2] = sb * inv_vol
+    return est, radius, found
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Python API
+
+
+def _morton_order(grid: PhotonGrid, queries: np.ndarray) -> np.ndarray:
+    """Query permutation along a Z-order curve of their grid cells (clamped), for cache locality."""
+    q = queries.shape[0]
+    if q <= _BLOCK:
+        return np.arange(q, dtype=np.int64)
+    cell = np.floor((queries - grid.origin) / grid.cell_size)
+    cell = np.clip(cell, 0, grid.dims - 1).astype(np.uint64)
+    code = np.zeros(q, dtype=np.uint64)
+    for bit in range(21):  # 3 x 21 bits fit a uint64
+        for axis in range(3):
+            code |= ((cell[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
+    return np.argsort(code, kind="stable").astype(np.int64)
+
+
+def _n_workers(q: int) -> int:
+    """One worker per numba thread (numba's get_num_threads inside a kernel would defeat its cache)."""
+    return max(1, min(numba.get_num_threads(), -(-q // _BLOCK)))
+
+
+def _capacity(k: int, n: int) -> int:
+    """Candidate buffer per worker: room for ~3K candidates between compactions, but never more than the
+    n + 1 that can never fill up (so a huge k costs no memory beyond the photon count)."""
+    return min(4 * k + 64, n + 1)
+
+
+def _check_query_args(queries: np.ndarray, k: int, r_max: float) -> tuple[np.ndarray, int, float]:
+    qs = np.ascontiguousarray(queries, dtype=np.float64)
+    if qs.ndim != 2 or qs.shape[1] != 3:
+        raise ValueError(f"queries must have shape (q, 3), got {qs.shape}")
+    if not np.isfinite(qs).all():
+        raise ValueError("queries must be finite")
+    if int(k) != k or k < 1:
+        raise ValueError(f"k must be a positive integer, got {k!r}")
+    r = float(r_max)
+    if not r > 0.0:  # also rejects NaN; inf is allowed
+        raise ValueError(f"r_max must be > 0, got {r_max!r}")
+    return qs, int(k), r
+
+
+def knn_query(grid: PhotonGrid, queries: np.ndarray, k: int, r_max: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
+    """The k nearest photons within r_max of each query (the general query, for tests and small q).
+
+    Returns (indices (q, k) int64 into the ORIGINAL photon order, padded with -1; dist2 (q, k) float64
+    squared distances sorted ascending, padded with inf). Memory is O(q k): use knn_radiance for the
+    estimate over many queries."""
+    qs, k, r = _check_query_args(queries, k, r_max)
+    return _knn_query_kernel(grid.positions, grid.order, grid.cell_start, grid.origin, float(grid.cell_size),
+                             grid.dims, qs, _morton_order(grid, qs), k, r, _n_workers(qs.shape[0]),
+                             _capacity(k, grid.order.shape[0]))
+
+
+def indexed_radiance(index: PhotonIndex, queries: np.ndarray, view_dirs: np.ndarray, g: float, k: int,
+                        r_max: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fused estimate Q (module docstring) over a PhotonIndex (attributes already in grid order).
+
+    Returns (estimate (q, 3) float64, radius (q,) float64 = r of the formula (r_max when fewer than k
+    photons were found), found (q,) int64 = photons used = min(k, count within r_max))."""
+    qs, k, r = _check_query_args(queries, k, r_max)
+    vd = np.ascontiguousarray(view_dirs, dtype=np.float64)
+    if vd.shape != qs.shape:
+        raise ValueError(f"view_dirs must have shape {qs.shape} like queries, got {vd.shape}")
+    grid = index.grid
+    return _radiance_kernel(grid.positions, grid.cell_start, grid.origin, float(grid.cell_size), grid.dims,
+                            index.directions, index.weights, qs, vd, _morton_order(grid, qs), check_g(g), k, r,
+                            _n_workers(qs.shape[0]), _capacity(k, grid.order.shape[0]))
+
+
+def knn_radiance(grid: PhotonGrid, directions: np.ndarray, weights: np.ndarray, queries: np.ndarray,
+                 view_dirs: np.ndarray, g: float, k: int, r_max: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fused estimate Q with ``directions``/``weights`` (n, 3) in the ORIGINAL photon order.
+
+    Gathers them into grid order first (O(n) per call); for many calls on one map use
+    build_photon_index + indexed_radiance. Returns (estimate (q, 3), radius (q,), found (q,))."""
+    return indexed_radiance(PhotonIndex(grid, *_gather_attributes(grid, directions, weights)), queries, view_dirs,
+                               g, k, r_max)

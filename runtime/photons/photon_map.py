@@ -1,0 +1,180 @@
+"""Photon maps in memory and on disk (format: :mod:`photon_fields.models_spec.photon_map`).
+
+:class:`PhotonMap` holds the records of multi-phase photon tracing (paper Alg. 1, produced by
+``photon_fields.train.photons.tracing``): position, incoming travel direction, RGB power and phase index of every
+photon at its second or later collision. ``save`` writes atomically; ``load`` refuses files of another
+format or version, from another scene, or with inconsistent arrays, with a one-line
+:class:`photon_fields.runtime.errors.InputError`.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import zipfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from photon_fields.models_spec.fingerprint import FINGERPRINT_PARTS, mismatch_detail
+from photon_fields.models_spec.photon_map import (
+    PHOTON_MAP_ARRAYS,
+    PHOTON_MAP_FORMAT,
+    PHOTON_MAP_META_KEYS,
+    PHOTON_MAP_META_REQUIRED,
+    PHOTON_MAP_VERSION,
+)
+from photon_fields.runtime.errors import InputError, check_keys
+from photon_fields.runtime.io.atomic import atomic_path
+
+_SHA256 = re.compile(r"^[0-9a-f]{64}$")
+
+
+def find_phase(phases: Sequence[float], g: float) -> int | None:
+    """Index of ``g`` in a phase set (within 1e-6), or None: the one membership rule for maps and fields."""
+    for i, gi in enumerate(phases):
+        if abs(gi - g) < 1e-6:
+            return i
+    return None
+
+
+@dataclass(eq=False)
+class PhotonMap:
+    position: np.ndarray  # float32 (n, 3)
+    direction: np.ndarray  # float32 (n, 3)
+    power: np.ndarray  # float32 (n, 3)
+    phase: np.ndarray  # uint8 (n,)
+    phases: tuple[float, ...]
+    scene_fingerprint: str
+    emitted: int
+    meta: dict[str, Any] = field(default_factory=dict)
+    #: The file it was loaded from (None for a map in memory): names the map in messages.
+    path: Path | None = None
+
+    @property
+    def scene_parts(self) -> dict[str, str] | None:
+        """Per-part fingerprints of the scene traced for (``meta["scene_parts"]``), None for older maps."""
+        parts = self.meta.get("scene_parts")
+        return dict(parts) if isinstance(parts, dict) else None
+
+    def __len__(self) -> int:
+        return int(self.position.shape[0])
+
+    def phase_index(self, g: float, what: str = "g") -> int:
+        """Index of ``g`` in the map's phase set; the estimate is phase-selective (Eq. 5), so a g that
+        was not traced cannot be answered by the map."""
+        i = find_phase(self.phases, g)
+        if i is None:
+            raise InputError(what, f"g = {g} is not in the photon map's phase set {list(self.phases)}")
+        return i
+
+    def subset(self, phase: int) -> PhotonMap:
+        sel = self.phase == phase
+        return PhotonMap(self.position[sel], self.direction[sel], self.power[sel], self.phase[sel], self.phases,
+                         self.scene_fingerprint, self.emitted, dict(self.meta), self.path)
+
+    def metadata(self) -> dict[str, Any]:
+        counts = np.bincount(self.phase, minlength=len(self.phases)) if len(self) else np.zeros(len(self.phases))
+        return {**self.meta, "format": PHOTON_MAP_FORMAT, "version": PHOTON_MAP_VERSION,
+                "scene_fingerprint": self.scene_fingerprint, "phases": list(self.phases), "emitted": int(self.emitted),
+                "stored": len(self), "per_phase": [int(c) for c in counts]}
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        meta = np.frombuffer(json.dumps(self.metadata()).encode(), dtype=np.uint8)
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            np.savez(f, position=self.position, direction=self.direction, power=self.power, phase=self.phase,
+                     meta=meta)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path, expected_fingerprint: str | None = None,
+             expected_parts: dict[str, str] | None = None) -> PhotonMap:
+        """Load and validate; with ``expected_fingerprint`` also refuse a map traced for another scene
+        (``expected_parts``, the scene's :meth:`runtime.scene.scene.Scene.fingerprint_parts`, names what differs)."""
+        p = Path(path)
+        what = str(p)
+        if not p.is_file():
+            raise InputError(what, "photon map file not found")
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+            raise InputError(what, f"not a readable photon map (.npz): {exc}") from None
+        if "meta" not in arrays:
+            raise InputError(what, "not a photon map: no 'meta' entry")
+        try:
+            meta = json.loads(arrays.pop("meta").tobytes().decode())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(what, f"corrupt photon map metadata ({exc})") from None
+        if not isinstance(meta, dict) or meta.get("format") != PHOTON_MAP_FORMAT:
+            found = meta.get("format") if isinstance(meta, dict) else None
+            raise InputError(what, f"not a photon map (format {found!r}, expected {PHOTON_MAP_FORMAT!r})")
+        if meta.get("version") != PHOTON_MAP_VERSION:
+            raise InputError(what, f"photon map version {meta.get('version')!r} is not supported "
+                             f"(this build reads version {PHOTON_MAP_VERSION}); re-trace it")
+        check_keys(meta, PHOTON_MAP_META_KEYS, f"{what} metadata", required=PHOTON_MAP_META_REQUIRED)
+        extra = sorted(set(arrays) - set(PHOTON_MAP_ARRAYS))
+        if extra:
+            raise InputError(what, f"unknown array{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))}; a "
+                             f"photon map holds {', '.join(map(repr, [*PHOTON_MAP_ARRAYS, 'meta']))}")
+        n = None
+        for name, (dtype, width) in PHOTON_MAP_ARRAYS.items():
+            if name not in arrays:
+                raise InputError(what, f"photon map lacks the '{name}' array")
+            a = arrays[name]
+            shape_ok = a.ndim == (2 if width else 1) and (not width or a.shape[1] == width)
+            if a.dtype != np.dtype(dtype) or not shape_ok:
+                expected = f"(n, {width})" if width else "(n,)"
+                raise InputError(what, f"'{name}' has dtype {a.dtype} shape {a.shape}, expected {dtype} {expected}")
+            if n is None:
+                n = a.shape[0]
+            elif a.shape[0] != n:
+                raise InputError(what, f"'{name}' has {a.shape[0]} rows, expected {n}")
+        try:
+            phases = tuple(float(g) for g in meta["phases"])
+        except (TypeError, ValueError):
+            raise InputError(f"{what} metadata", f"'phases' must be a list of numbers, got {meta['phases']!r}"
+                             ) from None
+        if not phases:
+            raise InputError(what, "photon map metadata lists no phases")
+        if n and int(arrays["phase"].max()) >= len(phases):
+            raise InputError(what, "phase index out of range of the phase set")
+        if "stored" in meta and meta["stored"] != n:
+            raise InputError(f"{what} metadata", f"'stored' is {meta['stored']!r} but the arrays hold {n} photons")
+        for name in ("position", "direction", "power"):
+            if not np.all(np.isfinite(arrays[name])):
+                raise InputError(what, f"'{name}' contains non-finite values")
+        fp = meta["scene_fingerprint"]
+        if not isinstance(fp, str) or not _SHA256.match(fp):
+            raise InputError(f"{what} metadata", f"'scene_fingerprint' must be a sha256 hex string, got {fp!r}")
+        if "scene_parts" in meta:
+            _check_parts(meta["scene_parts"], f"{what} metadata scene_parts")
+        emitted = meta["emitted"]
+        if isinstance(emitted, bool) or not isinstance(emitted, int) or emitted <= 0:
+            raise InputError(what, f"photon map metadata has no positive 'emitted' count (got {emitted!r})")
+        pmap = cls(arrays["position"], arrays["direction"], arrays["power"], arrays["phase"], phases, fp, emitted,
+                   meta, p)
+        if expected_fingerprint is not None and fp != expected_fingerprint:
+            raise InputError(what, f"photon map was traced for {pmap.mismatch(expected_parts)}; re-trace it for "
+                             "this scene")
+        return pmap
+
+    def mismatch(self, expected_parts: dict[str, str] | None) -> str:
+        """``"another scene ('blobs'): lights differ (volume and transfer function match)"``: the scene this
+        map was traced for (by name, when recorded) and what differs from a scene with ``expected_parts``."""
+        name = self.meta.get("scene_name")
+        named = f" ({name!r})" if isinstance(name, str) and name else ""
+        return f"another scene{named}: {mismatch_detail(expected_parts, self.scene_parts)}"
+
+
+def _check_parts(parts: Any, what: str) -> None:
+    if not isinstance(parts, dict):
+        raise InputError(what, f"must be an object with keys {', '.join(FINGERPRINT_PARTS)}")
+    check_keys(parts, FINGERPRINT_PARTS, what, required=FINGERPRINT_PARTS)
+    for key, value in parts.items():
+        if not isinstance(value, str) or not _SHA256.match(value):
+            raise InputError(f"{what} {key}", f"must be a sha256 hex string, got {value!r}")

@@ -1,0 +1,116 @@
+"""Eq. 6 / Eq. 7 target encoding and the field's input conventions (models_spec.encoding), numpy vs torch."""
+
+from __future__ import annotations
+
+import json
+import os
+
+# Before torch / numba start their OpenMP pools (see train.fit.loop: spinning pools cost 10x on 2 busy cores).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from photon_fields.models_spec.encoding import (  # noqa: E402
+    DEFAULT_PSI,
+    FieldConfig,
+    decode_radiance,
+    direction_input,
+    encode_radiance,
+    normalize_position,
+    phase_input,
+)
+from photon_fields.models_spec.hashgrid import HashGridConfig, direction_to_unit_square  # noqa: E402
+
+torch = pytest.importorskip("torch")
+from photon_fields.train.field.network import decode_radiance_torch, encode_radiance_torch  # noqa: E402  (after the torch skip)
+
+PSIS = (4.0, DEFAULT_PSI, 6.0)
+
+
+def test_default_psi_is_in_the_papers_range() -> None:
+    assert 4.0 <= DEFAULT_PSI <= 6.0
+
+
+@pytest.mark.parametrize("psi", PSIS)
+def test_round_trip_above_the_threshold(psi: float) -> None:
+    rng = np.random.default_rng(0)
+    lum = 10.0 ** rng.uniform(-psi, 3.0, 200_000)
+    L = np.concatenate([lum[lum > 10.0**-psi], [1e3, 1.0, 10.0 ** (-psi) * 1.0001]])
+    enc = encode_radiance(L, psi)
+    assert enc.dtype == np.float32
+    assert np.all(enc < 1.0) and np.all(enc >= -3.0 / psi - 1e-6)  # (10^-psi, 1e3] -> [-3/psi, 1)
+    back = decode_radiance(enc, psi)
+    # One float32 rounding of L' (relative 6e-8 of |L'| <= 1) is ln(10) psi 6e-8 relative in L, plus
+    # the final float32 rounding: 2e-6 is a few ulps of slack.
+    np.testing.assert_allclose(back, L, rtol=2e-6)
+
+
+@pytest.mark.parametrize("psi", PSIS)
+def test_eq6_values(psi: float) -> None:
+    enc = encode_radiance(np.array([1.0, 0.1, 10.0, 10.0 ** (1 - psi)]), psi)
+    np.testing.assert_allclose(enc, [0.0, 1.0 / psi, -1.0 / psi, 1.0 - 1.0 / psi], rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("psi", PSIS)
+def test_values_at_or_below_the_threshold_encode_to_one(psi: float) -> None:
+    low = np.array([10.0**-psi, 0.5 * 10.0**-psi, 1e-30, 0.0, -0.0, -1.0, -np.inf, np.nan])
+    enc = encode_radiance(low, psi)
+    assert np.array_equal(enc, np.ones_like(enc))
+    dec = decode_radiance(enc, psi)
+    assert np.array_equal(dec, np.full(low.shape, np.float32(10.0**-psi)))  # "clamped to zero": 10^-psi
+
+
+def test_decode_is_not_clamped() -> None:
+    # L' > 1 (a network overshoot) decodes darker still, L' < 0 brighter than 1.
+    dec = decode_radiance(np.array([1.2, -0.4]), 5.0)
+    np.testing.assert_allclose(dec, [1e-6, 100.0], rtol=1e-6)
+
+
+@pytest.mark.parametrize("psi", PSIS)
+def test_torch_matches_numpy_bit_for_bit(psi: float) -> None:
+    rng = np.random.default_rng(1)
+    L = np.concatenate([10.0 ** rng.uniform(-psi - 2, 4.0, 100_000), rng.random(1000),
+                        [0.0, -1.0, np.nan, np.inf, 10.0**-psi, 1.0, 1e3]])
+    for dtype in (np.float64, np.float32):
+        Ld = L.astype(dtype)
+        assert np.array_equal(encode_radiance_torch(torch.from_numpy(Ld), psi).numpy(), encode_radiance(Ld, psi))
+    Lp = np.concatenate([rng.uniform(-1.0, 1.5, 100_000), [0.0, 1.0, -0.6]]).astype(np.float32)
+    assert np.array_equal(decode_radiance_torch(torch.from_numpy(Lp), psi).numpy(), decode_radiance(Lp, psi))
+
+
+def test_bad_psi_is_refused() -> None:
+    for psi in (0.0, -1.0, float("nan"), 40.0):
+        with pytest.raises(ValueError, match="psi"):
+            encode_radiance(np.ones(2), psi)
+
+
+def test_position_and_direction_inputs() -> None:
+    bmin, bsize = np.array([-0.5, -0.25, -0.4]), np.array([1.0, 0.5, 0.8])
+    corners = np.array([bmin, bmin + bsize, bmin + 0.5 * bsize])
+    np.testing.assert_array_equal(normalize_position(corners, bmin, bsize),
+                                  np.array([[0, 0, 0], [1, 1, 1], [0.5, 0.5, 0.5]], np.float32))
+    assert normalize_position(corners, bmin, bsize).dtype == np.float32
+    d = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    assert np.array_equal(direction_input(d), direction_to_unit_square(d))
+    np.testing.assert_allclose(direction_input(d)[:, 0], [0.0, 1.0, 0.5, 0.5], atol=1e-7)
+    assert phase_input(0.75, 3).shape == (3, 1) and phase_input(np.array([0.1, 0.2])).shape == (2, 1)
+
+
+def test_field_config_round_trip_and_validation() -> None:
+    cfg = FieldConfig(HashGridConfig(3, 8, 2, 15, 16, 1.5), HashGridConfig(2, 4, 2, 12, 4, 2.0), 32, 2, 5.0,
+                      (-0.75, 0.0, 0.75))
+    assert cfg.input_dims == 16 + 8 + 1
+    again = FieldConfig.from_dict(json.loads(json.dumps(cfg.to_dict())))
+    assert again == cfg
+    with pytest.raises(ValueError, match="3-D"):
+        FieldConfig(position=HashGridConfig(2, 4, 2, 12, 4, 2.0))
+    with pytest.raises(ValueError, match="hidden_layers"):
+        FieldConfig(hidden_layers=0)
+    with pytest.raises(ValueError, match="phases"):
+        FieldConfig(phases=(1.5,))
+    bad = cfg.to_dict() | {"extra": 1}
+    with pytest.raises(ValueError, match="unknown keys"):
+        FieldConfig.from_dict(bad)
+    with pytest.raises(ValueError, match="version"):
+        FieldConfig.from_dict(cfg.to_dict() | {"version": 99})

@@ -1,0 +1,271 @@
+"""``pfn-train``: photon tracing and photon-field fitting.
+
+Examples::
+
+    pfn-train trace vortex --photons 1M --out maps/vortex.npz
+    pfn-train trace my_scene.json --photons 3M --phases -0.75 0 0.75 --seed 7 --out maps/mine.npz
+    pfn-train fit vortex --map maps/vortex.npz --out runs/vortex/            # preset cpu
+    pfn-train fit vortex --map maps/vortex.npz --out runs/paper/ --preset paper
+    pfn-train all blobs --photons 1M --out runs/blobs/                       # trace + fit + export
+    pfn-train export runs/vortex/ --out fields/vortex.pfn                    # the bundle for pfn-render
+
+``fit`` writes ``checkpoint.pt``, ``log.json``, ``loss.png`` and ``domain.json`` (the world box, for the
+export) into the ``--out`` folder (see :mod:`photon_fields.train.fit.loop`). Options left out come from the preset
+(``--preset``: cpu, paper, tiny). ``export`` writes the runtime's bundle (:mod:`train.export.bundle`); ``all``
+ends with it (``OUT/field.pfn``, replaced if present).
+
+Bad input exits with status 2 and one line on stderr: ``error: <input>: <problem>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+
+# torch's and numba's OpenMP pools spin after every parallel region and, with any other load on 2 cores,
+# steal each other's core: a cpu-preset fit with one busy core elsewhere ran 1.4x faster with passive
+# waiting (same speed on an idle machine; photon_fields.train.fit.loop). Must be set before torch or numba load libgomp;
+# the user's own setting wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+from collections.abc import Sequence
+from pathlib import Path
+
+from photon_fields.models_spec import DEFAULT_PHASES
+from photon_fields.runtime.cli.common import (
+    OneLineArgumentParser,
+    check_seed,
+    guarded,
+    prepare_output,
+    refuse_to_replace,
+    set_threads,
+)
+from photon_fields.runtime.errors import InputError
+
+_COUNT = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kKmMgG]?)\s*$")
+
+
+def parse_count(text: str, what: str = "--photons") -> int:
+    """'1M' -> 1_000_000, '250k' -> 250_000, '4000' -> 4000."""
+    m = _COUNT.match(str(text))
+    if not m:
+        raise InputError(what, f"expected a count such as 1M, 250k or 4000, got {text!r}")
+    value = float(m.group(1)) * {"": 1, "k": 1e3, "m": 1e6, "g": 1e9}[m.group(2).lower()]
+    if value < 1 or value != int(value):
+        raise InputError(what, f"must be a positive whole number, got {text!r}")
+    return int(value)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = OneLineArgumentParser(prog="pfn-train", description="Photon Field Networks: photon tracing and training.")
+    sub = p.add_subparsers(dest="command", required=True)
+    t = sub.add_parser("trace", help="multi-phase photon tracing (Alg. 1) into a photon map",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    _add_trace_options(t)
+    t.add_argument("--seed", type=int, default=0, help="random seed: same seed, same map")
+    t.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
+    t.add_argument("--quiet", action="store_true", help="no progress bar")
+    t.add_argument("--out", required=True, help="output photon map (.npz)")
+    t.add_argument("--force", action="store_true", help="replace an existing photon map")
+
+    f = sub.add_parser("fit", help="fit a photon field to a photon map (Sec. 3.5)",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    f.add_argument("scene", help="builtin scene name or scene JSON file the map was traced for")
+    f.add_argument("--map", required=True, help="photon map (.npz) from pfn-train trace")
+    _add_fit_options(f)
+
+    a = sub.add_parser("all", help="trace a photon map (saved as OUT/map.npz), then fit a field to it",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    _add_trace_options(a)
+    a.add_argument("--tables-dtype", choices=["float32", "float16"], default="float32",
+                   help="hash-table precision in the exported bundle")
+    _add_fit_options(a)
+
+    e = sub.add_parser("export", help="export a run's checkpoint as a field bundle (NAME.pfn) for the runtime",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    e.add_argument("run", help="run folder of pfn-train fit (checkpoint.pt, domain.json)")
+    e.add_argument("--out", default=None, help="bundle directory to write, NAME.pfn (default: RUN/field.pfn)")
+    e.add_argument("--scene", default=None, help="the scene trained for (needed only when the run folder has no "
+                                                 "domain.json)")
+    e.add_argument("--tables-dtype", choices=["float32", "float16"], default="float32",
+                   help="hash-table precision (float16: half the size, L' within ~1e-3)")
+    e.add_argument("--force", action="store_true", help="replace an existing bundle")
+    return p
+
+
+def _add_trace_options(t: argparse.ArgumentParser) -> None:
+    """The scene and photon-tracing options of ``trace`` and ``all``."""
+    t.add_argument("scene", help="builtin scene name (vortex, blobs, shell) or a scene JSON file")
+    t.add_argument("--photons", default="1M", help="records to store, e.g. 1M, 250k")
+    t.add_argument("--phases", type=float, nargs="+", default=list(DEFAULT_PHASES), help="the phase set G")
+    t.add_argument("--max-bounces", type=int, default=16, help="max collisions per photon path")
+
+
+def _add_fit_options(f: argparse.ArgumentParser) -> None:
+    from photon_fields.train.fit.loop import PRESETS
+
+    f.add_argument("--out", required=True, help="run folder (checkpoint.pt, log.json, loss.png)")
+    f.add_argument("--preset", default="cpu", choices=sorted(PRESETS), help="architecture and default settings")
+    f.add_argument("--steps", type=int, default=None, help="training steps (default: the preset's)")
+    f.add_argument("--batch", type=int, default=None, help="samples per step (default: the preset's)")
+    f.add_argument("--lr", type=float, default=None, help="Adam learning rate (default: the preset's)")
+    f.add_argument("--k", type=int, default=1024, help="photons per radiance estimate (K)")
+    f.add_argument("--schedule", choices=["staggered", "naive"], default=None,
+                   help="KNN radius schedule: Table 1 by photon count, or its final radius throughout "
+                        "(default: the preset's)")
+    f.add_argument("--sampling", choices=["box", "support"], default=None,
+                   help="training positions: uniform in the box (paper) or in the medium's support "
+                        "(default: the preset's)")
+    f.add_argument("--checkpoint-every", type=int, default=500, help="save checkpoint.pt every N steps")
+    f.add_argument("--seed", type=int, default=0, help="random seed: same seed, same field")
+    f.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
+    f.add_argument("--quiet", action="store_true", help="no progress bar")
+    f.add_argument("--force", action="store_true", help="replace the results of an earlier run in --out")
+
+
+def cmd_trace(args: argparse.Namespace) -> int:
+    from photon_fields.runtime.scene.scene import load_scene
+    from photon_fields.train.photons.tracing import check_phases, trace_photons
+
+    out = Path(args.out)
+    photons = parse_count(args.photons)
+    check_phases(args.phases, "--phases")
+    check_seed(args.seed)
+    set_threads(args.threads)
+    scene = load_scene(args.scene)
+    prepare_output(out, ".npz", force=args.force, what="a photon map")
+    pmap = trace_photons(scene, photons, phases=args.phases, max_bounces=args.max_bounces, seed=args.seed,
+                         progress=not args.quiet)
+    pmap.save(out)
+    meta = pmap.metadata()
+    secs = meta["trace_seconds"]
+    print(f"traced {meta['stored']:,} photons ({meta['emitted']:,} paths) in {secs:.2f} s "
+          f"({meta['stored'] / max(secs, 1e-9) / 1e6:.2f} M/s) -> {out}")
+    print(json.dumps({"per_phase": meta["per_phase"], "phases": meta["phases"]}))
+    return 0
+
+
+def _fit_settings(args: argparse.Namespace):  # noqa: ANN202  (photon_fields.train.fit.loop is imported lazily)
+    from photon_fields.train.fit.loop import FitSettings
+
+    settings = FitSettings.from_preset(args.preset, steps=args.steps, batch=args.batch, lr=args.lr, k=args.k,
+                                       schedule_kind=args.schedule, sampling=args.sampling, seed=args.seed,
+                                       checkpoint_every=args.checkpoint_every)
+    settings.validate()
+    check_seed(args.seed)
+    return settings
+
+
+#: What ``fit`` writes into a run folder, and what ``all`` adds (the map it traced and the bundle).
+FIT_OUTPUTS = ("checkpoint.pt", "log.json", "loss.png", "domain.json")
+ALL_OUTPUTS = (*FIT_OUTPUTS, "map.npz", "field.pfn")
+
+
+def _prepare_run_folder(out: Path, force: bool, outputs: Sequence[str]) -> None:
+    """Refuse (before any work) a file where the run folder goes, and a folder holding an earlier run's
+    results unless ``force``; then create it."""
+    if out.exists() and not out.is_dir():
+        raise InputError("--out", f"{str(out)!r} is a file; --out names a run folder")
+    refuse_to_replace([out / name for name in outputs], force, f"an earlier run in {str(out)!r}")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError("--out", f"cannot create the folder {str(out)!r}: {exc.strerror or exc}") from None
+
+
+def _set_all_threads(threads: int | None) -> None:
+    set_threads(threads)  # numba: KNN targets, hash grid, optimizer
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(threads)  # the MLP
+
+
+def _run_fit(args: argparse.Namespace, scene, pmap, settings) -> int:  # noqa: ANN001
+    from photon_fields.train.export.bundle import write_run_domain
+    from photon_fields.train.fit.loop import fit
+    from photon_fields.train.fit.targets import check_phase_bins
+
+    out = Path(args.out)
+    check_phase_bins(pmap)  # refuse before anything is written into the run folder
+    write_run_domain(out, scene, args.scene)  # the world box the export needs (checkpoints do not hold it)
+    result = fit(scene, pmap, out, settings, progress=not args.quiet)
+    t = result.log["totals"]
+    val = t["final_validation"] or {}
+    print(f"fitted {t['steps_done']} steps x {settings.batch} samples in {t['wall_s']:.1f} s (targets "
+          f"{t['targets_s_per_step'] * 1e3:.0f} ms/step, training {t['train_s_per_step'] * 1e3:.0f} ms/step, "
+          f"{t['samples_per_s']:,.0f} samples/s); final loss {t['final_loss']:.4g}, validation loss "
+          f"{val.get('val_loss', float('nan')):.4g}, relative L1 {val.get('val_rel_l1', float('nan')):.3f} -> "
+          + ", ".join(str(p) for p in result.files))
+    return 0
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from photon_fields.runtime.scene.scene import load_scene
+    from photon_fields.train.fit.loop import load_map_for
+
+    settings = _fit_settings(args)
+    _set_all_threads(args.threads)
+    scene = load_scene(args.scene)
+    pmap = load_map_for(scene, args.map)
+    out = Path(args.out)
+    _prepare_run_folder(out, args.force, (*FIT_OUTPUTS, "field.pfn"))
+    if (out / "field.pfn").exists():
+        print(f"note: {out / 'field.pfn'} is the earlier fit's bundle; re-export it with "
+              f"pfn-train export {out} --force", file=sys.stderr)
+    return _run_fit(args, scene, pmap, settings)
+
+
+def cmd_all(args: argparse.Namespace) -> int:
+    from photon_fields.runtime.scene.scene import load_scene
+    from photon_fields.train.photons.tracing import check_phases, trace_photons
+
+    photons = parse_count(args.photons)
+    check_phases(args.phases, "--phases")
+    settings = _fit_settings(args)
+    _set_all_threads(args.threads)
+    scene = load_scene(args.scene)
+    out = Path(args.out)
+    _prepare_run_folder(out, args.force, ALL_OUTPUTS)
+    pmap = trace_photons(scene, photons, phases=args.phases, max_bounces=args.max_bounces, seed=args.seed,
+                         progress=not args.quiet)
+    map_path = pmap.save(out / "map.npz")
+    secs = pmap.metadata()["trace_seconds"]
+    print(f"traced {len(pmap):,} photons in {secs:.2f} s -> {map_path}")
+    _run_fit(args, scene, pmap, settings)
+    from photon_fields.train.export.bundle import export_bundle
+
+    res = export_bundle(out, out / "field.pfn", tables_dtype=args.tables_dtype, force=True)
+    _print_export(res)
+    return 0
+
+
+def _print_export(res) -> None:  # noqa: ANN001  (photon_fields.train.export.bundle is imported lazily)
+    mb = sum(res.files.values()) / 1e6
+    check = f", verified (max |dL'| {res.verify_max_abs_diff:.2g})" if res.verify_max_abs_diff is not None else ""
+    print(f"exported {res.path} ({mb:.1f} MB, tables {res.manifest['tables']['dtype']}{check}) in {res.seconds:.1f} s")
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from photon_fields.train.export.bundle import export_bundle
+
+    scene = None
+    if args.scene is not None:
+        from photon_fields.runtime.scene.scene import load_scene
+
+        scene = load_scene(args.scene)
+    res = export_bundle(args.run, args.out, scene=scene, tables_dtype=args.tables_dtype, force=args.force)
+    _print_export(res)
+    return 0
+
+
+@guarded
+def _main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return {"trace": cmd_trace, "fit": cmd_fit, "all": cmd_all, "export": cmd_export}[args.command](args)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    sys.exit(_main(argv))

@@ -1,0 +1,95 @@
+"""The photon field network P_phi(x, g, omega) (paper Sec. 3.4, Fig. 5) and the torch twins of Eq. 6 / 7.
+
+:class:`PhotonField` is three modules in a row, as in Fig. 5:
+
+1. encoding: a 3-D hash grid on the normalized position x in [0, 1]^3, a 2-D hash grid on the direction
+   in normalized spherical coordinates ([0, 1]^2), and g unencoded; concatenated in that order
+   (:mod:`models_spec.encoding` defines the input conventions, :class:`train.field.hashgrid.HashGridEncoding`
+   the hash grids, bit-exact with tiny-cuda-nn);
+2. network: a ReLU MLP with ``cfg.hidden_layers`` hidden layers of ``cfg.hidden_width`` neurons and no
+   output activation, producing the 3 log-encoded channels L' (Eq. 6). Like tiny-cuda-nn's
+   FullyFusedMLP (what the paper trained with) the linear layers have no biases and are initialized
+   Xavier-uniform; the hash tables start uniform in [-1e-4, 1e-4] as in tcnn;
+3. decoding: :func:`decode_radiance_torch` (Eq. 7), applied by the caller (the loss works on L').
+
+Parameters
+----------
+cfg : photon_fields.models_spec.encoding.FieldConfig
+    Encodings, MLP size, psi, phases.
+seed : int
+    Seeds one ``torch.Generator`` that draws, in this order, the position table, the direction table and
+    the MLP weights: the same seed gives the same initial parameters, whatever else used torch's RNG.
+
+``forward(pos, dirs, g)`` takes float32 tensors pos (n, 3) from :func:`models_spec.encoding.normalize_position`,
+dirs (n, 2) from :func:`photon_fields.models_spec.encoding.direction_input` and g (n, 1), and returns float32 (n, 3) L'.
+
+The torch twins :func:`encode_radiance_torch` / :func:`decode_radiance_torch` compute in float64 and round
+to float32 once, like the numpy originals, so both sides agree bit for bit (tests/models_spec/test_encoding.py).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from photon_fields.models_spec.encoding import FieldConfig, check_psi
+from photon_fields.train.field.hashgrid import HashGridEncoding
+
+
+def encode_radiance_torch(L: torch.Tensor, psi: float) -> torch.Tensor:
+    """Eq. 6 in torch: float32 ``-log10(L) / psi`` where ``L > 10^-psi``, else 1 (as models_spec.encoding)."""
+    p = check_psi(psi)
+    lum = L.detach().to(torch.float64)
+    keep = lum > 10.0**-p  # False for NaN, as in numpy
+    one = torch.ones_like(lum)
+    return torch.where(keep, -torch.log10(torch.where(keep, lum, one)) / p, one).to(torch.float32)
+
+
+def decode_radiance_torch(Lp: torch.Tensor, psi: float) -> torch.Tensor:
+    """Eq. 7 in torch: float32 ``10^(-L' psi)`` (differentiable; float64 inside)."""
+    p = check_psi(psi)
+    return torch.pow(10.0, -Lp.to(torch.float64) * p).to(torch.float32)
+
+
+class PhotonField(nn.Module):
+    """Hash-grid encoded ReLU MLP from (x, omega, g) to log-encoded radiance (see the module docstring)."""
+
+    def __init__(self, cfg: FieldConfig, *, seed: int = 0) -> None:
+        super().__init__()
+        if not isinstance(cfg, FieldConfig):
+            raise TypeError(f"cfg must be a FieldConfig, got {type(cfg).__name__}")
+        self.cfg = cfg
+        gen = torch.Generator().manual_seed(int(seed))
+        self.position = HashGridEncoding(cfg.position, generator=gen)
+        self.direction = HashGridEncoding(cfg.direction, generator=gen)
+        widths = [cfg.input_dims] + [cfg.hidden_width] * cfg.hidden_layers + [3]
+        layers: list[nn.Module] = []
+        for i in range(len(widths) - 1):
+            lin = nn.Linear(widths[i], widths[i + 1], bias=False)
+            with torch.no_grad():
+                bound = (6.0 / (widths[i] + widths[i + 1])) ** 0.5  # Xavier-uniform, as tcnn initializes
+                lin.weight.uniform_(-bound, bound, generator=gen)
+            layers.append(lin)
+            if i < len(widths) - 2:
+                layers.append(nn.ReLU())
+        self.mlp = nn.Sequential(*layers)
+
+    def table_parameters(self) -> list[nn.Parameter]:
+        """The hash tables: tcnn's "non-matrix" parameters (sparse gradients, lazily updated by its Adam)."""
+        return [self.position.table, self.direction.table]
+
+    def matrix_parameters(self) -> list[nn.Parameter]:
+        """The MLP weight matrices."""
+        return [p for p in self.mlp.parameters()]
+
+    def forward(self, pos: torch.Tensor, dirs: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+        n = pos.shape[0]
+        if dirs.shape != (n, 2) or g.shape != (n, 1) or pos.shape != (n, 3):
+            raise ValueError(f"expected pos (n, 3), dirs (n, 2), g (n, 1); got {tuple(pos.shape)}, "
+                             f"{tuple(dirs.shape)}, {tuple(g.shape)}")
+        features = torch.cat([self.position(pos), self.direction(dirs), g.to(torch.float32)], dim=1)
+        return self.mlp(features)
+
+    def radiance(self, pos: torch.Tensor, dirs: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+        """Decoded radiance L (Eq. 7), float32 (n, 3)."""
+        return decode_radiance_torch(self.forward(pos, dirs, g), self.cfg.psi)

@@ -1,0 +1,265 @@
+"""Multi-phase photon tracing in heterogeneous media (paper Alg. 1, Sec. 3.2).
+
+Parameters
+----------
+photons : int >= 1
+    Target number of stored records ("photons in the map", as in the paper's Table 3). Photon paths are
+    traced in fixed-size chunks until each phase holds at least ``ceil(photons / |G|)`` records; the map
+    keeps every record of a phase's paths up to the one that reaches its quota.
+phases : sequence of g in [-1, 1] (default G = {-0.75, 0, 0.75})
+    Each photon path scatters with one g of G at every vertex. Paths are assigned to the phases
+    round-robin and every phase is traced until it holds ``photons / |G|`` records, so the phases are
+    equally represented in the map ("equally distributed over ... the number of phases", Sec. 4.4)
+    even though forward- and back-scattering photons leave different numbers of records per path.
+max_bounces : int >= 2 (default 16)
+    Maximum number of collisions of a photon path. A record at collision k is the light that reaches a
+    camera vertex through k scattering vertices, so ``max_bounces = 16`` matches the path tracer's
+    ``max_depth = 16``.
+seed : int
+    Photon path i uses random stream i of the seed (``runtime.transport.rng``): the map is identical for any
+    number of threads, and chunking is fixed, so the record order is deterministic too.
+
+Emission (power split by light power: a light is chosen with probability proportional to its total
+RGB flux, and its photons carry flux / probability):
+
+- point light, intensity I: flux 4 pi I; directions are sampled uniformly inside the cone that
+  subtends the volume's bounding sphere (when the light is outside it), and the power is scaled by the
+  cone's solid-angle fraction, so no photon is wasted on directions that cannot reach the volume;
+- directional light, irradiance E: parallel rays from a disk of radius R (the box's bounding sphere)
+  perpendicular to the direction, flux E pi R^2;
+- environment, radiance L: a uniform direction, then a disk of radius R perpendicular to it, flux
+  4 pi^2 R^2 L (uniform radiance through a sphere of radius R).
+
+Transport: free flights by delta tracking over the majorant grid; at each real collision the photon is
+recorded (from the second collision on, Alg. 1's "skip first interaction") with the power it *arrives*
+with, then Russian roulette with survival probability = max albedo component, and the surviving power
+is multiplied by albedo / survival (Jensen's photon tracing: powers stay nearly constant, which keeps
+the density estimate's variance low). Recording before the albedo differs from Alg. 1's listing on
+purpose: the albedo at the camera's vertex is applied at render time from the full-resolution
+transfer function, so the field only has to learn the smooth incident light (see
+``runtime.photons.estimate``). Record powers are divided by the number of paths emitted for their phase, so
+the records of each phase form a complete photon map on their own.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+
+import numpy as np
+from numba import njit, prange
+from tqdm import tqdm
+
+from photon_fields.models_spec import DEFAULT_PHASES
+from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.photons.photon_map import PhotonMap
+from photon_fields.runtime.scene.lights import DIRECTIONAL, POINT
+from photon_fields.runtime.scene.scene import Scene
+from photon_fields.runtime.transport.medium import Medium, albedo_at, intersect_box
+from photon_fields.runtime.transport.phase import check_g, orthonormal_basis, sample_hg
+from photon_fields.runtime.transport.rng import next_float, stream_state
+from photon_fields.runtime.transport.tracking import delta_track
+
+CHUNK = 1 << 15  # photon paths per kernel call; fixed so results do not depend on anything else
+#: Give up when the stored/emitted ratio says the target would need more than this many paths.
+MAX_EMITTED_PER_TARGET = 2000
+MIN_PATHS_BEFORE_GIVING_UP = 1 << 20
+
+
+def light_fluxes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """(flux (n_lights, 3) of the part of each light that can reach the bounding sphere, cone cos_max (n,))."""
+    kind, vec, rgb = scene.packed_lights()
+    m = scene.medium()
+    center = m.bmin + 0.5 * m.bsize
+    radius = 0.5 * float(np.linalg.norm(m.bsize))
+    flux = np.zeros_like(rgb)
+    cos_max = np.full(len(kind), -1.0)
+    for i in range(len(kind)):
+        if kind[i] == POINT:
+            dist = float(np.linalg.norm(vec[i] - center))
+            if dist > radius:
+                cos_max[i] = math.sqrt(max(0.0, 1.0 - (radius / dist) ** 2))
+            flux[i] = 4 * math.pi * rgb[i] * (1.0 - cos_max[i]) / 2.0
+        elif kind[i] == DIRECTIONAL:
+            flux[i] = rgb[i] * math.pi * radius**2
+        else:
+            flux[i] = rgb[i] * 4 * math.pi**2 * radius**2
+    return flux, cos_max
+
+
+@njit(cache=True, inline="always")
+def _emit(kind: int, vec: np.ndarray, cos_max: float, cx: float, cy: float, cz: float, radius: float,
+          u1: float, u2: float, u3: float, u4: float) -> tuple[float, float, float, float, float, float]:
+    """Origin and travel direction of an emitted photon (see module docstring)."""
+    if kind == POINT:
+        ax, ay, az = cx - vec[0], cy - vec[1], cz - vec[2]
+        n = math.sqrt(ax * ax + ay * ay + az * az)
+        if cos_max > -1.0 and n > 0.0:
+            ax, ay, az = ax / n, ay / n, az / n
+        else:  # light inside the bounding sphere: the whole sphere of directions
+            ax, ay, az = 0.0, 0.0, 1.0
+        c = 1.0 - u1 * (1.0 - cos_max)
+        s = math.sqrt(max(0.0, 1.0 - c * c))
+        tx, ty, tz, bx, by, bz = orthonormal_basis(ax, ay, az)
+        cp, sp = s * math.cos(2 * math.pi * u2), s * math.sin(2 * math.pi * u2)
+        wx, wy, wz = cp * tx + sp * bx + c * ax, cp * ty + sp * by + c * ay, cp * tz + sp * bz + c * az
+        return vec[0], vec[1], vec[2], wx, wy, wz
+    if kind == DIRECTIONAL:
+        dx, dy, dz = vec[0], vec[1], vec[2]
+    else:  # ENVIRONMENT: uniform travel direction
+        dz = 1.0 - 2.0 * u3
+        s = math.sqrt(max(0.0, 1.0 - dz * dz))
+        dx, dy = s * math.cos(2 * math.pi * u4), s * math.sin(2 * math.pi * u4)
+    tx, ty, tz, bx, by, bz = orthonormal_basis(dx, dy, dz)
+    r = radius * math.sqrt(u1)
+    px, py = r * math.cos(2 * math.pi * u2), r * math.sin(2 * math.pi * u2)
+    back = 1.01 * radius
+    return (cx - back * dx + px * tx + py * bx, cy - back * dy + px * ty + py * by,
+            cz - back * dz + px * tz + py * bz, dx, dy, dz)
+
+
+@njit(cache=True, parallel=True)
+def _trace_chunk(m: Medium, kind: np.ndarray, vec: np.ndarray, power: np.ndarray, cos_max: np.ndarray,
+                 light_cdf: np.ndarray, phases: np.ndarray, active: np.ndarray, seed: int, first: int, n: int,
+                 max_bounces: int,
+                 out_pos: np.ndarray, out_dir: np.ndarray, out_pow: np.ndarray, out_phase: np.ndarray,
+                 out_count: np.ndarray) -> None:
+    """Trace photon paths first .. first + n - 1; path i scatters with phase active[i % len(active)],
+    writes its records to slots [i * (max_bounces - 1), ...) and their number to out_count[i]."""
+    cx, cy, cz = m.bmin[0] + 0.5 * m.bsize[0], m.bmin[1] + 0.5 * m.bsize[1], m.bmin[2] + 0.5 * m.bsize[2]
+    radius = 0.5 * math.sqrt(m.bsize[0] ** 2 + m.bsize[1] ** 2 + m.bsize[2] ** 2)
+    slots = max_bounces - 1
+    for i in prange(n):
+        st = stream_state(np.uint64(seed), np.uint64(first + i))
+        st, u = next_float(st)
+        li = 0
+        while li < light_cdf.shape[0] - 1 and u >= light_cdf[li]:
+            li += 1
+        st, u1 = next_float(st)
+        st, u2 = next_float(st)
+        st, u3 = next_float(st)
+        st, u4 = next_float(st)
+        ox, oy, oz, dx, dy, dz = _emit(kind[li], vec[li], cos_max[li], cx, cy, cz, radius, u1, u2, u3, u4)
+        ph = active[i % active.shape[0]]
+        g = phases[ph]
+        br, bg, bb = power[li, 0], power[li, 1], power[li, 2]
+        count = 0
+        t0, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
+        if t0 < t1:
+            ox, oy, oz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
+            tmax = t1 - t0
+            for bounce in range(max_bounces):
+                t, st = delta_track(m, ox, oy, oz, dx, dy, dz, 0.0, tmax, st)
+                if math.isinf(t):
+                    break
+                ox, oy, oz = ox + t * dx, oy + t * dy, oz + t * dz
+                if bounce >= 1:  # Alg. 1: the first interaction is direct light, not stored
+                    k = i * slots + count
+                    out_pos[k, 0], out_pos[k, 1], out_pos[k, 2] = ox, oy, oz
+                    out_dir[k, 0], out_dir[k, 1], out_dir[k, 2] = dx, dy, dz
+                    out_pow[k, 0], out_pow[k, 1], out_pow[k, 2] = br, bg, bb
+                    out_phase[k] = ph
+                    count += 1
+                if bounce + 1 == max_bounces:
+                    break
+                a0, a1, a2 = albedo_at(m, ox, oy, oz)
+                q = max(a0, a1, a2)
+                st, u = next_float(st)
+                if u >= q:
+                    break
+                br, bg, bb = br * a0 / q, bg * a1 / q, bb * a2 / q
+                st, u1 = next_float(st)
+                st, u2 = next_float(st)
+                dx, dy, dz, _ = sample_hg(g, dx, dy, dz, u1, u2)
+                _, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
+                tmax = max(t1, 0.0)
+        out_count[i] = count
+
+
+def _check_progress(scene: Scene, stored: np.ndarray, emitted: np.ndarray, quota: int) -> None:
+    """Refuse to loop (nearly) forever when the lights (almost) never reach the volume."""
+    for k in range(stored.size):
+        hopeless = stored[k] * MAX_EMITTED_PER_TARGET < quota
+        if stored[k] < quota and emitted[k] >= MIN_PATHS_BEFORE_GIVING_UP and hopeless:
+            reason = ("no photon from the lights scatters twice in the volume: the lights miss it, or the transfer "
+                      "function makes it (nearly) empty or black") if stored[k] == 0 else (
+                      f"only {stored[k]} records from {emitted[k]} photon paths: the lights barely reach the volume")
+            raise InputError(f"scene '{scene.name}'", reason)
+
+
+def check_phases(phases: Sequence[float], what: str = "phases") -> tuple[float, ...]:
+    if len(phases) == 0:
+        raise InputError(what, "the phase set G is empty")
+    if len(phases) > 255:
+        raise InputError(what, "at most 255 phases are supported")
+    gs = tuple(check_g(g, what) for g in phases)
+    if len(set(gs)) != len(gs):
+        raise InputError(what, f"phase values must be distinct, got {list(phases)}")
+    return gs
+
+
+def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAULT_PHASES, max_bounces: int = 16,
+                  seed: int = 0, progress: bool = True) -> PhotonMap:
+    """Alg. 1: trace photon paths until the map holds at least ``photons`` records."""
+    if isinstance(photons, bool) or not isinstance(photons, (int, np.integer)) or photons < 1:
+        raise InputError("photons", f"must be a positive integer, got {photons!r}")
+    if not 2 <= max_bounces <= 1024:
+        raise InputError("max_bounces", f"must be in [2, 1024] (photons are stored from the 2nd collision), "
+                         f"got {max_bounces}")
+    gs = check_phases(phases)
+    m = scene.medium()
+    kind, vec, _ = scene.packed_lights()
+    flux, cos_max = light_fluxes(scene)
+    weight = flux.sum(axis=1)
+    if weight.sum() <= 0:
+        raise InputError("lights", "no light emits any power")
+    p_light = weight / weight.sum()
+    light_cdf = np.cumsum(p_light)
+    light_cdf[-1] = 1.0
+    # Unnormalized photon power: flux / P(light); divided by the number of its phase's paths at the end.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        power = np.where(p_light[:, None] > 0, flux / p_light[:, None], 0.0)
+    slots = max_bounces - 1
+    buf_pos = np.empty((CHUNK * slots, 3), dtype=np.float32)
+    buf_dir = np.empty((CHUNK * slots, 3), dtype=np.float32)
+    buf_pow = np.empty((CHUNK * slots, 3), dtype=np.float32)
+    buf_phase = np.empty(CHUNK * slots, dtype=np.uint8)
+    counts = np.empty(CHUNK, dtype=np.int64)
+    quota = -(-photons // len(gs))
+    stored = np.zeros(len(gs), dtype=np.int64)
+    emitted_per_phase = np.zeros(len(gs), dtype=np.int64)
+    parts: list[list[tuple[np.ndarray, ...]]] = [[] for _ in gs]
+    first_path = 0
+    g_arr = np.asarray(gs, dtype=np.float64)
+    t_start = time.perf_counter()
+    with tqdm(total=quota * len(gs), desc="tracing photons", unit="ph", unit_scale=True, disable=not progress,
+              leave=False) as bar:
+        while np.any(stored < quota):
+            active = np.flatnonzero(stored < quota).astype(np.int64)
+            _trace_chunk(m, kind, vec, power, cos_max, light_cdf, g_arr, active, int(seed), first_path, CHUNK,
+                         max_bounces, buf_pos, buf_dir, buf_pow, buf_phase, counts)
+            first_path += CHUNK
+            for j, ph in enumerate(active):
+                paths = np.arange(j, CHUNK, len(active))  # this phase's paths in the chunk
+                cum = np.cumsum(counts[paths])
+                if stored[ph] + cum[-1] >= quota:  # keep whole paths, up to the one that reaches the quota
+                    paths = paths[: int(np.searchsorted(cum, quota - stored[ph])) + 1]
+                used = np.arange(slots)[None, :] < counts[paths, None]
+                sel = (paths[:, None] * slots + np.arange(slots)[None, :])[used]
+                parts[ph].append((buf_pos[sel], buf_dir[sel], buf_pow[sel], buf_phase[sel]))
+                stored[ph] += sel.size
+                emitted_per_phase[ph] += paths.size
+                bar.update(int(min(sel.size, quota * len(gs) - bar.n)))
+            _check_progress(scene, stored, emitted_per_phase, quota)
+    pos = np.concatenate([p[0] for ph_parts in parts for p in ph_parts])
+    dirs = np.concatenate([p[1] for ph_parts in parts for p in ph_parts])
+    ph_idx = np.concatenate([p[3] for ph_parts in parts for p in ph_parts])
+    # Normalize by the paths emitted for each record's own phase (each phase is a complete map).
+    pw = np.concatenate([p[2] / np.float32(emitted_per_phase[k]) for k, ph_parts in enumerate(parts)
+                         for p in ph_parts]).astype(np.float32)
+    emitted = int(emitted_per_phase.sum())
+    meta = {"seed": int(seed), "max_bounces": int(max_bounces), "trace_seconds": time.perf_counter() - t_start,
+            "scene_name": scene.name, "emitted_per_phase": [int(e) for e in emitted_per_phase],
+            "scene_parts": scene.fingerprint_parts()}
+    return PhotonMap(pos, dirs, pw, ph_idx, gs, scene.fingerprint(), emitted, meta)
