@@ -69,7 +69,7 @@ def make_bundle(arch: str, folder: Path, tables_dtype: str = "float32") -> Path:
     import torch
 
     from photon_fields.train.export.bundle import RUN_DOMAIN_FORMAT, export_bundle
-    from photon_fields.train.field.network import PhotonField as TorchField
+    from photon_fields.train.field.network import TorchPhotonField as TorchField
     from photon_fields.train.fit.loop import PRESETS, _save_checkpoint, field_config_for
 
     run = folder / f"run_{arch}"

@@ -2,12 +2,7 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
-
-# torch's and numba's OpenMP pools spin after parallel regions and steal each other's core on 2 cores
-# (train.fit.loop); pfn-train sets this itself, the test process must set it before either library loads.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
 import pytest
@@ -110,7 +105,7 @@ def make_model(cfg, seed: int = 0):  # noqa: ANN001, ANN201  (FieldConfig -> the
     """The torch field of ``cfg`` with its hash tables uniform in [-1, 1], so errors cannot hide."""
     import torch
 
-    from photon_fields.train.field.network import PhotonField as TorchField
+    from photon_fields.train.field.network import TorchPhotonField as TorchField
 
     model = TorchField(cfg, seed=seed)
     gen = torch.Generator().manual_seed(seed + 100)

@@ -148,6 +148,9 @@ def pack_lights(lights: list[Light] | tuple[Light, ...]) -> tuple[np.ndarray, np
             kind[i], vec[i] = POINT, light.position
         elif isinstance(light, DirectionalLight):
             kind[i], vec[i] = DIRECTIONAL, light.direction
-        else:
+        elif isinstance(light, EnvironmentLight):
             kind[i] = ENVIRONMENT
+        else:  # the kernels branch on these three kinds only: another one must not pass as an environment
+            raise TypeError(f"light {i}: {type(light).__name__} is not a light kind the kernels know "
+                            "(PointLight, DirectionalLight, EnvironmentLight)")
     return kind, vec, rgb

@@ -3,10 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
-
-# Before torch / numba start their OpenMP pools (see train.fit.loop: spinning pools cost 10x on 2 busy cores).
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402

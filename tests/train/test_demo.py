@@ -60,7 +60,8 @@ def test_demo_writes_renders_figure_and_summary(tmp_path, capsys) -> None:  # no
     eq = m["path_traced_equal_time_L_vs_reference"]
     assert eq["rel_l2"] < 1.6 / np.sqrt(eq["spp"]) + 0.05, eq
     assert m["neural_L_i_vs_photon_map_L_i"]["rel_l2"] < 0.35
-    assert min(m[k]["ssim"] for k in m) > 0.85
+    # SSIM of the speed-independent images (the equal-time one's spp, hence its noise, follows the machine).
+    assert min(m[k]["ssim"] for k in m if k != "path_traced_equal_time_L_vs_reference") > 0.85
     assert 0.75 < img["neural"]["L"].mean() / ref["L"].mean() < 1.05
     assert 0.88 < img["photonmap"]["L"].mean() / ref["L"].mean() < 1.06
     # Equal time: the path tracer got the spp it manages in the neural frame's time, and took about that time.

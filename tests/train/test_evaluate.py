@@ -14,16 +14,16 @@ from photon_fields.models_spec.encoding import FieldConfig, direction_input, nor
 from photon_fields.models_spec.hashgrid import HashGridConfig  # noqa: E402
 from photon_fields.runtime.scene.scene import scene_from_dict  # noqa: E402
 from photon_fields.train.eval.field_images import TorchFieldEstimator, evaluate_field, held_out_cameras, reference_maps  # noqa: E402
-from photon_fields.train.field.network import PhotonField  # noqa: E402
+from photon_fields.train.field.network import TorchPhotonField  # noqa: E402
 from photon_fields.train.fit.loop import FitSettings, fit  # noqa: E402
 from photon_fields.train.photons.tracing import trace_photons  # noqa: E402
 
 PHASES = (-0.75, 0.0, 0.75)
 
 
-def _random_field(seed: int = 0) -> PhotonField:
+def _random_field(seed: int = 0) -> TorchPhotonField:
     cfg = FieldConfig(HashGridConfig(3, 4, 2, 12, 4, 2.0), HashGridConfig(2, 2, 2, 8, 4, 2.0), 16, 2, 5.0, PHASES)
-    model = PhotonField(cfg, seed=seed)
+    model = TorchPhotonField(cfg, seed=seed)
     gen = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         for t in model.table_parameters():
@@ -56,7 +56,7 @@ def test_trained_field_scores_better_than_untrained_and_refuses_untraced_g(tmp_p
     settings = FitSettings.from_preset("tiny", steps=150, batch=1024, k=64, sampling="support", schedule_kind="naive",
                                        val_points=512, checkpoint_every=1000)
     trained = fit(scene, pmap, tmp_path / "run", settings, progress=False).model
-    untrained = PhotonField(trained.cfg, seed=0)
+    untrained = TorchPhotonField(trained.cfg, seed=0)
     cams = held_out_cameras(scene, 24)
     assert len(cams) == 2 and not np.allclose(cams[0].eye, scene.camera.eye)
     kw = {"spp": 1, "k": 64, "radius": 0.05, "cameras": cams, "cache": {}}

@@ -5,11 +5,6 @@ writes its outputs and refuses a foreign map."""
 from __future__ import annotations
 
 import json
-import os
-
-# Before torch / numba start their OpenMP pools (see train.fit.loop: spinning pools cost 10x on 2 busy cores).
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -26,7 +21,7 @@ from photon_fields.runtime.photons.estimate import PhotonMapEstimator  # noqa: E
 from photon_fields.runtime.photons.photon_map import PhotonMap  # noqa: E402
 from photon_fields.runtime.scene.scene import scene_from_dict  # noqa: E402
 from photon_fields.train.cli.train import _main  # noqa: E402
-from photon_fields.train.field.network import PhotonField  # noqa: E402
+from photon_fields.train.field.network import TorchPhotonField  # noqa: E402
 from photon_fields.train.fit.loop import (  # noqa: E402
     FitSettings,
     TcnnAdam,
@@ -70,7 +65,7 @@ def smooth_radiance(x: np.ndarray, d: np.ndarray, g: np.ndarray) -> np.ndarray:
 
 def test_tiny_field_learns_a_smooth_closed_form_field() -> None:
     cfg = FieldConfig(HashGridConfig(3, 4, 2, 12, 4, 2.0), HashGridConfig(2, 2, 2, 8, 4, 2.0), 16, 2, 5.0, PHASES)
-    model = PhotonField(cfg, seed=0)
+    model = TorchPhotonField(cfg, seed=0)
     opt = TcnnAdam(model.matrix_parameters(), model.table_parameters())
     rng = np.random.default_rng(0)
 

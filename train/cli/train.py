@@ -21,15 +21,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import re
 import sys
-
-# torch's and numba's OpenMP pools spin after every parallel region and, with any other load on 2 cores,
-# steal each other's core: a cpu-preset fit with one busy core elsewhere ran 1.4x faster with passive
-# waiting (same speed on an idle machine; photon_fields.train.fit.loop). Must be set before torch or numba load libgomp;
-# the user's own setting wins.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 from collections.abc import Sequence
 from pathlib import Path
 

@@ -1,6 +1,6 @@
 """Judging a trained field by the images it makes (issue 4's quality measure; paper Sec. 4.2, Fig. 8 / 10).
 
-:class:`TorchFieldEstimator` puts a torch :class:`photon_fields.train.field.network.PhotonField` behind the runtime's
+:class:`TorchFieldEstimator` puts a torch :class:`train.field.network.TorchPhotonField` behind the runtime's
 :class:`runtime.wavefront.first_interaction.IndirectEstimator` interface, so the field renders through exactly the
 code path (Alg. 2 stages, same random streams) that the photon-map renderer uses. Rendered with the same
 seed, the two renderers see *identical* first interactions; the only difference between their L_i
@@ -40,7 +40,7 @@ from photon_fields.runtime.scene.camera import Camera, orbit_camera
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.medium import Medium
 from photon_fields.runtime.wavefront.first_interaction import render_first_interaction
-from photon_fields.train.field.network import PhotonField
+from photon_fields.train.field.network import TorchPhotonField
 from photon_fields.train.photons.tracing import trace_photons
 
 HELD_OUT_ANGLES = (35.0, 160.0)  # degrees about the camera's up axis; neither is the scene camera's view
@@ -50,7 +50,7 @@ OUTSIDE_G = (-0.35, 0.35)  # Fig. 10's phase values that are not in the default 
 class TorchFieldEstimator:
     """Q(x, d, g) from a torch photon field (decoded with Eq. 7), in chunks, without gradients."""
 
-    def __init__(self, model: PhotonField, medium: Medium, chunk: int = 1 << 15) -> None:
+    def __init__(self, model: TorchPhotonField, medium: Medium, chunk: int = 1 << 15) -> None:
         self.model, self.medium, self.chunk = model.eval(), medium, int(chunk)
         self.seconds = 0.0
         self.queries = 0
@@ -106,7 +106,7 @@ class ViewScore:
         return dict(self.__dict__)
 
 
-def evaluate_field(scene: Scene, model: PhotonField, maps: list[PhotonMap], gs: tuple[float, ...], *,
+def evaluate_field(scene: Scene, model: TorchPhotonField, maps: list[PhotonMap], gs: tuple[float, ...], *,
                    size: int = 128, spp: int = 2, seed: int = 7, k: int = DEFAULT_K, radius: float = DEFAULT_RADIUS,
                    cameras: list[Camera] | None = None, cache: dict[Any, Any] | None = None,
                    independent: PhotonMap | None = None) -> dict[str, Any]:
@@ -123,7 +123,7 @@ def evaluate_field(scene: Scene, model: PhotonField, maps: list[PhotonMap], gs: 
     return result
 
 
-def _scores(scene: Scene, model: PhotonField, maps: list[PhotonMap], gs: tuple[float, ...], size: int, spp: int,
+def _scores(scene: Scene, model: TorchPhotonField, maps: list[PhotonMap], gs: tuple[float, ...], size: int, spp: int,
             seed: int, k: int, radius: float, cameras: list[Camera] | None, cache: dict[Any, Any]) -> dict[str, Any]:
     cams = cameras if cameras is not None else held_out_cameras(scene, size)
     est = TorchFieldEstimator(model, scene.medium())

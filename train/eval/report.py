@@ -37,8 +37,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see photon_fields.train.cli.train
-
 import numpy as np  # noqa: E402
 
 from photon_fields.runtime.cli.common import (  # noqa: E402

@@ -38,7 +38,6 @@ step of ``pfn-train all`` call :func:`export_bundle`:
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import secrets
@@ -75,9 +74,9 @@ from photon_fields.models_spec.bundle import (
 )
 from photon_fields.models_spec.encoding import direction_input, normalize_position
 from photon_fields.runtime.errors import InputError, check_keys
-from photon_fields.runtime.io.atomic import atomic_write_text
+from photon_fields.runtime.io.atomic import atomic_write_text, fsync_dir
 from photon_fields.runtime.scene.scene import Scene
-from photon_fields.train.field.network import PhotonField as TorchField
+from photon_fields.train.field.network import TorchPhotonField as TorchField
 from photon_fields.train.fit.loop import LOG_KEYS, load_checkpoint
 
 RUN_DOMAIN_FILE = "domain.json"
@@ -348,15 +347,6 @@ def _check_out(out: Path, force: bool) -> None:
             raise InputError("--out", f"{str(out)!r} exists; pass --force to replace it")
 
 
-def _fsync_dir(path: Path) -> None:
-    with contextlib.suppress(OSError):
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
 def export_bundle(run_dir: str | Path, out: str | Path | None = None, *, scene: Scene | None = None,
                   tables_dtype: str = "float32", force: bool = False, verify: bool = True) -> ExportResult:
     """Write the bundle of ``run_dir``'s checkpoint to ``out`` (default ``run_dir/field.pfn``); see the module
@@ -431,7 +421,7 @@ def _place(staging: Path, dest: Path) -> None:
         if old is not None:
             os.rename(old, dest)  # put the previous bundle back
         raise
-    _fsync_dir(dest.parent)
+    fsync_dir(dest.parent)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
 

@@ -1,6 +1,6 @@
 """The photon field network P_phi(x, g, omega) (paper Sec. 3.4, Fig. 5) and the torch twins of Eq. 6 / 7.
 
-:class:`PhotonField` is three modules in a row, as in Fig. 5:
+:class:`TorchPhotonField` is three modules in a row, as in Fig. 5:
 
 1. encoding: a 3-D hash grid on the normalized position x in [0, 1]^3, a 2-D hash grid on the direction
    in normalized spherical coordinates ([0, 1]^2), and g unencoded; concatenated in that order
@@ -51,7 +51,7 @@ def decode_radiance_torch(Lp: torch.Tensor, psi: float) -> torch.Tensor:
     return torch.pow(10.0, -Lp.to(torch.float64) * p).to(torch.float32)
 
 
-class PhotonField(nn.Module):
+class TorchPhotonField(nn.Module):
     """Hash-grid encoded ReLU MLP from (x, omega, g) to log-encoded radiance (see the module docstring)."""
 
     def __init__(self, cfg: FieldConfig, *, seed: int = 0) -> None:

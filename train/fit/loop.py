@@ -2,7 +2,7 @@
 
 Loop (Sec. 3.3, 3.5.1): every step draws a fresh batch with targets at the KNN schedule's current radius
 (:mod:`train.fit.targets`, :mod:`train.fit.schedule`), predicts the log-encoded radiance (Eq. 6) with
-:class:`photon_fields.train.field.network.PhotonField` and takes one optimizer step.
+:class:`photon_fields.train.field.network.TorchPhotonField` and takes one optimizer step.
 
 Loss: tiny-cuda-nn's ``RelativeL2`` on the encoded outputs, per output value
 ``(pred - target)^2 / (pred.detach()^2 + 0.01)``, averaged over the batch and the 3 channels (the paper's
@@ -117,7 +117,7 @@ from photon_fields.runtime.io.atomic import atomic_path, atomic_write_text
 from photon_fields.runtime.photons.estimate import DEFAULT_K, check_map_matches_scene
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.scene.scene import Scene
-from photon_fields.train.field.network import PhotonField, decode_radiance_torch
+from photon_fields.train.field.network import TorchPhotonField, decode_radiance_torch
 from photon_fields.train.fit.schedule import KnnSchedule, default_schedule, naive_schedule
 from photon_fields.train.fit.targets import SAMPLING_MODES, TargetBatch, TargetSampler, check_phase_bins
 
@@ -239,17 +239,17 @@ class TcnnAdam:
             p.grad = None
 
 
-def relative_l2(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+def relative_l2_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """tcnn's RelativeL2: mean of (pred - target)^2 / (pred.detach()^2 + 0.01)."""
     return ((pred - target) ** 2 / (pred.detach() ** 2 + RELATIVE_L2_EPS)).mean()
 
 
-def train_step(model: PhotonField, opt: TcnnAdam, pos: torch.Tensor, dirs: torch.Tensor, g: torch.Tensor,
+def train_step(model: TorchPhotonField, opt: TcnnAdam, pos: torch.Tensor, dirs: torch.Tensor, g: torch.Tensor,
                target: torch.Tensor, lr: float, step: int) -> float:
     """One optimization step on encoded targets; returns the loss *before* the step. A non-finite loss
     returns at once, without touching the parameters (the caller decides what to do)."""
     pred = model(pos, dirs, g)
-    loss = relative_l2(pred, target)
+    loss = relative_l2_loss(pred, target)
     value = float(loss.detach())
     if not math.isfinite(value):
         return value
@@ -334,20 +334,20 @@ class TrainingDivergedError(InputError):
 
 
 @torch.no_grad()
-def evaluate(model: PhotonField, val: TargetBatch, chunk: int = 1 << 14) -> dict[str, float]:
+def evaluate(model: TorchPhotonField, val: TargetBatch, chunk: int = 1 << 14) -> dict[str, float]:
     """Quality on held-out support samples: ``val_loss`` (the training loss on L') and ``val_rel_l1``,
     sum |L_pred - Q| / sum Q over samples and channels of the decoded radiance (Eq. 7): the share of the
     light that is wrong, which is what an image shows."""
     preds = [model(val.pos[i:i + chunk], val.dirs[i:i + chunk], val.g[i:i + chunk])
              for i in range(0, val.pos.shape[0], chunk)]
     pred = torch.cat(preds)
-    loss = float(relative_l2(pred, val.target))
+    loss = float(relative_l2_loss(pred, val.target))
     L = decode_radiance_torch(pred, model.cfg.psi).double().numpy()
     rel = float(np.abs(L - val.q).sum() / max(float(val.q.sum()), 1e-300))
     return {"val_loss": loss, "val_rel_l1": rel}
 
 
-def _save_checkpoint(path: Path, model: PhotonField, scene_fp: str, step: int, summary: dict[str, Any]) -> None:
+def _save_checkpoint(path: Path, model: TorchPhotonField, scene_fp: str, step: int, summary: dict[str, Any]) -> None:
     payload = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "state_dict": model.state_dict(),
                "field_config": model.cfg.to_dict(), "scene_fingerprint": scene_fp,
                "phases": list(model.cfg.phases), "step": int(step), "summary": summary}
@@ -355,7 +355,8 @@ def _save_checkpoint(path: Path, model: PhotonField, scene_fp: str, step: int, s
         torch.save(payload, tmp)
 
 
-def load_checkpoint(path: str | Path, expected_fingerprint: str | None = None) -> tuple[PhotonField, dict[str, Any]]:
+def load_checkpoint(path: str | Path,
+                    expected_fingerprint: str | None = None) -> tuple[TorchPhotonField, dict[str, Any]]:
     """Rebuild the field of a ``checkpoint.pt`` (refusing another scene's with ``expected_fingerprint``).
     Its metadata is as strict as the JSON files: unknown or missing keys, a field config that does not
     parse or weights that do not fit it are one-line errors naming the file."""
@@ -372,7 +373,7 @@ def load_checkpoint(path: str | Path, expected_fingerprint: str | None = None) -
     if expected_fingerprint is not None and data.get("scene_fingerprint") != expected_fingerprint:
         raise InputError(str(p), "checkpoint was trained for another scene (fingerprint mismatch)")
     try:
-        model = PhotonField(FieldConfig.from_dict(data["field_config"]))
+        model = TorchPhotonField(FieldConfig.from_dict(data["field_config"]))
         model.load_state_dict(data["state_dict"])
     except (ValueError, TypeError, KeyError, RuntimeError) as exc:
         raise InputError(str(p), f"field_config or state_dict unusable: {' '.join(str(exc).split())[:300]}") from None
@@ -448,7 +449,7 @@ def _deterministic_torch() -> Iterator[None]:
 
 @dataclass
 class FitResult:
-    model: PhotonField
+    model: TorchPhotonField
     log: dict[str, Any]
     out_dir: Path
     files: list[Path] = field(default_factory=list)
@@ -478,7 +479,7 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
     total = settings.steps
     boundaries = schedule.boundaries(total)
     torch.manual_seed(settings.seed)
-    model = PhotonField(cfg, seed=settings.seed)
+    model = TorchPhotonField(cfg, seed=settings.seed)
     opt = TcnnAdam(model.matrix_parameters(), model.table_parameters())
     sampler = TargetSampler(pmap, scene.medium(), k=settings.k, psi=cfg.psi, seed=settings.seed,
                             sampling=settings.sampling)

@@ -11,10 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
 import shutil  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -37,7 +33,7 @@ from photon_fields.runtime.errors import InputError  # noqa: E402
 from photon_fields.runtime.field.field import FieldEstimator, PhotonField  # noqa: E402
 from photon_fields.train.cli.train import _main  # noqa: E402
 from photon_fields.train.export.bundle import export_bundle, mlp_onnx, mlp_weights, write_tables_npz  # noqa: E402
-from photon_fields.train.field.network import PhotonField as TorchField  # noqa: E402
+from photon_fields.train.field.network import TorchPhotonField as TorchField  # noqa: E402
 from photon_fields.train.field.network import decode_radiance_torch  # noqa: E402
 from photon_fields.train.fit.loop import PRESETS, field_config_for  # noqa: E402
 

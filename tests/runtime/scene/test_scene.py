@@ -860,3 +860,21 @@ def test_file_scene_spec_uses_absolute_paths(scene_dir: Path, tmp_path: Path, mo
 def test_scene_from_arrays_has_no_spec() -> None:
     scene = builtin_scene("blobs", resolution=16)
     assert Scene(scene.volume, scene.tf, scene.lights, scene.camera).spec() is None
+
+
+def test_an_unknown_light_kind_is_refused_not_taken_for_an_environment() -> None:
+    """The kernels branch on point / directional / environment; packing is the one gate where a new light
+    class without kernel support must fail loudly instead of rendering as a sky."""
+    from dataclasses import dataclass
+
+    from photon_fields.runtime.scene.lights import EnvironmentLight, pack_lights
+
+    @dataclass(frozen=True)
+    class SpotLight:
+        color: np.ndarray
+        power: float
+
+    kind, _, _ = pack_lights([EnvironmentLight([1.0, 1.0, 1.0], 2.0)])
+    assert kind.tolist() == [2]
+    with pytest.raises(TypeError, match="SpotLight"):
+        pack_lights([EnvironmentLight([1.0, 1.0, 1.0], 2.0), SpotLight(np.ones(3), 1.0)])
