@@ -156,6 +156,11 @@ def run_demo(args: argparse.Namespace) -> dict[str, Any]:
 
     field = PhotonField.load(bundle, threads=args.threads, expected_fingerprint=scene.fingerprint())
     renders: dict[str, Any] = {}
+    # Untimed warm-up: numba compiles each kernel on first use (seconds in a fresh clone), and the
+    # equal-time comparison below must time rendering, not compilation.
+    tiny = scene.with_overrides(width=8, height=8)
+    render_neural(tiny, field.estimator(), spp=1, seed=args.seed, progress=False)
+    render_path_traced(tiny, spp=1, seed=args.seed, progress=False)
     step(f"rendering: neural ({spp} spp) ...")
     t = time.perf_counter()
     renders["neural"] = render_neural(scene, field.estimator(), spp=spp, seed=args.seed, progress=progress)
