@@ -57,7 +57,7 @@ import numpy as np  # noqa: E402
 from common import Contention, finish_info, machine_info, write_report  # noqa: E402
 
 from photon_fields.models_spec.encoding import decode_radiance, direction_input, normalize_position  # noqa: E402
-from photon_fields.runtime.field.field import PhotonField, _session  # noqa: E402
+from photon_fields.runtime.field.field import PhotonField, make_session  # noqa: E402
 from photon_fields.runtime.field.hashgrid import encode  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "field.json"
@@ -70,7 +70,7 @@ def make_bundle(arch: str, folder: Path, tables_dtype: str = "float32") -> Path:
 
     from photon_fields.train.export.bundle import RUN_DOMAIN_FORMAT, export_bundle
     from photon_fields.train.field.network import TorchPhotonField as TorchField
-    from photon_fields.train.fit.loop import PRESETS, _save_checkpoint, field_config_for
+    from photon_fields.train.fit.loop import PRESETS, field_config_for, save_checkpoint
 
     run = folder / f"run_{arch}"
     if not (run / "checkpoint.pt").is_file():
@@ -81,7 +81,7 @@ def make_bundle(arch: str, folder: Path, tables_dtype: str = "float32") -> Path:
             for t in model.table_parameters():
                 t.copy_(torch.rand(t.shape, generator=gen) * 2 - 1)
         fp = "0" * 64
-        _save_checkpoint(run / "checkpoint.pt", model, fp, 0, {})
+        save_checkpoint(run / "checkpoint.pt", model, fp, 0, {})
         (run / "domain.json").write_text(json.dumps({"format": RUN_DOMAIN_FORMAT, "version": 1, "scene": "bench",
                                                      "scene_fingerprint": fp, "bmin": BMIN, "bsize": BSIZE}))
         del model
@@ -285,14 +285,14 @@ def main(argv: list[str] | None = None) -> int:
                 var[f"chunk_{c}"] = r = run_query(load(path, threads=threads, chunk=c), x, d, g, args.repeats)
                 show(f"chunk 2^{c.bit_length() - 1}", r)
             i8 = load(path, threads=threads)
-            i8.session = _session(int8_mlp(path), "int8", threads, False)
+            i8.session = make_session(int8_mlp(path), "int8", threads, False)
             var["int8"] = r = run_query(i8, x, d, g, args.repeats)
             r["max_abs_err_Lprime"] = float(np.abs(i8.query_encoded(x[:65536], d[:65536], g[:65536])
                                                    - load(path, threads=threads).query_encoded(
                                                        x[:65536], d[:65536], g[:65536])).max())
             show("int8 MLP (not offered)", r)
             f16 = load(path, threads=threads)
-            f16.session = _session(fp16_mlp(path), "fp16", threads, False)
+            f16.session = make_session(fp16_mlp(path), "fp16", threads, False)
             var["fp16_mlp"] = r = run_query(f16, x, d, g, args.repeats)
             r["max_abs_diff_Lp"] = float(np.abs(f16.query_encoded(x[:4096], d[:4096], g[:4096])
                                                 - field.query_encoded(x[:4096], d[:4096], g[:4096])).max())

@@ -120,10 +120,10 @@ def make_run(folder: Path, model, bmin: list[float], bsize: list[float], fp: str
     import json
 
     from photon_fields.train.export.bundle import RUN_DOMAIN_FORMAT
-    from photon_fields.train.fit.loop import _save_checkpoint
+    from photon_fields.train.fit.loop import save_checkpoint
 
     folder.mkdir(parents=True, exist_ok=True)
-    _save_checkpoint(folder / "checkpoint.pt", model, fp, 40,
+    save_checkpoint(folder / "checkpoint.pt", model, fp, 40,
                      {"final_loss": 0.05, "wall_s": 12.5, "final_validation": {"step": 40, "val_loss": 0.06}})
     (folder / "domain.json").write_text(json.dumps({"format": RUN_DOMAIN_FORMAT, "version": 1, "scene": "test",
                                                     "scene_fingerprint": fp, "bmin": bmin, "bsize": bsize}))

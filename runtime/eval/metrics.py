@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from photon_fields.runtime.io.images import _CURVE_WHITE, _auto_scale, aces_fitted, srgb_oetf
+from photon_fields.runtime.io.images import CURVE_WHITE, aces_fitted, auto_exposure_scale, srgb_oetf
 
 SSIM_SIGMA = 1.5
 SSIM_TRUNCATE = 3.5  # 2 * int(3.5 * 1.5 + 0.5) + 1 = 11 taps, as scikit-image
@@ -52,14 +52,14 @@ def display_image(rgb: np.ndarray, scale: float) -> np.ndarray:
     a = np.asarray(rgb, dtype=np.float64)
     finite = np.isfinite(a)
     a = np.where(finite, a, 0.0)
-    return srgb_oetf(aces_fitted(np.clip(a * scale, 0.0, _CURVE_WHITE)))
+    return srgb_oetf(aces_fitted(np.clip(a * scale, 0.0, CURVE_WHITE)))
 
 
 def ssim(img: np.ndarray, ref: np.ndarray) -> float:
     """Mean SSIM of ``img`` against ``ref`` after tone mapping both with the reference's exposure."""
     a, b = _pair(img, ref)
     rgb = b if b.shape[2] == 3 else np.repeat(b, 3, axis=2)
-    scale = _auto_scale(rgb, np.all(np.isfinite(rgb), axis=2))
+    scale = auto_exposure_scale(rgb, np.all(np.isfinite(rgb), axis=2))
     return ssim_display(display_image(a, scale), display_image(b, scale))
 
 

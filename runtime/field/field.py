@@ -305,7 +305,9 @@ def _check_onnx(path: Path, data: bytes, manifest: Manifest) -> Any:
     return model
 
 
-def _session(model_bytes: bytes, what: str, threads: int | None, spinning: bool) -> Any:
+def make_session(model_bytes: bytes, what: str, threads: int | None, spinning: bool) -> Any:
+    """An onnxruntime CPU session for an MLP (spinning off unless asked, ``threads`` intra-op threads); a model
+    onnxruntime refuses is one line naming ``what``."""
     import onnxruntime as ort
 
     so = ort.SessionOptions()
@@ -391,7 +393,7 @@ class PhotonField:
         data = onnx_path.read_bytes()
         _check_onnx(onnx_path, data, manifest)
         tables = _load_tables(tables_path, manifest)
-        session = _session(data, str(onnx_path), threads, spinning)
+        session = make_session(data, str(onnx_path), threads, spinning)
         field = cls(bundle, manifest, tables, session, threads=threads, precision=precision, chunk=chunk,
                     spinning=spinning, pipeline=pipeline)
         field.scene_warning = warning

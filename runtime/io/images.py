@@ -81,7 +81,7 @@ _RESERVED_ATTRIBUTES = frozenset(
 _LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec.709 luminance weights (linear sRGB primaries)
 _MAX_STOPS = 1000.0  # 2**1000 is still a finite float64; larger exposures would raise OverflowError
 _MAX_SCALE = 2.0**_MAX_STOPS
-_CURVE_WHITE = 16.0  # aces_fitted reaches 1.0 at 7.24, so clipping above that changes nothing
+CURVE_WHITE = 16.0  # aces_fitted reaches 1.0 at 7.24, so clipping above that changes nothing
 
 
 # ----------------------------------------------------------------------------------------------
@@ -239,7 +239,9 @@ def aces_fitted(x: np.ndarray | float) -> np.ndarray:
     return np.clip(x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0)
 
 
-def _auto_scale(rgb: np.ndarray, finite: np.ndarray) -> float:
+def auto_exposure_scale(rgb: np.ndarray, finite: np.ndarray) -> float:
+    """The automatic exposure factor: the 99.5th percentile of luminance over the ``finite`` pixels maps to 1
+    (the brightest pixel when that percentile is black; 1 for an all-black image)."""
     lum = np.maximum(rgb[finite], 0.0) @ _LUMA
     if lum.size == 0:
         return 1.0
@@ -253,7 +255,7 @@ def auto_exposure_stops(rgb: np.ndarray) -> float:
     """The exposure (stops) that automatic exposure would pick for ``rgb`` (H, W, 3): to keep it fixed over
     a sequence of frames, so brightness does not flicker."""
     arr = np.asarray(rgb, dtype=np.float64)
-    return float(np.log2(_auto_scale(arr, np.all(np.isfinite(arr), axis=-1))))
+    return float(np.log2(auto_exposure_scale(arr, np.all(np.isfinite(arr), axis=-1))))
 
 
 def tonemap_srgb(rgb: np.ndarray, exposure: float | None = None) -> np.ndarray:
@@ -268,7 +270,7 @@ def tonemap_srgb(rgb: np.ndarray, exposure: float | None = None) -> np.ndarray:
         raise ValueError(f"expected an (H, W, 3) or (H, W) image, got shape {arr.shape}")
     finite = np.all(np.isfinite(arr), axis=2)
     if exposure is None:
-        scale = _auto_scale(arr, finite)
+        scale = auto_exposure_scale(arr, finite)
     else:
         if not np.isfinite(exposure):
             raise ValueError(f"exposure must be a finite number of stops, got {exposure}")
@@ -276,7 +278,7 @@ def tonemap_srgb(rgb: np.ndarray, exposure: float | None = None) -> np.ndarray:
     # Zero non-finite pixels first: NaN or inf must not reach the curve (inf / inf is NaN there).
     arr = np.where(finite[:, :, None], arr, 0.0)
     with np.errstate(over="ignore"):  # huge finite values * scale may overflow to inf: clipped below
-        exposed = np.clip(arr * scale, 0.0, _CURVE_WHITE)
+        exposed = np.clip(arr * scale, 0.0, CURVE_WHITE)
     encoded = srgb_oetf(aces_fitted(exposed))
     return np.round(encoded * 255.0).astype(np.uint8)
 

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from photon_fields.runtime.errors import InputError, check_keys
-from photon_fields.runtime.scene.lights import _vec3
+from photon_fields.runtime.scene.lights import as_vec3
 
 
 @dataclass(frozen=True, eq=False)
@@ -39,9 +39,9 @@ class Camera:
     fov_axis: str = "y"
 
     def __post_init__(self) -> None:
-        eye = _vec3(self.eye, "camera eye")
-        target = _vec3(self.target, "camera target")
-        up = _vec3(self.up, "camera up")
+        eye = as_vec3(self.eye, "camera eye")
+        target = as_vec3(self.target, "camera target")
+        up = as_vec3(self.up, "camera up")
         fwd = target - eye
         if np.linalg.norm(fwd) < 1e-12:
             raise InputError("camera", "eye and target are the same point")

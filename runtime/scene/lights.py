@@ -26,7 +26,8 @@ from photon_fields.runtime.errors import InputError, unknown_keys_problem
 POINT, DIRECTIONAL, ENVIRONMENT = 0, 1, 2
 
 
-def _vec3(v: Any, what: str) -> np.ndarray:
+def as_vec3(v: Any, what: str) -> np.ndarray:
+    """``v`` as a finite float64 3-vector, or a one-line InputError naming ``what``."""
     try:
         a = np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError):
@@ -37,7 +38,7 @@ def _vec3(v: Any, what: str) -> np.ndarray:
 
 
 def _color_power(color: Any, power: Any, what: str) -> tuple[np.ndarray, float]:
-    c = _vec3(color, f"{what} color")
+    c = as_vec3(color, f"{what} color")
     if np.any(c < 0):
         raise InputError(f"{what} color", f"components must be >= 0, got {c.tolist()}")
     try:
@@ -56,7 +57,7 @@ class PointLight:
     power: float = 1.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "position", _vec3(self.position, "point light position"))
+        object.__setattr__(self, "position", as_vec3(self.position, "point light position"))
         c, p = _color_power(self.color, self.power, "point light")
         object.__setattr__(self, "color", c)
         object.__setattr__(self, "power", p)
@@ -72,7 +73,7 @@ class DirectionalLight:
     power: float = 1.0
 
     def __post_init__(self) -> None:
-        d = _vec3(self.direction, "directional light direction")
+        d = as_vec3(self.direction, "directional light direction")
         n = float(np.linalg.norm(d))
         if n < 1e-12:
             raise InputError("directional light direction", "must not be the zero vector")

@@ -347,7 +347,9 @@ def evaluate(model: TorchPhotonField, val: TargetBatch, chunk: int = 1 << 14) ->
     return {"val_loss": loss, "val_rel_l1": rel}
 
 
-def _save_checkpoint(path: Path, model: TorchPhotonField, scene_fp: str, step: int, summary: dict[str, Any]) -> None:
+def save_checkpoint(path: Path, model: TorchPhotonField, scene_fp: str, step: int,
+                    summary: dict[str, Any]) -> None:
+    """Write the field's weights, its config, the scene fingerprint and the run summary atomically."""
     payload = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "state_dict": model.state_dict(),
                "field_config": model.cfg.to_dict(), "scene_fingerprint": scene_fp,
                "phases": list(model.cfg.phases), "step": int(step), "summary": summary}
@@ -551,14 +553,14 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
                 if done % val_every == 0 or done == total:
                     log["validation"].append({"step": done, **evaluate(model, val)})
                 if done % settings.checkpoint_every == 0 and done != total:
-                    _save_checkpoint(ckpt, model, scene.fingerprint(), done, summary(done))
+                    save_checkpoint(ckpt, model, scene.fingerprint(), done, summary(done))
                     last_ckpt_step = done
                 bar.update(1)
                 bar.set_postfix(loss=f"{loss_value:.4f}", r=f"{radius:.4g}",
                                 sps=f"{done * settings.batch / max(train_s + sampler.seconds, 1e-9):,.0f}")
     finally:
         bar.close()
-    _save_checkpoint(ckpt, model, scene.fingerprint(), total, summary(total))
+    save_checkpoint(ckpt, model, scene.fingerprint(), total, summary(total))
     write_outputs(total, "done")
     return FitResult(model, log, out, [ckpt, log_path, png])
 
