@@ -57,8 +57,9 @@ import numpy as np  # noqa: E402
 from common import Contention, finish_info, machine_info, write_report  # noqa: E402
 
 from photon_fields.models_spec.encoding import decode_radiance, direction_input, normalize_position  # noqa: E402
-from photon_fields.runtime.field.field import PhotonField, make_session  # noqa: E402
+from photon_fields.runtime.field.field import PhotonField  # noqa: E402
 from photon_fields.runtime.field.hashgrid import encode  # noqa: E402
+from photon_fields.runtime.field.session import make_session  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "field.json"
 BMIN, BSIZE = [-0.5, -0.35, -0.45], [1.0, 0.7, 0.9]

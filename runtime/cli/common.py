@@ -1,5 +1,5 @@
 """Pieces shared by the command-line tools (``pfn-render``, ``pfn-train``): one-line errors, argument
-checks, thread control."""
+checks, output paths that are never replaced without ``--force``."""
 
 from __future__ import annotations
 
@@ -51,16 +51,6 @@ def check_seed(seed: int, name: str = "--seed") -> int:
     if not -(1 << 63) <= seed < (1 << 63):
         raise InputError(name, f"must be a 64-bit signed integer, got {seed}")
     return seed
-
-
-def set_threads(threads: int | None, name: str = "--threads") -> None:
-    """Limit numba's worker threads (None: all cores)."""
-    if threads is None:
-        return
-    import numba
-
-    positive_int(name, threads, numba.config.NUMBA_NUM_THREADS)
-    numba.set_num_threads(threads)
 
 
 def prepare_output(out: Path, suffix: str, siblings: Sequence[str] = (), name: str = "--out", *,

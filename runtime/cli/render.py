@@ -30,9 +30,9 @@ from photon_fields.runtime.cli.common import (
     positive_int,
     prepare_output,
     refuse_to_replace,
-    set_threads,
 )
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.threads import set_threads
 
 METHODS = ("pt", "raymarch", "photonmap", "field")
 
@@ -136,7 +136,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     # No --scene: a bundle rebuilds the scene it records (else the default, and a mismatch says so).
     scene_from = "--scene" if args.scene is not None else "default"
     if args.scene is None and args.method == "field":
-        from photon_fields.runtime.field.field import scene_for_bundle
+        from photon_fields.runtime.field.bundle_reader import scene_for_bundle
 
         scene, scene_from = scene_for_bundle(args.bundle, force=args.force)
     else:

@@ -31,7 +31,7 @@ out : float32 ndarray (n, >= col + L*F), optional
 col : int >= 0 (default 0)
     First column written.
 
-Threads: numba's pool (``numba.set_num_threads``, ``photon_fields.runtime.cli.common.set_threads``). Kernels are
+Threads: numba's pool (``numba.set_num_threads``, ``photon_fields.runtime.threads.set_threads``). Kernels are
 specialized per (D, F), compiled on first use (~3-5 s each) and cached on disk (``cache=True``).
 
 Layout and speed

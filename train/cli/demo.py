@@ -36,9 +36,9 @@ from photon_fields.runtime.cli.common import (  # noqa: E402
     guarded,
     positive_int,
     refuse_to_replace,
-    set_threads,
 )
 from photon_fields.runtime.errors import InputError  # noqa: E402
+from photon_fields.runtime.threads import set_threads
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -33,9 +33,9 @@ from photon_fields.runtime.cli.common import (
     guarded,
     prepare_output,
     refuse_to_replace,
-    set_threads,
 )
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.threads import set_threads
 
 _COUNT = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kKmMgG]?)\s*$")
 

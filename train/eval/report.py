@@ -45,10 +45,10 @@ from photon_fields.runtime.cli.common import (  # noqa: E402
     guarded,
     positive_int,
     refuse_to_replace,
-    set_threads,
 )
 from photon_fields.runtime.errors import InputError  # noqa: E402
 from photon_fields.runtime.scene.scene import BUILTIN_SCENES  # noqa: E402
+from photon_fields.runtime.threads import set_threads
 
 PHASE_SWEEP = (-0.75, -0.35, 0.0, 0.35, 0.75)
 

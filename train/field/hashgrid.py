@@ -60,7 +60,7 @@ the figures grow 1.5-2x. The gradient is dense, as in tcnn, so an optimizer step
 parameters (57 M for the paper's D=3 table): in a training step that update, not the encoding, is likely
 the larger cost.
 
-Threads: the kernels use numba's thread pool (``numba.set_num_threads``; ``runtime.cli.common.set_threads``),
+Threads: the kernels use numba's thread pool (``numba.set_num_threads``; ``photon_fields.runtime.threads.set_threads``),
 not torch's. Kernels are compiled on first use and cached on disk (``cache=True``).
 """
 

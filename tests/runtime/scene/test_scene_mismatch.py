@@ -163,7 +163,8 @@ from conftest import make_model, make_run, small_field_config  # noqa: E402
 SMALL = small_field_config()
 
 from photon_fields.runtime.cli.render import _main as render_main  # noqa: E402
-from photon_fields.runtime.field.field import PhotonField, scene_for_bundle  # noqa: E402
+from photon_fields.runtime.field.bundle_reader import scene_for_bundle  # noqa: E402
+from photon_fields.runtime.field.field import PhotonField  # noqa: E402
 from photon_fields.train.export.bundle import export_bundle, write_run_domain  # noqa: E402
 
 RENDER = ["--size", "8x8", "--spp", "1", "--quiet"]
