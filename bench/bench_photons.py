@@ -22,8 +22,8 @@ from typing import Any
 
 from common import Contention, finish_info, machine_info, parse_scenes, write_report
 
-from photon_fields.runtime.photons.estimate import render_photon_mapped
 from photon_fields.runtime.renderers.path_tracer import render_path_traced
+from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 from photon_fields.runtime.scene.scene import Scene, builtin_scene
 from photon_fields.train.cli.train import parse_count
 from photon_fields.train.photons.tracing import trace_photons

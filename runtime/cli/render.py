@@ -32,9 +32,11 @@ from photon_fields.runtime.cli.common import (
     refuse_to_replace,
 )
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.renderers.registry import INPUTS, RENDERERS
 from photon_fields.runtime.threads import set_threads
 
-METHODS = ("pt", "raymarch", "photonmap", "field")
+#: The ``--method`` values, from the renderer registry.
+METHODS = tuple(RENDERERS)
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -53,29 +55,25 @@ def build_parser() -> argparse.ArgumentParser:
                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--scene", default=None, help="builtin scene name (vortex, blobs, shell) or a scene JSON file "
                    "(default: with --method field the scene the bundle records, else vortex)")
-    p.add_argument("--method", choices=METHODS, default="pt", help="pt: volumetric path tracer (reference); "
-                   "raymarch: single-scattering ray marcher with global shadows; photonmap: first interactions "
-                   "+ NEE + the photon-map estimate of L_i (needs --map); field: the neural renderer (Alg. 2), "
-                   "first interactions + NEE + the photon field's L_i (needs --bundle)")
+    p.add_argument("--method", choices=list(RENDERERS), default="pt",
+                   help="; ".join(f"{r.name}: {r.summary}" for r in RENDERERS.values()))
     p.add_argument("--spp", type=int, default=16, help="samples (passes) per pixel")
     p.add_argument("--size", default=None, help="WIDTHxHEIGHT (default: the scene camera's)")
     p.add_argument("--g", type=float, default=None, help="Henyey-Greenstein g in [-1, 1] (default: the scene's)")
     p.add_argument("--seed", type=int, default=0, help="random seed: same seed, same image")
-    p.add_argument("--max-depth", type=int, default=16,
-                   help="pt: max scattering vertices per path, with or without --no-nee (1: single scattering)")
-    p.add_argument("--no-nee", action="store_true",
-                   help="pt: pure phase sampling (no next-event estimation; reaches the environment light only)")
-    p.add_argument("--step", type=float, default=0.5, help="raymarch: step length in voxels")
+    for renderer in RENDERERS.values():
+        for opt in renderer.options:
+            if opt.type is None:
+                p.add_argument(opt.flag, action="store_true", help=f"{renderer.name}: {opt.help}")
+            else:
+                p.add_argument(opt.flag, type=opt.type, default=opt.default, help=f"{renderer.name}: {opt.help}")
     p.add_argument("--map", default=None, help="photonmap: photon map (.npz) from `pfn-train trace`")
-    p.add_argument("--k", type=int, default=1024, help="photonmap: photons per estimate (K)")
-    p.add_argument("--radius", type=float, default=0.05,
-                   help="photonmap: max search radius, in units of the volume box's longest side")
     p.add_argument("--bundle", default=None, help="field: photon-field bundle (NAME.pfn) from `pfn-train export`")
     p.add_argument("--precision", default="fp32",
                    help="field: MLP precision; fp32 (exact) is the only one (int8 was removed: runtime/field/field.py)")
     p.add_argument("--orbit", type=int, default=None,
-                   help="field: render N frames orbiting the volume to numbered files OUT_0000.exr ...")
-    p.add_argument("--orbit-degrees", type=float, default=360.0, help="field: total orbit angle")
+                   help="render N frames orbiting the volume to numbered files OUT_0000.exr ... (any --method)")
+    p.add_argument("--orbit-degrees", type=float, default=360.0, help="--orbit: total orbit angle")
     p.add_argument("--force", action="store_true",
                    help="replace existing output files; photonmap / field: also use a map or bundle made for "
                         "another scene (a warning names what differs)")
@@ -94,16 +92,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    """Check every option, load the scene and the renderer's input, render (one image or an orbit), write
+    EXR + PNG + JSON report. Options are checked before the scene is loaded: errors should name the option
+    and come at once, not after minutes of rendering."""
     from photon_fields.runtime.scene.scene import load_scene
 
+    renderer = RENDERERS[args.method]
     out = output_exr_path(args.out)
     spp = positive_int("--spp", args.spp, 1 << 16)
     positive_int("--batch-size", args.batch_size)
-    positive_int("--max-depth", args.max_depth, 1 << 16)
-    if not 0.01 <= args.step <= 100:
-        raise InputError("--step", f"must be in [0.01, 100] voxels, got {args.step}")
-    # Check every option before loading the scene and rendering: errors should name the option and come
-    # at once, not after minutes of rendering.
+    options = renderer_options(args, renderer.name)
     size = parse_size(args.size) if args.size is not None else (None, None)
     if args.g is not None:
         from photon_fields.runtime.transport.phase import check_g
@@ -111,23 +109,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         check_g(args.g, "--g")
     check_seed(args.seed)
     exposure, exposure_mode = resolve_exposure_options(args)
-    if args.method == "photonmap":
-        if args.map is None:
-            raise InputError("--map", "--method photonmap needs a photon map (pfn-train trace SCENE --out map.npz)")
-        positive_int("--k", args.k, 1 << 16)
-        if not (0 < args.radius <= 2 and math.isfinite(args.radius)):
-            raise InputError("--radius", f"must be in (0, 2] box units, got {args.radius}")
     if args.precision != "fp32":
         from photon_fields.runtime.field.field import REMOVED_PRECISIONS
 
         raise InputError("--precision", REMOVED_PRECISIONS.get(args.precision,
                                                                f"fp32 is the only precision, got {args.precision!r}"))
-    if args.method == "field" and args.bundle is None:
-        raise InputError("--bundle", "--method field needs a bundle (pfn-train all SCENE --out run/ "
-                         "writes run/field.pfn)")
+    if renderer.input is not None:
+        flag, what = INPUTS[renderer.input]
+        if getattr(args, renderer.input) is None:
+            raise InputError(flag, f"--method {renderer.name} needs {what}")
     if args.orbit is not None:
-        if args.method != "field":
-            raise InputError("--orbit", "fly-around sequences are rendered with --method field")
         positive_int("--orbit", args.orbit, 100_000)
         if not math.isfinite(args.orbit_degrees):
             raise InputError("--orbit-degrees", f"must be a finite angle, got {args.orbit_degrees}")
@@ -135,7 +126,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     set_threads(args.threads)
     # No --scene: a bundle rebuilds the scene it records (else the default, and a mismatch says so).
     scene_from = "--scene" if args.scene is not None else "default"
-    if args.scene is None and args.method == "field":
+    if args.scene is None and renderer.input == "bundle":
         from photon_fields.runtime.field.bundle_reader import scene_for_bundle
 
         scene, scene_from = scene_for_bundle(args.bundle, force=args.force)
@@ -144,54 +135,21 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
         scene = load_scene(args.scene if args.scene is not None else DEFAULT_SCENE)
     scene = scene.with_overrides(g=args.g, width=size[0], height=size[1])
-    warnings: list[str] = []  # forced mismatches: one line each on stderr, and in the JSON report
-    pmap = None
-    if args.method == "photonmap":
-        from photon_fields.runtime.photons.estimate import check_map_matches_scene
-        from photon_fields.runtime.photons.photon_map import PhotonMap
-
-        pmap = PhotonMap.load(args.map)
-        if scene_from == "default" and not args.force and pmap.scene_fingerprint != scene.fingerprint():
-            raise InputError(args.map, f"no --scene given, so the default scene '{scene.name}' was used; the map "
-                             f"was traced for {pmap.mismatch(scene.fingerprint_parts())}; pass --scene")
-        warnings.append(check_map_matches_scene(pmap, scene, args.force))
-        pmap.phase_index(scene.g, "--g")
-    field = None
-    if args.method == "field":
-        from photon_fields.runtime.field.field import PhotonField
-
-        field = PhotonField.load(args.bundle, threads=args.threads, precision=args.precision,
-                                 expected_fingerprint=scene.fingerprint(), force=args.force,
-                                 expected_parts=scene.fingerprint_parts())
-        warnings.append(field.scene_warning)
-    warnings = [w for w in warnings if w]
+    inputs, warnings, field = load_inputs(args, renderer.input, scene, scene_from)
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
     make_parent(out)
+    render = renderer.render_function()
+
+    def render_frame(view: Any, progress: bool) -> Any:
+        return render(view, spp=spp, seed=args.seed, batch_size=args.batch_size, progress=progress, **inputs,
+                      **options)
+
     if args.orbit is not None:
-        return run_orbit(args, scene, field, out, spp, exposure)
+        return run_orbit(args, scene, lambda view: render_frame(view, False), out, spp, exposure)
 
     t0 = time.perf_counter()
-    if args.method == "pt":
-        from photon_fields.runtime.renderers.path_tracer import render_path_traced
-
-        result = render_path_traced(scene, spp=spp, max_depth=args.max_depth, nee=not args.no_nee, seed=args.seed,
-                                    batch_size=args.batch_size, progress=not args.quiet)
-    elif args.method == "raymarch":
-        from photon_fields.runtime.renderers.ray_marcher import render_ray_marched
-
-        result = render_ray_marched(scene, spp=spp, step=args.step, seed=args.seed, batch_size=args.batch_size,
-                                    progress=not args.quiet)
-    elif args.method == "photonmap":
-        from photon_fields.runtime.photons.estimate import render_photon_mapped
-
-        result = render_photon_mapped(scene, pmap, k=args.k, radius=args.radius, spp=spp, seed=args.seed,
-                                      batch_size=args.batch_size, progress=not args.quiet, force=args.force)
-    else:
-        from photon_fields.runtime.renderers.neural import render_neural
-
-        result = render_neural(scene, field.estimator(), spp=spp, seed=args.seed, batch_size=args.batch_size,
-                               progress=not args.quiet)
+    result = render_frame(scene, not args.quiet)
     wall = time.perf_counter() - t0
     from photon_fields.runtime.eval.machine import cpu_record
 
@@ -218,6 +176,45 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return {"wall_s": wall, "written": [str(p) for p in written], "timings_ms": result.timings_ms}
 
 
+def renderer_options(args: argparse.Namespace, method: str) -> dict[str, Any]:
+    """Every renderer's options checked (a bad value is an error whichever method it is given with), and
+    the keyword arguments of ``method``'s own."""
+    chosen: dict[str, Any] = {}
+    for renderer in RENDERERS.values():
+        for opt in renderer.options:
+            value = opt.value(getattr(args, opt.flag.lstrip("-").replace("-", "_")))
+            if renderer.name == method:
+                chosen[opt.keyword] = value
+    return chosen
+
+
+def load_inputs(args: argparse.Namespace, kind: str | None, scene: Any,
+                scene_from: str) -> tuple[dict[str, Any], list[str], Any]:
+    """The renderer's input (:data:`photon_fields.runtime.renderers.registry.INPUTS`) loaded and checked against
+    the scene: its keyword arguments, the warnings of a forced mismatch, and the field (for the report)."""
+    warnings: list[str | None] = []
+    if kind == "map":
+        from photon_fields.runtime.photons.estimate import check_map_matches_scene
+        from photon_fields.runtime.photons.photon_map import PhotonMap
+
+        pmap = PhotonMap.load(args.map)
+        if scene_from == "default" and not args.force and pmap.scene_fingerprint != scene.fingerprint():
+            raise InputError(args.map, f"no --scene given, so the default scene '{scene.name}' was used; the map "
+                             f"was traced for {pmap.mismatch(scene.fingerprint_parts())}; pass --scene")
+        warnings.append(check_map_matches_scene(pmap, scene, args.force))
+        pmap.phase_index(scene.g, "--g")
+        return {"pmap": pmap, "force": args.force}, [w for w in warnings if w], None
+    if kind == "bundle":
+        from photon_fields.runtime.field.field import PhotonField
+
+        field = PhotonField.load(args.bundle, threads=args.threads, precision=args.precision,
+                                 expected_fingerprint=scene.fingerprint(), force=args.force,
+                                 expected_parts=scene.fingerprint_parts())
+        warnings.append(field.scene_warning)
+        return {"estimator": field.estimator()}, [w for w in warnings if w], field
+    return {}, [], None
+
+
 def output_exr_path(text: str) -> Path:
     """``--out``: NAME.exr, or NAME.png (the EXR is written beside it); the EXR path either way."""
     out = Path(text)
@@ -233,7 +230,7 @@ def check_outputs(args: argparse.Namespace, out: Path) -> None:
     if args.orbit is None:
         prepare_output(out, ".exr", (".png", ".json"), force=args.force, what="an earlier render", create=False)
         return
-    from photon_fields.runtime.renderers.neural import orbit_frame_paths, orbit_timings_path
+    from photon_fields.runtime.renderers.orbit import orbit_frame_paths, orbit_timings_path
 
     frames = orbit_frame_paths(out, args.orbit)
     prepare_output(frames[0], ".exr", (".png",), force=args.force, what="an earlier orbit", create=False)
@@ -279,14 +276,13 @@ def exposure_from_report(path_text: str) -> float:
     return float(stops)
 
 
-def run_orbit(args: argparse.Namespace, scene: Any, field: Any, out: Path, spp: int,
+def run_orbit(args: argparse.Namespace, scene: Any, render_frame: Any, out: Path, spp: int,
               exposure: float | None) -> dict[str, Any]:
     """``--orbit N``: N frames orbiting the volume, numbered files beside ``out``, a timings JSON."""
-    from photon_fields.runtime.renderers.neural import render_orbit
+    from photon_fields.runtime.renderers.orbit import render_orbit
 
-    summary = render_orbit(scene, field.estimator(), out, frames=args.orbit, spp=spp, seed=args.seed,
-                           batch_size=args.batch_size, degrees=args.orbit_degrees, exposure=exposure,
-                           progress=not args.quiet)
+    summary = render_orbit(scene, render_frame, out, frames=args.orbit, spp=spp, degrees=args.orbit_degrees,
+                           exposure=exposure, progress=not args.quiet)
     files = summary["files"]
     return {"wall_s": float(sum(summary["frame_s"])), "timings_ms": summary["stage_ms_per_frame"],
             "written": [files[0], "...", files[-1], summary["timings_file"]] if len(files) > 2 else

@@ -1,5 +1,5 @@
-"""The photon-map radiance estimate (paper Eq. 5) and the photon-mapping renderer (the paper's baseline
-and the ground truth the neural field is trained on and measured against).
+"""The photon-map radiance estimate (paper Eq. 5): the ground truth the neural field is trained on, and
+(:mod:`photon_fields.runtime.renderers.photon_mapped`) the paper's photon-mapping baseline renderer.
 
 Parameters
 ----------
@@ -44,8 +44,6 @@ from photon_fields.runtime.photons.knn import build_photon_index, indexed_radian
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.medium import Medium, extinction_at, extinction_batch
-from photon_fields.runtime.wavefront.batches import DEFAULT_BATCH, RenderResult
-from photon_fields.runtime.wavefront.first_interaction import render_first_interaction
 
 DEFAULT_K = 1024
 DEFAULT_RADIUS = 0.05
@@ -131,18 +129,3 @@ def check_map_matches_scene(pmap: PhotonMap, scene: Scene, force: bool = False) 
     if not force:
         raise InputError(name, f"was traced for {other}; re-trace it, or force to use it anyway")
     return f"{name} was traced for {other}; L_i will be wrong"
-
-
-def render_photon_mapped(scene: Scene, pmap: PhotonMap, *, k: int = DEFAULT_K, radius: float = DEFAULT_RADIUS,
-                         spp: int = 1, seed: int = 0, batch_size: int = DEFAULT_BATCH, progress: bool = True,
-                         force: bool = False) -> RenderResult:
-    """First-interaction rendering with L_i from the photon map: the paper's photon-mapping baseline."""
-    check_map_matches_scene(pmap, scene, force)
-    pmap.phase_index(scene.g, "g")  # fail before rendering if g was not traced
-    est = PhotonMapEstimator(pmap, scene.medium(), k=k, radius=radius)
-    result = render_first_interaction(scene, est, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
-                                      desc="photon mapping")
-    if est.found:
-        found = np.concatenate(est.found)
-        result.stats.update({"k_mean_found": float(found.mean()), "k_saturated": float(np.mean(found >= k))})
-    return result

@@ -208,6 +208,9 @@ def trace_paths(film: Film, scene: Scene, m: Medium, rays: RayBatch, *, max_dept
 
 def render_path_traced(scene: Scene, *, spp: int = 16, max_depth: int = 16, nee: bool = True, rr_depth: int = 3,
                        seed: int = 0, batch_size: int = DEFAULT_BATCH, progress: bool = True) -> RenderResult:
+    """Path-trace ``scene`` with ``spp`` samples per pixel (parameters in the module docstring): layers L, L_e,
+    L_d (one scattering vertex) and L_i (two or more), per-stage timings, and how many paths entered the
+    volume."""
     m = scene.medium()
     film = Film(scene.camera.width, scene.camera.height)
     timer = StageTimer()

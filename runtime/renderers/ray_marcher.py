@@ -107,6 +107,8 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
 
 def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 0.5, shadow_step: float = 1.0, seed: int = 0,
                        batch_size: int = 1 << 17, progress: bool = True) -> RenderResult:
+    """Single scattering by ray marching: ``step`` and ``shadow_step`` are the camera and shadow ray step
+    lengths in voxels; ``spp`` jittered passes per pixel. Layers L, L_e and L_d (L_i stays zero)."""
     m = scene.medium()
     kind, vec, rgb = scene.packed_lights()
     env = environment_radiance(scene)

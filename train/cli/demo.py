@@ -122,9 +122,9 @@ def run_demo(args: argparse.Namespace) -> dict[str, Any]:
     from photon_fields.runtime.eval.metrics import relative_l2, ssim
     from photon_fields.runtime.field.field import PhotonField
     from photon_fields.runtime.io.images import auto_exposure_stops, write_image_set
-    from photon_fields.runtime.photons.estimate import render_photon_mapped
     from photon_fields.runtime.renderers.neural import render_neural
     from photon_fields.runtime.renderers.path_tracer import render_path_traced
+    from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
     from photon_fields.runtime.scene.scene import load_scene
     from photon_fields.train.export.bundle import export_bundle, write_run_domain
     from photon_fields.train.fit.loop import fit

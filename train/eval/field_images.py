@@ -34,8 +34,9 @@ import torch
 
 from photon_fields.models_spec.encoding import direction_input, normalize_position
 from photon_fields.runtime.eval.metrics import relative_l2, ssim
-from photon_fields.runtime.photons.estimate import DEFAULT_K, DEFAULT_RADIUS, render_photon_mapped
+from photon_fields.runtime.photons.estimate import DEFAULT_K, DEFAULT_RADIUS
 from photon_fields.runtime.photons.photon_map import PhotonMap, find_phase
+from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 from photon_fields.runtime.scene.camera import Camera, orbit_camera
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.medium import Medium

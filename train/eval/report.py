@@ -287,9 +287,9 @@ class Evaluation:
     def section_images(self) -> str:
         from photon_fields.runtime.eval.metrics import relative_l2, ssim
         from photon_fields.runtime.io.images import auto_exposure_stops, tonemap_srgb, write_image_set
-        from photon_fields.runtime.photons.estimate import render_photon_mapped
         from photon_fields.runtime.renderers.neural import render_neural
         from photon_fields.runtime.renderers.path_tracer import render_path_traced
+        from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
         from photon_fields.runtime.renderers.ray_marcher import render_ray_marched
         from photon_fields.train.eval.field_images import map_at_g
 

@@ -9,8 +9,9 @@ import pytest
 from conftest import constant_tf, small_camera, smooth_field
 
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.photons.estimate import ball_pattern, render_photon_mapped, support_fraction
+from photon_fields.runtime.photons.estimate import ball_pattern, support_fraction
 from photon_fields.runtime.renderers.path_tracer import render_path_traced
+from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, PointLight
 from photon_fields.runtime.scene.scene import Scene, builtin_scene
 from photon_fields.runtime.scene.volume import make_volume

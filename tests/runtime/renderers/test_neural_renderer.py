@@ -11,9 +11,11 @@ import pytest
 from conftest import constant_tf, small_camera, smooth_field
 
 from photon_fields.runtime.io.images import read_exr
-from photon_fields.runtime.photons.estimate import PhotonMapEstimator, render_photon_mapped
-from photon_fields.runtime.renderers.neural import ProgressiveRender, orbit_frame_paths, render_neural, render_orbit
+from photon_fields.runtime.photons.estimate import PhotonMapEstimator
+from photon_fields.runtime.renderers.neural import ProgressiveRender, render_neural
+from photon_fields.runtime.renderers.orbit import orbit_frame_paths, render_orbit
 from photon_fields.runtime.renderers.path_tracer import render_path_traced
+from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 from photon_fields.runtime.scene.lights import DirectionalLight, PointLight
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.scene.volume import make_volume
@@ -110,7 +112,8 @@ def test_direct_and_indirect_passes_separately(scene, pmap) -> None:  # noqa: AN
 def test_orbit_writes_numbered_frames_with_timings(scene, pmap, tmp_path) -> None:  # noqa: ANN001
     est = PhotonMapEstimator(pmap, scene.medium(), k=64, radius=0.1)
     out = tmp_path / "orbit" / "frame.exr"
-    summary = render_orbit(scene, est, out, frames=3, spp=1, progress=False)
+    summary = render_orbit(scene, lambda s: render_neural(s, est, spp=1, progress=False), out, frames=3, spp=1,
+                           progress=False)
     paths = orbit_frame_paths(out, 3)
     assert [p.name for p in paths] == ["frame_0000.exr", "frame_0001.exr", "frame_0002.exr"]
     images = [read_exr(p)[0]["L"] for p in paths]
@@ -206,7 +209,12 @@ def test_pfn_render_field_cli_and_foreign_scene_refusal(trained, tmp_path, capsy
     assert "another scene" in err and err.count("\n") == 1 and not out2.exists()
     assert _main(["--method", "field", "--bundle", str(bundle), "--scene", str(other_file), "--out", str(out2),
                   "--quiet", "--size", "8x8", "--force"]) == 0
-    # --method field without a bundle, --orbit with another method: one line each.
+    # --method field without a bundle: one line naming --bundle.
     assert _main(["--method", "field", "--out", str(tmp_path / "x.exr")]) == 2
-    assert _main(["--method", "pt", "--orbit", "3", "--out", str(tmp_path / "y.exr")]) == 2
-    assert "--orbit" in capsys.readouterr().err
+    assert "--bundle" in capsys.readouterr().err
+    # --orbit works with any renderer of the registry: 3 numbered frames of the path tracer, one exposure.
+    assert _main(["--method", "pt", "--orbit", "3", "--spp", "1", "--size", "8x6", "--quiet",
+                  "--out", str(tmp_path / "y.exr")]) == 0
+    frames = sorted(tmp_path.glob("y_*.exr"))
+    assert [f.name for f in frames] == ["y_0000.exr", "y_0001.exr", "y_0002.exr"]
+    assert json.loads((tmp_path / "y_timings.json").read_text())["frames"] == 3

@@ -1,0 +1,38 @@
+"""The photon-mapping renderer, the paper's baseline: first interactions + NEE + the photon-map estimate of L_i.
+
+The same wavefront as the neural renderer (:mod:`photon_fields.runtime.wavefront.first_interaction`), with the
+photon map's Eq. 5 estimate (:class:`photon_fields.runtime.photons.estimate.PhotonMapEstimator`) in the place of
+the field, so the two differ only in where L_i comes from.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from photon_fields.runtime.photons.estimate import (
+    DEFAULT_K,
+    DEFAULT_RADIUS,
+    PhotonMapEstimator,
+    check_map_matches_scene,
+)
+from photon_fields.runtime.photons.photon_map import PhotonMap
+from photon_fields.runtime.scene.scene import Scene
+from photon_fields.runtime.wavefront.batches import DEFAULT_BATCH, RenderResult
+from photon_fields.runtime.wavefront.first_interaction import render_first_interaction
+
+
+def render_photon_mapped(scene: Scene, pmap: PhotonMap, *, k: int = DEFAULT_K, radius: float = DEFAULT_RADIUS,
+                         spp: int = 1, seed: int = 0, batch_size: int = DEFAULT_BATCH, progress: bool = True,
+                         force: bool = False) -> RenderResult:
+    """Render ``scene`` with L_i from ``pmap`` (K nearest photons within ``radius`` of each first interaction),
+    ``spp`` samples per pixel; layers L, L_d, L_i, L_e and ``stats`` on how many photons were found. A map
+    traced for another scene is refused unless ``force``; the scene's g must be one of the map's phases."""
+    check_map_matches_scene(pmap, scene, force)
+    pmap.phase_index(scene.g, "g")  # fail before rendering if g was not traced
+    est = PhotonMapEstimator(pmap, scene.medium(), k=k, radius=radius)
+    result = render_first_interaction(scene, est, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
+                                      desc="photon mapping")
+    if est.found:
+        found = np.concatenate(est.found)
+        result.stats.update({"k_mean_found": float(found.mean()), "k_saturated": float(np.mean(found >= k))})
+    return result

@@ -1,0 +1,118 @@
+"""The renderers ``pfn-render`` offers, in one table: adding a renderer is its module plus one entry here.
+
+Every renderer is called the same way::
+
+    render(scene, *, spp, seed, batch_size, progress, **inputs, **options) -> RenderResult
+
+``inputs`` are what the command line loads for it (``"map"``: ``pmap=`` a photon map and ``force=``;
+``"bundle"``: ``estimator=`` a photon field's estimator), ``options`` its own settings, each declared as an
+:class:`Option` that the command line turns into a flag, validates before any work and passes on by keyword.
+The render functions are imported when a renderer is first used, so building the command line stays cheap.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from photon_fields.runtime.errors import InputError
+
+#: What a renderer can ask the command line to load: the flag that names the file, and what it is.
+INPUTS = {"map": ("--map", "a photon map (pfn-train trace SCENE --out map.npz)"),
+          "bundle": ("--bundle", "a bundle (pfn-train all SCENE --out run/ writes run/field.pfn)")}
+
+
+def int_in(lo: int, hi: int) -> Callable[[str, Any], int]:
+    """A check for an integer option in ``[lo, hi]``."""
+
+    def check(flag: str, value: Any) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+            raise InputError(flag, f"must be an integer in [{lo}, {hi}], got {value}")
+        return value
+
+    return check
+
+
+def float_in(lo: float, hi: float, unit: str, *, open_low: bool = False) -> Callable[[str, Any], float]:
+    """A check for a finite float option in ``[lo, hi]`` (``(lo, hi]`` with ``open_low``), in ``unit``."""
+
+    def check(flag: str, value: Any) -> float:
+        v = float(value)
+        low_ok = v > lo if open_low else v >= lo
+        if not (math.isfinite(v) and low_ok and v <= hi):
+            raise InputError(flag, f"must be in {'(' if open_low else '['}{lo:g}, {hi:g}] {unit}, got {value}")
+        return v
+
+    return check
+
+
+def negate(flag: str, value: Any) -> bool:
+    """For a ``--no-X`` switch that sets keyword ``X``."""
+    return not value
+
+
+@dataclass(frozen=True)
+class Option:
+    """A renderer's own setting, as the command line offers it."""
+
+    flag: str
+    """Command-line flag, e.g. ``--max-depth``."""
+    keyword: str
+    """The render function's keyword argument it sets."""
+    help: str
+    """One line for ``--help``."""
+    type: Callable[[str], Any] | None = None
+    """argparse type of the value; None makes the flag a switch (``store_true``)."""
+    default: Any = None
+    """Default value on the command line (the render function's own default, so both agree)."""
+    check: Callable[[str, Any], Any] | None = None
+    """``check(flag, value) -> keyword value``: refuses a bad value in one line naming the flag."""
+
+    def value(self, given: Any) -> Any:
+        """The keyword value for the command-line value ``given`` (checked)."""
+        return self.check(self.flag, given) if self.check is not None else given
+
+
+@dataclass(frozen=True)
+class Renderer:
+    """One entry of :data:`RENDERERS`."""
+
+    name: str
+    """``--method`` value."""
+    summary: str
+    """What it computes, for ``--help``."""
+    function: str
+    """``module:function`` of the render function (imported on first use)."""
+    options: tuple[Option, ...] = ()
+    """Its own settings."""
+    input: str | None = None
+    """What the command line loads for it: a key of :data:`INPUTS`, or None."""
+
+    def render_function(self) -> Callable[..., Any]:
+        """The render function itself."""
+        module, name = self.function.split(":")
+        return getattr(importlib.import_module(module), name)
+
+
+RENDERERS: dict[str, Renderer] = {r.name: r for r in (
+    Renderer("pt", "volumetric path tracer (reference)",
+             "photon_fields.runtime.renderers.path_tracer:render_path_traced",
+             (Option("--max-depth", "max_depth", "max scattering vertices per path, with or without --no-nee "
+                     "(1: single scattering)", int, 16, int_in(1, 1 << 16)),
+              Option("--no-nee", "nee", "pure phase sampling (no next-event estimation; reaches the environment "
+                     "light only)", check=negate))),
+    Renderer("raymarch", "single-scattering ray marcher with global shadows",
+             "photon_fields.runtime.renderers.ray_marcher:render_ray_marched",
+             (Option("--step", "step", "step length in voxels", float, 0.5, float_in(0.01, 100, "voxels")),)),
+    Renderer("photonmap", "first interactions + NEE + the photon-map estimate of L_i (needs --map)",
+             "photon_fields.runtime.renderers.photon_mapped:render_photon_mapped",
+             (Option("--k", "k", "photons per estimate (K)", int, 1024, int_in(1, 1 << 16)),
+              Option("--radius", "radius", "max search radius, in units of the volume box's longest side", float,
+                     0.05, float_in(0, 2, "box units", open_low=True))),
+             input="map"),
+    Renderer("field", "the neural renderer (Alg. 2): first interactions + NEE + the photon field's L_i "
+             "(needs --bundle)", "photon_fields.runtime.renderers.neural:render_neural", input="bundle"),
+)}
