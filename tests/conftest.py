@@ -130,3 +130,59 @@ def make_run(folder: Path, model, bmin: list[float], bsize: list[float], fp: str
     (folder / "log.json").write_text(json.dumps({"scene_fingerprint": fp,
                                                  "settings": {"preset": "tiny", "batch": 512}}))
     return folder
+
+
+# ----------------------------------------------------------------------------------------------------
+# Hash-grid cases shared by the torch (tests/models_spec) and runtime (tests/runtime/field) encoder tests
+
+def hashgrid_configs():  # noqa: ANN201  (name -> models_spec.hashgrid.HashGridConfig)
+    """Small configs (D, levels, F, log2 T, N_min, b) covering dense and hashed levels, non-power-of-two
+    scales, every F and both D."""
+    from photon_fields.models_spec.hashgrid import HashGridConfig as C
+
+    return {
+        # One dense level: scale 4 (a power of two, so grid vertices x = (2k - 1) / 8 are exact floats),
+        # res 5, 5^3 = 125 entries -> 128 (multiple of 8), strides (1, 5, 25).
+        "DENSE": C(3, 1, 2, 12, 5, 2.0),
+        # One hashed level: scale 8, res 9, 9^3 = 729 > 2^6 = 64 entries; the stride loop stops at 81 > 64.
+        "HASHED": C(3, 1, 1, 6, 9, 2.0),
+        "SMALL3": C(3, 4, 2, 10, 5, 1.7),
+        "SMALL2": C(2, 5, 4, 8, 3, 1.5),
+        # N_min = 1: level 0 has scale 0 (one vertex per axis); F = 1 with D = 2.
+        "TINY2": C(2, 3, 1, 4, 1, 1.3),
+        "WIDE3": C(3, 6, 8, 9, 3, 2.3),
+    }
+
+
+def random_table(cfg, seed: int = 0) -> np.ndarray:  # noqa: ANN001
+    """Hash-grid table rows uniform in [-1, 1) (float32), seeded."""
+    from photon_fields.models_spec.hashgrid import total_table_rows
+
+    rng = np.random.default_rng(seed)
+    return rng.random((total_table_rows(cfg), cfg.features), dtype=np.float32) * np.float32(2) - np.float32(1)
+
+
+def edge_points(cfg, rng: np.random.Generator, n_random: int = 300, per_level: int = 30) -> np.ndarray:  # noqa: ANN001
+    """Random points, the box's corners (0 and 1), grid vertices and their float neighbours per level."""
+    from photon_fields.models_spec.hashgrid import level_scale
+
+    D = cfg.dims
+    pts = [rng.random((n_random, D), dtype=np.float32),
+           np.array(np.meshgrid(*[[0.0, 1.0]] * D, indexing="ij")).reshape(D, -1).T.astype(np.float32)]
+    for level in range(cfg.levels):
+        s = float(level_scale(cfg, level))
+        if s == 0.0:
+            continue  # a single vertex: every x is on it
+        k = rng.integers(0, int(s) + 2, size=(per_level, D))
+        v = ((k - 0.5) / s).astype(np.float32)  # pos = k (up to float32 rounding of x)
+        pts += [v, np.nextafter(v, np.float32(np.inf)), np.nextafter(v, np.float32(-np.inf))]
+    return np.clip(np.concatenate(pts), 0.0, 1.0).astype(np.float32)
+
+
+def pole_and_seam_directions(rng: np.random.Generator, n_random: int = 300) -> np.ndarray:
+    """Random unit directions, then the poles, both sides of the azimuth seam (d_y = +-0 and +-1e-12 with
+    d_x < 0) and the axes: the direction encoding's edge cases."""
+    v = rng.standard_normal((n_random, 3))
+    return np.concatenate([v / np.linalg.norm(v, axis=1, keepdims=True),
+                           [[0, 0, 1], [0, 0, -1], [-1, 0.0, 0], [-1, -0.0, 0], [1, 0, 0], [0, 1, 0],
+                            [-0.6, 0.0, 0.8], [-0.6, -0.0, -0.8], [-1, 1e-12, 0], [-1, -1e-12, 0]]])

@@ -598,6 +598,26 @@ def _search(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: floa
     return _keep_k(d2, idx, count, k, kth, below), kth
 
 
+@njit(cache=True, inline="always")
+def _worker_scratch(nw: int, cap: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    # Per-worker candidate buffers of a query kernel: squared distances, photon indices, selection scratch.
+    return np.empty((nw, cap)), np.empty((nw, cap), dtype=np.int64), np.empty((nw, 3, cap))
+
+
+@njit(cache=True, inline="always")
+def _worker_slots(w: int, nw: int, q: int) -> np.ndarray:
+    # The query slots worker w handles: blocks w, w + nw, w + 2 nw, ... of _BLOCK slots each (Morton order).
+    nblocks = (q + _BLOCK - 1) // _BLOCK
+    mine = max(0, (nblocks - w + nw - 1) // nw)
+    slots = np.empty(mine * _BLOCK, dtype=np.int64)
+    n = 0
+    for blk in range(w, nblocks, nw):
+        for t in range(blk * _BLOCK, min(q, (blk + 1) * _BLOCK)):
+            slots[n] = t
+            n += 1
+    return slots[:n]
+
+
 @njit(cache=True, parallel=True)
 def _knn_query_kernel(pos: np.ndarray, order: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: float,
                       dims: np.ndarray, queries: np.ndarray, qorder: np.ndarray, k: int,
@@ -605,20 +625,16 @@ def _knn_query_kernel(pos: np.ndarray, order: np.ndarray, cell_start: np.ndarray
     q = queries.shape[0]
     out_i = np.full((q, k), -1, dtype=np.int64)
     out_d = np.full((q, k), np.inf)
-    d2 = np.empty((nw, cap))
-    idx = np.empty((nw, cap), dtype=np.int64)
-    tmp = np.empty((nw, 3, cap))
-    nblocks = (q + _BLOCK - 1) // _BLOCK
+    d2, idx, tmp = _worker_scratch(nw, cap)
     for w in prange(nw):
-        for blk in range(w, nblocks, nw):
-            for t in range(blk * _BLOCK, min(q, (blk + 1) * _BLOCK)):
-                i = qorder[t]
-                m, _ = _search(pos, cell_start, origin, h, dims, queries[i, 0], queries[i, 1], queries[i, 2], k,
-                               r_max, d2[w], idx[w], tmp[w])
-                _heapsort(d2[w], idx[w], m)
-                for j in range(m):
-                    out_d[i, j] = d2[w, j]
-                    out_i[i, j] = order[idx[w, j]]
+        for t in _worker_slots(w, nw, q):
+            i = qorder[t]
+            m, _ = _search(pos, cell_start, origin, h, dims, queries[i, 0], queries[i, 1], queries[i, 2], k,
+                           r_max, d2[w], idx[w], tmp[w])
+            _heapsort(d2[w], idx[w], m)
+            for j in range(m):
+                out_d[i, j] = d2[w, j]
+                out_i[i, j] = order[idx[w, j]]
     return out_i, out_d
 
 
@@ -630,35 +646,31 @@ def _radiance_kernel(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray
     est = np.zeros((q, 3))
     radius = np.full(q, r_max)
     found = np.zeros(q, dtype=np.int64)
-    d2 = np.empty((nw, cap))
-    idx = np.empty((nw, cap), dtype=np.int64)
-    tmp = np.empty((nw, 3, cap))
-    nblocks = (q + _BLOCK - 1) // _BLOCK
+    d2, idx, tmp = _worker_scratch(nw, cap)
     for w in prange(nw):
-        for blk in range(w, nblocks, nw):
-            for t in range(blk * _BLOCK, min(q, (blk + 1) * _BLOCK)):
-                i = qorder[t]
-                m, kth = _search(pos, cell_start, origin, h, dims, queries[i, 0], queries[i, 1], queries[i, 2], k,
-                                 r_max, d2[w], idx[w], tmp[w])
-                found[i] = m
-                if m == 0:
-                    continue
-                r = r_max if m < k else math.sqrt(kth)
-                radius[i] = r
-                vx, vy, vz = view[i, 0], view[i, 1], view[i, 2]
-                sr = 0.0
-                sg = 0.0
-                sb = 0.0
-                for jj in range(m):
-                    j = np.uint64(idx[w, jj])
-                    p = hg_eval(g, -(dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz))
-                    sr += p * wts[j, 0]
-                    sg += p * wts[j, 1]
-                    sb += p * wts[j, 2]
-                inv_vol = 1.0 / (_FOUR_THIRDS_PI * r * r * r)
-                est[i, 0] = sr * inv_vol
-                est[i, 1] = sg * inv_vol
-                est[i, 2] = sb * inv_vol
+        for t in _worker_slots(w, nw, q):
+            i = qorder[t]
+            m, kth = _search(pos, cell_start, origin, h, dims, queries[i, 0], queries[i, 1], queries[i, 2], k,
+                             r_max, d2[w], idx[w], tmp[w])
+            found[i] = m
+            if m == 0:
+                continue
+            r = r_max if m < k else math.sqrt(kth)
+            radius[i] = r
+            vx, vy, vz = view[i, 0], view[i, 1], view[i, 2]
+            sr = 0.0
+            sg = 0.0
+            sb = 0.0
+            for jj in range(m):
+                j = np.uint64(idx[w, jj])
+                p = hg_eval(g, -(dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz))
+                sr += p * wts[j, 0]
+                sg += p * wts[j, 1]
+                sb += p * wts[j, 2]
+            inv_vol = 1.0 / (_FOUR_THIRDS_PI * r * r * r)
+            est[i, 0] = sr * inv_vol
+            est[i, 1] = sg * inv_vol
+            est[i, 2] = sb * inv_vol
     return est, radius, found
 
 

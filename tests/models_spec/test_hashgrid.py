@@ -10,6 +10,7 @@ from fractions import Fraction
 
 import numpy as np
 import pytest
+from conftest import edge_points, hashgrid_configs, pole_and_seam_directions, random_table
 
 from photon_fields.models_spec.hashgrid import (
     HASH_PRIMES,
@@ -34,14 +35,8 @@ torch = pytest.importorskip("torch")
 numba = pytest.importorskip("numba")
 from photon_fields.train.field.hashgrid import HashGridEncoding  # noqa: E402  (after the torch skip)
 
-# One dense level: scale = 5 - 1 = 4 (a power of two, so grid vertices x = (2k - 1) / 8 are exact floats),
-# res 5, 5^3 = 125 entries -> 128 (multiple of 8), strides (1, 5, 25).
-DENSE = HashGridConfig(dims=3, levels=1, features=2, log2_table_size=12, base_resolution=5, per_level_scale=2.0)
-# One hashed level: scale 8, res 9, 9^3 = 729 > 2^6 = 64 entries; the stride loop stops at 81 > 64.
-HASHED = HashGridConfig(dims=3, levels=1, features=1, log2_table_size=6, base_resolution=9, per_level_scale=2.0)
-# Small multi-level configs with a non-power-of-two scale (dense and hashed levels, both D).
-SMALL3 = HashGridConfig(dims=3, levels=4, features=2, log2_table_size=10, base_resolution=5, per_level_scale=1.7)
-SMALL2 = HashGridConfig(dims=2, levels=5, features=4, log2_table_size=8, base_resolution=3, per_level_scale=1.5)
+_CFG = hashgrid_configs()
+DENSE, HASHED, SMALL3, SMALL2 = _CFG["DENSE"], _CFG["HASHED"], _CFG["SMALL3"], _CFG["SMALL2"]
 
 
 def f32_round(q: Fraction) -> np.float32:
@@ -65,19 +60,6 @@ def encoder_with_table(cfg: HashGridConfig, table: np.ndarray) -> HashGridEncodi
     with torch.no_grad():
         enc.table.copy_(torch.from_numpy(table))
     return enc
-
-
-def edge_points(cfg: HashGridConfig, rng: np.random.Generator, n_random: int = 400) -> np.ndarray:
-    """Random points, the box's corners (0 and 1), grid vertices and their float neighbours per level."""
-    D = cfg.dims
-    pts = [rng.random((n_random, D), dtype=np.float32),
-           np.array(np.meshgrid(*[[0.0, 1.0]] * D, indexing="ij")).reshape(D, -1).T.astype(np.float32)]
-    for level in range(cfg.levels):
-        s = float(level_scale(cfg, level))
-        k = rng.integers(0, int(s) + 2, size=(40, D))
-        v = ((k - 0.5) / s).astype(np.float32)  # pos = k (up to float32 rounding of x)
-        pts += [v, np.nextafter(v, np.float32(np.inf)), np.nextafter(v, np.float32(-np.inf))]
-    return np.clip(np.concatenate(pts), 0.0, 1.0).astype(np.float32)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -281,9 +263,9 @@ def test_non_power_of_two_scale() -> None:
 @pytest.mark.parametrize("cfg", [PAPER_POSITION, SMALL3, SMALL2, DENSE, HASHED], ids=lambda c: f"D{c.dims}L{c.levels}")
 def test_torch_forward_equals_reference(cfg: HashGridConfig) -> None:
     rng = np.random.default_rng(11)
-    table = rng.random((total_table_rows(cfg), cfg.features), dtype=np.float32) * np.float32(2) - np.float32(1)
+    table = random_table(cfg, 11)
     enc = encoder_with_table(cfg, table)
-    x = edge_points(cfg, rng)
+    x = edge_points(cfg, rng, 400, 40)
     out = enc(torch.from_numpy(x))
     assert out.dtype == torch.float32 and out.shape == (x.shape[0], cfg.output_dims)
     np.testing.assert_array_equal(out.detach().numpy(), encode_reference(cfg, table, x))
@@ -298,14 +280,10 @@ def test_torch_forward_equals_reference(cfg: HashGridConfig) -> None:
 def test_torch_forward_directions_poles_and_seam() -> None:
     cfg = PAPER_DIRECTION
     rng = np.random.default_rng(12)
-    v = rng.standard_normal((300, 3))
-    d = np.concatenate([v / np.linalg.norm(v, axis=1, keepdims=True),
-                        [[0, 0, 1], [0, 0, -1], [-1, 0.0, 0], [-1, -0.0, 0], [1, 0, 0], [0, 1, 0],
-                         [-0.6, 0.0, 0.8], [-0.6, -0.0, -0.8], [-1, 1e-12, 0], [-1, -1e-12, 0]]])
-    u = direction_to_unit_square(d)
+    u = direction_to_unit_square(pole_and_seam_directions(rng))
     np.testing.assert_array_equal(u[300:306], np.array([[0, 0.5], [1, 0.5], [0.5, 1], [0.5, 0], [0.5, 0.5],
                                                         [0.5, 0.75]], np.float32))
-    table = rng.random((total_table_rows(cfg), cfg.features), dtype=np.float32) * np.float32(2) - np.float32(1)
+    table = random_table(cfg, 12)
     enc = encoder_with_table(cfg, table)
     np.testing.assert_array_equal(enc(torch.from_numpy(u)).detach().numpy(), encode_reference(cfg, table, u))
 

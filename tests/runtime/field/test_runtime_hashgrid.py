@@ -10,6 +10,7 @@ import sys
 import numba
 import numpy as np
 import pytest
+from conftest import edge_points, hashgrid_configs, pole_and_seam_directions, random_table
 
 from photon_fields.models_spec.hashgrid import (
     PAPER_DIRECTION,
@@ -20,43 +21,17 @@ from photon_fields.models_spec.hashgrid import (
     encode_reference,
     level_scale,
     table_offsets,
-    total_table_rows,
 )
 from photon_fields.runtime.field.hashgrid import aligned_table, corners, encode, encode_with_layout
 
-# Small configs: non-power-of-two scales (1.7, 1.5, 1.3) with dense and hashed levels, every F, both D.
-SMALL3 = HashGridConfig(dims=3, levels=4, features=2, log2_table_size=10, base_resolution=5, per_level_scale=1.7)
-SMALL2 = HashGridConfig(dims=2, levels=5, features=4, log2_table_size=8, base_resolution=3, per_level_scale=1.5)
-DENSE = HashGridConfig(dims=3, levels=1, features=2, log2_table_size=12, base_resolution=5, per_level_scale=2.0)
-HASHED = HashGridConfig(dims=3, levels=1, features=1, log2_table_size=6, base_resolution=9, per_level_scale=2.0)
-# N_min = 1: level 0 has scale 0 (one vertex per axis); F = 1 with D = 2.
-TINY2 = HashGridConfig(dims=2, levels=3, features=1, log2_table_size=4, base_resolution=1, per_level_scale=1.3)
-WIDE3 = HashGridConfig(dims=3, levels=6, features=8, log2_table_size=9, base_resolution=3, per_level_scale=2.3)
+_CFG = hashgrid_configs()
+SMALL3, SMALL2, DENSE, HASHED, TINY2, WIDE3 = (_CFG[k] for k in
+                                               ("SMALL3", "SMALL2", "DENSE", "HASHED", "TINY2", "WIDE3"))
 CONFIGS = [PAPER_POSITION, PAPER_DIRECTION, SMALL3, SMALL2, DENSE, HASHED, TINY2, WIDE3]
 
 
 def cfg_id(cfg: HashGridConfig) -> str:
     return f"D{cfg.dims}L{cfg.levels}F{cfg.features}T{cfg.log2_table_size}b{cfg.per_level_scale:.3g}"
-
-
-def random_table(cfg: HashGridConfig, seed: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    return rng.random((total_table_rows(cfg), cfg.features), dtype=np.float32) * np.float32(2) - np.float32(1)
-
-
-def edge_points(cfg: HashGridConfig, rng: np.random.Generator, n_random: int = 300) -> np.ndarray:
-    """Random points, the box's corners (0 and 1), grid vertices and their float neighbours per level."""
-    D = cfg.dims
-    pts = [rng.random((n_random, D), dtype=np.float32),
-           np.array(np.meshgrid(*[[0.0, 1.0]] * D, indexing="ij")).reshape(D, -1).T.astype(np.float32)]
-    for level in range(cfg.levels):
-        s = float(level_scale(cfg, level))
-        if s == 0.0:
-            continue  # a single vertex: every x is on it
-        k = rng.integers(0, int(s) + 2, size=(30, D))
-        v = ((k - 0.5) / s).astype(np.float32)  # pos = k (up to float32 rounding of x)
-        pts += [v, np.nextafter(v, np.float32(np.inf)), np.nextafter(v, np.float32(-np.inf))]
-    return np.clip(np.concatenate(pts), 0.0, 1.0).astype(np.float32)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -87,11 +62,7 @@ def test_encode_outside_unit_box_equals_reference(cfg: HashGridConfig) -> None:
 def test_directions_poles_and_seam() -> None:
     cfg = PAPER_DIRECTION
     rng = np.random.default_rng(12)
-    v = rng.standard_normal((300, 3))
-    d = np.concatenate([v / np.linalg.norm(v, axis=1, keepdims=True),
-                        [[0, 0, 1], [0, 0, -1], [-1, 0.0, 0], [-1, -0.0, 0], [1, 0, 0], [0, 1, 0],
-                         [-0.6, 0.0, 0.8], [-0.6, -0.0, -0.8], [-1, 1e-12, 0], [-1, -1e-12, 0]]])
-    u = direction_to_unit_square(d)
+    u = direction_to_unit_square(pole_and_seam_directions(rng))
     # The poles map to azimuth 0.5, the seam (d_y = +-0, d_x < 0) to 1 and 0.
     np.testing.assert_array_equal(u[300:304], np.array([[0, 0.5], [1, 0.5], [0.5, 1], [0.5, 0]], np.float32))
     table = random_table(cfg, 4)
