@@ -53,7 +53,7 @@ def parse_size(text: str) -> tuple[int, int]:
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineArgumentParser(prog="pfn-render", description=__doc__.split("\n")[0],
                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--scene", default=None, help="builtin scene name (vortex, blobs, shell) or a scene JSON file "
+    p.add_argument("--scene", default=None, help="builtin scene name (vortex, blobs, shell, head) or a scene JSON file "
                    "(default: with --method field the scene the bundle records, else vortex)")
     p.add_argument("--method", choices=list(RENDERERS), default="pt",
                    help="; ".join(f"{r.name}: {r.summary}" for r in RENDERERS.values()))

@@ -109,8 +109,8 @@ class Camera:
             return cls(d["eye"], d["target"], d.get("up", [0.0, 1.0, 0.0]), d.get("fov", 40.0),
                        d.get("width", 256), d.get("height", 256), d.get("fov_axis", "y"))
         except InputError as err:
-            # Fix: the constructor labels errors "camera fov", "camera up", ... without the scene file;
-            # replace the leading "camera" by ``what`` ("scene.json camera fov").
+            # The constructor labels errors "camera fov", "camera up", ... without the scene file: replace the
+            # leading "camera" by ``what`` ("scene.json camera fov") so the error names where it came from.
             field = err.what[len("camera"):] if err.what.startswith("camera") else f" {err.what}"
             raise InputError(f"{what}{field}", err.problem) from None
 

@@ -21,6 +21,13 @@ Generators (see :data:`GENERATORS`):
     A hard-edged ellipsoidal shell (outer semi-axes ~0.4, thickness 0.06) with cylindrical holes
     drilled through it, enclosing a dense core and three satellite spheres. Piecewise constant with
     1-voxel edges (levels 0, 0.45, 0.75, 1), for testing how renderers handle sharp boundaries.
+``head``
+    A CT-like head phantom, the structured medium real scans are: skin, a skull, a thin CSF layer, a brain
+    whose outer layer is folded by sulci (clefts about 1.5 voxels wide along the zero set of a noise field),
+    two ventricles and ten wavy vessels of radius 1-1.5 voxels. Piecewise constant (levels 0.12 CSF,
+    0.25 skin, 0.45 brain, 0.75 vessels, 1 bone) with 1-voxel edges; skin and skull are cut away in the
+    octant facing the default camera, as a clipping plane would, so the folds are in view. Clefts and
+    vessels are sized in voxels, not box units: they stay at the scale where a density estimate blurs.
 
 Determinism: randomness comes from ``np.random.default_rng`` with a fixed seed per generator, and the
 result is quantized to multiples of 2**-16 after float64 computation, so ulp-level differences between
@@ -38,7 +45,7 @@ import numpy as np
 
 from photon_fields.runtime.errors import InputError
 
-__all__ = ["GENERATORS", "blobs", "shell", "vortex"]
+__all__ = ["GENERATORS", "blobs", "head", "shell", "vortex"]
 
 _QUANT = 2.0**-16
 
@@ -348,4 +355,63 @@ def shell(n: int = 96) -> np.ndarray:
     return out
 
 
-GENERATORS: dict[str, Callable[[int], np.ndarray]] = {"vortex": vortex, "blobs": blobs, "shell": shell}
+HEAD_LEVELS = (0.12, 0.25, 0.45, 0.75, 1.0)  # CSF, skin, brain, vessels, bone (exact float32 values)
+
+
+def head(n: int = 96) -> np.ndarray:
+    """CT-like head phantom: skin, skull, folded brain, ventricles and vessels; see module docstring."""
+    n = _check_n(n)
+    rng = np.random.default_rng(0x5EED_0004)
+    c = _centres(n)
+    X, Y, Z = c[:, None, None], c[None, :, None], c[None, None, :]
+
+    def ellipsoid(semi: tuple[float, float, float], centre: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+        # The normalized radius: <= 1 inside. Tested at voxel centres, so edges are 1 voxel sharp.
+        return np.sqrt(((X - centre[0]) / semi[0]) ** 2 + ((Y - centre[1]) / semi[1]) ** 2
+                       + ((Z - centre[2]) / semi[2]) ** 2)
+
+    head_r = ellipsoid((0.36, 0.42, 0.40))
+    skin = head_r <= 1.0
+    skull_outer = head_r <= 1.0 - 0.09
+    skull_inner = head_r <= 1.0 - 0.09 - 0.11
+    brain = ellipsoid((0.36 * 0.77, 0.42 * 0.77, 0.40 * 0.77), (0.0, 0.0, 0.0)) <= 1.0
+    # Sulci: thin clefts 1-2 voxels wide, cut into the outer layer of the brain along the zero set of a noise
+    # field, so the cortex folds the way light has to follow.
+    folds = _fractal_noise(n, 9, 2, rng)
+    slope = np.sqrt(sum(gr * gr for gr in np.gradient(folds)))  # per voxel
+    cleft_voxels = np.abs(folds) / np.maximum(slope, 1e-12)  # distance to the zero set, in voxels
+    cortex = brain & (ellipsoid((0.36 * 0.77, 0.42 * 0.77, 0.40 * 0.77)) > 0.5)
+    sulci = cortex & (cleft_voxels < 0.8)
+    ventricles = (ellipsoid((0.035, 0.09, 0.12), (-0.05, 0.03, 0.0)) <= 1.0) | \
+        (ellipsoid((0.035, 0.09, 0.12), (0.05, 0.03, 0.0)) <= 1.0)
+    out = np.zeros((n, n, n), dtype=np.float32)
+    out[skin] = HEAD_LEVELS[1]
+    out[skull_outer] = HEAD_LEVELS[4]
+    out[skull_inner] = HEAD_LEVELS[0]  # the CSF layer between skull and brain
+    out[brain] = HEAD_LEVELS[2]
+    out[sulci | ventricles] = HEAD_LEVELS[0]
+    # A cut-away of the skin and skull facing the default camera, as a clipping plane would show it.
+    cut = (X > 0.02) & (Z > 0.02) & (Y > -0.12) & ~brain
+    out[cut] = 0.0
+    # Vessels: wavy tubes of radius 1-1.5 voxels winding over the brain's surface and through it.
+    for _ in range(10):
+        a = rng.uniform(0, 2 * np.pi)
+        e = rng.uniform(-0.6, 0.6)
+        start = np.array([np.cos(a) * np.cos(e), np.sin(e), np.sin(a) * np.cos(e)]) * 0.27
+        direction = _unit(rng.normal(size=3) - start * 2.0)
+        samples = 400
+        t = np.linspace(0.0, 0.35, samples)
+        wiggle = np.stack([np.sin(t * 40.0 + rng.uniform(0, 6)), np.cos(t * 33.0 + rng.uniform(0, 6)),
+                           np.sin(t * 27.0 + rng.uniform(0, 6))], axis=1) * 0.015
+        path = start + t[:, None] * direction + wiggle
+        radius = rng.uniform(1.0, 1.5) / n
+        for p in path[::2]:
+            lo = np.clip(((p - 0.5 / n - radius + 0.5) * n).astype(int) - 1, 0, n - 1)
+            hi = np.clip(((p + radius + 0.5) * n).astype(int) + 2, 0, n)
+            sub = (X[lo[0]:hi[0]] - p[0]) ** 2 + (Y[:, lo[1]:hi[1]] - p[1]) ** 2 + (Z[:, :, lo[2]:hi[2]] - p[2]) ** 2
+            block = out[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]]
+            block[(sub <= radius * radius) & (block > 0)] = HEAD_LEVELS[3]
+    return out
+
+
+GENERATORS: dict[str, Callable[[int], np.ndarray]] = {"vortex": vortex, "blobs": blobs, "shell": shell, "head": head}

@@ -115,8 +115,7 @@ class Scene:
         """A copy with a different g and/or camera/resolution (shares the volume, rebuilds nothing heavy)."""
         cam = camera or self.camera
         if width is not None or height is not None:
-            # Fix: ``width or cam.width`` silently replaced an invalid 0 by the scene's width; only None
-            # means "keep", anything else goes to the camera's validation.
+            # Only None means "keep": anything else, 0 included, goes to the camera's validation.
             cam = cam.with_resolution(cam.width if width is None else width,
                                       cam.height if height is None else height)
         new = replace(self, g=self.g if g is None else g, camera=cam, _cache={})
@@ -163,6 +162,10 @@ BUILTIN_SCENES: dict[str, dict[str, Any]] = {
     "shell": {"volume": "shell", "tf": "shell", "g": -0.2,
               "lights": [{"type": "point", "position": [0.8, 0.9, 0.8], "color": _WARM_SUN, "power": 3.0}],
               "about": "a perforated shell with sharp boundaries around a dense core"},
+    "head": {"volume": "head", "tf": "ct", "g": 0.4,
+             "lights": [{"type": "directional", "direction": [-0.6, -0.7, -0.4], "color": _WARM_SUN, "power": 4.0},
+                        {"type": "point", "position": [-0.9, 0.4, 0.9], "color": [0.6, 0.75, 1.0], "power": 0.5}],
+             "about": "a CT-like head phantom: skull, folded brain, vessels, a sparse medical transfer function"},
 }
 BUILTIN_RESOLUTION = 96
 
@@ -173,8 +176,8 @@ def builtin_volume(name: str, resolution: int = BUILTIN_RESOLUTION, what: str = 
 
     if name not in GENERATORS:
         raise InputError(f"{what} builtin", f"unknown builtin volume '{name}' (available: {', '.join(GENERATORS)})")
-    # Fix: validated before the cache lookup; an unhashable resolution (e.g. [32] from a scene file) used
-    # to escape as a TypeError traceback from lru_cache. bool is an int subclass: refuse it explicitly.
+    # Validated before the cache lookup, which would raise a TypeError traceback on an unhashable resolution
+    # (e.g. [32] from a scene file). bool is an int subclass: refuse it explicitly.
     if isinstance(resolution, bool) or not isinstance(resolution, int) or not 8 <= resolution <= 512:
         raise InputError(f"{what} resolution", f"must be an integer in [8, 512], got {resolution!r}")
     return _cached_builtin_volume(name, resolution)
@@ -210,7 +213,7 @@ def load_scene(source: str | Path) -> Scene:
             return builtin_scene(str(source))
         raise InputError(str(source), "scene file not found (and not a builtin scene: "
                          f"{', '.join(BUILTIN_SCENES)})")
-    # Fix: a directory (or an unreadable file) used to escape as an OSError traceback from read_text.
+    # A directory (or an unreadable file) is one line here, not an OSError traceback from read_text.
     if not p.is_file():
         raise InputError(str(p), "is not a regular file (expected a JSON scene file)")
     try:
@@ -244,10 +247,10 @@ def scene_from_dict(d: Any, base_dir: Path | None = None, what: str = "scene") -
     phase = d.get("phase", {})
     if not isinstance(phase, dict):
         raise InputError(f"{what} phase", "must be an object like {\"g\": 0.0}")
-    # Fix: a misspelt phase key (e.g. "gg") used to be ignored silently, rendering with g = 0.
+    # A misspelt phase key (e.g. "gg") would otherwise render silently with g = 0.
     check_keys(phase, ("g",), f"{what} phase")
-    # Fix: g and the light checks of Scene used to be labelled "scene '<name>' ...", which does not name
-    # the file; validate g here and re-label the Scene's own errors with ``what``.
+    # Scene's own checks label errors "scene '<name>' ...", which does not name the file: validate g here and
+    # re-label the Scene's errors with ``what``.
     g = check_g(phase.get("g", 0.0), f"{what} phase g")
     try:
         return Scene(volume, tf, lights, camera, g, name, volume_source)
@@ -267,7 +270,7 @@ def _volume_from_dict(v: Any, base_dir: Path, what: str) -> tuple[Volume, dict[s
     if not isinstance(v, dict):
         raise InputError(what, "must be an object with 'path' or 'builtin'")
     if "builtin" in v:
-        # Fix: unknown keys were ignored here (but refused for file volumes); errors now name the entry.
+        # Unknown keys are refused, as for file volumes, and errors name the entry.
         check_keys(v, ("builtin", "resolution"), what)
         resolution = v.get("resolution", BUILTIN_RESOLUTION)
         volume = builtin_volume(str(v["builtin"]), resolution, what=what)

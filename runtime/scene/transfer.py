@@ -164,8 +164,8 @@ class TransferFunction:
 
 def _relabelled(what: str, build: Any) -> TransferFunction:
     """``build()``, with a validation error re-labelled by ``what`` (the scene entry or file the TF came
-    from). Fix: errors of the constructor used to name only "transfer function 'custom'", so a user
-    could not tell which file or scene entry was wrong."""
+    from): the constructor's errors name only "transfer function 'custom'", which does not tell a user
+    which file or scene entry is wrong."""
     try:
         return build()
     except InputError as err:
@@ -203,6 +203,12 @@ PRESETS: dict[str, TransferFunction] = {
     # Shell: a solid-looking bone-white material for sharp-edged objects.
     "shell": _tf("shell", 200.0, [(0.0, (0.9, 0.85, 0.75), 0.0), (0.2, (0.9, 0.85, 0.75), 0.0),
                                   (0.3, (0.9, 0.85, 0.75), 0.6), (1.0, (0.85, 0.45, 0.35), 1.0)]),
+    # CT: a sparse, classic medical TF for the head phantom's levels: CSF nearly clear, skin faint, brain
+    # tissue translucent, vessels red and dense, bone opaque white.
+    "ct": _tf("ct", 200.0, [(0.0, (0.85, 0.88, 0.9), 0.0), (0.08, (0.85, 0.88, 0.9), 0.0),
+                            (0.12, (0.85, 0.88, 0.9), 0.01), (0.25, (0.95, 0.8, 0.7), 0.015),
+                            (0.45, (0.93, 0.82, 0.76), 0.25), (0.75, (0.9, 0.35, 0.3), 0.8),
+                            (1.0, (0.95, 0.93, 0.88), 1.0)]),
 }
 
 

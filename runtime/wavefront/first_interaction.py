@@ -164,9 +164,8 @@ def sample_first_interactions(scene: Scene, m: Medium, start: int, count: int, s
 
     Why fused: the separate stages built a RayBatch of every camera ray (8 arrays, most of them unused
     here), clipped it, compacted it, tracked it and compacted again; the rays that miss the box or escape
-    (70-90 % on the builtin scenes) only cost their tracking now. Measured at 512x512 on one free core, same
-    process, interleaved: stages 1-3 from 263-307 ms to 230-276 ms (vortex, blobs, shell); what is left is
-    the tracking itself, the path tracer's first bounce."""
+    (70-90 % on the builtin scenes) only cost their tracking; what is left is the tracking itself, the path
+    tracer's first bounce."""
     cam = scene.camera
     origin, du, dv = cam.image_plane()
     return _first_interactions(m, np.ascontiguousarray(cam.eye, dtype=np.float64), origin, du, dv, cam.width,

@@ -1,4 +1,4 @@
-"""Judging a trained field by the images it makes (issue 4's quality measure; paper Sec. 4.2, Fig. 8 / 10).
+"""Judging a trained field by the images it makes (paper Sec. 4.2, Fig. 8 / 10).
 
 :class:`TorchFieldEstimator` puts a torch :class:`train.field.network.TorchPhotonField` behind the runtime's
 :class:`runtime.wavefront.first_interaction.IndirectEstimator` interface, so the field renders through exactly the

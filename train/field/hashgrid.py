@@ -34,34 +34,14 @@ and rendering evaluate the encoding with one implementation:
    Levels own disjoint rows, so no two threads touch one row and each row sees its additions in
    (point, corner) order: the gradient is bit-identical for any thread count, no atomics.
 
-Measured on this machine (2 weak cores, otherwise idle: other processes used < 0.05 core), n = 2^16
-points, 2 threads, best of 5, ``bench/bench_hashgrid.py`` (results in ``bench/results/hashgrid.json``),
-with the forward of that time (a corners kernel writing (n, L, 2^D) rows and weights, then a gather):
+Why the torch-free kernels: a pure-torch scheme (int64 index math + ``F.embedding_bag``; same function, its
+output bit-identical) makes many full passes over (n, L, D) and (n, L, 2^D) float64 / int64 tensors, and
+``embedding_bag``'s dense CPU backward is slow for the n L 2^D lookups. The gradient is dense, as in tcnn,
+so an optimizer step touches all ``rows * F`` parameters. ``bench/bench_hashgrid.py`` measures both
+schemes (bench/README.md).
 
-=============================================================  =========  ==================
-scheme, config                                                 forward    forward + backward
-=============================================================  =========  ==================
-this module, paper D=3 (16 levels x 8 features, 2^19 tables)   166 ms     417 ms
-this module, paper D=2 (same, directions)                      83 ms      240 ms
-pure torch (int64 index math + ``F.embedding_bag``), D=3       719 ms     2727 ms
-=============================================================  =========  ==================
-
-Moving the forward to the runtime's fused kernel, measured side by side in one process later (the
-machine was then slower for both: load ~2, other guests on the host): D=3 forward 350 -> 136 ms, forward +
-backward 859 -> 770 ms; D=2 185 -> 87 ms and 424 -> 472 ms (the backward now pays one corners pass that
-the forward used to do); table gradients bit-identical between the two.
-
-The pure-torch scheme (same function: its output is bit-identical) loses in both halves: its index math
-makes many full passes over (n, L, D) and (n, L, 2^D) float64 / int64 tensors (~0.5 s, against ~60 ms
-for the corners kernel), and ``embedding_bag``'s dense CPU backward takes ~2 s for the n L 2^D = 8.4 M
-lookups. Of the module's backward (~250 ms) the scatter is nearly all; the 228 MB gradient comes from
-``np.zeros`` (lazily zeroed pages, cheaper than ``torch.zeros``' memset). On a loaded machine (load 2-3)
-the figures grow 1.5-2x. The gradient is dense, as in tcnn, so an optimizer step touches all ``rows * F``
-parameters (57 M for the paper's D=3 table): in a training step that update, not the encoding, is likely
-the larger cost.
-
-Threads: the kernels use numba's thread pool (``numba.set_num_threads``; ``photon_fields.runtime.threads.set_threads``),
-not torch's. Kernels are compiled on first use and cached on disk (``cache=True``).
+Threads: the kernels use numba's thread pool (``photon_fields.runtime.threads``), not torch's. Kernels are
+compiled on first use and cached on disk (``cache=True``).
 """
 
 from __future__ import annotations

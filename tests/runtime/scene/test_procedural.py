@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.scene.procedural import GENERATORS, SHELL_LEVELS, blobs, shell, vortex
+from photon_fields.runtime.scene.procedural import GENERATORS, HEAD_LEVELS, SHELL_LEVELS, blobs, head, shell, vortex
 from photon_fields.runtime.scene.volume import make_volume
 
 N = 48  # small but enough for the structure (thin vortex cores are ~0.5 voxel here)
@@ -21,8 +21,9 @@ def volumes() -> dict[str, np.ndarray]:
 
 
 def test_registry_names() -> None:
-    assert set(GENERATORS) == {"vortex", "blobs", "shell"}
+    assert set(GENERATORS) == {"vortex", "blobs", "shell", "head"}
     assert GENERATORS["vortex"] is vortex and GENERATORS["blobs"] is blobs and GENERATORS["shell"] is shell
+    assert GENERATORS["head"] is head
 
 
 @pytest.mark.parametrize("name", sorted(GENERATORS))
@@ -111,6 +112,31 @@ def test_shell_geometry(volumes: dict[str, np.ndarray]) -> None:
         idx = np.clip(((t[:, None] * d / np.linalg.norm(d) + 0.5) * N).astype(int), 0, N - 1)
         escaped += not np.any(v[idx[:, 0], idx[:, 1], idx[:, 2]] == wall)
     assert 0.02 < escaped / 400 < 0.5
+
+
+@pytest.mark.parametrize("n", [N, 96])
+def test_head_phantom_structure(n: int, volumes: dict[str, np.ndarray]) -> None:
+    v = volumes["head"] if n == N else head(n)
+    csf, skin, brain, vessel, bone = (np.float32(level) for level in HEAD_LEVELS)
+    assert set(np.unique(v).tolist()) == {0.0, *(float(level) for level in (csf, skin, brain, vessel, bone))}
+    # Fine structures at the scale a density estimate blurs: vessels are 1-3 voxels across (no vessel voxel is
+    # more than 2 voxels from a non-vessel one), and the sulci cut CSF clefts into the brain.
+    is_vessel = v == vessel
+    assert 0.0005 < is_vessel.mean() < 0.01
+    core = is_vessel.copy()
+    for axis in range(3):
+        for shift in (-2, 2):
+            core &= np.roll(is_vessel, shift, axis=axis)
+    assert not core.any()
+    c = n // 2
+    inner = v[c - n // 5:c + n // 5, c - n // 5:c + n // 5, c - n // 5:c + n // 5]
+    assert 0.02 < np.mean(inner == csf) < 0.4 and np.mean(inner == brain) > 0.5
+    # The cut-away: no skin or bone in the octant facing the default camera (+x, +z, upper part).
+    octant = v[c + n // 20:, c:, c + n // 20:]
+    assert not np.isin(octant, [skin, bone]).any() and (octant == brain).any()
+    # Elsewhere the skull encloses the brain: along -x from the centre, bone comes before the outside.
+    line = v[:c, c, c][::-1]
+    assert (line == bone).any() and np.flatnonzero(line == bone)[0] > np.flatnonzero(line == brain)[-1]
 
 
 @pytest.mark.parametrize("name", sorted(GENERATORS))
