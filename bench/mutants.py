@@ -62,7 +62,7 @@ class Mutant:
 
 MUTANTS: tuple[Mutant, ...] = (
     # The four planted in issue 11, section 6.
-    Mutant("point_cone_fraction", "train/photons/tracing.py",
+    Mutant("point_cone_fraction", "runtime/transport/emitters.py",
            "flux[i] = 4 * math.pi * rgb[i] * (1.0 - cos_max[i]) / 2.0", "flux[i] = 4 * math.pi * rgb[i]",
            (f"{LIGHTS}[point_outside]",
             "tests/train/test_photon_tracing.py::test_distant_point_light_carries_the_power_of_a_directional_light"),
@@ -84,7 +84,7 @@ MUTANTS: tuple[Mutant, ...] = (
             f"{LIGHTS}[directional]"),
            "Henyey-Greenstein evaluated with the cosine's sign flipped (g > 0 scatters backwards)"),
     # More plausible bugs in the same code.
-    Mutant("env_photon_power", "train/photons/tracing.py", "flux[i] = rgb[i] * 4 * math.pi**2 * radius**2",
+    Mutant("env_photon_power", "runtime/transport/emitters.py", "flux[i] = rgb[i] * 4 * math.pi**2 * radius**2",
            "flux[i] = rgb[i] * 4 * math.pi * radius**2",
            ("tests/runtime/photons/test_photon_estimate.py::test_photon_map_white_furnace_under_an_environment_light",
             f"{LIGHTS}[environment]"),
