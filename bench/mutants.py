@@ -48,6 +48,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = ROOT / "bench" / "results" / "mutants.json"
 LIGHTS = "tests/runtime/photons/test_light_kinds.py::test_photon_map_li_matches_path_tracer_per_light_kind"
+EMITTERS = "tests/runtime/transport/test_emitters.py"
 
 
 @dataclass(frozen=True)
@@ -62,7 +63,7 @@ class Mutant:
 
 MUTANTS: tuple[Mutant, ...] = (
     # The four planted in issue 11, section 6.
-    Mutant("point_cone_fraction", "train/photons/tracing.py",
+    Mutant("point_cone_fraction", "runtime/transport/emitters.py",
            "flux[i] = 4 * math.pi * rgb[i] * (1.0 - cos_max[i]) / 2.0", "flux[i] = 4 * math.pi * rgb[i]",
            (f"{LIGHTS}[point_outside]",
             "tests/train/test_photon_tracing.py::test_distant_point_light_carries_the_power_of_a_directional_light"),
@@ -84,11 +85,27 @@ MUTANTS: tuple[Mutant, ...] = (
             f"{LIGHTS}[directional]"),
            "Henyey-Greenstein evaluated with the cosine's sign flipped (g > 0 scatters backwards)"),
     # More plausible bugs in the same code.
-    Mutant("env_photon_power", "train/photons/tracing.py", "flux[i] = rgb[i] * 4 * math.pi**2 * radius**2",
+    Mutant("env_photon_power", "runtime/transport/emitters.py", "flux[i] = rgb[i] * 4 * math.pi**2 * radius**2",
            "flux[i] = rgb[i] * 4 * math.pi * radius**2",
            ("tests/runtime/photons/test_photon_estimate.py::test_photon_map_white_furnace_under_an_environment_light",
             f"{LIGHTS}[environment]"),
            "environment photons carry 4 pi R^2 L (the sphere's area) instead of 4 pi^2 R^2 L (its flux)"),
+    Mutant("point_cone_angle_uniform", "runtime/transport/emitters.py", "c = 1.0 - u1 * (1.0 - cos_max)",
+           "c = math.cos(u1 * math.acos(cos_max))",
+           (f"{EMITTERS}::test_point_light_outside_emits_uniformly_into_the_cone_that_subtends_the_sphere",
+            f"{EMITTERS}::test_point_light_inside_emits_uniformly_over_the_whole_sphere"),
+           "point-light photons sampled uniformly in the angle to the cone's axis instead of its cosine "
+           "(too many along the axis)"),
+    Mutant("disk_radius_uniform", "runtime/transport/emitters.py", "r = radius * math.sqrt(u1)", "r = radius * u1",
+           (f"{EMITTERS}::test_directional_light_emits_parallel_rays_uniformly_over_a_disk_across_the_sphere",
+            f"{EMITTERS}::test_environment_emits_uniform_directions_through_a_disk_across_the_sphere"),
+           "directional and environment photons start uniformly in the disk's radius instead of its area "
+           "(crowded at the centre)"),
+    Mutant("env_emission_reuses_disk_numbers", "runtime/transport/emitters.py",
+           "dx, dy, dz = sample_uniform_sphere(u3, u4)", "dx, dy, dz = sample_uniform_sphere(u1, u2)",
+           (f"{EMITTERS}::test_environment_emits_uniform_directions_through_a_disk_across_the_sphere",),
+           "environment photons draw their direction from the random numbers of their disk position, so "
+           "the two are correlated (each alone is still uniform)"),
     Mutant("photon_weight_without_1_over_sigma", "runtime/photons/estimate.py",
            "weights = sub.power.astype(np.float64) / np.maximum(sigma, 1e-12)[:, None]",
            "weights = sub.power.astype(np.float64)",

@@ -50,8 +50,9 @@ from numba import njit, prange
 
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.direct_light import direct_light_batch, mis_weight_phase
+from photon_fields.runtime.transport.emitters import ENVIRONMENT_PDF
 from photon_fields.runtime.transport.medium import Medium, albedo_at, intersect_box
-from photon_fields.runtime.transport.phase import INV_4PI, sample_hg
+from photon_fields.runtime.transport.phase import sample_hg
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.tracking import delta_track_batch
 from photon_fields.runtime.wavefront.batches import (
@@ -81,7 +82,8 @@ def add_escaped_radiance(film: Film, rays: RayBatch, escaped: np.ndarray, env_rg
     pdf = rays.pdf[escaped]
     depth = rays.depth[escaped]
     # Camera rays (depth 0) carry pdf = inf, so their weight is 1 as it must be: NEE cannot reach them.
-    w = _mis_weights(pdf, INV_4PI) if nee else np.ones(pdf.shape[0])
+    # ENVIRONMENT_PDF: the pdf of the environment's own NEE samples (runtime.transport.emitters).
+    w = _mis_weights(pdf, ENVIRONMENT_PDF) if nee else np.ones(pdf.shape[0])
     film.splat_by_depth(depth, rays.pixel[escaped], rays.beta[:, escaped] * env_rgb[:, None] * w)
 
 

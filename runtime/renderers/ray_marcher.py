@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.scene.scene import Scene
-from photon_fields.runtime.transport.direct_light import delta_light_direction
+from photon_fields.runtime.transport.emitters import delta_light_direction
 from photon_fields.runtime.transport.medium import Medium, albedo_at, extinction_at, intersect_box
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float

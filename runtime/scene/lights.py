@@ -10,8 +10,27 @@ quantity is ``color * power``:
   sky). It is the only non-delta light: it can be hit by phase-sampled paths, so it is the case where
   the path tracer's multiple importance sampling matters, and it makes the white-furnace test possible.
 
-Renderers consume :func:`pack_lights`, a structure-of-arrays form: ``kind (n,) int64``,
-``vec (n, 3)`` (position or unit travel direction) and ``rgb (n, 3)`` (color * power).
+Renderers and photon tracing consume :func:`pack_lights`, a structure-of-arrays form: ``kind (n,) int64``
+(:data:`POINT`, :data:`DIRECTIONAL`, :data:`ENVIRONMENT`, defined here only), ``vec (n, 3)`` (position or
+unit travel direction) and ``rgb (n, 3)`` (color * power). What each kind does in transport (direct-light
+sampling, photon emission, the environment) is in :mod:`photon_fields.runtime.transport.emitters`.
+
+Adding a light kind touches exactly:
+
+1. this module: the dataclass (validation in ``__post_init__``, ``to_dict``), the ``Light`` union, its JSON
+   keys in ``_LIGHT_KEYS`` and ``light_from_dict``, a new kind constant and its ``pack_lights`` branch (the
+   one gate: an unknown class is refused there); for the Python API, its name in ``runtime/scene/scene.py``'s
+   ``__all__`` beside the others;
+2. ``runtime/transport/emitters.py``: its branches for direct light (``delta_light_direction``: a delta
+   light's direction and falloff, 0 for any other kind; ``sample_light_direction``: the sample of a
+   non-delta light) and for photons (``emission_fluxes``, ``emit_photon``); each of these raises for a kind
+   it does not know, so a missing branch fails loudly;
+3. tests: its sampler distributions in ``tests/runtime/transport/test_emitters.py`` and photon map vs path
+   tracer in ``tests/runtime/photons/test_light_kinds.py``.
+
+A kind that, like the environment, is not a delta light and is seen by rays that leave the volume also
+needs the renderers' escape handling (``environment_radiance`` in ``runtime/wavefront/batches.py``, the
+path tracer's ``add_escaped_radiance``), which today knows the constant environment only.
 """
 
 from __future__ import annotations

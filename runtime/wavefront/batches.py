@@ -17,7 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from photon_fields.runtime.scene.scene import Scene
-from photon_fields.runtime.transport.direct_light import environment_index
+from photon_fields.runtime.transport.emitters import environment_index
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.rays import RayBatch, clip_rays_to_volume, generate_camera_rays
 

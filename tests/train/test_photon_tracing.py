@@ -91,6 +91,21 @@ def test_directions_follow_hg_at_scattering(g_index: int) -> None:
     assert abs(mu.mean() - g) < 5 * mu.std() / math.sqrt(mu.size)
 
 
+def test_tracing_kernel_refuses_an_unknown_light_kind() -> None:
+    """A kind number no light has (pack_lights never makes one) stops the kernel instead of being emitted as
+    another kind. numba reports an exception raised inside a prange loop as a SystemError whose cause is
+    the kernel's ValueError."""
+    scene = _dense_scene(0.5)
+    n, max_b = 64, 4
+    slots = max_b - 1
+    out = [np.empty((n * slots, 3), np.float32) for _ in range(3)]
+    with pytest.raises((ValueError, SystemError)) as info:
+        _trace_chunk(scene.medium(), np.array([3]), np.zeros((1, 3)), np.ones((1, 3)), np.array([-1.0]),
+                     np.array([1.0]), np.array([0.0]), np.array([0]), 1, 0, n, max_b, *out,
+                     np.empty(n * slots, np.uint8), np.empty(n, np.int64))
+    assert "unknown light kind" in str(info.value) + repr(info.value.__cause__)
+
+
 def test_same_seed_same_map_for_any_thread_count() -> None:
     scene = builtin_scene("shell", resolution=32)
     a = trace_photons(scene, 20_000, seed=3, progress=False)

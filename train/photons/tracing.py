@@ -20,15 +20,10 @@ seed : int
     number of threads, and chunking is fixed, so the record order is deterministic too.
 
 Emission (power split by light power: a light is chosen with probability proportional to its total
-RGB flux, and its photons carry flux / probability):
-
-- point light, intensity I: flux 4 pi I; directions are sampled uniformly inside the cone that
-  subtends the volume's bounding sphere (when the light is outside it), and the power is scaled by the
-  cone's solid-angle fraction, so no photon is wasted on directions that cannot reach the volume;
-- directional light, irradiance E: parallel rays from a disk of radius R (the box's bounding sphere)
-  perpendicular to the direction, flux E pi R^2;
-- environment, radiance L: a uniform direction, then a disk of radius R perpendicular to it, flux
-  4 pi^2 R^2 L (uniform radiance through a sphere of radius R).
+RGB flux, and its photons carry flux / probability): each light kind's flux, emission cone and photon
+sampler are in ``runtime.transport.emitters`` (:func:`emission_fluxes`, :func:`emit_photon`); every photon
+is aimed at the volume's bounding sphere (a point light's cone towards it, a disk of parallel rays across it
+for the directional and environment lights), so none is wasted on directions that cannot reach the volume.
 
 Transport: free flights by delta tracking over the majorant grid; at each real collision the photon is
 recorded (from the second collision on, Alg. 1's "skip first interaction") with the power it *arrives*
@@ -54,10 +49,10 @@ from tqdm import tqdm
 from photon_fields.models_spec import DEFAULT_PHASES
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.photon_map import PhotonMap
-from photon_fields.runtime.scene.lights import DIRECTIONAL, POINT
 from photon_fields.runtime.scene.scene import Scene
+from photon_fields.runtime.transport.emitters import emission_fluxes, emit_photon
 from photon_fields.runtime.transport.medium import Medium, albedo_at, intersect_box
-from photon_fields.runtime.transport.phase import check_g, orthonormal_basis, sample_hg
+from photon_fields.runtime.transport.phase import check_g, sample_hg
 from photon_fields.runtime.transport.rng import next_float, stream_state
 from photon_fields.runtime.transport.tracking import delta_track
 
@@ -68,55 +63,10 @@ MIN_PATHS_BEFORE_GIVING_UP = 1 << 20
 
 
 def light_fluxes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """(flux (n_lights, 3) of the part of each light that can reach the bounding sphere, cone cos_max (n,))."""
+    """(flux (n_lights, 3) of the part of each light that can reach the bounding sphere, cone cos_max (n,)):
+    :func:`photon_fields.runtime.transport.emitters.emission_fluxes` of the scene's packed lights."""
     kind, vec, rgb = scene.packed_lights()
-    m = scene.medium()
-    center = m.bmin + 0.5 * m.bsize
-    radius = 0.5 * float(np.linalg.norm(m.bsize))
-    flux = np.zeros_like(rgb)
-    cos_max = np.full(len(kind), -1.0)
-    for i in range(len(kind)):
-        if kind[i] == POINT:
-            dist = float(np.linalg.norm(vec[i] - center))
-            if dist > radius:
-                cos_max[i] = math.sqrt(max(0.0, 1.0 - (radius / dist) ** 2))
-            flux[i] = 4 * math.pi * rgb[i] * (1.0 - cos_max[i]) / 2.0
-        elif kind[i] == DIRECTIONAL:
-            flux[i] = rgb[i] * math.pi * radius**2
-        else:
-            flux[i] = rgb[i] * 4 * math.pi**2 * radius**2
-    return flux, cos_max
-
-
-@njit(cache=True, inline="always")
-def _emit(kind: int, vec: np.ndarray, cos_max: float, cx: float, cy: float, cz: float, radius: float,
-          u1: float, u2: float, u3: float, u4: float) -> tuple[float, float, float, float, float, float]:
-    """Origin and travel direction of an emitted photon (see module docstring)."""
-    if kind == POINT:
-        ax, ay, az = cx - vec[0], cy - vec[1], cz - vec[2]
-        n = math.sqrt(ax * ax + ay * ay + az * az)
-        if cos_max > -1.0 and n > 0.0:
-            ax, ay, az = ax / n, ay / n, az / n
-        else:  # light inside the bounding sphere: the whole sphere of directions
-            ax, ay, az = 0.0, 0.0, 1.0
-        c = 1.0 - u1 * (1.0 - cos_max)
-        s = math.sqrt(max(0.0, 1.0 - c * c))
-        tx, ty, tz, bx, by, bz = orthonormal_basis(ax, ay, az)
-        cp, sp = s * math.cos(2 * math.pi * u2), s * math.sin(2 * math.pi * u2)
-        wx, wy, wz = cp * tx + sp * bx + c * ax, cp * ty + sp * by + c * ay, cp * tz + sp * bz + c * az
-        return vec[0], vec[1], vec[2], wx, wy, wz
-    if kind == DIRECTIONAL:
-        dx, dy, dz = vec[0], vec[1], vec[2]
-    else:  # ENVIRONMENT: uniform travel direction
-        dz = 1.0 - 2.0 * u3
-        s = math.sqrt(max(0.0, 1.0 - dz * dz))
-        dx, dy = s * math.cos(2 * math.pi * u4), s * math.sin(2 * math.pi * u4)
-    tx, ty, tz, bx, by, bz = orthonormal_basis(dx, dy, dz)
-    r = radius * math.sqrt(u1)
-    px, py = r * math.cos(2 * math.pi * u2), r * math.sin(2 * math.pi * u2)
-    back = 1.01 * radius
-    return (cx - back * dx + px * tx + py * bx, cy - back * dy + px * ty + py * by,
-            cz - back * dz + px * tz + py * bz, dx, dy, dz)
+    return emission_fluxes(scene.medium(), kind, vec, rgb)
 
 
 @njit(cache=True, parallel=True)
@@ -140,7 +90,7 @@ def _trace_chunk(m: Medium, kind: np.ndarray, vec: np.ndarray, power: np.ndarray
         st, u2 = next_float(st)
         st, u3 = next_float(st)
         st, u4 = next_float(st)
-        ox, oy, oz, dx, dy, dz = _emit(kind[li], vec[li], cos_max[li], cx, cy, cz, radius, u1, u2, u3, u4)
+        ox, oy, oz, dx, dy, dz = emit_photon(kind[li], vec[li], cos_max[li], cx, cy, cz, radius, u1, u2, u3, u4)
         ph = active[i % active.shape[0]]
         g = phases[ph]
         br, bg, bb = power[li, 0], power[li, 1], power[li, 2]

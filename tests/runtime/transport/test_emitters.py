@@ -1,0 +1,258 @@
+"""Per-light-kind transport (runtime.transport.emitters): the photon emission samplers' distributions
+(chi-square against the uniform distributions they must produce), fluxes and emission cones against the
+geometry of the bounding sphere, the direct-light samples, and the refusal of an unknown kind.
+
+The chi-square tests bin the samples' coordinates transformed to [0, 1) (cosine, squared disk radius,
+azimuth), where the correct sampler is uniform, in joint 2-D histograms of 10 x 12 cells (so a correlation
+between two coordinates fails too) and require p > 1e-3; 240k samples give ~2000 per cell. Over 100 seeds
+the correct samplers' p-values were uniform (Kolmogorov-Smirnov p 0.15-0.73), so a false alarm has
+probability 1e-3 per check; the seeds here are fixed. Planted bugs they catch (bench/mutants.py:
+``point_cone_angle_uniform``, ``disk_radius_uniform``, ``env_emission_reuses_disk_numbers``): the cone's
+angle sampled uniformly instead of its cosine, the disk's radius uniform instead of its square, the
+environment's direction drawn from the disk's random numbers.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from conftest import constant_tf
+from numba import njit
+from scipy import stats
+
+from photon_fields.runtime.scene.lights import DIRECTIONAL, ENVIRONMENT, POINT
+from photon_fields.runtime.scene.volume import make_volume
+from photon_fields.runtime.transport.direct_light import direct_light_batch
+from photon_fields.runtime.transport.emitters import (
+    delta_light_direction,
+    emission_fluxes,
+    emit_photon,
+    environment_index,
+    sample_light_direction,
+)
+from photon_fields.runtime.transport.medium import Medium, build_medium
+from photon_fields.runtime.transport.rng import next_float, stream_states, uniform_batch
+
+N = 240_000
+P_MIN = 1e-3
+UNKNOWN = 3  # no light kind has this number
+
+
+@pytest.fixture(scope="module")
+def medium() -> Medium:
+    """A non-cubic box (1 x 0.75 x 0.5, centred at the origin)."""
+    return build_medium(make_volume(np.ones((8, 6, 4)), window=(0.0, 1.0)), constant_tf(1.0))
+
+
+def bounding_sphere(m: Medium) -> tuple[np.ndarray, float]:
+    return m.bmin + 0.5 * m.bsize, 0.5 * float(np.linalg.norm(m.bsize))
+
+
+@njit
+def _emit_batch(kind: int, vec: np.ndarray, cos_max: float, c: np.ndarray, radius: float,
+                u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    o = np.empty((u.shape[0], 3))
+    w = np.empty((u.shape[0], 3))
+    for i in range(u.shape[0]):
+        o[i, 0], o[i, 1], o[i, 2], w[i, 0], w[i, 1], w[i, 2] = emit_photon(
+            kind, vec, cos_max, c[0], c[1], c[2], radius, u[i, 0], u[i, 1], u[i, 2], u[i, 3])
+    return o, w
+
+
+@njit
+def _environment_nee_batch(states: np.ndarray) -> np.ndarray:
+    out = np.empty((states.shape[0], 5))
+    vec = np.zeros(3)
+    for i in range(states.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3], out[i, 4], _, states[i] = sample_light_direction(
+            ENVIRONMENT, vec, 0.1, 0.2, 0.3, states[i])
+    return out
+
+
+def emit(kind: int, vec: np.ndarray, cos_max: float, m: Medium, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """N photons (origins (N, 3), travel directions (N, 3)) from the project's own random streams."""
+    c, radius = bounding_sphere(m)
+    u = uniform_batch(stream_states(seed, 0, N), 4)
+    return _emit_batch(kind, np.asarray(vec, dtype=np.float64), cos_max, c, radius, u)
+
+
+def frame(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors completing each row of ``axis`` (n, 3) to an orthonormal frame (independent of the
+    code under test's ``orthonormal_basis``)."""
+    helper = np.array([0.267, 0.535, 0.802])
+    t = np.cross(axis, helper)
+    t /= np.linalg.norm(t, axis=-1, keepdims=True)
+    return t, np.cross(axis, t)
+
+
+def azimuth01(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """The azimuth of each row of ``v`` around ``axis`` (rows or one vector), mapped to [0, 1)."""
+    t, b = frame(np.broadcast_to(axis, v.shape))
+    return (np.arctan2(np.einsum("ij,ij->i", v, b), np.einsum("ij,ij->i", v, t)) / (2 * math.pi)) % 1.0
+
+
+def joint_uniform_p(a: np.ndarray, b: np.ndarray, bins: tuple[int, int] = (10, 12)) -> float:
+    """Chi-square p-value of (a, b) against the uniform distribution on [0, 1)^2."""
+    counts, _, _ = np.histogram2d(a, b, bins=bins, range=((0.0, 1.0), (0.0, 1.0)))
+    assert counts.sum() == a.size, "samples outside [0, 1)"
+    return float(stats.chisquare(counts.ravel()).pvalue)
+
+
+def disk_coordinates(o: np.ndarray, w: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(signed distance of each origin from the centre along its direction, lateral offset (n, 3))."""
+    rel = o - c
+    s = np.einsum("ij,ij->i", rel, w)
+    return s, rel - s[:, None] * w
+
+
+# --- emission ---------------------------------------------------------------------------------------
+
+
+def test_point_light_outside_emits_uniformly_into_the_cone_that_subtends_the_sphere(medium: Medium) -> None:
+    """Outside the bounding sphere: every photon starts at the light and its line passes through the sphere;
+    cos(angle to the centre) is uniform on [cos_max, 1] and the azimuth uniform (the cone's solid angle,
+    uniformly); the cone is the sphere's: isotropic directions hit the sphere with probability
+    (1 - cos_max) / 2; the flux is I times the cone's solid angle."""
+    c, radius = bounding_sphere(medium)
+    pos = c + np.array([0.9, 0.6, 0.2])
+    rgb = np.array([[0.5, 1.0, 2.0]])
+    dist = float(np.linalg.norm(pos - c))
+    assert dist > radius
+    flux, cos_max = emission_fluxes(medium, np.array([POINT]), pos[None], rgb)
+    assert cos_max[0] == pytest.approx(math.sqrt(1.0 - (radius / dist) ** 2), rel=1e-14)
+    np.testing.assert_allclose(flux[0], rgb[0] * 2 * math.pi * (1.0 - cos_max[0]), rtol=1e-14)
+
+    o, w = emit(POINT, pos, float(cos_max[0]), medium, seed=5)
+    assert np.all(o == pos)
+    np.testing.assert_allclose(np.linalg.norm(w, axis=1), 1.0, atol=1e-12)
+    to_c = c - pos
+    along = w @ to_c
+    assert np.all(along > 0.0)
+    miss = np.linalg.norm(to_c[None] - along[:, None] * w, axis=1)
+    assert miss.max() <= radius * (1 + 1e-9)
+    axis = to_c / dist
+    mu = w @ axis
+    assert mu.min() >= cos_max[0] - 1e-12
+    x = np.minimum((1.0 - mu) / (1.0 - cos_max[0]), np.nextafter(1.0, 0.0))
+    assert joint_uniform_p(x, azimuth01(w, axis)) > P_MIN
+
+    # The cone is the set of directions that reach the sphere (not narrower, not wider).
+    iso = np.random.default_rng(1).normal(size=(N, 3))
+    iso /= np.linalg.norm(iso, axis=1, keepdims=True)
+    a = iso @ to_c
+    hits = (a > 0) & (np.linalg.norm(to_c[None] - a[:, None] * iso, axis=1) <= radius)
+    q = (1.0 - cos_max[0]) / 2.0
+    assert abs(hits.mean() - q) < 5 * math.sqrt(q * (1 - q) / N)
+
+
+def test_point_light_inside_emits_uniformly_over_the_whole_sphere(medium: Medium) -> None:
+    c, _ = bounding_sphere(medium)
+    pos = c + np.array([0.1, -0.2, 0.05])
+    rgb = np.array([[1.0, 0.5, 0.25]])
+    flux, cos_max = emission_fluxes(medium, np.array([POINT]), pos[None], rgb)
+    assert cos_max[0] == -1.0
+    np.testing.assert_allclose(flux[0], 4 * math.pi * rgb[0], rtol=1e-14)
+    o, w = emit(POINT, pos, -1.0, medium, seed=6)
+    assert np.all(o == pos)
+    axis = np.array([0.0, 0.6, 0.8])
+    x = np.minimum((1.0 - w @ axis) / 2.0, np.nextafter(1.0, 0.0))
+    assert joint_uniform_p(x, azimuth01(w, axis)) > P_MIN
+
+
+def test_directional_light_emits_parallel_rays_uniformly_over_a_disk_across_the_sphere(medium: Medium) -> None:
+    """Every photon travels along the light's direction from a disk of radius R perpendicular to it,
+    1.01 R behind the centre, uniform over the disk's area; the flux is E pi R^2."""
+    c, radius = bounding_sphere(medium)
+    d = np.array([-0.5, -1.0, -0.3]) / np.linalg.norm([-0.5, -1.0, -0.3])
+    rgb = np.array([[3.0, 2.0, 1.0]])
+    flux, cos_max = emission_fluxes(medium, np.array([DIRECTIONAL]), d[None], rgb)
+    np.testing.assert_allclose(flux[0], rgb[0] * math.pi * radius**2, rtol=1e-14)
+    o, w = emit(DIRECTIONAL, d, float(cos_max[0]), medium, seed=7)
+    assert np.all(w == d)
+    s, lateral = disk_coordinates(o, w, c)
+    np.testing.assert_allclose(s, -1.01 * radius, rtol=1e-12)
+    r2 = (np.linalg.norm(lateral, axis=1) / radius) ** 2
+    assert r2.max() < 1.0 + 1e-12
+    assert joint_uniform_p(np.minimum(r2, np.nextafter(1.0, 0.0)), azimuth01(lateral, d)) > P_MIN
+
+
+def test_environment_emits_uniform_directions_through_a_disk_across_the_sphere(medium: Medium) -> None:
+    """Uniform travel directions, each from a disk perpendicular to it as for the directional light,
+    with the disk position independent of the direction; flux 4 pi^2 R^2 L."""
+    c, radius = bounding_sphere(medium)
+    rgb = np.array([[0.9, 1.0, 1.1]])
+    flux, cos_max = emission_fluxes(medium, np.array([ENVIRONMENT]), np.zeros((1, 3)), rgb)
+    np.testing.assert_allclose(flux[0], rgb[0] * 4 * math.pi**2 * radius**2, rtol=1e-14)
+    o, w = emit(ENVIRONMENT, np.zeros(3), float(cos_max[0]), medium, seed=8)
+    np.testing.assert_allclose(np.linalg.norm(w, axis=1), 1.0, atol=1e-12)
+    axis = np.array([0.0, 0.6, 0.8])
+    x = np.minimum((1.0 - w @ axis) / 2.0, np.nextafter(1.0, 0.0))
+    assert joint_uniform_p(x, azimuth01(w, axis)) > P_MIN
+    s, lateral = disk_coordinates(o, w, c)
+    np.testing.assert_allclose(s, -1.01 * radius, rtol=1e-12)
+    r2 = np.minimum((np.linalg.norm(lateral, axis=1) / radius) ** 2, np.nextafter(1.0, 0.0))
+    assert joint_uniform_p(r2, azimuth01(lateral, w)) > P_MIN
+    assert joint_uniform_p(x, r2) > P_MIN  # disk position independent of the direction
+
+
+# --- direct-light sampling --------------------------------------------------------------------------
+
+
+def test_delta_light_samples_point_at_the_light() -> None:
+    p = np.array([0.1, -0.2, 0.3])
+    pos = np.array([0.9, 0.6, 0.2])
+    state = np.uint64(12345)
+    lx, ly, lz, value, pdf, dist, st = sample_light_direction(POINT, pos, *p, state)
+    r = float(np.linalg.norm(pos - p))
+    np.testing.assert_allclose([lx, ly, lz], (pos - p) / r, rtol=1e-14)
+    assert value == pytest.approx(1.0 / r**2, rel=1e-14) and dist == pytest.approx(r, rel=1e-14)
+    assert math.isinf(pdf) and st == state
+    assert sample_light_direction(POINT, p, *p, state)[3] == 0.0  # on the light: no contribution
+    d = np.array([0.0, -0.6, -0.8])
+    lx, ly, lz, value, pdf, dist, st = sample_light_direction(DIRECTIONAL, d, *p, state)
+    assert [lx, ly, lz] == (-d).tolist() and value == 1.0 and math.isinf(pdf) and math.isinf(dist)
+    assert st == state
+    assert delta_light_direction(ENVIRONMENT, d, *p)[3] == 0.0  # not a delta light: the ray marcher skips it
+
+
+def test_environment_direct_light_samples_are_uniform_on_the_sphere() -> None:
+    states = stream_states(4, 0, N)
+    first = states[0]
+    out = _environment_nee_batch(states)
+    st, _ = next_float(first)
+    st, _ = next_float(st)
+    assert int(states[0]) == int(st) % 2**64  # two random numbers per sample (numba returns the state signed)
+    np.testing.assert_array_equal(out[:, 3], 1.0)
+    np.testing.assert_array_equal(out[:, 4], 1.0 / (4.0 * math.pi))  # ENVIRONMENT_PDF, the path tracer's MIS pdf
+    w = out[:, :3]
+    np.testing.assert_allclose(np.linalg.norm(w, axis=1), 1.0, atol=1e-12)
+    axis = np.array([0.48, 0.0, 0.8]) / np.linalg.norm([0.48, 0.0, 0.8])
+    x = np.minimum((1.0 - w @ axis) / 2.0, np.nextafter(1.0, 0.0))
+    assert joint_uniform_p(x, azimuth01(w, axis)) > P_MIN
+
+
+def test_environment_index() -> None:
+    assert environment_index(np.array([POINT, DIRECTIONAL])) == -1
+    assert environment_index(np.array([POINT, ENVIRONMENT])) == 1
+
+
+# --- unknown kinds -----------------------------------------------------------------------------------
+
+
+def test_unknown_light_kind_is_refused_by_every_branch(medium: Medium) -> None:
+    """pack_lights refuses unknown light classes; the kernels refuse an unknown kind number too, instead of
+    treating it as one of the others."""
+    v = np.array([0.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match="unknown light kind"):
+        emission_fluxes(medium, np.array([POINT, UNKNOWN]), np.stack([v, v]), np.ones((2, 3)))
+    with pytest.raises(ValueError, match="unknown light kind"):
+        emit_photon(UNKNOWN, v, -1.0, 0.0, 0.0, 0.0, 1.0, 0.1, 0.2, 0.3, 0.4)
+    with pytest.raises(ValueError, match="unknown light kind"):
+        delta_light_direction(UNKNOWN, v, 0.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="unknown light kind"):
+        sample_light_direction(UNKNOWN, v, 0.0, 0.0, 0.0, np.uint64(1))
+    with pytest.raises(ValueError, match="unknown light kind"):
+        direct_light_batch(medium, np.array([UNKNOWN]), v[None], np.ones((1, 3)), 0.0, np.zeros((3, 4)),
+                           np.ones((3, 4)), np.arange(4, dtype=np.uint64))
