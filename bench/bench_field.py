@@ -71,7 +71,8 @@ def make_bundle(arch: str, folder: Path, tables_dtype: str = "float32") -> Path:
 
     from photon_fields.train.export.bundle import RUN_DOMAIN_FORMAT, export_bundle
     from photon_fields.train.field.network import TorchPhotonField as TorchField
-    from photon_fields.train.fit.loop import PRESETS, field_config_for, save_checkpoint
+    from photon_fields.train.fit.checkpoint import save_checkpoint
+    from photon_fields.train.fit.presets import PRESETS, field_config_for
 
     run = folder / f"run_{arch}"
     if not (run / "checkpoint.pt").is_file():

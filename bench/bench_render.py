@@ -53,7 +53,8 @@ def bundle_for(name: str, scene: Scene, given: dict[str, str]) -> Path:
 
     run = TRAINING / name / "cpu"
     if not (run / "checkpoint.pt").exists():
-        from photon_fields.train.fit.loop import FitSettings, fit
+        from photon_fields.train.fit.loop import fit
+        from photon_fields.train.fit.settings import FitSettings
         from photon_fields.train.photons.tracing import trace_photons
 
         run = BUNDLES / f"{name}_run"

@@ -40,7 +40,10 @@ from photon_fields.models_spec.hashgrid import HashGridConfig  # noqa: E402
 from photon_fields.runtime.photons.photon_map import PhotonMap  # noqa: E402
 from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
 from photon_fields.train.eval.field_images import OUTSIDE_G, evaluate_field, reference_maps  # noqa: E402
-from photon_fields.train.fit.loop import PRESETS, FitSettings, Preset, finished_run, fit, load_checkpoint  # noqa: E402
+from photon_fields.train.fit.checkpoint import finished_run, load_checkpoint  # noqa: E402
+from photon_fields.train.fit.loop import fit  # noqa: E402
+from photon_fields.train.fit.presets import PRESETS, Preset  # noqa: E402
+from photon_fields.train.fit.settings import FitSettings  # noqa: E402
 from photon_fields.train.photons.tracing import trace_photons  # noqa: E402
 
 HERE = Path(__file__).resolve().parent

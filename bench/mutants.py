@@ -49,6 +49,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = ROOT / "bench" / "results" / "mutants.json"
 LIGHTS = "tests/runtime/photons/test_light_kinds.py::test_photon_map_li_matches_path_tracer_per_light_kind"
 EMITTERS = "tests/runtime/transport/test_emitters.py"
+TRACING = "tests/train/photons/test_photon_tracing.py"
 
 
 @dataclass(frozen=True)
@@ -66,7 +67,7 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("point_cone_fraction", "runtime/transport/emitters.py",
            "flux[i] = 4 * math.pi * rgb[i] * (1.0 - cos_max[i]) / 2.0", "flux[i] = 4 * math.pi * rgb[i]",
            (f"{LIGHTS}[point_outside]",
-            "tests/train/test_photon_tracing.py::test_distant_point_light_carries_the_power_of_a_directional_light"),
+            f"{TRACING}::test_distant_point_light_carries_the_power_of_a_directional_light"),
            "point-light photons keep the full 4 pi I although only the cone towards the volume is sampled "
            "(5.2x too strong for a light at distance 1.1)"),
     Mutant("default_psi", "runtime/field/field.py", "L = decode_radiance(Lp, self.config.psi)",
@@ -121,11 +122,11 @@ MUTANTS: tuple[Mutant, ...] = (
            "light's path towards the camera (invisible at g = 0)"),
     Mutant("first_collision_stored", "train/photons/tracing.py", "if bounce >= 1:  # Alg. 1",
            "if bounce >= 0:  # Alg. 1",
-           ("tests/train/test_photon_tracing.py::test_stored_energy_matches_analytic_series", f"{LIGHTS}[directional]"),
+           (f"{TRACING}::test_stored_energy_matches_analytic_series", f"{LIGHTS}[directional]"),
            "photons recorded from their first collision, counting single scattering twice (NEE has it)"),
     Mutant("photon_roulette_not_reweighted", "train/photons/tracing.py",
            "br, bg, bb = br * a0 / q, bg * a1 / q, bb * a2 / q", "br, bg, bb = br * a0, bg * a1, bb * a2",
-           ("tests/train/test_photon_tracing.py::test_stored_energy_matches_analytic_series", f"{LIGHTS}[environment]"),
+           (f"{TRACING}::test_stored_energy_matches_analytic_series", f"{LIGHTS}[environment]"),
            "surviving photons not divided by the Russian-roulette survival probability"),
     Mutant("photon_albedo_channels_swapped", "train/photons/tracing.py",
            "br, bg, bb = br * a0 / q, bg * a1 / q, bb * a2 / q", "br, bg, bb = br * a2 / q, bg * a1 / q, bb * a0 / q",

@@ -120,7 +120,7 @@ def make_run(folder: Path, model, bmin: list[float], bsize: list[float], fp: str
     import json
 
     from photon_fields.train.export.bundle import RUN_DOMAIN_FORMAT
-    from photon_fields.train.fit.loop import save_checkpoint
+    from photon_fields.train.fit.checkpoint import save_checkpoint
 
     folder.mkdir(parents=True, exist_ok=True)
     save_checkpoint(folder / "checkpoint.pt", model, fp, 40,

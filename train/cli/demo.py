@@ -106,7 +106,8 @@ def run_demo(args: argparse.Namespace) -> dict[str, Any]:
     spp = positive_int("--spp", args.spp, 1 << 16)
     ref_spp = positive_int("--reference-spp", args.reference_spp, 1 << 16)
     check_seed(args.seed)
-    from photon_fields.train.fit.loop import PRESETS, FitSettings
+    from photon_fields.train.fit.presets import PRESETS
+    from photon_fields.train.fit.settings import FitSettings
 
     if args.preset not in PRESETS:
         raise InputError("--preset", f"unknown preset {args.preset!r} (available: {', '.join(PRESETS)})")

@@ -97,7 +97,7 @@ def _add_trace_options(t: argparse.ArgumentParser) -> None:
 
 
 def _add_fit_options(f: argparse.ArgumentParser) -> None:
-    from photon_fields.train.fit.loop import PRESETS
+    from photon_fields.train.fit.presets import PRESETS
 
     f.add_argument("--out", required=True, help="run folder (checkpoint.pt, log.json, loss.png)")
     f.add_argument("--preset", default="cpu", choices=sorted(PRESETS), help="architecture and default settings")
@@ -141,7 +141,7 @@ def cmd_trace(args: argparse.Namespace) -> int:
 
 
 def _fit_settings(args: argparse.Namespace):  # noqa: ANN202  (photon_fields.train.fit.loop is imported lazily)
-    from photon_fields.train.fit.loop import FitSettings
+    from photon_fields.train.fit.settings import FitSettings
 
     settings = FitSettings.from_preset(args.preset, steps=args.steps, batch=args.batch, lr=args.lr, k=args.k,
                                        schedule_kind=args.schedule, sampling=args.sampling, seed=args.seed,

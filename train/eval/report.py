@@ -171,7 +171,9 @@ class Evaluation:
     def run(self, name: str, photons: int, schedule: str) -> tuple[Path, dict[str, Any]]:
         """A fit of the plan's preset on the scene's map (kept in the work folder and reused)."""
         from photon_fields.train.export.bundle import write_run_domain
-        from photon_fields.train.fit.loop import FitSettings, finished_run, fit
+        from photon_fields.train.fit.checkpoint import finished_run
+        from photon_fields.train.fit.loop import fit
+        from photon_fields.train.fit.settings import FitSettings
 
         run = self.work / name / f"run_{photons}_{schedule}"
         settings = FitSettings.from_preset(self.plan.preset, steps=self.plan.steps, schedule_kind=schedule,
@@ -394,7 +396,7 @@ class Evaluation:
     def section_phases(self) -> str:
         from photon_fields.runtime.photons.photon_map import find_phase
         from photon_fields.train.eval.field_images import evaluate_field, reference_maps
-        from photon_fields.train.fit.loop import load_checkpoint
+        from photon_fields.train.fit.checkpoint import load_checkpoint
 
         name = self.plan.scenes[0]
         _say(f"6. phase awareness: {name}")

@@ -77,7 +77,8 @@ from photon_fields.runtime.errors import InputError, check_keys
 from photon_fields.runtime.io.atomic import atomic_write_text, fsync_dir
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.train.field.network import TorchPhotonField as TorchField
-from photon_fields.train.fit.loop import LOG_KEYS, load_checkpoint
+from photon_fields.train.fit.checkpoint import load_checkpoint
+from photon_fields.train.fit.loop import LOG_KEYS
 
 RUN_DOMAIN_FILE = "domain.json"
 RUN_DOMAIN_FORMAT = "photon-fields/run-domain"

@@ -29,10 +29,8 @@ interpolated linearly in log(photons) between its rows (1M, 3M, 6M, 12M photons 
 to 4 significant digits), held constant outside them (no extrapolation: fewer than 1M photons get the 1M
 row). :func:`naive_schedule` is the paper's "naive" baseline: the target radius for the whole run.
 
-Measured on this CPU port (:mod:`train.fit.loop`): with Table 1's radii in these units the first two stages
-(63 % of the steps) find ~0-9 photons per query on 1M-photon maps, so they teach the field almost
-nothing about the final-radius field (validation error stays ~1 until stage 3); at equal wall time the
-naive schedule was as good or better. The paper's radii were tuned for its own volumes; the schedule
+The naive schedule is the ``cpu`` preset's: with Table 1's radii in box units the first two stages find
+almost no photons on 1M-photon maps and teach the field little (docs/training.md). The staggered schedule
 stays available (``--schedule staggered``) and is the ``paper`` preset's.
 
 Validation: fractions must be positive and sum to 1 (within 1e-9), radii positive, finite and

@@ -41,7 +41,8 @@ SIZE = ["--size", "8x8", "--spp", "1", "--quiet"]
 def assets(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """A scene file, its photon map, a trained run and its bundle (tiny, ~10 s)."""
     from photon_fields.train.export.bundle import export_bundle
-    from photon_fields.train.fit.loop import FitSettings, fit
+    from photon_fields.train.fit.loop import fit
+    from photon_fields.train.fit.settings import FitSettings
     from photon_fields.train.photons.tracing import trace_photons
 
     folder = tmp_path_factory.mktemp("assets")

@@ -35,7 +35,7 @@ from photon_fields.train.cli.train import _main  # noqa: E402
 from photon_fields.train.export.bundle import export_bundle, mlp_onnx, mlp_weights, write_tables_npz  # noqa: E402
 from photon_fields.train.field.network import TorchPhotonField as TorchField  # noqa: E402
 from photon_fields.train.field.network import decode_radiance_torch  # noqa: E402
-from photon_fields.train.fit.loop import PRESETS, field_config_for  # noqa: E402
+from photon_fields.train.fit.presets import PRESETS, field_config_for  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -163,7 +163,8 @@ def test_fit_records_its_psi_and_the_bundle_decodes_with_it(tmp_path: Path) -> N
     from conftest import tiny_scene_dict
 
     from photon_fields.runtime.scene.scene import scene_from_dict
-    from photon_fields.train.fit.loop import FitSettings, fit
+    from photon_fields.train.fit.loop import fit
+    from photon_fields.train.fit.settings import FitSettings
     from photon_fields.train.photons.tracing import trace_photons
 
     scene = scene_from_dict(tiny_scene_dict(), tmp_path)

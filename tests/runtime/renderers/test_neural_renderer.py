@@ -136,7 +136,8 @@ def trained(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
 
     from photon_fields.runtime.scene.scene import scene_from_dict
     from photon_fields.train.export.bundle import export_bundle
-    from photon_fields.train.fit.loop import FitSettings, fit
+    from photon_fields.train.fit.loop import fit
+    from photon_fields.train.fit.settings import FitSettings
 
     folder = tmp_path_factory.mktemp("neural")
     scene = scene_from_dict(tiny_scene_dict(), folder)

@@ -22,15 +22,10 @@ from photon_fields.runtime.photons.photon_map import PhotonMap  # noqa: E402
 from photon_fields.runtime.scene.scene import scene_from_dict  # noqa: E402
 from photon_fields.train.cli.train import _main  # noqa: E402
 from photon_fields.train.field.network import TorchPhotonField  # noqa: E402
-from photon_fields.train.fit.loop import (  # noqa: E402
-    FitSettings,
-    TcnnAdam,
-    TrainingDivergedError,
-    fit,
-    load_checkpoint,
-    lr_at,
-    train_step,
-)
+from photon_fields.train.fit.checkpoint import load_checkpoint  # noqa: E402
+from photon_fields.train.fit.loop import TrainingDivergedError, fit, train_step  # noqa: E402
+from photon_fields.train.fit.optimizer import TcnnAdam, lr_at  # noqa: E402
+from photon_fields.train.fit.settings import FitSettings  # noqa: E402
 from photon_fields.train.fit.targets import TargetSampler, uniform_directions  # noqa: E402
 from photon_fields.train.photons.tracing import trace_photons  # noqa: E402
 

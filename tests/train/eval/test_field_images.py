@@ -15,7 +15,8 @@ from photon_fields.models_spec.hashgrid import HashGridConfig  # noqa: E402
 from photon_fields.runtime.scene.scene import scene_from_dict  # noqa: E402
 from photon_fields.train.eval.field_images import TorchFieldEstimator, evaluate_field, held_out_cameras, reference_maps  # noqa: E402
 from photon_fields.train.field.network import TorchPhotonField  # noqa: E402
-from photon_fields.train.fit.loop import FitSettings, fit  # noqa: E402
+from photon_fields.train.fit.loop import fit  # noqa: E402
+from photon_fields.train.fit.settings import FitSettings  # noqa: E402
 from photon_fields.train.photons.tracing import trace_photons  # noqa: E402
 
 PHASES = (-0.75, 0.0, 0.75)

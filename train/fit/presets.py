@@ -1,0 +1,67 @@
+"""Training presets: a field architecture and the settings to train it, in one table (:data:`PRESETS`).
+
+- ``paper``: Sec. 3.4/3.5 as published (both encodings 16 levels x 8 features, 2x scale, 2^19 tables, 4 hidden
+  layers of 64, batch 2^16, 3000 steps, the Table-1 KNN schedule, samples uniform in the box). Hours on 2
+  CPU cores; kept to reproduce the paper.
+- ``cpu``: the default, chosen for useful targets per second on 2 cores: samples in the medium's support
+  (the renderer never queries empty space), the final radius from the start, small batches and many steps,
+  a richer network than its cost suggests because targets, not the network, dominate a step.
+- ``tiny``: a seconds-long configuration for smoke tests.
+
+:class:`photon_fields.train.fit.settings.FitSettings` takes its defaults from :data:`DEFAULT_PRESET`, so the
+table is the one source of every default. The measurements behind the ``cpu`` preset are in docs/training.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from photon_fields.models_spec.encoding import DEFAULT_PSI, FieldConfig
+from photon_fields.models_spec.hashgrid import PAPER_DIRECTION, PAPER_POSITION, HashGridConfig
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A field architecture (its phases come from the photon map) and the settings to train it."""
+
+    position: HashGridConfig
+    """Hash encoding of the position (Sec. 3.4)."""
+    direction: HashGridConfig
+    """Hash encoding of the camera ray's direction on the unit square."""
+    hidden_width: int
+    """Neurons per hidden layer of the MLP."""
+    hidden_layers: int
+    """Hidden layers of the MLP."""
+    steps: int
+    """Training steps."""
+    batch: int
+    """Samples (x, omega, g) per step, each with a fresh photon-map target."""
+    lr: float
+    """Adam's learning rate before the decay (:mod:`photon_fields.train.fit.optimizer`)."""
+    schedule: str
+    """KNN radius schedule: "staggered" (Table 1 by photon count) or "naive" (its final radius throughout)."""
+    sampling: str
+    """Training positions: "box" (uniform in the volume's box, the paper) or "support" (where sigma_t > 0)."""
+    about: str = ""
+    """One line for ``--help`` and reports."""
+
+
+PRESETS: dict[str, Preset] = {
+    "paper": Preset(PAPER_POSITION, PAPER_DIRECTION, 64, 4, steps=3000, batch=1 << 16, lr=1e-2,
+                    schedule="staggered", sampling="box",
+                    about="Sec. 3.4/3.5 as published (hours on 2 CPU cores)"),
+    "cpu": Preset(HashGridConfig(3, 8, 4, 16, 16, 1.5), HashGridConfig(2, 6, 2, 14, 4, 1.6), 64, 3,
+                  steps=800, batch=1 << 12, lr=1e-2, schedule="naive", sampling="support",
+                  about="provisional CPU default: trace (1M) + fit in about 2 minutes"),
+    "tiny": Preset(HashGridConfig(3, 4, 2, 12, 8, 2.0), HashGridConfig(2, 2, 2, 8, 4, 2.0), 16, 1,
+                   steps=50, batch=1 << 10, lr=1e-2, schedule="staggered", sampling="box",
+                   about="smoke tests: seconds"),
+}
+
+#: The preset whose settings are the defaults of FitSettings and pfn-train.
+DEFAULT_PRESET = "cpu"
+
+
+def field_config_for(preset: Preset, phases: tuple[float, ...], psi: float = DEFAULT_PSI) -> FieldConfig:
+    """The field configuration of ``preset`` for a map traced at ``phases``."""
+    return FieldConfig(preset.position, preset.direction, preset.hidden_width, preset.hidden_layers, psi, phases)

@@ -1,0 +1,94 @@
+"""Everything a fit needs besides the scene and the map (:class:`FitSettings`), with its checks.
+
+Defaults come from the :data:`photon_fields.train.fit.presets.DEFAULT_PRESET` preset, so the preset table is
+the one source of them; :meth:`FitSettings.from_preset` starts from any other preset.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, replace
+from typing import Any
+
+from photon_fields.models_spec.encoding import DEFAULT_PSI
+from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.photons.estimate import DEFAULT_K
+from photon_fields.train.fit.presets import DEFAULT_PRESET, PRESETS
+from photon_fields.train.fit.schedule import KnnSchedule, default_schedule, naive_schedule
+from photon_fields.train.fit.targets import SAMPLING_MODES
+
+_DEFAULT = PRESETS[DEFAULT_PRESET]
+
+
+@dataclass
+class FitSettings:
+    """Everything a fit needs besides the scene and the map (module docstring). Build it with
+    :meth:`from_preset` for another preset than the default."""
+
+    preset: str = DEFAULT_PRESET
+    """Name of the preset the architecture comes from (:data:`photon_fields.train.fit.presets.PRESETS`)."""
+    steps: int = _DEFAULT.steps
+    """Training steps."""
+    batch: int = _DEFAULT.batch
+    """Samples per step."""
+    lr: float = _DEFAULT.lr
+    """Adam's learning rate before the decay."""
+    k: int = DEFAULT_K
+    """Photons per target estimate (Eq. 5's K)."""
+    schedule: KnnSchedule | None = None
+    """An explicit KNN radius schedule; None: from ``schedule_kind`` and the photon count."""
+    schedule_kind: str = _DEFAULT.schedule
+    """"staggered" (Table 1) or "naive" (its final radius throughout)."""
+    sampling: str = _DEFAULT.sampling
+    """Training positions: "box" or "support"."""
+    seed: int = 0
+    """Seeds the model's initialization and the sampler: same seed, same field."""
+    checkpoint_every: int = 500
+    """Steps between checkpoints (and one at the end)."""
+    val_points: int = 1 << 13
+    """Held-out validation samples (in the support, at the final radius)."""
+    val_every: int = 0
+    """Steps between validations; 0: about 10 per run."""
+    psi: float = DEFAULT_PSI
+    """Eq. 6's precision of the encoded targets."""
+
+    @classmethod
+    def from_preset(cls, name: str, **overrides: Any) -> FitSettings:
+        """The settings of preset ``name`` with ``overrides`` (None values are ignored: "not given")."""
+        if name not in PRESETS:
+            raise InputError("--preset", f"unknown preset {name!r} (available: {', '.join(PRESETS)})")
+        p = PRESETS[name]
+        base = cls(preset=name, steps=p.steps, batch=p.batch, lr=p.lr, schedule_kind=p.schedule,
+                   sampling=p.sampling)
+        return replace(base, **{k: v for k, v in overrides.items() if v is not None})
+
+    def validate(self) -> None:
+        """One-line InputError naming the option of any setting out of range."""
+        if self.preset not in PRESETS:
+            raise InputError("--preset", f"unknown preset {self.preset!r} (available: {', '.join(PRESETS)})")
+        for name, v, hi in (("--steps", self.steps, 10**7), ("--batch", self.batch, 1 << 22), ("--k", self.k, 1 << 16),
+                            ("--checkpoint-every", self.checkpoint_every, 10**9),
+                            ("validation points", self.val_points, 1 << 22)):
+            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= hi:
+                raise InputError(name, f"must be an integer in [1, {hi}], got {v!r}")
+        if not (math.isfinite(self.lr) and 0 < self.lr <= 10):
+            raise InputError("--lr", f"must be in (0, 10], got {self.lr}")
+        if self.schedule_kind not in ("staggered", "naive"):
+            raise InputError("--schedule", f"must be 'staggered' or 'naive', got {self.schedule_kind!r}")
+        if self.sampling not in SAMPLING_MODES:
+            raise InputError("--sampling", f"must be one of {SAMPLING_MODES}, got {self.sampling!r}")
+        if self.val_every < 0:
+            raise InputError("validation interval", f"must be >= 0, got {self.val_every}")
+
+    def resolve_schedule(self, photons: int) -> KnnSchedule:
+        """The KNN schedule for a map of ``photons`` records."""
+        if self.schedule is not None:
+            return self.schedule
+        staggered = default_schedule(photons)
+        return staggered if self.schedule_kind == "staggered" else naive_schedule(staggered.radii_percent[-1])
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready settings (recorded in log.json; :func:`finished_run` compares them)."""
+        d = asdict(self)
+        d["schedule"] = self.schedule.to_dict() if self.schedule is not None else None
+        return d
