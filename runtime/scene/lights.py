@@ -134,7 +134,7 @@ def light_from_dict(d: Any, what: str = "light") -> Light:
     kind = d.get("type")
     if kind not in _LIGHT_KEYS:
         raise InputError(what, f"unknown light type {kind!r} (expected 'point', 'directional' or 'environment')")
-    # Fix: unknown keys used to be ignored silently, so a misspelt "power" rendered with power 1.
+    # Unknown keys are refused: a misspelt "power" would otherwise render silently with power 1.
     unknown = [k for k in d if k not in _LIGHT_KEYS[kind] | {"type"}]
     if unknown:
         raise InputError(what, f"{kind} light: {unknown_keys_problem(unknown, _LIGHT_KEYS[kind] | {'type'})}")
@@ -151,8 +151,8 @@ def light_from_dict(d: Any, what: str = "light") -> Light:
             return DirectionalLight(d["direction"], color, power)
         return EnvironmentLight(color, power)
     except InputError as err:
-        # Fix: the constructors name the field ("point light power") but not the light entry, so an error
-        # in a scene file did not say which file or which light; prefix the entry ("s.json lights[1] power").
+        # The constructors name the field ("point light power") but not the light entry: prefix the entry
+        # ("s.json lights[1] power") so an error in a scene file says which file and which light.
         raise InputError(f"{what} {err.what.rsplit(' ', 1)[-1]}", err.problem) from None
 
 
