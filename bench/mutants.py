@@ -154,6 +154,10 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/photons/test_photon_estimate.py::test_photon_map_white_furnace_under_an_environment_light",
             "tests/runtime/photons/test_photon_estimate.py::test_photon_map_li_converges_to_path_tracer"),
            "the photon estimate's boundary correction (part of the search ball outside the medium) not applied"),
+    Mutant("loss_in_log_space", "train/fit/loss.py", "        return linear_relative_l2_loss(pred, target, psi)",
+           "        return relative_l2_loss(pred, target)",
+           ("tests/train/fit/test_loss.py::test_linear_loss_is_stationary_at_the_arithmetic_mean",),
+           "the default loss averages targets in log space: fields converge to the geometric mean, dark"),
 )
 
 

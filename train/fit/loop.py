@@ -3,7 +3,7 @@
 Every step draws a fresh batch with targets at the KNN schedule's current radius
 (:mod:`photon_fields.train.fit.targets`, :mod:`photon_fields.train.fit.schedule`), predicts the log-encoded
 radiance (Eq. 6) with :class:`photon_fields.train.field.network.TorchPhotonField` and takes one step of
-:class:`photon_fields.train.fit.optimizer.TcnnAdam` on :func:`photon_fields.train.fit.loss.relative_l2_loss`.
+:class:`photon_fields.train.fit.optimizer.TcnnAdam` on the settings' loss (:mod:`photon_fields.train.fit.loss`).
 Settings: :class:`photon_fields.train.fit.settings.FitSettings` (defaults from the presets,
 :mod:`photon_fields.train.fit.presets`).
 
@@ -45,7 +45,7 @@ from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.train.field.network import TorchPhotonField, decode_radiance_torch
 from photon_fields.train.fit.checkpoint import save_checkpoint
-from photon_fields.train.fit.loss import relative_l2_loss
+from photon_fields.train.fit.loss import field_loss
 from photon_fields.train.fit.optimizer import TcnnAdam, lr_at
 from photon_fields.train.fit.plots import plot_loss
 from photon_fields.train.fit.presets import PRESETS, field_config_for
@@ -63,11 +63,11 @@ class TrainingDivergedError(InputError):
 
 
 def train_step(model: TorchPhotonField, opt: TcnnAdam, pos: torch.Tensor, dirs: torch.Tensor, g: torch.Tensor,
-               target: torch.Tensor, lr: float, step: int) -> float:
+               target: torch.Tensor, lr: float, step: int, loss_name: str = "linear") -> float:
     """One optimization step on encoded targets; returns the loss *before* the step. A non-finite loss
     returns at once, without touching the parameters (the caller decides what to do)."""
     pred = model(pos, dirs, g)
-    loss = relative_l2_loss(pred, target)
+    loss = field_loss(loss_name, pred, target, model.cfg.psi)
     value = float(loss.detach())
     if not math.isfinite(value):
         return value
@@ -77,7 +77,8 @@ def train_step(model: TorchPhotonField, opt: TcnnAdam, pos: torch.Tensor, dirs: 
 
 
 @torch.no_grad()
-def validate_field(model: TorchPhotonField, val: TargetBatch, chunk: int = 1 << 14) -> dict[str, float]:
+def validate_field(model: TorchPhotonField, val: TargetBatch, chunk: int = 1 << 14,
+                   loss_name: str = "linear") -> dict[str, float]:
     """Validation of a field during its fit (not the image-based evaluation of :mod:`photon_fields.train.eval`):
     quality on held-out support samples: ``val_loss`` (the training loss on L') and ``val_rel_l1``,
     sum |L_pred - Q| / sum Q over samples and channels of the decoded radiance (Eq. 7): the share of the
@@ -85,7 +86,7 @@ def validate_field(model: TorchPhotonField, val: TargetBatch, chunk: int = 1 << 
     preds = [model(val.pos[i:i + chunk], val.dirs[i:i + chunk], val.g[i:i + chunk])
              for i in range(0, val.pos.shape[0], chunk)]
     pred = torch.cat(preds)
-    loss = float(relative_l2_loss(pred, val.target))
+    loss = float(field_loss(loss_name, pred, val.target, model.cfg.psi))
     L = decode_radiance_torch(pred, model.cfg.psi).double().numpy()
     rel = float(np.abs(L - val.q).sum() / max(float(val.q.sum()), 1e-300))
     return {"val_loss": loss, "val_rel_l1": rel}
@@ -186,7 +187,8 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
                 if sampler_hook is not None:
                     batch = sampler_hook(batch, step)
                 t0 = time.perf_counter()
-                loss_value = train_step(model, opt, batch.pos, batch.dirs, batch.g, batch.target, lr, step)
+                loss_value = train_step(model, opt, batch.pos, batch.dirs, batch.g, batch.target, lr, step,
+                                        settings.loss)
                 if not math.isfinite(loss_value):
                     write_outputs(step, "diverged")
                     kept = (f"kept the checkpoint of step {last_ckpt_step} ({ckpt})" if last_ckpt_step is not None
@@ -205,7 +207,7 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
                 per["found_mean"].append(float(batch.found.mean()))
                 done = step + 1
                 if done % val_every == 0 or done == total:
-                    log["validation"].append({"step": done, **validate_field(model, val)})
+                    log["validation"].append({"step": done, **validate_field(model, val, loss_name=settings.loss)})
                 if done % settings.checkpoint_every == 0 and done != total:
                     save_checkpoint(ckpt, model, scene.fingerprint(), done, summary(done))
                     last_ckpt_step = done

@@ -1,17 +1,50 @@
-"""The training loss: tiny-cuda-nn's relative L2 (paper Sec. 3.5).
+"""Training losses on the field's log-encoded output (Eq. 6), one per :data:`LOSSES` entry.
 
-Per output value ``(pred - target)^2 / (pred.detach()^2 + 0.01)``, averaged over the batch and the 3
-channels (the paper's "relative mean square error ... applied to each set of outputs individually"); the
-denominator is a constant for the gradient, as in tcnn.
+``"log"``, :func:`relative_l2_loss`: tiny-cuda-nn's relative L2 on the *encoded* values (paper Sec. 3.5),
+``(pred - target)^2 / (pred.detach()^2 + 0.01)`` averaged over the batch and the 3 channels; the denominator
+is a constant for the gradient, as in tcnn. Its minimizer at a point is the mean of the encoded targets, i.e.
+the *geometric* mean of the radiance: whatever the network cannot resolve (target noise, detail finer than
+its grids, the change between two trained phases g) is averaged in log space and comes out dark.
+
+``"linear"``, :func:`linear_relative_l2_loss`: the same relative L2 on the *decoded* radiance (Eq. 7),
+``(L - Q)^2 / (L.detach()^2 + eps^2)`` with ``eps`` 1 % of the batch's mean target. Its minimizer is the
+arithmetic mean of the targets, so noisy targets and unresolved variation average to the right brightness
+(the estimator neural radiance caching trains with). The network still outputs Eq. 6's L', so the bundle and
+the runtime do not change; only the gradient does.
 """
 
 from __future__ import annotations
 
 import torch
 
+from photon_fields.train.field.network import decode_radiance_torch
+
 RELATIVE_L2_EPS = 0.01  # tcnn RelativeL2: prediction^2 + 1e-2
+#: eps of the linear loss, relative to the batch's mean target radiance (scale-free: a light 10x brighter
+#: trains the same field, 10x brighter).
+LINEAR_EPS_RELATIVE = 0.01
+#: The losses FitSettings.loss may name.
+LOSSES = ("linear", "log")
 
 
 def relative_l2_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """tcnn's RelativeL2: mean of (pred - target)^2 / (pred.detach()^2 + 0.01)."""
+    """tcnn's RelativeL2 on encoded values: mean of (pred - target)^2 / (pred.detach()^2 + 0.01)."""
     return ((pred - target) ** 2 / (pred.detach() ** 2 + RELATIVE_L2_EPS)).mean()
+
+
+def linear_relative_l2_loss(pred: torch.Tensor, target: torch.Tensor, psi: float) -> torch.Tensor:
+    """Relative L2 of the decoded radiance: mean of (L - Q)^2 / (L.detach()^2 + eps^2), with L and Q the Eq. 7
+    decodings of the encoded ``pred`` and ``target`` and eps = 1 % of mean(Q)."""
+    L = decode_radiance_torch(pred, psi)
+    Q = decode_radiance_torch(target, psi)
+    eps = LINEAR_EPS_RELATIVE * float(Q.detach().mean()) + 1e-30
+    return ((L - Q) ** 2 / (L.detach() ** 2 + eps * eps)).mean()
+
+
+def field_loss(name: str, pred: torch.Tensor, target: torch.Tensor, psi: float) -> torch.Tensor:
+    """The loss ``name`` (one of :data:`LOSSES`) of encoded predictions against encoded targets."""
+    if name == "linear":
+        return linear_relative_l2_loss(pred, target, psi)
+    if name == "log":
+        return relative_l2_loss(pred, target)
+    raise ValueError(f"unknown loss {name!r} (one of {LOSSES})")

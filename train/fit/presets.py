@@ -42,13 +42,16 @@ class Preset:
     """KNN radius schedule: "staggered" (Table 1 by photon count) or "naive" (its final radius throughout)."""
     sampling: str
     """Training positions: "box" (uniform in the volume's box, the paper) or "support" (where sigma_t > 0)."""
+    loss: str = "linear"
+    """Training loss (:mod:`photon_fields.train.fit.loss`): "linear" (relative L2 of the decoded radiance,
+    unbiased under noisy targets) or "log" (tcnn's relative L2 of the encoded output, the paper's)."""
     about: str = ""
     """One line for ``--help`` and reports."""
 
 
 PRESETS: dict[str, Preset] = {
     "paper": Preset(PAPER_POSITION, PAPER_DIRECTION, 64, 4, steps=3000, batch=1 << 16, lr=1e-2,
-                    schedule="staggered", sampling="box",
+                    schedule="staggered", sampling="box", loss="log",
                     about="Sec. 3.4/3.5 as published (hours on 2 CPU cores)"),
     "cpu": Preset(HashGridConfig(3, 8, 4, 16, 16, 1.5), HashGridConfig(2, 6, 2, 14, 4, 1.6), 64, 3,
                   steps=800, batch=1 << 12, lr=1e-2, schedule="naive", sampling="support",

@@ -13,6 +13,7 @@ from typing import Any
 from photon_fields.models_spec.encoding import DEFAULT_PSI
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.estimate import DEFAULT_K
+from photon_fields.train.fit.loss import LOSSES
 from photon_fields.train.fit.presets import DEFAULT_PRESET, PRESETS
 from photon_fields.train.fit.schedule import KnnSchedule, default_schedule, naive_schedule
 from photon_fields.train.fit.targets import SAMPLING_MODES
@@ -41,6 +42,8 @@ class FitSettings:
     """"staggered" (Table 1) or "naive" (its final radius throughout)."""
     sampling: str = _DEFAULT.sampling
     """Training positions: "box" or "support"."""
+    loss: str = _DEFAULT.loss
+    """Training loss: "linear" or "log" (:mod:`photon_fields.train.fit.loss`)."""
     seed: int = 0
     """Seeds the model's initialization and the sampler: same seed, same field."""
     checkpoint_every: int = 500
@@ -59,7 +62,7 @@ class FitSettings:
             raise InputError("--preset", f"unknown preset {name!r} (available: {', '.join(PRESETS)})")
         p = PRESETS[name]
         base = cls(preset=name, steps=p.steps, batch=p.batch, lr=p.lr, schedule_kind=p.schedule,
-                   sampling=p.sampling)
+                   sampling=p.sampling, loss=p.loss)
         return replace(base, **{k: v for k, v in overrides.items() if v is not None})
 
     def validate(self) -> None:
@@ -75,6 +78,8 @@ class FitSettings:
             raise InputError("--lr", f"must be in (0, 10], got {self.lr}")
         if self.schedule_kind not in ("staggered", "naive"):
             raise InputError("--schedule", f"must be 'staggered' or 'naive', got {self.schedule_kind!r}")
+        if self.loss not in LOSSES:
+            raise InputError("--loss", f"must be one of {LOSSES}, got {self.loss!r}")
         if self.sampling not in SAMPLING_MODES:
             raise InputError("--sampling", f"must be one of {SAMPLING_MODES}, got {self.sampling!r}")
         if self.val_every < 0:

@@ -21,8 +21,9 @@ def test_defaults_are_the_default_preset() -> None:
     assert FitSettings() == FitSettings.from_preset(DEFAULT_PRESET)
     preset = PRESETS[DEFAULT_PRESET]
     s = FitSettings()
-    assert (s.steps, s.batch, s.lr, s.schedule_kind, s.sampling) == (preset.steps, preset.batch, preset.lr,
-                                                                      preset.schedule, preset.sampling)
+    assert (s.steps, s.batch, s.lr, s.schedule_kind, s.sampling, s.loss) == (
+        preset.steps, preset.batch, preset.lr, preset.schedule, preset.sampling, preset.loss)
+    assert FitSettings.from_preset("paper").loss == "log"  # the paper's loss, as published
 
 
 @pytest.mark.parametrize("name", list(PRESETS))
@@ -55,7 +56,7 @@ def test_every_field_has_a_docstring(module, cls: str) -> None:  # noqa: ANN001
 
 @pytest.mark.parametrize(("change", "option"), [({"steps": 0}, "--steps"), ({"lr": float("nan")}, "--lr"),
                                                  ({"schedule_kind": "fast"}, "--schedule"),
-                                                 ({"sampling": "grid"}, "--sampling"),
+                                                 ({"sampling": "grid"}, "--sampling"), ({"loss": "l1"}, "--loss"),
                                                  ({"preset": "huge"}, "--preset")])
 def test_validate_names_the_option(change: dict, option: str) -> None:
     with pytest.raises(InputError) as info:

@@ -1,0 +1,234 @@
+"""Fidelity: how close the field's and the photon map's indirect light come to the path tracer's (issue 13).
+
+For each scene (default: every builtin, the CT-like ``head`` phantom included) and each training
+configuration (:data:`CONFIGS`; default: the product's defaults and the paper-like settings they replaced),
+one photon map is traced and one field fitted (``--work`` keeps both, so a second run only renders), and at
+every g of ``--gs`` (default: the phases G and +-0.35, +-0.6 between them) three L_i images of the same
+view are compared, all at ``--size`` with the same first interactions:
+
+- the path tracer's L_i at ``--ref-spp`` (the truth; cached per scene, size, spp and g),
+- the field's L_i (the torch field behind the renderer's estimator: the exported bundle computes the
+  same function, tests/runtime/field/test_bundle.py), at ``--spp``,
+- the photon map's L_i with the training K and final radius (g in G only: the map has no other g).
+
+Per image: ``mean`` = mean(L_i) / mean(reference L_i) (the bias a scientist sees as a wrong density),
+``rel_l2`` and ``ssim`` against the reference (detail). Summaries per configuration: the worst mean
+error over scenes, in G and outside G, and the ratio of the mean rel. L2 outside G to inside G.
+
+``--converged`` adds, per scene and configuration, the neural renderer's full L at ``--spp`` against a
+path-traced L at ``--converged-spp`` (default 2048), next to the path tracer at 1 and 4 spp, denoised by
+Intel Open Image Denoise when ``pyoidn`` is installed (``pip install pyoidn``; skipped with a note if not).
+
+Output: tables on stdout and JSON (default ``bench/results/fidelity.json``) with the machine record.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np  # noqa: E402
+from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
+
+from photon_fields.models_spec import DEFAULT_PHASES  # noqa: E402
+from photon_fields.runtime.eval.metrics import relative_l2, ssim  # noqa: E402
+from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
+from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped  # noqa: E402
+from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
+from photon_fields.runtime.wavefront.first_interaction import render_first_interaction  # noqa: E402
+from photon_fields.train.eval.field_images import TorchFieldEstimator  # noqa: E402
+from photon_fields.train.fit.checkpoint import finished_run, load_checkpoint  # noqa: E402
+from photon_fields.train.fit.loop import fit  # noqa: E402
+from photon_fields.train.fit.settings import FitSettings  # noqa: E402
+from photon_fields.train.photons.tracing import trace_photons  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+DEFAULT_OUT = HERE / "results" / "fidelity.json"
+DEFAULT_WORK = HERE / "results" / "fidelity"
+BETWEEN = (-0.6, -0.35, 0.35, 0.6)
+
+
+@dataclass(frozen=True)
+class Config:
+    """One way to train a field: the map it learns from and the fit's overrides of the ``cpu`` preset."""
+
+    photons: int
+    """Photon records in the training map."""
+    phases: tuple[float, ...] = DEFAULT_PHASES
+    """The phase set G the map is traced for."""
+    overrides: dict[str, Any] = field(default_factory=dict)
+    """:class:`photon_fields.train.fit.settings.FitSettings` fields that differ from the preset's."""
+    about: str = ""
+
+
+CONFIGS: dict[str, Config] = {
+    "default": Config(1_000_000, about="the product's defaults (cpu preset)"),
+    "log-loss": Config(1_000_000, overrides={"loss": "log"},
+                       about="the loss on log-encoded targets, as the paper (the default until issue 13)"),
+    "3M": Config(3_000_000, about="the defaults with 3M photons: smaller KNN radii at the same K"),
+}
+
+
+def reference_li(scene: Scene, g: float, size: int, spp: int, work: Path) -> np.ndarray:
+    """The path tracer's L_i at g, cached in ``work``."""
+    path = work / f"ref_{scene.name}_{size}_{spp}_{g:+.3f}.npy"
+    if not path.exists():
+        t0 = time.perf_counter()
+        li = render_path_traced(scene.with_overrides(g=g, width=size, height=size), spp=spp, seed=1234,
+                                progress=False).layers["L_i"]
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.save(path, li)
+        print(f"  reference L_i {scene.name} g {g:+.2f}: {time.perf_counter() - t0:.1f} s", flush=True)
+    return np.load(path)
+
+
+def train(scene: Scene, name: str, config: Config, work: Path, seed: int) -> tuple[Any, Any, dict[str, Any]]:
+    """The configuration's map and fitted field for ``scene`` (reused from ``work`` when finished)."""
+    run = work / scene.name / name
+    settings = FitSettings.from_preset("cpu", seed=seed, **config.overrides)
+    t0 = time.perf_counter()
+    pmap = trace_photons(scene, config.photons, phases=config.phases, seed=seed, progress=False)
+    trace_s = time.perf_counter() - t0
+    log = finished_run(run, settings)
+    if log is None:
+        result = fit(scene, pmap, run, settings, progress=False)
+        model, log = result.model, result.log
+    else:
+        model, _ = load_checkpoint(run / "checkpoint.pt", scene.fingerprint())
+    return pmap, model, {"trace_s": trace_s, "fit_s": log["totals"]["wall_s"], "settings": settings.to_dict()}
+
+
+def compare(img: np.ndarray, ref: np.ndarray) -> dict[str, float]:
+    return {"mean": float(img.mean() / max(ref.mean(), 1e-30)), "rel_l2": relative_l2(img, ref), "ssim": ssim(img, ref)}
+
+
+def score(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], gs: list[float], args: argparse.Namespace,
+          work: Path) -> list[dict[str, Any]]:
+    """Field and photon-map L_i against the reference at every g."""
+    estimator = TorchFieldEstimator(model, scene.medium())
+    radius = settings["schedule"]["stages"][-1]["radius_percent"] / 100.0 if settings.get("schedule") else 0.05
+    rows = []
+    for g in gs:
+        ref = reference_li(scene, g, args.size, args.ref_spp, work)
+        view = scene.with_overrides(g=g, width=args.size, height=args.size)
+        li = render_first_interaction(view, estimator, spp=args.spp, seed=7, progress=False).layers["L_i"]
+        row: dict[str, Any] = {"g": g, "in_G": bool(np.any(np.isclose(pmap.phases, g))), "field": compare(li, ref)}
+        if row["in_G"]:
+            pm = render_photon_mapped(view, pmap, k=settings["k"], radius=radius, spp=args.spp, seed=7,
+                                      progress=False).layers["L_i"]
+            row["photon_map"] = compare(pm, ref)
+        rows.append(row)
+    return rows
+
+
+def summarize(rows: list[dict[str, Any]]) -> dict[str, float]:
+    """Worst mean error in and outside G, mean rel. L2 in and outside G and their ratio."""
+    out: dict[str, float] = {}
+    for label, sel in (("in_G", [r for r in rows if r["in_G"]]), ("outside_G", [r for r in rows if not r["in_G"]])):
+        if sel:
+            out[f"worst_mean_error_{label}"] = max(abs(r["field"]["mean"] - 1.0) for r in sel)
+            out[f"rel_l2_{label}"] = float(np.mean([r["field"]["rel_l2"] for r in sel]))
+    if "rel_l2_in_G" in out and "rel_l2_outside_G" in out:
+        out["rel_l2_outside_over_in"] = out["rel_l2_outside_G"] / out["rel_l2_in_G"]
+    return out
+
+
+def denoise(img: np.ndarray) -> np.ndarray | None:
+    """Open Image Denoise (colour only, HDR) when pyoidn is installed, else None."""
+    try:
+        import pyoidn
+    except ImportError:
+        return None
+    device = pyoidn.Device()
+    device.commit()
+    flt = pyoidn.Filter(device, "RT")
+    src = np.ascontiguousarray(img, dtype=np.float32)
+    dst = np.zeros_like(src)
+    flt.set_image(pyoidn.OIDN_IMAGE_COLOR, src, pyoidn.OIDN_FORMAT_FLOAT3, src.shape[1], src.shape[0])
+    flt.set_image(pyoidn.OIDN_IMAGE_OUTPUT, dst, pyoidn.OIDN_FORMAT_FLOAT3, dst.shape[1], dst.shape[0])
+    flt.set_bool("hdr", True)
+    flt.commit()
+    flt.execute()
+    return dst
+
+
+def converged(scene: Scene, model: Any, args: argparse.Namespace, work: Path) -> dict[str, Any]:
+    """Neural L at ``--spp`` and the path tracer at 1 / 4 spp (+ OIDN) against a high-spp path-traced L."""
+    view = scene.with_overrides(width=args.size, height=args.size)
+    path = work / f"refL_{scene.name}_{args.size}_{args.converged_spp}_{scene.g:+.3f}.npy"
+    if not path.exists():
+        np.save(path, render_path_traced(view, spp=args.converged_spp, seed=4321, progress=False).layers["L"])
+    ref = np.load(path)
+    out: dict[str, Any] = {}
+    t0 = time.perf_counter()
+    neural = render_first_interaction(view, TorchFieldEstimator(model, scene.medium()), spp=args.spp, seed=7,
+                                      progress=False).layers["L"]
+    out["neural"] = {"spp": args.spp, "wall_s": time.perf_counter() - t0, **compare(neural, ref)}
+    for spp in (1, 4):
+        t0 = time.perf_counter()
+        pt = render_path_traced(view, spp=spp, seed=99, progress=False).layers["L"]
+        entry = {"spp": spp, "wall_s": time.perf_counter() - t0, **compare(pt, ref)}
+        den = denoise(pt)
+        if den is not None:
+            entry["oidn"] = compare(den, ref)
+        out[f"pt_{spp}spp"] = entry
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenes", nargs="*", help="builtin scenes (default: all)")
+    ap.add_argument("--configs", nargs="*", default=list(CONFIGS), help=f"of {list(CONFIGS)}")
+    ap.add_argument("--gs", type=float, nargs="*", default=None, help="g values (default: G and +-0.35, +-0.6)")
+    ap.add_argument("--size", type=int, default=96)
+    ap.add_argument("--spp", type=int, default=32, help="field and photon-map samples per pixel")
+    ap.add_argument("--ref-spp", type=int, default=512, help="path-traced reference L_i samples per pixel")
+    ap.add_argument("--converged", action="store_true", help="also the converged L against denoised path tracing")
+    ap.add_argument("--converged-spp", type=int, default=2048)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--work", type=Path, default=DEFAULT_WORK)
+    ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    args = ap.parse_args(argv)
+    unknown = [c for c in args.configs if c not in CONFIGS]
+    if unknown:
+        raise SystemExit(f"unknown config(s) {unknown}; available: {', '.join(CONFIGS)}")
+    info = machine_info()
+    results: dict[str, Any] = {}
+    for name in parse_scenes(args.scenes):
+        scene = builtin_scene(name)
+        for cname in args.configs:
+            config = CONFIGS[cname]
+            gs = args.gs if args.gs is not None else sorted({*config.phases, *BETWEEN})
+            pmap, model, facts = train(scene, cname, config, args.work, args.seed)
+            rows = score(scene, pmap, model, facts["settings"], gs, args, args.work)
+            entry = {**facts, "rows": rows, "summary": summarize(rows)}
+            if args.converged:
+                entry["converged"] = converged(scene, model, args, args.work)
+            results[f"{name}/{cname}"] = entry
+            print(f"{name} / {cname}: trace {facts['trace_s']:.1f} s, fit {facts['fit_s']:.0f} s")
+            for r in rows:
+                pm = r.get("photon_map")
+                print(f"  g {r['g']:+.2f}{' (G)' if r['in_G'] else '    '}  field mean {r['field']['mean']:.3f} "
+                      f"rel L2 {r['field']['rel_l2']:.3f} SSIM {r['field']['ssim']:.3f}"
+                      + (f"   photon map mean {pm['mean']:.3f} rel L2 {pm['rel_l2']:.3f}" if pm else ""))
+            print("  " + ", ".join(f"{k} {v:.3f}" for k, v in entry["summary"].items()), flush=True)
+            if "converged" in entry:
+                c = entry["converged"]
+                print("  converged L rel L2: " + ", ".join(
+                    f"{k} {v['rel_l2']:.3f}" + (f" (+OIDN {v['oidn']['rel_l2']:.3f})" if "oidn" in v else "")
+                    for k, v in c.items()))
+    write_report(args.out, "fidelity", finish_info(info, {}),
+                 {k: v for k, v in vars(args).items() if k not in ("work", "out")} | {"work": str(args.work)},
+                 configs={k: {"photons": c.photons, "phases": list(c.phases), "overrides": c.overrides,
+                              "about": c.about} for k, c in CONFIGS.items()},
+                 results=results)
+
+
+if __name__ == "__main__":
+    main()
