@@ -3,7 +3,7 @@
 For each scene (default: every builtin, the CT-like ``head`` phantom included) and each training
 configuration (:data:`CONFIGS`; default: the product's defaults and the paper-like settings they replaced),
 one photon map is traced and one field fitted (``--work`` keeps both, so a second run only renders), and at
-every g of ``--gs`` (default: the phases G and +-0.35, +-0.6 between them) three L_i images of the same
+every g of ``--gs`` (default: the phases G, the midpoints between them and +-0.35, +-0.6) three L_i images of the same
 view are compared, all at ``--size`` with the same first interactions:
 
 - the path tracer's L_i at ``--ref-spp`` (the truth; cached per scene, size, spp and g),
@@ -72,6 +72,8 @@ CONFIGS: dict[str, Config] = {
     "log-loss": Config(1_000_000, overrides={"loss": "log"},
                        about="the loss on log-encoded targets, as the paper (the default until issue 13)"),
     "3M": Config(3_000_000, about="the defaults with 3M photons: smaller KNN radii at the same K"),
+    "G5": Config(1_666_667, phases=(-0.75, -0.375, 0.0, 0.375, 0.75),
+                 about="five phases with as many photons per phase as the default's three"),
 }
 
 
@@ -204,7 +206,8 @@ def main(argv: list[str] | None = None) -> None:
         scene = builtin_scene(name)
         for cname in args.configs:
             config = CONFIGS[cname]
-            gs = args.gs if args.gs is not None else sorted({*config.phases, *BETWEEN})
+            midpoints = [(a + b) / 2 for a, b in zip(config.phases[:-1], config.phases[1:], strict=True)]
+            gs = args.gs if args.gs is not None else sorted({*config.phases, *BETWEEN, *midpoints})
             pmap, model, facts = train(scene, cname, config, args.work, args.seed)
             rows = score(scene, pmap, model, facts["settings"], gs, args, args.work)
             entry = {**facts, "rows": rows, "summary": summarize(rows)}
