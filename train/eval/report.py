@@ -223,12 +223,13 @@ class Evaluation:
                              t["targets_s_per_step"] * 1e3, t["train_s_per_step"] * 1e3, t["final_loss"],
                              val.get("val_loss", float("nan")), val.get("val_rel_l1", float("nan"))])
                 data[label] = {"wall_s": t["wall_s"], "final_loss": t["final_loss"], "validation": val,
-                               "schedule": log["schedule"]}
+                               "first_validation": log["validation"][0] if log["validation"] else None,
+                               "loss": log["settings"]["loss"], "schedule": log["schedule"]}
         for ax, xl in ((ax_step, "step"), (ax_wall, "wall time (s)")):
             ax.set_yscale("log")
             ax.set_xlabel(xl)
             ax.legend(fontsize=8)
-        ax_step.set_ylabel("training loss (relative L2, encoded; running mean)")
+        ax_step.set_ylabel("training loss (relative L2; running mean)")
         ax_wall.set_ylabel("validation loss (held-out points)")
         png = _save(fig, self.figs / "training.png")
         self.data["training"] = data

@@ -336,6 +336,7 @@ CASES += [
     (T, lambda a, d, o: [*FIT(a), "--lr", "-1", "--out", str(o / "run")], "--lr"),
     (T, lambda a, d, o: [*FIT(a), "--k", "0", "--out", str(o / "run")], "--k"),
     (T, lambda a, d, o: [*FIT(a), "--sampling", "magic", "--out", str(o / "run")], "--sampling"),
+    (T, lambda a, d, o: [*FIT(a), "--loss", "l1", "--out", str(o / "run")], "--loss"),
     (T, lambda a, d, o: [*FIT(a), "--checkpoint-every", "0", "--out", str(o / "run")], "--checkpoint-every"),
     (T, lambda a, d, o: [*FIT(a), "--preset", "huge", "--out", str(o / "run")], "--preset"),
     (T, lambda a, d, o: ["export", str(a["run"]), "--tables-dtype", "int8", "--out", str(o / "f.pfn")],

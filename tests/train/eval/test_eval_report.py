@@ -37,9 +37,12 @@ def test_quick_evaluation_writes_every_section_and_figure_with_sane_numbers(tmp_
     data = json.loads((out / "results.json").read_text())
     assert data["seed"] == 0 and set(data["phases"]["per_g"]) == {"-0.75", "-0.35", "0", "0.35", "0.75"}
 
-    # 1. training: the naive schedule's loss fell far below an untrained field's (~1).
+    # 1. training: the naive schedule's validation fell (the loss by more than 2x; the share of the light that
+    # is wrong, which does not depend on the loss, well below its early value) with the default loss.
     naive = data["training"]["0.02M naive"]
-    assert naive["final_loss"] < 0.25 and naive["validation"]["val_loss"] < 0.25, naive
+    first, last = naive["first_validation"], naive["validation"]
+    assert naive["loss"] == "linear" and last["val_loss"] < 0.5 * first["val_loss"], naive
+    assert last["val_rel_l1"] < min(0.7, 0.75 * first["val_rel_l1"]), naive
     # 2. tracing: at least the requested records, at most max_bounces - 1 = 15 records per path.
     tr = data["tracing"]["blobs/20000"]
     assert 20_000 <= tr["records"] <= 15 * tr["emitted"] and tr["seconds"] > 0
