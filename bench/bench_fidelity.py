@@ -72,8 +72,8 @@ CONFIGS: dict[str, Config] = {
     "log-loss": Config(1_000_000, overrides={"loss": "log"},
                        about="the loss on log-encoded targets, as the paper (the default until issue 13)"),
     "3M": Config(3_000_000, about="the defaults with 3M photons: smaller KNN radii at the same K"),
-    "G5": Config(1_666_667, phases=(-0.75, -0.375, 0.0, 0.375, 0.75),
-                 about="five phases with as many photons per phase as the default's three"),
+    "G5-5M": Config(5_000_000, phases=(-0.75, -0.375, 0.0, 0.375, 0.75),
+                    about="five phases with as many photons per phase as 3M over three"),
 }
 
 
@@ -147,17 +147,7 @@ def denoise(img: np.ndarray) -> np.ndarray | None:
         import pyoidn
     except ImportError:
         return None
-    device = pyoidn.Device()
-    device.commit()
-    flt = pyoidn.Filter(device, "RT")
-    src = np.ascontiguousarray(img, dtype=np.float32)
-    dst = np.zeros_like(src)
-    flt.set_image(pyoidn.OIDN_IMAGE_COLOR, src, pyoidn.OIDN_FORMAT_FLOAT3, src.shape[1], src.shape[0])
-    flt.set_image(pyoidn.OIDN_IMAGE_OUTPUT, dst, pyoidn.OIDN_FORMAT_FLOAT3, dst.shape[1], dst.shape[0])
-    flt.set_bool("hdr", True)
-    flt.commit()
-    flt.execute()
-    return dst
+    return np.asarray(pyoidn.denoise(np.ascontiguousarray(img, dtype=np.float32), hdr=True))
 
 
 def converged(scene: Scene, model: Any, args: argparse.Namespace, work: Path) -> dict[str, Any]:
