@@ -21,9 +21,16 @@ from photon_fields.models_spec.fingerprint import (
     mismatch_detail,
     scene_fingerprint,
 )
-from photon_fields.models_spec.photon_map import DEFAULT_PHASES, PHOTON_MAP_FORMAT, PHOTON_MAP_VERSION
+from photon_fields.models_spec.photon_map import (
+    DEFAULT_PHASES,
+    DEFAULT_PHOTONS,
+    PAPER_PHASES,
+    PHOTON_MAP_FORMAT,
+    PHOTON_MAP_VERSION,
+)
 
 __all__ = ["scene_fingerprint", "fingerprint_parts", "mismatch_detail", "FINGERPRINT_PARTS",
-           "DEFAULT_PHASES", "PHOTON_MAP_FORMAT", "PHOTON_MAP_VERSION", "DEFAULT_PSI",
+           "DEFAULT_PHASES", "DEFAULT_PHOTONS", "PAPER_PHASES", "PHOTON_MAP_FORMAT", "PHOTON_MAP_VERSION",
+           "DEFAULT_PSI",
            "FieldConfig", "encode_radiance", "decode_radiance", "normalize_position", "direction_input",
            "BUNDLE_FORMAT", "BUNDLE_VERSION"]

@@ -29,7 +29,14 @@ from __future__ import annotations
 PHOTON_MAP_FORMAT = "photon-fields/photon-map"
 PHOTON_MAP_VERSION = 1
 #: The paper's phase set G (Sec. 3.2): "the best compromise between tracing and training speed and quality".
-DEFAULT_PHASES: tuple[float, ...] = (-0.75, 0.0, 0.75)
+PAPER_PHASES: tuple[float, ...] = (-0.75, 0.0, 0.75)
+#: The product's phase set: the paper's with the midpoints added. L_i depends on g far from linearly, and a
+#: field that has seen three g values is 25-50 % off between them; with five it stays within ~13 % on the
+#: embedded scenes (bench/README.md, ``bench_fidelity.py``).
+DEFAULT_PHASES: tuple[float, ...] = (-0.75, -0.375, 0.0, 0.375, 0.75)
+#: Photon records a map holds by default: a million per phase of DEFAULT_PHASES (more photons per phase
+#: shrink the KNN ball at the same K, and with it the density estimate's bias at dense surfaces).
+DEFAULT_PHOTONS = 1_000_000 * len(DEFAULT_PHASES)
 PHOTON_MAP_ARRAYS = {"position": ("float32", 3), "direction": ("float32", 3), "power": ("float32", 3),
                      "phase": ("uint8", 0)}
 #: Metadata keys a photon map must have, and the ones it may have besides.

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np  # noqa: E402
 
+from photon_fields.models_spec import DEFAULT_PHOTONS  # noqa: E402
 from photon_fields.runtime.cli.common import (  # noqa: E402
     OneLineArgumentParser,
     check_seed,
@@ -45,7 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = OneLineArgumentParser(prog="pfn-demo", description=__doc__.split("\n")[0],
                               formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--scene", default="vortex", help="builtin scene name or scene JSON file")
-    p.add_argument("--photons", default="1M", help="photon records to trace")
+    p.add_argument("--photons", default=f"{DEFAULT_PHOTONS // 1_000_000}M",
+                   help="photon records to trace (default: a million per phase)")
     p.add_argument("--preset", default="cpu", help="training preset (cpu, paper, tiny)")
     p.add_argument("--steps", type=int, default=None, help="training steps (default: the preset's)")
     p.add_argument("--size", default="384x384", help="image size WIDTHxHEIGHT")

@@ -26,7 +26,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from photon_fields.models_spec import DEFAULT_PHASES
+from photon_fields.models_spec import DEFAULT_PHASES, DEFAULT_PHOTONS
 from photon_fields.runtime.cli.common import (
     OneLineArgumentParser,
     check_seed,
@@ -91,7 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _add_trace_options(t: argparse.ArgumentParser) -> None:
     """The scene and photon-tracing options of ``trace`` and ``all``."""
     t.add_argument("scene", help="builtin scene name (vortex, blobs, shell) or a scene JSON file")
-    t.add_argument("--photons", default="1M", help="records to store, e.g. 1M, 250k")
+    t.add_argument("--photons", default=f"{DEFAULT_PHOTONS // 1_000_000}M",
+                   help="records to store, e.g. 1M, 250k (default: a million per phase)")
     t.add_argument("--phases", type=float, nargs="+", default=list(DEFAULT_PHASES), help="the phase set G")
     t.add_argument("--max-bounces", type=int, default=16, help="max collisions per photon path")
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from conftest import constant_tf, small_camera, smooth_field
 
+from photon_fields.models_spec import PAPER_PHASES
 from photon_fields.runtime.io.images import read_exr
 from photon_fields.runtime.photons.estimate import PhotonMapEstimator
 from photon_fields.runtime.renderers.neural import ProgressiveRender, render_neural
@@ -31,7 +32,7 @@ def scene() -> Scene:
 
 @pytest.fixture(scope="module")
 def pmap(scene: Scene):  # noqa: ANN201
-    return trace_photons(scene, 30_000, seed=2, progress=False)
+    return trace_photons(scene, 30_000, phases=PAPER_PHASES, seed=2, progress=False)
 
 
 def test_photon_map_estimator_in_place_of_the_field_gives_the_photon_map_and_path_tracer_layers(scene, pmap) -> None:  # noqa: ANN001
@@ -141,7 +142,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
 
     folder = tmp_path_factory.mktemp("neural")
     scene = scene_from_dict(tiny_scene_dict(), folder)
-    pmap = trace_photons(scene, 300_000, seed=4, progress=False)
+    pmap = trace_photons(scene, 300_000, phases=PAPER_PHASES, seed=4, progress=False)
     settings = FitSettings.from_preset("cpu", steps=300, batch=2048, val_points=1024, checkpoint_every=10_000)
     fit(scene, pmap, folder / "run", settings, progress=False)
     bundle = export_bundle(folder / "run", folder / "blobs.pfn", scene=scene).path

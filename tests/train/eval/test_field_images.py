@@ -53,7 +53,7 @@ def test_estimator_feeds_the_field_world_points_and_travel_directions(tmp_path) 
 
 def test_trained_field_scores_better_than_untrained_and_refuses_untraced_g(tmp_path) -> None:  # noqa: ANN001
     scene = scene_from_dict(tiny_scene_dict(), tmp_path)
-    pmap = trace_photons(scene, 60_000, seed=3, progress=False)
+    pmap = trace_photons(scene, 60_000, phases=PHASES, seed=3, progress=False)
     settings = FitSettings.from_preset("tiny", steps=150, batch=1024, k=64, sampling="support", schedule_kind="naive",
                                        val_points=512, checkpoint_every=1000)
     trained = fit(scene, pmap, tmp_path / "run", settings, progress=False).model

@@ -39,7 +39,7 @@ def tiny(tmp_path_factory: pytest.TempPathFactory) -> tuple:
     scene_file = folder / "blobs32.json"
     scene_file.write_text(json.dumps(tiny_scene_dict()))
     scene = scene_from_dict(tiny_scene_dict(), folder, str(scene_file))
-    pmap = trace_photons(scene, 50_000, seed=3, progress=False)
+    pmap = trace_photons(scene, 50_000, phases=PHASES, seed=3, progress=False)
     map_file = pmap.save(folder / "map.npz")
     return scene, pmap, scene_file, map_file
 

@@ -10,6 +10,7 @@ import pytest
 from conftest import coloured_tf, constant_tf, equal_probability_edges, hg_cdf, small_camera, smooth_field
 from scipy import stats
 
+from photon_fields.models_spec import PAPER_PHASES
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.scene.lights import DirectionalLight, PointLight
@@ -51,7 +52,8 @@ def test_stored_energy_matches_analytic_series(albedo: float) -> None:
 
 
 def test_phases_hold_equal_thirds() -> None:
-    pmap = trace_photons(builtin_scene("blobs", resolution=32), 30_000, seed=1, progress=False)
+    pmap = trace_photons(builtin_scene("blobs", resolution=32), 30_000, phases=PAPER_PHASES, seed=1,
+                         progress=False)
     counts = np.bincount(pmap.phase, minlength=3)
     assert counts.sum() == len(pmap) >= 30_000
     assert np.all(np.abs(counts - 10_000) < 16)  # whole paths are kept: at most max_bounces - 1 extra
