@@ -36,7 +36,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np  # noqa: E402
 from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
 
-from photon_fields.models_spec import DEFAULT_PHASES  # noqa: E402
+from photon_fields.models_spec import DEFAULT_PHASES, DEFAULT_PHOTONS, PAPER_PHASES  # noqa: E402
 from photon_fields.runtime.eval.metrics import relative_l2, ssim  # noqa: E402
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
 from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped  # noqa: E402
@@ -68,12 +68,11 @@ class Config:
 
 
 CONFIGS: dict[str, Config] = {
-    "default": Config(1_000_000, about="the product's defaults (cpu preset)"),
-    "log-loss": Config(1_000_000, overrides={"loss": "log"},
-                       about="the loss on log-encoded targets, as the paper (the default until issue 13)"),
-    "3M": Config(3_000_000, about="the defaults with 3M photons: smaller KNN radii at the same K"),
-    "G5-5M": Config(5_000_000, phases=(-0.75, -0.375, 0.0, 0.375, 0.75),
-                    about="five phases with as many photons per phase as 3M over three"),
+    "default": Config(DEFAULT_PHOTONS, about="the product's defaults: five phases, 1M photons each, linear loss"),
+    "paper-like": Config(1_000_000, PAPER_PHASES, {"loss": "log"},
+                         about="the defaults until issue 13: the paper's three phases, 1M photons, the loss on L'"),
+    "G3-3M": Config(3_000_000, PAPER_PHASES, about="three phases with a million photons each, linear loss"),
+    "log-loss": Config(DEFAULT_PHOTONS, overrides={"loss": "log"}, about="the defaults with the paper's loss"),
 }
 
 
@@ -176,7 +175,7 @@ def converged(scene: Scene, model: Any, args: argparse.Namespace, work: Path) ->
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", nargs="*", help="builtin scenes (default: all)")
-    ap.add_argument("--configs", nargs="*", default=list(CONFIGS), help=f"of {list(CONFIGS)}")
+    ap.add_argument("--configs", nargs="*", default=["default", "paper-like"], help=f"of {list(CONFIGS)}")
     ap.add_argument("--gs", type=float, nargs="*", default=None, help="g values (default: G and +-0.35, +-0.6)")
     ap.add_argument("--size", type=int, default=96)
     ap.add_argument("--spp", type=int, default=32, help="field and photon-map samples per pixel")
