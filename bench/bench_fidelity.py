@@ -1,4 +1,4 @@
-"""Fidelity: how close the field's and the photon map's indirect light come to the path tracer's (issue 13).
+"""Fidelity: how close the field's and the photon map's indirect light come to the path tracer's.
 
 For each scene (default: every builtin, the CT-like ``head`` phantom included) and each training
 configuration (:data:`CONFIGS`; default: the product's defaults and the paper-like settings they replaced),
