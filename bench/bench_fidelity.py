@@ -69,10 +69,11 @@ class Config:
 
 CONFIGS: dict[str, Config] = {
     "default": Config(DEFAULT_PHOTONS, about="the product's defaults: five phases, 1M photons each, linear loss"),
-    "paper-like": Config(1_000_000, PAPER_PHASES, {"loss": "log"},
-                         about="the defaults until issue 13: the paper's three phases, 1M photons, the loss on L'"),
+    "paper-like": Config(1_000_000, PAPER_PHASES, {"loss": "log", "k": 1024},
+                         about="the defaults before: the paper's three phases, 1M photons, K 1024, the loss on L'"),
     "G3-3M": Config(3_000_000, PAPER_PHASES, about="three phases with a million photons each, linear loss"),
     "log-loss": Config(DEFAULT_PHOTONS, overrides={"loss": "log"}, about="the defaults with the paper's loss"),
+    "K1024": Config(DEFAULT_PHOTONS, overrides={"k": 1024}, about="the defaults with K = 1024 photons per target"),
 }
 
 

@@ -105,7 +105,7 @@ def _add_fit_options(f: argparse.ArgumentParser) -> None:
     f.add_argument("--steps", type=int, default=None, help="training steps (default: the preset's)")
     f.add_argument("--batch", type=int, default=None, help="samples per step (default: the preset's)")
     f.add_argument("--lr", type=float, default=None, help="Adam learning rate (default: the preset's)")
-    f.add_argument("--k", type=int, default=1024, help="photons per radiance estimate (K)")
+    f.add_argument("--k", type=int, default=None, help="photons per radiance estimate (K) (default: the preset's)")
     f.add_argument("--schedule", choices=["staggered", "naive"], default=None,
                    help="KNN radius schedule: Table 1 by photon count, or its final radius throughout "
                         "(default: the preset's)")

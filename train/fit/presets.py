@@ -42,6 +42,9 @@ class Preset:
     """KNN radius schedule: "staggered" (Table 1 by photon count) or "naive" (its final radius throughout)."""
     sampling: str
     """Training positions: "box" (uniform in the volume's box, the paper) or "support" (where sigma_t > 0)."""
+    k: int = 1024
+    """Photons per target estimate (Eq. 5's K). Fewer photons make noisier targets, which the linear loss
+    averages without bias, and a smaller ball, which is less biased at dense surfaces and cheaper."""
     loss: str = "linear"
     """Training loss (:mod:`photon_fields.train.fit.loss`): "linear" (relative L2 of the decoded radiance,
     unbiased under noisy targets) or "log" (tcnn's relative L2 of the encoded output, the paper's)."""
@@ -54,7 +57,7 @@ PRESETS: dict[str, Preset] = {
                     schedule="staggered", sampling="box", loss="log",
                     about="Sec. 3.4/3.5 as published (hours on 2 CPU cores)"),
     "cpu": Preset(HashGridConfig(3, 8, 4, 16, 16, 1.5), HashGridConfig(2, 6, 2, 14, 4, 1.6), 64, 3,
-                  steps=800, batch=1 << 12, lr=1e-2, schedule="naive", sampling="support",
+                  steps=800, batch=1 << 12, lr=1e-2, schedule="naive", sampling="support", k=256,
                   about="provisional CPU default: trace (1M) + fit in about 2 minutes"),
     "tiny": Preset(HashGridConfig(3, 4, 2, 12, 8, 2.0), HashGridConfig(2, 2, 2, 8, 4, 2.0), 16, 1,
                    steps=50, batch=1 << 10, lr=1e-2, schedule="staggered", sampling="box",

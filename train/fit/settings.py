@@ -12,7 +12,6 @@ from typing import Any
 
 from photon_fields.models_spec.encoding import DEFAULT_PSI
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.photons.estimate import DEFAULT_K
 from photon_fields.train.fit.loss import LOSSES
 from photon_fields.train.fit.presets import DEFAULT_PRESET, PRESETS
 from photon_fields.train.fit.schedule import KnnSchedule, default_schedule, naive_schedule
@@ -34,7 +33,7 @@ class FitSettings:
     """Samples per step."""
     lr: float = _DEFAULT.lr
     """Adam's learning rate before the decay."""
-    k: int = DEFAULT_K
+    k: int = _DEFAULT.k
     """Photons per target estimate (Eq. 5's K)."""
     schedule: KnnSchedule | None = None
     """An explicit KNN radius schedule; None: from ``schedule_kind`` and the photon count."""
@@ -62,7 +61,7 @@ class FitSettings:
             raise InputError("--preset", f"unknown preset {name!r} (available: {', '.join(PRESETS)})")
         p = PRESETS[name]
         base = cls(preset=name, steps=p.steps, batch=p.batch, lr=p.lr, schedule_kind=p.schedule,
-                   sampling=p.sampling, loss=p.loss)
+                   sampling=p.sampling, loss=p.loss, k=p.k)
         return replace(base, **{k: v for k, v in overrides.items() if v is not None})
 
     def validate(self) -> None:
