@@ -14,7 +14,7 @@ by hand. Sections (paper figure / table in brackets):
 5. Noise against spp [Fig. 11]: relative L2 of L against a high-spp path-traced reference for the neural
    renderer at 1 / 4 / 8 spp and the path tracer at 1 / 4 / 8 / 16 spp, with wall times; checks the
    paper's claim that the neural renderer at 1 spp beats the path tracer at 4 spp.
-6. Phase awareness [Fig. 10]: the field trained on G = {-0.75, 0, 0.75}, evaluated at g in {-0.75, -0.35,
+6. Phase awareness [Fig. 10]: the field trained on the default G, evaluated at g in {-0.75, -0.35,
    0, 0.35, 0.75} against photon maps traced at each g (:mod:`photon_fields.train.eval.field_images`).
 
 Every stage is seeded from ``--seed``; the seeds and settings are recorded in ``docs/results.json``.
@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np  # noqa: E402
 
+from photon_fields.models_spec import DEFAULT_PHASES  # noqa: E402
 from photon_fields.runtime.cli.common import (  # noqa: E402
     OneLineArgumentParser,
     check_seed,
@@ -258,7 +259,7 @@ class Evaluation:
                 rows.append([name, f"{photons:,}", dt, len(pmap) / dt / 1e6, pmap.emitted])
                 data[f"{name}/{photons}"] = {"seconds": dt, "records": len(pmap), "emitted": pmap.emitted}
         self.data["tracing"] = data
-        return ("## 2. Photon tracing (Table 3)\n\nAlg. 1, three phases, max 16 collisions, "
+        return (f"## 2. Photon tracing (Table 3)\n\nAlg. 1, {len(DEFAULT_PHASES)} phases, max 16 collisions, "
                 f"{os.cpu_count()} cores.\n\n"
                 + _md_table(["scene", "photons", "seconds", "M records/s", "paths"], rows) + "\n")
 

@@ -6,7 +6,8 @@ photons : int >= 1
     Target number of stored records ("photons in the map", as in the paper's Table 3). Photon paths are
     traced in fixed-size chunks until each phase holds at least ``ceil(photons / |G|)`` records; the map
     keeps every record of a phase's paths up to the one that reaches its quota.
-phases : sequence of g in [-1, 1] (default G = {-0.75, 0, 0.75})
+phases : sequence of g in [-1, 1] (default ``models_spec.DEFAULT_PHASES``: the paper's G = {-0.75, 0, 0.75}
+    with the midpoints)
     Each photon path scatters with one g of G at every vertex. Paths are assigned to the phases
     round-robin and every phase is traced until it holds ``photons / |G|`` records, so the phases are
     equally represented in the map ("equally distributed over ... the number of phases", Sec. 4.4)
