@@ -2,11 +2,12 @@
 
 Usage (from a checkout with its .venv)::
 
-    .venv/bin/python bench/same_outputs.py run OUT_A            # at the commit before the change
+    .venv/bin/python bench/same_outputs.py run OUT_A            # at the commit before the change (a new folder)
     .venv/bin/python bench/same_outputs.py run OUT_B            # after it (clear numba's caches first)
     .venv/bin/python bench/same_outputs.py compare OUT_A OUT_B  # exit status 0: identical
 
-``run`` traces 30k photons and fits a ``tiny`` field on blobs (seed 3), exports it, and renders 48x40 images
+``run`` refuses a folder that holds files unless ``--force`` is given. It traces 30k photons and fits a
+``tiny`` field on blobs (seed 3), exports it, and renders 48x40 images
 with every renderer (path tracer, ray marcher, photon map, field). ``compare`` requires identical bytes for
 the ONNX model, the tables and every EXR and PNG, identical photon arrays, and identical map metadata and
 manifest apart from the wall-clock timings they record (``trace_seconds``, ``wall_s``).
@@ -27,8 +28,10 @@ BUNDLE_FILES = ("run/field.pfn/field.onnx", "run/field.pfn/tables.npz")
 RENDER = ("--scene", "blobs", "--size", "48x40", "--seed", "5", "--quiet")
 
 
-def run(out: Path) -> None:
-    """The seeded jobs, into ``out`` (replaced)."""
+def run(out: Path, force: bool = False) -> None:
+    """The seeded jobs, into ``out``: a new or empty folder, or an earlier run's with ``force``."""
+    if out.exists() and any(out.iterdir()) and not force:
+        raise SystemExit(f"error: {out}: exists and is not empty; pass --force to replace its outputs")
     bindir = Path(sys.executable).parent
     out.mkdir(parents=True, exist_ok=True)
     jobs = [
@@ -71,8 +74,10 @@ def compare(a: Path, b: Path) -> bool:
 
 
 def main(argv: list[str]) -> int:
+    force = "--force" in argv
+    argv = [a for a in argv if a != "--force"]
     if len(argv) == 2 and argv[0] == "run":
-        run(Path(argv[1]))
+        run(Path(argv[1]), force)
         return 0
     if len(argv) == 3 and argv[0] == "compare":
         return 0 if compare(Path(argv[1]), Path(argv[2])) else 1

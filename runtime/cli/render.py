@@ -35,9 +35,6 @@ from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.renderers.registry import INPUTS, RENDERERS
 from photon_fields.runtime.threads import set_threads
 
-#: The ``--method`` values, from the renderer registry.
-METHODS = tuple(RENDERERS)
-
 
 def parse_size(text: str) -> tuple[int, int]:
     parts = text.lower().split("x")
@@ -192,7 +189,6 @@ def load_inputs(args: argparse.Namespace, kind: str | None, scene: Any,
                 scene_from: str) -> tuple[dict[str, Any], list[str], Any]:
     """The renderer's input (:data:`photon_fields.runtime.renderers.registry.INPUTS`) loaded and checked against
     the scene: its keyword arguments, the warnings of a forced mismatch, and the field (for the report)."""
-    warnings: list[str | None] = []
     if kind == "map":
         from photon_fields.runtime.photons.estimate import check_map_matches_scene
         from photon_fields.runtime.photons.photon_map import PhotonMap
@@ -201,17 +197,16 @@ def load_inputs(args: argparse.Namespace, kind: str | None, scene: Any,
         if scene_from == "default" and not args.force and pmap.scene_fingerprint != scene.fingerprint():
             raise InputError(args.map, f"no --scene given, so the default scene '{scene.name}' was used; the map "
                              f"was traced for {pmap.mismatch(scene.fingerprint_parts())}; pass --scene")
-        warnings.append(check_map_matches_scene(pmap, scene, args.force))
+        warning = check_map_matches_scene(pmap, scene, args.force)
         pmap.phase_index(scene.g, "--g")
-        return {"pmap": pmap, "force": args.force}, [w for w in warnings if w], None
+        return {"pmap": pmap, "force": args.force}, [warning] if warning else [], None
     if kind == "bundle":
         from photon_fields.runtime.field.field import PhotonField
 
         field = PhotonField.load(args.bundle, threads=args.threads, precision=args.precision,
                                  expected_fingerprint=scene.fingerprint(), force=args.force,
                                  expected_parts=scene.fingerprint_parts())
-        warnings.append(field.scene_warning)
-        return {"estimator": field.estimator()}, [w for w in warnings if w], field
+        return {"estimator": field.estimator()}, [field.scene_warning] if field.scene_warning else [], field
     return {}, [], None
 
 
