@@ -15,9 +15,12 @@ Per image: ``mean`` = mean(L_i) / mean(reference L_i) (the bias a scientist sees
 ``rel_l2`` and ``ssim`` against the reference (detail). Summaries per configuration: the worst mean
 error over scenes, in G and outside G, and the ratio of the mean rel. L2 outside G to inside G.
 
-``--converged`` adds, per scene and configuration, the neural renderer's full L at ``--spp`` against a
-path-traced L at ``--converged-spp`` (default 2048), next to the path tracer at 1 and 4 spp, denoised by
-Intel Open Image Denoise when ``pyoidn`` is installed (``pip install pyoidn``; skipped with a note if not).
+``--converged`` adds, per scene and configuration, the neural renderer's full L (two renders at
+``--converged-neural-spp``, default 256, with different seeds: their mean, its noise, and the error left without
+the noise of either image; the photon map's L likewise when the scene's g is in G) against the mean of two
+independent path-traced L at ``--converged-spp`` (default 2048 each; half their difference is the reference's own
+noise), next to the path tracer at 1 and 4 spp, denoised by Intel Open Image Denoise when ``pyoidn`` is installed
+(``pip install pyoidn``; skipped with a note if not).
 
 Output: tables on stdout and JSON (default ``bench/results/fidelity.json``) with the machine record.
 """
@@ -25,6 +28,7 @@ Output: tables on stdout and JSON (default ``bench/results/fidelity.json``) with
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import time
 from dataclasses import dataclass, field
@@ -74,6 +78,15 @@ CONFIGS: dict[str, Config] = {
     "G3-3M": Config(3_000_000, PAPER_PHASES, about="three phases with a million photons each, linear loss"),
     "log-loss": Config(DEFAULT_PHOTONS, overrides={"loss": "log"}, about="the defaults with the paper's loss"),
     "K1024": Config(DEFAULT_PHOTONS, overrides={"k": 1024}, about="the defaults with K = 1024 photons per target"),
+    **{f"K{k}": Config(DEFAULT_PHOTONS, overrides={"k": k}, about=f"the defaults with K = {k} photons per target")
+       for k in (16, 32, 64, 128, 256)},
+    **{f"K{k}-avg{int(a * 100)}": Config(DEFAULT_PHOTONS, overrides={"k": k, "average": a},
+                                          about=f"K = {k}, the parameters averaged over the last {a:.0%} of the steps")
+       for k in (32, 64, 256) for a in (0.3, 0.5)},
+    "G9-K64-avg50": Config(DEFAULT_PHOTONS, tuple(np.linspace(-0.75, 0.75, 9).tolist()), {"k": 64, "average": 0.5},
+                           about="nine phases, 5M photons in all, K = 64, parameters averaged over the last half"),
+    "G0-K64-avg50": Config(1_000_000, (0.0,), {"k": 64, "average": 0.5},
+                           about="one phase (g = 0), 1M photons: the field without any g to model"),
 }
 
 
@@ -90,9 +103,21 @@ def reference_li(scene: Scene, g: float, size: int, spp: int, work: Path) -> np.
     return np.load(path)
 
 
+def code_tag() -> str:
+    """Short hash of the code a fitted field depends on beyond its settings (photon tracing, the estimate, the
+    fit), so that a cached run is reused only by the code that trained it."""
+    root = HERE.parent
+    digest = hashlib.sha1()
+    for folder in ("runtime/photons", "runtime/transport", "train/photons", "train/fit", "train/field"):
+        for path in sorted((root / folder).glob("*.py")):
+            digest.update(path.read_bytes())
+    return digest.hexdigest()[:10]
+
+
 def train(scene: Scene, name: str, config: Config, work: Path, seed: int) -> tuple[Any, Any, dict[str, Any]]:
-    """The configuration's map and fitted field for ``scene`` (reused from ``work`` when finished)."""
-    run = work / scene.name / name
+    """The configuration's map and fitted field for ``scene`` (reused from ``work`` when finished with the same
+    settings and code)."""
+    run = work / scene.name / f"{name}-{code_tag()}"
     settings = FitSettings.from_preset("cpu", seed=seed, **config.overrides)
     t0 = time.perf_counter()
     pmap = trace_photons(scene, config.photons, phases=config.phases, seed=seed, progress=False)
@@ -114,7 +139,7 @@ def score(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], gs: lis
           work: Path) -> list[dict[str, Any]]:
     """Field and photon-map L_i against the reference at every g."""
     estimator = TorchFieldEstimator(model, scene.medium())
-    radius = settings["schedule"]["stages"][-1]["radius_percent"] / 100.0 if settings.get("schedule") else 0.05
+    radius = final_radius(settings)
     rows = []
     for g in gs:
         ref = reference_li(scene, g, args.size, args.ref_spp, work)
@@ -150,18 +175,47 @@ def denoise(img: np.ndarray) -> np.ndarray | None:
     return np.asarray(pyoidn.denoise(np.ascontiguousarray(img, dtype=np.float32), hdr=True))
 
 
-def converged(scene: Scene, model: Any, args: argparse.Namespace, work: Path) -> dict[str, Any]:
-    """Neural L at ``--spp`` and the path tracer at 1 / 4 spp (+ OIDN) against a high-spp path-traced L."""
+def final_radius(settings: dict[str, Any]) -> float:
+    """The fit's last KNN search radius (world units)."""
+    return settings["schedule"]["stages"][-1]["radius_percent"] / 100.0 if settings.get("schedule") else 0.05
+
+
+def converged_error(img: np.ndarray, noise: float, ref: np.ndarray, ref_noise: float) -> dict[str, float]:
+    """``compare`` of a two-seed mean against the reference, with the image's own noise (half the rel. L2 between
+    its two halves) and the error left once both images' noise is taken out, sqrt(e^2 - noise^2 - ref_noise^2):
+    what more samples would not remove (bias, blur, the photons' frozen noise)."""
+    c = compare(img, ref)
+    return {**c, "noise_rel_l2": noise,
+            "bias_rel_l2": float(np.sqrt(max(0.0, c["rel_l2"] ** 2 - noise**2 - ref_noise**2)))}
+
+
+def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], args: argparse.Namespace,
+              work: Path) -> dict[str, Any]:
+    """Neural and photon-mapped L (the field's training targets, as an image) at ``--converged-neural-spp`` and the
+    path tracer at 1 / 4 spp (+ OIDN) against a high-spp path-traced L."""
     view = scene.with_overrides(width=args.size, height=args.size)
-    path = work / f"refL_{scene.name}_{args.size}_{args.converged_spp}_{scene.g:+.3f}.npy"
-    if not path.exists():
-        np.save(path, render_path_traced(view, spp=args.converged_spp, seed=4321, progress=False).layers["L"])
-    ref = np.load(path)
-    out: dict[str, Any] = {}
-    t0 = time.perf_counter()
-    neural = render_first_interaction(view, TorchFieldEstimator(model, scene.medium()), spp=args.spp, seed=7,
-                                      progress=False).layers["L"]
-    out["neural"] = {"spp": args.spp, "wall_s": time.perf_counter() - t0, **compare(neural, ref)}
+    halves = []
+    for seed in (4321, 4322):
+        path = work / f"refL_{scene.name}_{args.size}_{args.converged_spp}_{scene.g:+.3f}_{seed}.npy"
+        if not path.exists():
+            np.save(path, render_path_traced(view, spp=args.converged_spp, seed=seed, progress=False).layers["L"])
+        halves.append(np.load(path))
+    ref = 0.5 * (halves[0] + halves[1])
+    # The reference's own noise: two independent halves differ by sqrt(2) sigma, their mean has sigma / sqrt(2).
+    out: dict[str, Any] = {"reference": {"spp": 2 * args.converged_spp,
+                                         "noise_rel_l2": relative_l2(halves[0], halves[1]) / 2.0}}
+    estimator = TorchFieldEstimator(model, scene.medium())
+    renders = {"neural": lambda seed: render_first_interaction(view, estimator, spp=args.converged_neural_spp,
+                                                               seed=seed, progress=False).layers["L"]}
+    if np.any(np.isclose(pmap.phases, scene.g)):
+        renders["photon_map"] = lambda seed: render_photon_mapped(
+            view, pmap, k=settings["k"], radius=final_radius(settings), spp=args.converged_neural_spp, seed=seed,
+            progress=False).layers["L"]
+    for name, render in renders.items():
+        t0 = time.perf_counter()
+        a, b = render(7), render(8)
+        out[name] = {"spp": 2 * args.converged_neural_spp, "wall_s": time.perf_counter() - t0,
+                     **converged_error(0.5 * (a + b), relative_l2(a, b) / 2.0, ref, out["reference"]["noise_rel_l2"])}
     for spp in (1, 4):
         t0 = time.perf_counter()
         pt = render_path_traced(view, spp=spp, seed=99, progress=False).layers["L"]
@@ -182,7 +236,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--spp", type=int, default=32, help="field and photon-map samples per pixel")
     ap.add_argument("--ref-spp", type=int, default=512, help="path-traced reference L_i samples per pixel")
     ap.add_argument("--converged", action="store_true", help="also the converged L against denoised path tracing")
-    ap.add_argument("--converged-spp", type=int, default=2048)
+    ap.add_argument("--converged-spp", type=int, default=2048,
+                    help="path-traced reference L: two independent renders at this spp, averaged")
+    ap.add_argument("--converged-neural-spp", type=int, default=256,
+                    help="neural and photon-mapped L: two renders at this spp with different seeds, averaged")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--work", type=Path, default=DEFAULT_WORK)
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
@@ -202,7 +259,7 @@ def main(argv: list[str] | None = None) -> None:
             rows = score(scene, pmap, model, facts["settings"], gs, args, args.work)
             entry = {**facts, "rows": rows, "summary": summarize(rows)}
             if args.converged:
-                entry["converged"] = converged(scene, model, args, args.work)
+                entry["converged"] = converged(scene, pmap, model, facts["settings"], args, args.work)
             results[f"{name}/{cname}"] = entry
             print(f"{name} / {cname}: trace {facts['trace_s']:.1f} s, fit {facts['fit_s']:.0f} s")
             for r in rows:
@@ -213,9 +270,14 @@ def main(argv: list[str] | None = None) -> None:
             print("  " + ", ".join(f"{k} {v:.3f}" for k, v in entry["summary"].items()), flush=True)
             if "converged" in entry:
                 c = entry["converged"]
+                print("  converged L: " + ", ".join(
+                    f"{k} {c[k]['rel_l2']:.3f} (noise {c[k]['noise_rel_l2']:.3f}, "
+                    f"without noise {c[k]['bias_rel_l2']:.3f})"
+                    for k in ("neural", "photon_map") if k in c))
                 print("  converged L rel L2: " + ", ".join(
                     f"{k} {v['rel_l2']:.3f}" + (f" (+OIDN {v['oidn']['rel_l2']:.3f})" if "oidn" in v else "")
-                    for k, v in c.items()))
+                    for k, v in c.items() if k.startswith("pt_"))
+                    + f"; reference noise {c['reference']['noise_rel_l2']:.3f}")
     write_report(args.out, "fidelity", finish_info(info, {}),
                  {k: v for k, v in vars(args).items() if k not in ("work", "out")} | {"work": str(args.work)},
                  configs={k: {"photons": c.photons, "phases": list(c.phases), "overrides": c.overrides,

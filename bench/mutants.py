@@ -114,8 +114,8 @@ MUTANTS: tuple[Mutant, ...] = (
             f"{LIGHTS}[directional]"),
            "Eq. 5 without the 1 / sigma_t weight that turns collision density into radiance"),
     Mutant("knn_phase_cos_sign", "runtime/photons/knn.py",
-           "p = hg_eval(g, -(dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz))",
-           "p = hg_eval(g, dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz)",
+           "p = hg_eval(g[i], -(dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz))",
+           "p = hg_eval(g[i], dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz)",
            ("tests/runtime/photons/test_knn.py::test_radiance_phase_turns_photons_towards_the_camera",
             f"{LIGHTS}[point_outside]", f"{LIGHTS}[directional]"),
            "the photon estimate's phase cosine taken between the photon and the camera ray instead of the "
@@ -158,6 +158,13 @@ MUTANTS: tuple[Mutant, ...] = (
            "        return relative_l2_loss(pred, target)",
            ("tests/train/fit/test_loss.py::test_linear_loss_is_stationary_at_the_arithmetic_mean",),
            "the default loss averages targets in log space: fields converge to the geometric mean, dark"),
+    Mutant("knn_counts_kth_photon", "runtime/photons/knn.py", "skip = kth if m >= k else -1.0", "skip = -1.0",
+           ("tests/runtime/photons/test_knn.py::test_small_k_estimate_is_unbiased",),
+           "the K-th photon, which only sets the radius, is summed too: estimates K / (K - 1) too bright"),
+    Mutant("average_not_applied", "train/fit/loop.py", "                    average.apply()  # the field",
+           "                    pass  # the field",
+           ("tests/train/fit/test_field_training.py::test_averaging_changes_the_field_not_the_optimization",),
+           "the parameter average is kept but never becomes the field: the last, noisy iterate is exported"),
 )
 
 

@@ -3,7 +3,7 @@
 
 Parameters
 ----------
-k : int (default 1024)
+k : int >= 2 (default 1024)
     Photons per estimate (the paper's K).
 radius : float (default ``DEFAULT_RADIUS`` = 0.05)
     Maximum search radius r_max in world units, i.e. as a fraction of the volume box's longest side
@@ -16,6 +16,8 @@ fluence) with the power they arrive with (``photon_fields.train.photons.tracing`
 
     Q(x, d, g) = sum_n p_g(-omega_n . d) * (Phi_n / sigma_t(x_n)) / (4/3 pi r^3)
 
+(the sum over the photons strictly inside the ball, whose radius is the K-th photon's distance: that photon
+is left out, which makes the estimate unbiased at any K, :mod:`photon_fields.runtime.photons.knn`)
 estimates the in-scattered radiance that has already scattered at least once, *before* the albedo at
 x, which the renderer applies from the transfer function at full resolution
 (:mod:`photon_fields.runtime.wavefront.first_interaction`).
@@ -88,8 +90,8 @@ class PhotonMapEstimator:
     """Q(x, d, g) from a photon map: an :class:`photon_fields.runtime.wavefront.first_interaction.IndirectEstimator`."""
 
     def __init__(self, pmap: PhotonMap, medium: Medium, *, k: int = DEFAULT_K, radius: float = DEFAULT_RADIUS):
-        if k < 1:
-            raise InputError("k", f"must be >= 1, got {k}")
+        if k < 2:
+            raise InputError("k", f"must be >= 2 (the K-th photon only sets the radius), got {k}")
         if not (radius > 0 and np.isfinite(radius)):
             raise InputError("radius", f"must be a positive number (world units), got {radius}")
         self.pmap, self.medium, self.k, self.radius = pmap, medium, int(k), float(radius)

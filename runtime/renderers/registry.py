@@ -109,7 +109,7 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
              (Option("--step", "step", "step length in voxels", float, 0.5, float_in(0.01, 100, "voxels")),)),
     Renderer("photonmap", "first interactions + NEE + the photon-map estimate of L_i (needs --map)",
              "photon_fields.runtime.renderers.photon_mapped:render_photon_mapped",
-             (Option("--k", "k", "photons per estimate (K)", int, 1024, int_in(1, 1 << 16)),
+             (Option("--k", "k", "photons per estimate (K)", int, 1024, int_in(2, 1 << 16)),
               Option("--radius", "radius", "max search radius, in units of the volume box's longest side", float,
                      0.05, float_in(0, 2, "box units", open_low=True))),
              input="map"),

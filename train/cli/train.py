@@ -115,6 +115,9 @@ def _add_fit_options(f: argparse.ArgumentParser) -> None:
     f.add_argument("--loss", choices=["linear", "log"], default=None,
                    help="training loss: relative L2 of the decoded radiance (unbiased under noisy targets) or of the "
                         "log-encoded output (the paper's) (default: the preset's)")
+    f.add_argument("--average", type=float, default=None,
+                   help="share of the last steps whose parameters are averaged into the final field, 0: the last "
+                        "step's (default: the preset's)")
     f.add_argument("--checkpoint-every", type=int, default=500, help="save checkpoint.pt every N steps")
     f.add_argument("--seed", type=int, default=0, help="random seed: same seed, same field")
     f.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
@@ -149,6 +152,7 @@ def _fit_settings(args: argparse.Namespace):  # noqa: ANN202  (photon_fields.tra
 
     settings = FitSettings.from_preset(args.preset, steps=args.steps, batch=args.batch, lr=args.lr, k=args.k,
                                        schedule_kind=args.schedule, sampling=args.sampling, loss=args.loss,
+                                       average=args.average,
                                        seed=args.seed,
                                        checkpoint_every=args.checkpoint_every)
     settings.validate()

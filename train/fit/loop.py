@@ -4,6 +4,8 @@ Every step draws a fresh batch with targets at the KNN schedule's current radius
 (:mod:`photon_fields.train.fit.targets`, :mod:`photon_fields.train.fit.schedule`), predicts the log-encoded
 radiance (Eq. 6) with :class:`photon_fields.train.field.network.TorchPhotonField` and takes one step of
 :class:`photon_fields.train.fit.optimizer.TcnnAdam` on the settings' loss (:mod:`photon_fields.train.fit.loss`).
+With ``settings.average`` > 0 the final field is the mean of the parameters over that share of the last steps
+(:mod:`photon_fields.train.fit.averaging`); the last validation and checkpoint are of that field.
 Settings: :class:`photon_fields.train.fit.settings.FitSettings` (defaults from the presets,
 :mod:`photon_fields.train.fit.presets`).
 
@@ -44,6 +46,7 @@ from photon_fields.runtime.photons.estimate import check_map_matches_scene
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.train.field.network import TorchPhotonField, decode_radiance_torch
+from photon_fields.train.fit.averaging import ParameterAverage, averaging_start
 from photon_fields.train.fit.checkpoint import save_checkpoint
 from photon_fields.train.fit.loss import field_loss
 from photon_fields.train.fit.optimizer import TcnnAdam, lr_at
@@ -54,7 +57,8 @@ from photon_fields.train.fit.targets import TargetBatch, TargetSampler, check_ph
 
 #: Top-level keys of ``log.json`` (read back by the export for the preset and batch).
 LOG_KEYS = ("scene", "scene_fingerprint", "photons", "phases", "settings", "field_config", "schedule",
-            "schedule_boundaries", "status", "threads", "parameters", "validation_points", "validation_targets_s",
+            "schedule_boundaries", "averaged_from_step", "status", "threads", "parameters", "validation_points",
+            "validation_targets_s",
             "per_step", "validation", "totals")
 
 
@@ -142,6 +146,8 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
                             sampling=settings.sampling)
     val = sampler.validation_set(settings.val_points, schedule.final_radius)
     val_every = settings.val_every or max(1, total // 10)
+    average_from = averaging_start(total, settings.average)
+    average = ParameterAverage(model)
     setup_s = time.perf_counter() - t_start
 
     per: dict[str, list[float]] = {k: [] for k in ("step", "loss", "radius", "lr", "wall_s", "targets_s", "step_s",
@@ -150,6 +156,7 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
         "scene": scene.name, "scene_fingerprint": scene.fingerprint(), "photons": len(pmap),
         "phases": list(pmap.phases), "settings": settings.to_dict(), "field_config": cfg.to_dict(),
         "schedule": schedule.to_dict(), "schedule_boundaries": boundaries, "status": "running",
+        "averaged_from_step": average_from,
         "threads": {"numba": numba.get_num_threads(), "torch": torch.get_num_threads()},
         "parameters": {"tables": sum(p.numel() for p in model.table_parameters()),
                        "mlp": sum(p.numel() for p in model.matrix_parameters())},
@@ -206,6 +213,10 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
                 per["step_s"].append(dt)
                 per["found_mean"].append(float(batch.found.mean()))
                 done = step + 1
+                if step >= average_from:
+                    average.add()
+                if done == total:
+                    average.apply()  # the field is the average of the last iterates (no-op without averaging)
                 if done % val_every == 0 or done == total:
                     log["validation"].append({"step": done, **validate_field(model, val, loss_name=settings.loss)})
                 if done % settings.checkpoint_every == 0 and done != total:

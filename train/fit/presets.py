@@ -48,6 +48,10 @@ class Preset:
     loss: str = "linear"
     """Training loss (:mod:`photon_fields.train.fit.loss`): "linear" (relative L2 of the decoded radiance,
     unbiased under noisy targets) or "log" (tcnn's relative L2 of the encoded output, the paper's)."""
+    average: float = 0.0
+    """Share of the last training steps whose parameters are averaged into the final field (Polyak-Ruppert
+    averaging, :mod:`photon_fields.train.fit.averaging`); 0: the last step's parameters (the paper). Each step
+    moves the field towards its batch's noisy targets; the average of the iterates keeps what they agree on."""
     about: str = ""
     """One line for ``--help`` and reports."""
 

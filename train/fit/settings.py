@@ -43,6 +43,8 @@ class FitSettings:
     """Training positions: "box" or "support"."""
     loss: str = _DEFAULT.loss
     """Training loss: "linear" or "log" (:mod:`photon_fields.train.fit.loss`)."""
+    average: float = _DEFAULT.average
+    """Share of the last steps whose parameters are averaged into the final field; 0: the last step's."""
     seed: int = 0
     """Seeds the model's initialization and the sampler: same seed, same field."""
     checkpoint_every: int = 500
@@ -61,22 +63,24 @@ class FitSettings:
             raise InputError("--preset", f"unknown preset {name!r} (available: {', '.join(PRESETS)})")
         p = PRESETS[name]
         base = cls(preset=name, steps=p.steps, batch=p.batch, lr=p.lr, schedule_kind=p.schedule,
-                   sampling=p.sampling, loss=p.loss, k=p.k)
+                   sampling=p.sampling, loss=p.loss, k=p.k, average=p.average)
         return replace(base, **{k: v for k, v in overrides.items() if v is not None})
 
     def validate(self) -> None:
         """One-line InputError naming the option of any setting out of range."""
         if self.preset not in PRESETS:
             raise InputError("--preset", f"unknown preset {self.preset!r} (available: {', '.join(PRESETS)})")
-        for name, v, hi in (("--steps", self.steps, 10**7), ("--batch", self.batch, 1 << 22), ("--k", self.k, 1 << 16),
-                            ("--checkpoint-every", self.checkpoint_every, 10**9),
-                            ("validation points", self.val_points, 1 << 22)):
-            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= hi:
-                raise InputError(name, f"must be an integer in [1, {hi}], got {v!r}")
+        for name, v, lo, hi in (("--steps", self.steps, 1, 10**7), ("--batch", self.batch, 1, 1 << 22),
+                                ("--k", self.k, 2, 1 << 16), ("--checkpoint-every", self.checkpoint_every, 1, 10**9),
+                                ("validation points", self.val_points, 1, 1 << 22)):
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise InputError(name, f"must be an integer in [{lo}, {hi}], got {v!r}")
         if not (math.isfinite(self.lr) and 0 < self.lr <= 10):
             raise InputError("--lr", f"must be in (0, 10], got {self.lr}")
         if self.schedule_kind not in ("staggered", "naive"):
             raise InputError("--schedule", f"must be 'staggered' or 'naive', got {self.schedule_kind!r}")
+        if not (isinstance(self.average, int | float) and 0.0 <= self.average < 1.0):
+            raise InputError("--average", f"must be in [0, 1) (a share of the steps), got {self.average!r}")
         if self.loss not in LOSSES:
             raise InputError("--loss", f"must be one of {LOSSES}, got {self.loss!r}")
         if self.sampling not in SAMPLING_MODES:

@@ -335,6 +335,8 @@ CASES += [
     (T, lambda a, d, o: [*FIT(a), "--batch", "0", "--out", str(o / "run")], "--batch"),
     (T, lambda a, d, o: [*FIT(a), "--lr", "-1", "--out", str(o / "run")], "--lr"),
     (T, lambda a, d, o: [*FIT(a), "--k", "0", "--out", str(o / "run")], "--k"),
+    (T, lambda a, d, o: [*FIT(a), "--average", "1.5", "--out", str(o / "run")], "--average"),
+    (T, lambda a, d, o: [*FIT(a), "--k", "1", "--out", str(o / "run")], "--k"),
     (T, lambda a, d, o: [*FIT(a), "--sampling", "magic", "--out", str(o / "run")], "--sampling"),
     (T, lambda a, d, o: [*FIT(a), "--loss", "l1", "--out", str(o / "run")], "--loss"),
     (T, lambda a, d, o: [*FIT(a), "--checkpoint-every", "0", "--out", str(o / "run")], "--checkpoint-every"),

@@ -74,7 +74,7 @@ def brute_radiance(points: np.ndarray, dirs: np.ndarray, wts: np.ndarray, querie
         if m == 0:
             continue
         r = math.sqrt(d2[i, k - 1]) if m == k else r_max
-        nb = idx[i, :m]
+        nb = idx[i, : k - 1] if m == k else idx[i, :m]  # the K-th photon only sets the radius
         cos = -(dirs[nb] @ view[i])
         p = (1.0 - g * g) / (4.0 * math.pi * (1.0 + g * g - 2.0 * g * cos) ** 1.5)
         est[i] = (p[:, None] * wts[nb]).sum(axis=0) / (4.0 / 3.0 * math.pi * r**3)
@@ -271,6 +271,50 @@ def test_density_of_uniform_photons() -> None:
     rel = est / expected - 1.0
     assert np.abs(rel).max() < 0.15
     assert abs(rel.mean()) < 0.02
+
+
+@pytest.mark.parametrize("k", [2, 4, 16])
+def test_small_k_estimate_is_unbiased(k: int) -> None:
+    # Poisson photons of density lambda with unit weights at g = 0: Q = lambda / (4 pi) exactly in mean at
+    # every K (the K-th photon only sets the radius). Counting it would make the mean K / (K - 1) too bright:
+    # +100 %, +33 %, +6.7 % here, far outside the tolerance (2000 queries: the relative spread of one estimate
+    # is ~1 / sqrt(K - 2), so the mean's standard error is < 1.6 % at K = 4 and < 0.6 % at K = 16). At K = 2 the
+    # estimate's variance is infinite, so only a loose one-sided check of its median scale is possible there.
+    rng = np.random.default_rng(11)
+    n = 200_000
+    pts = rng.uniform(0.0, 1.0, (n, 3))
+    grid = build_photon_grid(pts)
+    qs = rng.uniform(0.3, 0.7, (2000, 3))
+    est, radius, found = knn_radiance(grid, unit(n, rng), np.ones((n, 3)), qs, unit(2000, rng), 0.0, k, 0.5)
+    assert (found == k).all()
+    rel = est[:, 0] / (n / (4.0 * math.pi))
+    if k == 2:
+        assert 0.3 < np.median(rel) < 1.0  # median of 1 / Gamma(2) scaled: ~0.6; the biased form gives ~1.2
+    else:
+        assert abs(rel.mean() - 1.0) < 4.0 * rel.std() / math.sqrt(len(rel)) + 0.005
+
+
+def test_radiance_with_a_g_per_query_equals_one_g_at_a_time(rng: np.random.Generator) -> None:
+    pts = rng.uniform(0, 1, (3000, 3))
+    dirs, wts = unit(3000, rng), rng.uniform(0.5, 1.5, (3000, 3))
+    qs, view = rng.uniform(0.1, 0.9, (60, 3)), unit(60, rng)
+    gs = np.repeat([-0.7, 0.0, 0.45], 20)
+    grid = build_photon_grid(pts)
+    est, radius, found = knn_radiance(grid, dirs, wts, qs, view, gs, 32, 0.3)
+    for g in (-0.7, 0.0, 0.45):
+        sel = gs == g
+        e1, r1, f1 = knn_radiance(grid, dirs, wts, qs[sel], view[sel], g, 32, 0.3)
+        np.testing.assert_array_equal(est[sel], e1)
+    with pytest.raises(ValueError, match="like the queries"):
+        knn_radiance(grid, dirs, wts, qs, view, gs[:5], 32, 0.3)
+    with pytest.raises(ValueError, match=r"\[-1, 1\]"):
+        knn_radiance(grid, dirs, wts, qs, view, np.full(60, 1.5), 32, 0.3)
+
+
+def test_radiance_needs_two_photons(rng: np.random.Generator) -> None:
+    pts = rng.uniform(0, 1, (50, 3))
+    with pytest.raises(ValueError, match="k >= 2"):
+        knn_radiance(build_photon_grid(pts), unit(50, rng), np.ones((50, 3)), pts[:3], unit(3, rng), 0.0, 1, 0.5)
 
 
 def test_default_cell_size_rule(rng: np.random.Generator) -> None:

@@ -150,6 +150,18 @@ def test_fit_is_deterministic_for_a_seed(tiny: tuple, tmp_path: Path) -> None:
     assert runs[0].log["per_step"]["loss"] == runs[1].log["per_step"]["loss"]
 
 
+def test_averaging_changes_the_field_not_the_optimization(tiny: tuple, tmp_path: Path) -> None:
+    scene, pmap, _, _ = tiny
+    last, averaged = (fit(scene, pmap, tmp_path / f"a{share}", tiny_settings(steps=6, average=share), progress=False)
+                      for share in (0.0, 0.5))
+    assert last.log["per_step"]["loss"] == averaged.log["per_step"]["loss"]  # the same iterates
+    assert last.log["averaged_from_step"] == 6 and averaged.log["averaged_from_step"] == 3
+    a, b = last.model.state_dict(), averaged.model.state_dict()
+    assert not all(torch.equal(a[k], b[k]) for k in a)
+    saved, _ = load_checkpoint(tmp_path / "a0.5" / "checkpoint.pt", scene.fingerprint())
+    assert all(torch.equal(v, b[k]) for k, v in saved.state_dict().items())  # the field written is the average
+
+
 def test_fit_outputs_and_checkpoint_round_trip(tiny: tuple, tmp_path: Path) -> None:
     scene, pmap, _, _ = tiny
     res = fit(scene, pmap, tmp_path, tiny_settings(steps=10), progress=False)
