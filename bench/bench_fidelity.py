@@ -85,6 +85,10 @@ CONFIGS: dict[str, Config] = {
        for k in (32, 64, 256) for a in (0.3, 0.5)},
     "G9-K64-avg50": Config(DEFAULT_PHOTONS, tuple(np.linspace(-0.75, 0.75, 9).tolist()), {"k": 64, "average": 0.5},
                            about="nine phases, 5M photons in all, K = 64, parameters averaged over the last half"),
+    "tent-continuous": Config(DEFAULT_PHOTONS, overrides={"preset": "cpu-tent", "g_sampling": "continuous"},
+                              about="the cpu-tent preset: tent phase features, g drawn continuously over G's range"),
+    "tent-mixed": Config(DEFAULT_PHOTONS, overrides={"preset": "cpu-tent", "g_sampling": "mixed"},
+                         about="tent phase features, half the training g at the phases, half continuous"),
     "G0-K64-avg50": Config(1_000_000, (0.0,), {"k": 64, "average": 0.5},
                            about="one phase (g = 0), 1M photons: the field without any g to model"),
 }

@@ -23,7 +23,8 @@ Evaluating a bundle (what ``runtime.field.field.PhotonField.query`` does, and wh
 world position x -> ``normalize_position(x, bmin, bsize)`` (the manifest's ``domain``), unit camera-ray
 travel direction d -> ``direction_input(d)`` (:mod:`photon_fields.models_spec.encoding`), both hash-encoded exactly as
 :mod:`photon_fields.models_spec.hashgrid` defines (tiny-cuda-nn's HashGrid; the primes are repeated in the manifest),
-concatenated with g in the column order of ``inputs.layout``, the ONNX MLP gives L', and Eq. 7
+concatenated with ``phase_features(g, phases, phase_encoding)`` (g, plus one tent per phase when the field's
+``phase_encoding`` is "tent") in the column order of ``inputs.layout``, the ONNX MLP gives L', and Eq. 7
 (``decode_radiance``, psi from the manifest) gives the radiance Q(x, d, g) that the photon-map estimate
 (Eq. 5) supplies during training.
 
@@ -33,14 +34,15 @@ Manifest (version :data:`BUNDLE_VERSION`; :data:`MANIFEST_SCHEMA` is its JSON Sc
 - ``format`` = :data:`BUNDLE_FORMAT`, ``version`` = :data:`BUNDLE_VERSION` (an integer; a reader refuses
   a newer version instead of guessing);
 - ``field``: :meth:`photon_fields.models_spec.encoding.FieldConfig.to_dict` (both encodings: levels, features,
-  log2 table size, base resolution, per-level scale; MLP hidden width and layers; psi; the phase set G);
+  log2 table size, base resolution, per-level scale; MLP hidden width and layers; psi; the phase set G; the
+  phase encoding, a key present only when it is not "scalar", so bundles written before it read unchanged);
 - ``hash_primes``: tcnn's primes (:data:`photon_fields.models_spec.hashgrid.HASH_PRIMES`), listed so that a foreign
   runtime needs nothing but the manifest; a reader refuses other values;
 - ``encodings``: per encoding the derived geometry (table rows, per-level resolution, table size, whether
   hashed): redundant with ``field``, and checked against it, so a definition drift cannot go unnoticed;
 - ``domain``: ``bmin``, ``bsize`` (world box, 3 numbers each, bsize > 0);
-- ``inputs``: ``width`` and ``layout`` (``[{"name", "start", "stop"}]`` for position, direction, g, in
-  column order), the ONNX tensor names and batch axis name;
+- ``inputs``: ``width`` and ``layout`` (``[{"name", "start", "stop"}]`` for position, direction, g (its phase
+  features: 1 or 1 + |G| columns), in column order), the ONNX tensor names and batch axis name;
 - ``output``: 3 channels, ``encoding`` "eq6-log10" (decode: ``10^(-L' psi)``);
 - ``tables``: file, ``dtype`` (float32 | float16), array shapes;
 - ``scene_fingerprint``: :func:`photon_fields.models_spec.fingerprint.scene_fingerprint` of the scene trained for;
@@ -181,7 +183,8 @@ MANIFEST_SCHEMA: dict[str, Any] = {
             "hidden_layers": {"type": "integer", "minimum": 1, "maximum": 64},
             "psi": {"type": "number", "exclusiveMinimum": 0, "maximum": 30},
             "phases": {"type": "array", "items": {"type": "number", "minimum": -1, "maximum": 1}, "minItems": 1},
-        }),
+            "phase_encoding": {"type": "string", "enum": ["tent"]},
+        }, required=["version", "position", "direction", "hidden_width", "hidden_layers", "psi", "phases"]),
         "hash_primes": {"type": "array", "const": [int(p) for p in HASH_PRIMES]},
         "encodings": _obj({"position": {"$ref": "#/$defs/geometry"}, "direction": {"$ref": "#/$defs/geometry"}}),
         "domain": _obj({"bmin": _num_array(3), "bsize": _num_array(3, exclusiveMinimum=0)}),
@@ -356,7 +359,7 @@ def input_layout(cfg: FieldConfig) -> list[dict[str, Any]]:
     """Column ranges of the MLP input: position features, direction features, g (Sec. 3.4, Fig. 5)."""
     p, d = cfg.position.output_dims, cfg.direction.output_dims
     return [{"name": "position", "start": 0, "stop": p}, {"name": "direction", "start": p, "stop": p + d},
-            {"name": "g", "start": p + d, "stop": p + d + 1}]
+            {"name": "g", "start": p + d, "stop": p + d + cfg.phase_dims}]
 
 
 def table_shapes(cfg: FieldConfig) -> dict[str, tuple[int, int]]:

@@ -32,9 +32,16 @@ Inputs (Sec. 3.1, Eq. 2: ``P(x, g, omega)``)
   radiance estimate Q(x, d, g) of :mod:`photon_fields.runtime.photons.estimate` is queried with, light arriving at the
   camera travels along -d) -> :func:`photon_fields.models_spec.hashgrid.direction_to_unit_square` (normalized
   spherical coordinates, as in Sec. 3.1);
-- phase: g in [-1, 1], unencoded ("a unitless scale", Sec. 3.4).
+- phase: :func:`phase_features`: g in [-1, 1] unencoded ("a unitless scale", Sec. 3.4), followed, with the
+  ``"tent"`` phase encoding, by one tent function per phase of G: the weight of G_j in the piecewise-linear
+  interpolation over the sorted phases (1 at G_j, falling to 0 at its neighbours, constant beyond the ends).
+  Why: the MLP has no biases, so from g alone it can bend its output in g only where position and direction
+  features happen to cancel; trained on several phases, such a field tilts across g (a few to 10 % bright at
+  one end of G and dark at the other, where its photon map is right at every g; bench/README.md). The tents give
+  it a kink at every phase.
 
-The network input is ``[hash_position(x) (Lp Fp), hash_direction(d) (Ld Fd), g (1)]`` in this order.
+The network input is ``[hash_position(x) (Lp Fp), hash_direction(d) (Ld Fd), phase features (1 or 1 + |G|)]``
+in this order.
 
 :class:`FieldConfig` (what a trained field needs to be rebuilt)
 ---------------------------------------------------------------
@@ -48,6 +55,9 @@ psi : float in (0, 30]
     Eq. 6 / 7 precision (above).
 phases : tuple of g in [-1, 1]
     The phase set G the field was trained on (the photon map's); g between them is interpolated.
+phase_encoding : "scalar" (default, the paper) or "tent"
+    The phase features (above). A "scalar" config's dict has no ``phase_encoding`` key, so configs written
+    before it existed read unchanged.
 """
 
 from __future__ import annotations
@@ -64,6 +74,8 @@ from photon_fields.models_spec.photon_map import DEFAULT_PHASES
 
 DEFAULT_PSI = 5.0
 FIELD_CONFIG_VERSION = 1
+#: The phase encodings a FieldConfig may name (module docstring).
+PHASE_ENCODINGS = ("scalar", "tent")
 OUTPUT_CHANNELS = 3
 
 
@@ -119,6 +131,27 @@ def phase_input(g: np.ndarray | float, n: int | None = None) -> np.ndarray:
     return ga.reshape(-1, 1)
 
 
+def phase_features(g: np.ndarray, phases: tuple[float, ...], encoding: str) -> np.ndarray:
+    """Phase coefficients (n,) -> float32 (n, 1) for ``"scalar"``, (n, 1 + |G|) for ``"tent"``: g, then the tent
+    of each phase in the order of ``phases`` (module docstring). The tents of a g sum to 1."""
+    ga = np.asarray(g, dtype=np.float64).reshape(-1)
+    if encoding == "scalar":
+        return ga.astype(np.float32).reshape(-1, 1)
+    if encoding != "tent":
+        raise ValueError(f"unknown phase encoding {encoding!r} (one of {PHASE_ENCODINGS})")
+    if ga.shape[0] > 1 and (ga == ga[0]).all():  # one g for the whole batch (a rendered frame): one row
+        return np.repeat(phase_features(ga[:1], phases, encoding), ga.shape[0], axis=0)
+    out = np.empty((ga.shape[0], 1 + len(phases)), np.float32)
+    out[:, 0] = ga
+    order = np.argsort(np.asarray(phases, dtype=np.float64), kind="stable")
+    sorted_g = np.asarray(phases, dtype=np.float64)[order]
+    for rank, j in enumerate(order):
+        unit = np.zeros(len(phases))
+        unit[rank] = 1.0
+        out[:, 1 + j] = np.interp(ga, sorted_g, unit) if len(phases) > 1 else 1.0
+    return out
+
+
 def _int_field(name: str, v: Any, lo: int, hi: int) -> int:
     if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not lo <= int(v) <= hi:
         raise ValueError(f"FieldConfig.{name} must be an int in [{lo}, {hi}], got {v!r}")
@@ -135,6 +168,7 @@ class FieldConfig:
     hidden_layers: int = 4
     psi: float = DEFAULT_PSI
     phases: tuple[float, ...] = DEFAULT_PHASES
+    phase_encoding: str = "scalar"
 
     def __post_init__(self) -> None:
         if not isinstance(self.position, HashGridConfig) or self.position.dims != 3:
@@ -151,17 +185,28 @@ class FieldConfig:
         if not phases or not all(-1.0 <= g <= 1.0 and math.isfinite(g) for g in phases):
             raise ValueError(f"FieldConfig.phases must be a non-empty set of g in [-1, 1], got {self.phases!r}")
         object.__setattr__(self, "phases", phases)
+        if self.phase_encoding not in PHASE_ENCODINGS:
+            raise ValueError(f"FieldConfig.phase_encoding must be one of {PHASE_ENCODINGS}, "
+                             f"got {self.phase_encoding!r}")
+
+    @property
+    def phase_dims(self) -> int:
+        """Columns of :func:`phase_features`: 1, or 1 + |G| with the tent encoding."""
+        return 1 + (len(self.phases) if self.phase_encoding == "tent" else 0)
 
     @property
     def input_dims(self) -> int:
-        """MLP input width: position features + direction features + g."""
-        return self.position.output_dims + self.direction.output_dims + 1
+        """MLP input width: position features + direction features + phase features."""
+        return self.position.output_dims + self.direction.output_dims + self.phase_dims
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (nested hash-grid dicts), with a format version."""
-        return {"version": FIELD_CONFIG_VERSION, "position": self.position.to_dict(),
-                "direction": self.direction.to_dict(), "hidden_width": self.hidden_width,
-                "hidden_layers": self.hidden_layers, "psi": self.psi, "phases": list(self.phases)}
+        out = {"version": FIELD_CONFIG_VERSION, "position": self.position.to_dict(),
+               "direction": self.direction.to_dict(), "hidden_width": self.hidden_width,
+               "hidden_layers": self.hidden_layers, "psi": self.psi, "phases": list(self.phases)}
+        if self.phase_encoding != "scalar":
+            out["phase_encoding"] = self.phase_encoding
+        return out
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> FieldConfig:
@@ -173,9 +218,10 @@ class FieldConfig:
                              f"(this build reads version {FIELD_CONFIG_VERSION})")
         names = [f.name for f in fields(cls)]
         unknown = sorted(set(data) - set(names) - {"version"})
-        missing = [n for n in names if n not in data]
+        missing = [n for n in names if n not in data and n != "phase_encoding"]
         if unknown or missing:
             raise ValueError(f"FieldConfig.from_dict: unknown keys {unknown}, missing keys {missing}")
         return cls(position=HashGridConfig.from_dict(data["position"]),
                    direction=HashGridConfig.from_dict(data["direction"]), hidden_width=data["hidden_width"],
-                   hidden_layers=data["hidden_layers"], psi=data["psi"], phases=tuple(data["phases"]))
+                   hidden_layers=data["hidden_layers"], psi=data["psi"], phases=tuple(data["phases"]),
+                   phase_encoding=data.get("phase_encoding", "scalar"))

@@ -59,7 +59,13 @@ from typing import Any
 import numpy as np
 
 from photon_fields.models_spec.bundle import ONNX_INPUT, ONNX_OUTPUT, Manifest
-from photon_fields.models_spec.encoding import OUTPUT_CHANNELS, decode_radiance, direction_input, normalize_position
+from photon_fields.models_spec.encoding import (
+    OUTPUT_CHANNELS,
+    decode_radiance,
+    direction_input,
+    normalize_position,
+    phase_features,
+)
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.field.bundle_reader import read_bundle
 from photon_fields.runtime.field.hashgrid import encode
@@ -118,6 +124,7 @@ class PhotonField:
         self.pipeline = bool(pipeline)
         self.timers = FieldTimers()
         self._dir_col = self.config.position.output_dims
+        self._phase_col = self._dir_col + self.config.direction.output_dims
         self._buffers = [np.empty((0, self.config.input_dims), np.float32) for _ in range(2)]
         self._pool: Any = None
 
@@ -187,7 +194,7 @@ class PhotonField:
         except ValueError as exc:  # non-finite or absurdly far positions / directions
             raise InputError("query", str(exc)) from None
         t2 = time.perf_counter()
-        buf[:, -1] = ga
+        buf[:, self._phase_col:] = phase_features(ga, cfg.phases, cfg.phase_encoding)
         t.encode_position_s += t1 - t0
         t.encode_direction_s += t2 - t1
 

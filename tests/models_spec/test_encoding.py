@@ -14,6 +14,7 @@ from photon_fields.models_spec.encoding import (  # noqa: E402
     direction_input,
     encode_radiance,
     normalize_position,
+    phase_features,
     phase_input,
 )
 from photon_fields.models_spec.hashgrid import HashGridConfig, direction_to_unit_square  # noqa: E402
@@ -110,3 +111,34 @@ def test_field_config_round_trip_and_validation() -> None:
         FieldConfig.from_dict(bad)
     with pytest.raises(ValueError, match="version"):
         FieldConfig.from_dict(cfg.to_dict() | {"version": 99})
+
+
+def test_phase_features_tents_interpolate_between_the_phases() -> None:
+    phases = (0.75, -0.75, 0.0, -0.375, 0.375)  # any order: column 1 + j is the tent of phases[j]
+    g = np.array([-1.0, -0.75, -0.6, -0.375, 0.1, 0.375, 0.74, 0.75, 1.0])
+    f = phase_features(g, phases, "tent")
+    assert f.shape == (9, 6) and f.dtype == np.float32
+    np.testing.assert_array_equal(f[:, 0], g.astype(np.float32))
+    np.testing.assert_allclose(f[:, 1:].sum(axis=1), 1.0, atol=1e-6)  # a partition of unity
+    for j, gj in enumerate(phases):  # 1 at its own phase, 0 at every other
+        at = phase_features(np.array(phases), phases, "tent")[:, 1 + j]
+        np.testing.assert_array_equal(at, (np.array(phases) == gj).astype(np.float32))
+    # -0.6 is 40 % of the way from -0.75 to -0.375: weights 0.6 and 0.4, nothing else
+    np.testing.assert_allclose(f[2, 1:], [0.0, 0.6, 0.0, 0.4, 0.0], atol=1e-6)
+    np.testing.assert_allclose(f[0, 1:], [0.0, 1.0, 0.0, 0.0, 0.0])  # beyond the ends: the end phase
+    np.testing.assert_allclose(f[8, 1:], [1.0, 0.0, 0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(phase_features(g, phases, "scalar"), g.astype(np.float32).reshape(-1, 1))
+    np.testing.assert_array_equal(phase_features(g, (0.2,), "tent")[:, 1], 1.0)
+    with pytest.raises(ValueError, match="phase encoding"):
+        phase_features(g, phases, "onehot")
+
+
+def test_field_config_phase_encoding() -> None:
+    scalar = FieldConfig(phases=(-0.75, 0.0, 0.75))
+    tent = FieldConfig(phases=(-0.75, 0.0, 0.75), phase_encoding="tent")
+    assert tent.input_dims == scalar.input_dims + 3 and tent.phase_dims == 4 and scalar.phase_dims == 1
+    assert "phase_encoding" not in scalar.to_dict()  # configs written before the field existed read unchanged
+    assert FieldConfig.from_dict(json.loads(json.dumps(tent.to_dict()))) == tent
+    assert FieldConfig.from_dict(scalar.to_dict()) == scalar
+    with pytest.raises(ValueError, match="phase_encoding"):
+        FieldConfig(phase_encoding="onehot")

@@ -3,7 +3,8 @@
 :class:`TorchPhotonField` is three modules in a row, as in Fig. 5:
 
 1. encoding: a 3-D hash grid on the normalized position x in [0, 1]^3, a 2-D hash grid on the direction
-   in normalized spherical coordinates ([0, 1]^2), and g unencoded; concatenated in that order
+   in normalized spherical coordinates ([0, 1]^2), and the phase features of g (g itself, plus one tent per
+   phase with the "tent" encoding); concatenated in that order
    (:mod:`models_spec.encoding` defines the input conventions, :class:`train.field.hashgrid.HashGridEncoding`
    the hash grids, bit-exact with tiny-cuda-nn);
 2. network: a ReLU MLP with ``cfg.hidden_layers`` hidden layers of ``cfg.hidden_width`` neurons and no
@@ -32,7 +33,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from photon_fields.models_spec.encoding import FieldConfig, check_psi
+from photon_fields.models_spec.encoding import FieldConfig, check_psi, phase_features
 from photon_fields.train.field.hashgrid import HashGridEncoding
 
 
@@ -82,12 +83,21 @@ class TorchPhotonField(nn.Module):
         """The MLP weight matrices."""
         return [p for p in self.mlp.parameters()]
 
+    def phase_features(self, g: torch.Tensor) -> torch.Tensor:
+        """The phase columns of the MLP input (:func:`photon_fields.models_spec.encoding.phase_features`). The tent
+        encoding is computed by that numpy function itself, so training and the runtime agree bit for bit; g
+        needs no gradient."""
+        if self.cfg.phase_encoding == "scalar":
+            return g.to(torch.float32)
+        gn = g.detach().to(torch.float64).reshape(-1).numpy()
+        return torch.from_numpy(phase_features(gn, self.cfg.phases, self.cfg.phase_encoding))
+
     def forward(self, pos: torch.Tensor, dirs: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
         n = pos.shape[0]
         if dirs.shape != (n, 2) or g.shape != (n, 1) or pos.shape != (n, 3):
             raise ValueError(f"expected pos (n, 3), dirs (n, 2), g (n, 1); got {tuple(pos.shape)}, "
                              f"{tuple(dirs.shape)}, {tuple(g.shape)}")
-        features = torch.cat([self.position(pos), self.direction(dirs), g.to(torch.float32)], dim=1)
+        features = torch.cat([self.position(pos), self.direction(dirs), self.phase_features(g)], dim=1)
         return self.mlp(features)
 
     def radiance(self, pos: torch.Tensor, dirs: torch.Tensor, g: torch.Tensor) -> torch.Tensor:

@@ -143,7 +143,7 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
     model = TorchPhotonField(cfg, seed=settings.seed)
     opt = TcnnAdam(model.matrix_parameters(), model.table_parameters())
     sampler = TargetSampler(pmap, scene.medium(), k=settings.k, psi=cfg.psi, seed=settings.seed,
-                            sampling=settings.sampling)
+                            sampling=settings.sampling, g_sampling=settings.g_sampling)
     val = sampler.validation_set(settings.val_points, schedule.final_radius)
     val_every = settings.val_every or max(1, total // 10)
     average_from = averaging_start(total, settings.average)

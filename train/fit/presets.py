@@ -6,6 +6,9 @@
 - ``cpu``: the default, chosen for useful targets per second on 2 cores: samples in the medium's support
   (the renderer never queries empty space), the final radius from the start, small batches and many steps,
   a richer network than its cost suggests because targets, not the network, dominate a step.
+- ``cpu-tent``: experimental, ``cpu`` with one tent function of g per phase as extra MLP inputs and training g
+  drawn continuously over G's range; it removes the field's tilt across g in G where the plain one has it, but
+  its between-phase targets interpolate the earlier bounces and were no better overall (bench/README.md).
 - ``tiny``: a seconds-long configuration for smoke tests.
 
 :class:`photon_fields.train.fit.settings.FitSettings` takes its defaults from :data:`DEFAULT_PRESET`, so the
@@ -52,6 +55,12 @@ class Preset:
     """Share of the last training steps whose parameters are averaged into the final field (Polyak-Ruppert
     averaging, :mod:`photon_fields.train.fit.averaging`); 0: the last step's parameters (the paper). Each step
     moves the field towards its batch's noisy targets; the average of the iterates keeps what they agree on."""
+    phase_encoding: str = "scalar"
+    """How g enters the MLP (:func:`photon_fields.models_spec.encoding.phase_features`): "scalar" (the paper) or
+    "tent" (g and one tent function per phase, which lets the bias-free MLP bend at every phase)."""
+    g_sampling: str = "discrete"
+    """Training g (:mod:`photon_fields.train.fit.targets`): "discrete" (the phases G, the paper) or
+    "continuous" (uniform over [min G, max G], targets from the two nearest phases' photons)."""
     about: str = ""
     """One line for ``--help`` and reports."""
 
@@ -63,6 +72,10 @@ PRESETS: dict[str, Preset] = {
     "cpu": Preset(HashGridConfig(3, 8, 4, 16, 16, 1.5), HashGridConfig(2, 6, 2, 14, 4, 1.6), 64, 3,
                   steps=800, batch=1 << 12, lr=1e-2, schedule="naive", sampling="support", k=64, average=0.5,
                   about="provisional CPU default: trace (1M) + fit in about 2 minutes"),
+    "cpu-tent": Preset(HashGridConfig(3, 8, 4, 16, 16, 1.5), HashGridConfig(2, 6, 2, 14, 4, 1.6), 64, 3,
+                       steps=800, batch=1 << 12, lr=1e-2, schedule="naive", sampling="support", k=64, average=0.5,
+                       phase_encoding="tent", g_sampling="continuous",
+                       about="experimental: cpu with tent phase features and continuous g (bench/README.md)"),
     "tiny": Preset(HashGridConfig(3, 4, 2, 12, 8, 2.0), HashGridConfig(2, 2, 2, 8, 4, 2.0), 16, 1,
                    steps=50, batch=1 << 10, lr=1e-2, schedule="staggered", sampling="box",
                    about="smoke tests: seconds"),
@@ -74,4 +87,5 @@ DEFAULT_PRESET = "cpu"
 
 def field_config_for(preset: Preset, phases: tuple[float, ...], psi: float = DEFAULT_PSI) -> FieldConfig:
     """The field configuration of ``preset`` for a map traced at ``phases``."""
-    return FieldConfig(preset.position, preset.direction, preset.hidden_width, preset.hidden_layers, psi, phases)
+    return FieldConfig(preset.position, preset.direction, preset.hidden_width, preset.hidden_layers, psi, phases,
+                       preset.phase_encoding)

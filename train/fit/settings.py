@@ -15,7 +15,7 @@ from photon_fields.runtime.errors import InputError
 from photon_fields.train.fit.loss import LOSSES
 from photon_fields.train.fit.presets import DEFAULT_PRESET, PRESETS
 from photon_fields.train.fit.schedule import KnnSchedule, default_schedule, naive_schedule
-from photon_fields.train.fit.targets import SAMPLING_MODES
+from photon_fields.train.fit.targets import G_SAMPLING_MODES, SAMPLING_MODES
 
 _DEFAULT = PRESETS[DEFAULT_PRESET]
 
@@ -43,6 +43,8 @@ class FitSettings:
     """Training positions: "box" or "support"."""
     loss: str = _DEFAULT.loss
     """Training loss: "linear" or "log" (:mod:`photon_fields.train.fit.loss`)."""
+    g_sampling: str = _DEFAULT.g_sampling
+    """Training g: "discrete" (the phases) or "continuous" (:mod:`photon_fields.train.fit.targets`)."""
     average: float = _DEFAULT.average
     """Share of the last steps whose parameters are averaged into the final field; 0: the last step's."""
     seed: int = 0
@@ -63,7 +65,7 @@ class FitSettings:
             raise InputError("--preset", f"unknown preset {name!r} (available: {', '.join(PRESETS)})")
         p = PRESETS[name]
         base = cls(preset=name, steps=p.steps, batch=p.batch, lr=p.lr, schedule_kind=p.schedule,
-                   sampling=p.sampling, loss=p.loss, k=p.k, average=p.average)
+                   sampling=p.sampling, loss=p.loss, k=p.k, average=p.average, g_sampling=p.g_sampling)
         return replace(base, **{k: v for k, v in overrides.items() if v is not None})
 
     def validate(self) -> None:
@@ -83,6 +85,8 @@ class FitSettings:
             raise InputError("--average", f"must be in [0, 1) (a share of the steps), got {self.average!r}")
         if self.loss not in LOSSES:
             raise InputError("--loss", f"must be one of {LOSSES}, got {self.loss!r}")
+        if self.g_sampling not in G_SAMPLING_MODES:
+            raise InputError("g_sampling", f"must be one of {G_SAMPLING_MODES}, got {self.g_sampling!r}")
         if self.sampling not in SAMPLING_MODES:
             raise InputError("--sampling", f"must be one of {SAMPLING_MODES}, got {self.sampling!r}")
         if self.val_every < 0:

@@ -8,7 +8,13 @@ Every training step draws a fresh batch (Sec. 3.3: "regenerate a new batch ... f
   the field at real collisions, where sigma_t > 0, so samples in empty space train an answer nobody
   asks for; on ``vortex`` 98 % of the box is empty;
 - d uniform on the unit sphere (the camera ray's travel direction, :mod:`photon_fields.models_spec.encoding`);
-- g uniform from the photon map's phase set G;
+- g uniform from the photon map's phase set G (``g_sampling="discrete"``, the paper), or uniform over
+  [min G, max G] (``"continuous"``): the photons then come from one of the two phases around g, chosen with
+  the tent weights of :func:`photon_fields.models_spec.encoding.phase_features` (so the target's mean is their
+  linear interpolation), and the phase function is evaluated at g itself. Only the light's earlier bounces
+  are interpolated, not the last one, whose dependence on g is the sharpest (L_i is strongly convex in g near
+  |g| = 0.75); and the field sees every g it will be asked for, not only the phases; ``"mixed"``: half the
+  samples continuous, half at the phases (where the targets interpolate nothing);
 
 and the target is Q(x, d, g) of :class:`photon_fields.runtime.photons.estimate.PhotonMapEstimator` (Eq. 5 with 1/sigma_t
 photon weights and the support-fraction boundary correction) with K photons and the schedule's current
@@ -33,6 +39,7 @@ seed : int
     Seeds the sampler's own ``numpy.random.Generator`` (training batches); the validation set uses an
     independent stream of the same seed, so its size never changes the training batches.
 sampling : "box" or "support"
+g_sampling : "discrete" or "continuous"
 
 Timing: every :meth:`TargetSampler.sample` adds its wall time to ``seconds`` (and the query count to
 ``queries``); :mod:`photon_fields.train.fit.loop` reports it per step next to the training step.
@@ -55,6 +62,7 @@ from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.transport.medium import Medium, extinction_at
 
 SAMPLING_MODES = ("box", "support")
+G_SAMPLING_MODES = ("discrete", "continuous", "mixed")
 _MAX_REJECTION_DRAWS = 1 << 26  # candidates before giving up on an (almost) empty support
 
 
@@ -101,9 +109,12 @@ class TargetSampler:
     """Draws training batches and computes their targets (see the module docstring)."""
 
     def __init__(self, pmap: PhotonMap, medium: Medium, *, k: int = DEFAULT_K, psi: float, seed: int = 0,
-                 sampling: str = "box") -> None:
+                 sampling: str = "box", g_sampling: str = "discrete") -> None:
         if sampling not in SAMPLING_MODES:
             raise InputError("sampling", f"must be one of {SAMPLING_MODES}, got {sampling!r}")
+        if g_sampling not in G_SAMPLING_MODES:
+            raise InputError("g sampling", f"must be one of {G_SAMPLING_MODES}, got {g_sampling!r}")
+        self.g_sampling = g_sampling
         check_phase_bins(pmap)
         t0 = time.perf_counter()
         self.pmap, self.medium, self.k, self.psi, self.sampling = pmap, medium, int(k), float(psi), sampling
@@ -149,26 +160,40 @@ class TargetSampler:
                                  f"hits in {drawn} points")
         return np.concatenate(parts)[:n]
 
-    def draw(self, rng: np.random.Generator, n: int, mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """World positions (n, 3), unit travel directions (n, 3), phase indices (n,)."""
+    def draw(self, rng: np.random.Generator, n: int,
+             mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """World positions (n, 3), unit travel directions (n, 3), g (n,) and the phase indices (n,) whose
+        photons estimate each target."""
         x = self._positions(rng, n, mode)
         d = uniform_directions(rng, n)
-        ph = rng.integers(0, len(self.phases), n)
-        return x, d, ph
+        if self.g_sampling == "discrete" or len(self.phases) == 1:
+            ph = rng.integers(0, len(self.phases), n)
+            return x, d, self.phases[ph], ph
+        order = np.argsort(self.phases, kind="stable")
+        sg = self.phases[order]
+        g = sg[0] + rng.random(n) * (sg[-1] - sg[0])
+        if self.g_sampling == "mixed":  # half of the samples exactly at a phase
+            at_phase = rng.random(n) < 0.5
+            g[at_phase] = self.phases[rng.integers(0, len(self.phases), int(at_phase.sum()))]
+        i = np.clip(np.searchsorted(sg, g, side="right") - 1, 0, len(sg) - 2)
+        t = (g - sg[i]) / (sg[i + 1] - sg[i])
+        return x, d, g, order[np.where(rng.random(n) < t, i + 1, i)]
 
     # --- targets ------------------------------------------------------------------------------------
 
-    def estimate(self, x: np.ndarray, d: np.ndarray, ph: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-        """Q (n, 3) float64 and photons used (n,) at world points x (n, 3), directions d (n, 3), phases ph."""
+    def estimate(self, x: np.ndarray, d: np.ndarray, g: np.ndarray, ph: np.ndarray,
+                 radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """Q (n, 3) float64 and photons used (n,) at world points x (n, 3), directions d (n, 3), phase function
+        coefficients g (n,), from the photons of phases ph (n,)."""
         n = x.shape[0]
         q = np.zeros((n, 3))
         found = np.zeros(n, dtype=np.int64)
-        for p, g in enumerate(self.phases):
+        for p in range(len(self.phases)):
             sel = np.flatnonzero(ph == p)
             if sel.size == 0:
                 continue
             xs = np.ascontiguousarray(x[sel])
-            est, r, f = indexed_radiance(self.indices[p], xs, np.ascontiguousarray(d[sel]), float(g), self.k,
+            est, r, f = indexed_radiance(self.indices[p], xs, np.ascontiguousarray(d[sel]), g[sel], self.k,
                                          float(radius))
             hit = f > 0  # no photon: Q = 0 whatever the support fraction; skip its 64 lookups
             if hit.any():
@@ -177,20 +202,20 @@ class TargetSampler:
             found[sel] = f
         return q, found
 
-    def make_batch(self, x: np.ndarray, d: np.ndarray, ph: np.ndarray, radius: float, t0: float) -> TargetBatch:
-        q, found = self.estimate(x, d, ph, radius)
+    def make_batch(self, x: np.ndarray, d: np.ndarray, g: np.ndarray, ph: np.ndarray, radius: float,
+                   t0: float) -> TargetBatch:
+        q, found = self.estimate(x, d, g, ph, radius)
         m = self.medium
         return TargetBatch(pos=torch.from_numpy(normalize_position(x, m.bmin, m.bsize)),
                            dirs=torch.from_numpy(direction_input(d)),
-                           g=torch.from_numpy(self.phases[ph].astype(np.float32).reshape(-1, 1)),
+                           g=torch.from_numpy(g.astype(np.float32).reshape(-1, 1)),
                            target=torch.from_numpy(encode_radiance(q, self.psi)), q=q, found=found,
                            seconds=time.perf_counter() - t0)
 
     def sample(self, n: int, radius: float) -> TargetBatch:
         """A training batch of n samples with targets at r_max = ``radius`` (box units)."""
         t0 = time.perf_counter()
-        x, d, ph = self.draw(self.rng, n, self.sampling)
-        batch = self.make_batch(x, d, ph, radius, t0)
+        batch = self.make_batch(*self.draw(self.rng, n, self.sampling), radius, t0)
         self.seconds += batch.seconds
         self.queries += n
         return batch
@@ -199,5 +224,4 @@ class TargetSampler:
         """n held-out samples inside the support (where the renderer queries the field), targets at
         ``radius``; drawn from the validation stream, so they never change the training batches."""
         t0 = time.perf_counter()
-        x, d, ph = self.draw(self._val_rng, n, "support")
-        return self.make_batch(x, d, ph, radius, t0)
+        return self.make_batch(*self.draw(self._val_rng, n, "support"), radius, t0)

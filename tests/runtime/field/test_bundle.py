@@ -133,6 +133,26 @@ def test_parity_cpu_preset_in_a_non_unit_box(tmp_path: Path) -> None:
     assert np.abs(field.query_encoded(x, d, g) - want).max() <= 1e-5
 
 
+def test_parity_tent_phase_features(tmp_path: Path) -> None:
+    """The cpu-tent architecture (g plus one tent per phase as MLP inputs): the runtime builds the same input
+    columns as torch, at the phases, between them, beyond them, one g per query and one g for all."""
+    cfg = field_config_for(PRESETS["cpu-tent"], PHASES)
+    assert cfg.phase_encoding == "tent" and cfg.input_dims == field_config_for(PRESETS["cpu"], PHASES).input_dims + 3
+    model = make_model(cfg, seed=5)
+    bmin, bsize = [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]
+    run = make_run(tmp_path / "run", model, bmin, bsize)
+    field = PhotonField.load(export_bundle(run, tmp_path / "tent.pfn").path, threads=1)
+    assert field.config.phase_encoding == "tent"
+    rng = np.random.default_rng(6)
+    x, d = rng.random((3000, 3)), unit(rng.standard_normal((3000, 3)))
+    g = rng.choice([*PHASES, -0.6, -0.1, 0.35, 0.9, -1.0], 3000)
+    assert np.abs(field.query_encoded(x, d, g) - torch_reference(model, x, d, g, bmin, bsize)).max() <= 1e-5
+    want = torch_reference(model, x, d, np.full(3000, 0.35), bmin, bsize)
+    assert np.abs(field.query_encoded(x, d, 0.35) - want).max() <= 1e-5
+    # the tents matter: a scalar-g runtime reading the same weights would be another function
+    assert np.abs(field.query_encoded(x, d, 0.35) - field.query_encoded(x, d, 0.0)).max() > 1e-3
+
+
 @pytest.mark.parametrize("psi", [3.0, 7.0])
 def test_bundle_decodes_with_its_own_psi(tmp_path: Path, psi: float) -> None:
     """A field trained with psi != 5 (Eq. 6/7's decades) decodes with the bundle's psi, not the default:

@@ -93,9 +93,9 @@ def test_targets_equal_the_photon_map_estimator(tiny: tuple) -> None:
     scene, pmap, _, _ = tiny
     m = scene.medium()
     sampler = TargetSampler(pmap, m, k=64, psi=5.0, seed=1)
-    x, d, ph = sampler.draw(np.random.default_rng(5), 3000, "box")
+    x, d, g, ph = sampler.draw(np.random.default_rng(5), 3000, "box")
     for radius in (0.01, 0.05):
-        q, found = sampler.estimate(x, d, ph, radius)
+        q, found = sampler.estimate(x, d, g, ph, radius)
         est = PhotonMapEstimator(pmap, m, k=64, radius=radius)
         for p, gval in enumerate(PHASES):
             sel = ph == p
@@ -115,7 +115,7 @@ def test_support_sampling_is_uniform_over_the_medium(tiny: tuple) -> None:
     scene, pmap, _, _ = tiny
     m = scene.medium()
     sampler = TargetSampler(pmap, m, k=16, psi=5.0, seed=0, sampling="support")
-    x, _, _ = sampler.draw(sampler.rng, 20_000, "support")
+    x, _, _, _ = sampler.draw(sampler.rng, 20_000, "support")
     assert x.shape == (20_000, 3) and np.all(extinction_batch(m, np.ascontiguousarray(x.T)) > 0)
     # Uniform over the support: the share in each octant of the box matches plain rejection from the box.
     rng = np.random.default_rng(1)
@@ -126,6 +126,35 @@ def test_support_sampling_is_uniform_over_the_medium(tiny: tuple) -> None:
     share = np.bincount((x > centre).astype(int) @ octant, minlength=8) / len(x)
     share_ref = np.bincount((ref > centre).astype(int) @ octant, minlength=8) / len(ref)
     np.testing.assert_allclose(share, share_ref, atol=0.015)
+
+
+def test_continuous_g_is_uniform_and_takes_the_photons_of_the_phases_around_it(tiny: tuple) -> None:
+    # g uniform over [min G, max G]; its target's photons come from the phase below g with probability 1 - t and
+    # from the phase above with probability t (t = g's position between them), so the target's mean is the
+    # linear interpolation of the two phases' estimates (both with the phase function at g itself).
+    from scipy import stats
+
+    scene, pmap, _, _ = tiny  # G = (-0.75, 0, 0.75)
+    sampler = TargetSampler(pmap, scene.medium(), k=32, psi=5.0, seed=2, sampling="support", g_sampling="continuous")
+    n = 60_000
+    x, d, g, ph = sampler.draw(np.random.default_rng(7), n, "support")
+    assert g.min() >= -0.75 and g.max() <= 0.75
+    counts = np.histogram(g, bins=12, range=(-0.75, 0.75))[0]
+    assert stats.chisquare(counts).pvalue > 1e-3
+    phases = np.asarray(PHASES)
+    below = np.where(g < 0.0, 0, 1)
+    assert np.all((ph == below) | (ph == below + 1))  # always one of the two phases around g
+    t = (g - phases[below]) / 0.75
+    upper = (ph == below + 1).astype(float)
+    for lo in np.arange(-0.75, 0.75, 0.125):  # per bin of g: the share of the upper phase is the mean of t
+        sel = (g >= lo) & (g < lo + 0.125)
+        expected = t[sel].mean()
+        z = (upper[sel].mean() - expected) / np.sqrt(expected * (1 - expected) / sel.sum())
+        assert abs(z) < 4.0, (lo, z)
+    batch = sampler.sample(512, 0.05)
+    assert len(np.unique(batch.g.numpy())) > 500  # the field sees every g, not only the phases
+    with pytest.raises(InputError, match="g sampling"):
+        TargetSampler(pmap, scene.medium(), psi=5.0, g_sampling="random")
 
 
 def test_empty_phase_bin_is_refused(tiny: tuple) -> None:

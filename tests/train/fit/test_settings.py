@@ -21,8 +21,10 @@ def test_defaults_are_the_default_preset() -> None:
     assert FitSettings() == FitSettings.from_preset(DEFAULT_PRESET)
     preset = PRESETS[DEFAULT_PRESET]
     s = FitSettings()
-    assert (s.steps, s.batch, s.lr, s.schedule_kind, s.sampling, s.loss, s.k) == (
-        preset.steps, preset.batch, preset.lr, preset.schedule, preset.sampling, preset.loss, preset.k)
+    assert (s.steps, s.batch, s.lr, s.schedule_kind, s.sampling, s.loss, s.k, s.average, s.g_sampling) == (
+        preset.steps, preset.batch, preset.lr, preset.schedule, preset.sampling, preset.loss, preset.k, preset.average,
+        preset.g_sampling)
+    assert FitSettings.from_preset("cpu-tent").g_sampling == "continuous"
     assert FitSettings.from_preset("paper").loss == "log"  # the paper's loss, as published
 
 
