@@ -25,17 +25,17 @@ class ParameterAverage:
     def __init__(self, module: torch.nn.Module) -> None:
         self.module = module
         self.count = 0
-        self.mean = [p.detach().clone() for p in module.parameters()]
+        self.mean: list[torch.Tensor] = []  # allocated by the first add: nothing is copied when nothing is averaged
 
     @torch.no_grad()
     def add(self) -> None:
         """Fold the module's current parameters into the mean."""
         self.count += 1
+        if self.count == 1:
+            self.mean = [p.detach().clone() for p in self.module.parameters()]
+            return
         for m, p in zip(self.mean, self.module.parameters(), strict=True):
-            if self.count == 1:
-                m.copy_(p)
-            else:
-                m.add_(p.detach() - m, alpha=1.0 / self.count)
+            m.add_(p.detach() - m, alpha=1.0 / self.count)
 
     @torch.no_grad()
     def apply(self) -> None:

@@ -17,7 +17,7 @@ table is the one source of every default. The measurements behind the ``cpu`` pr
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from photon_fields.models_spec.encoding import DEFAULT_PSI, FieldConfig
 from photon_fields.models_spec.hashgrid import PAPER_DIRECTION, PAPER_POSITION, HashGridConfig
@@ -59,23 +59,23 @@ class Preset:
     """How g enters the MLP (:func:`photon_fields.models_spec.encoding.phase_features`): "scalar" (the paper) or
     "tent" (g and one tent function per phase, which lets the bias-free MLP bend at every phase)."""
     g_sampling: str = "discrete"
-    """Training g (:mod:`photon_fields.train.fit.targets`): "discrete" (the phases G, the paper) or
-    "continuous" (uniform over [min G, max G], targets from the two nearest phases' photons)."""
+    """Training g (:mod:`photon_fields.train.fit.targets`): "discrete" (the phases G, the paper), "continuous"
+    (uniform over [min G, max G], targets from the two nearest phases' photons) or "mixed" (half of each)."""
     about: str = ""
     """One line for ``--help`` and reports."""
 
+
+_CPU = Preset(HashGridConfig(3, 8, 4, 16, 16, 1.5), HashGridConfig(2, 6, 2, 14, 4, 1.6), 64, 3,
+              steps=800, batch=1 << 12, lr=1e-2, schedule="naive", sampling="support", k=64, average=0.5,
+              about="provisional CPU default: trace (1M) + fit in about 2 minutes")
 
 PRESETS: dict[str, Preset] = {
     "paper": Preset(PAPER_POSITION, PAPER_DIRECTION, 64, 4, steps=3000, batch=1 << 16, lr=1e-2,
                     schedule="staggered", sampling="box", loss="log",
                     about="Sec. 3.4/3.5 as published (hours on 2 CPU cores)"),
-    "cpu": Preset(HashGridConfig(3, 8, 4, 16, 16, 1.5), HashGridConfig(2, 6, 2, 14, 4, 1.6), 64, 3,
-                  steps=800, batch=1 << 12, lr=1e-2, schedule="naive", sampling="support", k=64, average=0.5,
-                  about="provisional CPU default: trace (1M) + fit in about 2 minutes"),
-    "cpu-tent": Preset(HashGridConfig(3, 8, 4, 16, 16, 1.5), HashGridConfig(2, 6, 2, 14, 4, 1.6), 64, 3,
-                       steps=800, batch=1 << 12, lr=1e-2, schedule="naive", sampling="support", k=64, average=0.5,
-                       phase_encoding="tent", g_sampling="continuous",
-                       about="experimental: cpu with tent phase features and continuous g (bench/README.md)"),
+    "cpu": _CPU,
+    "cpu-tent": replace(_CPU, phase_encoding="tent", g_sampling="continuous",
+                        about="experimental: cpu with tent phase features and continuous g (bench/README.md)"),
     "tiny": Preset(HashGridConfig(3, 4, 2, 12, 8, 2.0), HashGridConfig(2, 2, 2, 8, 4, 2.0), 16, 1,
                    steps=50, batch=1 << 10, lr=1e-2, schedule="staggered", sampling="box",
                    about="smoke tests: seconds"),

@@ -44,7 +44,7 @@ class FitSettings:
     loss: str = _DEFAULT.loss
     """Training loss: "linear" or "log" (:mod:`photon_fields.train.fit.loss`)."""
     g_sampling: str = _DEFAULT.g_sampling
-    """Training g: "discrete" (the phases) or "continuous" (:mod:`photon_fields.train.fit.targets`)."""
+    """Training g: "discrete" (the phases), "continuous" or "mixed" (:mod:`photon_fields.train.fit.targets`)."""
     average: float = _DEFAULT.average
     """Share of the last steps whose parameters are averaged into the final field; 0: the last step's."""
     seed: int = 0

@@ -39,7 +39,7 @@ seed : int
     Seeds the sampler's own ``numpy.random.Generator`` (training batches); the validation set uses an
     independent stream of the same seed, so its size never changes the training batches.
 sampling : "box" or "support"
-g_sampling : "discrete" or "continuous"
+g_sampling : "discrete", "continuous" or "mixed"
 
 Timing: every :meth:`TargetSampler.sample` adds its wall time to ``seconds`` (and the query count to
 ``queries``); :mod:`photon_fields.train.fit.loop` reports it per step next to the training step.
