@@ -40,7 +40,13 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np  # noqa: E402
 from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
 
-from photon_fields.models_spec import DEFAULT_PHASES, DEFAULT_PHOTONS, PAPER_PHASES  # noqa: E402
+from photon_fields.models_spec import (  # noqa: E402
+    DEFAULT_MAP_PHASES,
+    DEFAULT_PHASES,
+    DEFAULT_PHOTONS,
+    PAPER_PHASES,
+    PHASE_WINDOW,
+)
 from photon_fields.runtime.eval.metrics import relative_l2, ssim  # noqa: E402
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
 from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped  # noqa: E402
@@ -60,36 +66,47 @@ BETWEEN = (-0.6, -0.35, 0.35, 0.6)
 
 @dataclass(frozen=True)
 class Config:
-    """One way to train a field: the map it learns from and the fit's overrides of the ``cpu`` preset."""
+    """One way to train a field: the map it learns from, the preset and the fit's overrides of it."""
 
     photons: int
     """Photon records in the training map."""
     phases: tuple[float, ...] = DEFAULT_PHASES
-    """The phase set G the map is traced for."""
+    """The phase set G (or the narrow phase bins) the map is traced for."""
+    preset: str = "cpu-phases"
+    """The training preset (:data:`photon_fields.train.fit.presets.PRESETS`)."""
     overrides: dict[str, Any] = field(default_factory=dict)
     """:class:`photon_fields.train.fit.settings.FitSettings` fields that differ from the preset's."""
+    g_window: float | None = None
+    """The map's kernel in g (a PHASE_BINS map): its photon-map column is then the training target at every g."""
     about: str = ""
 
 
 CONFIGS: dict[str, Config] = {
-    "default": Config(DEFAULT_PHOTONS, about="the product's defaults: five phases, 1M photons each, linear loss"),
-    "paper-like": Config(1_000_000, PAPER_PHASES, {"loss": "log", "k": 1024},
+    "default": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", g_window=PHASE_WINDOW,
+                      about="the product's defaults: 37 phase bins, any g from a kernel in g, tent features, anneal"),
+    "phases": Config(DEFAULT_PHOTONS, about="the defaults before the kernel in g: five phases, 1M photons each, "
+                                            "the field trained at the phases (cpu-phases)"),
+    "paper-like": Config(1_000_000, PAPER_PHASES, overrides={"loss": "log", "k": 1024},
                          about="the defaults before: the paper's three phases, 1M photons, K 1024, the loss on L'"),
     "G3-3M": Config(3_000_000, PAPER_PHASES, about="three phases with a million photons each, linear loss"),
-    "log-loss": Config(DEFAULT_PHOTONS, overrides={"loss": "log"}, about="the defaults with the paper's loss"),
-    "K1024": Config(DEFAULT_PHOTONS, overrides={"k": 1024}, about="the defaults with K = 1024 photons per target"),
-    **{f"K{k}": Config(DEFAULT_PHOTONS, overrides={"k": k}, about=f"the defaults with K = {k} photons per target")
-       for k in (16, 32, 64, 128, 256)},
+    "log-loss": Config(DEFAULT_PHOTONS, overrides={"loss": "log"}, about="cpu-phases with the paper's loss"),
+    **{f"K{k}": Config(DEFAULT_PHOTONS, overrides={"k": k}, about=f"cpu-phases with K = {k} photons per target")
+       for k in (16, 32, 64, 128, 256, 1024)},
     **{f"K{k}-avg{int(a * 100)}": Config(DEFAULT_PHOTONS, overrides={"k": k, "average": a},
                                           about=f"K = {k}, the parameters averaged over the last {a:.0%} of the steps")
        for k in (32, 64, 256) for a in (0.3, 0.5)},
-    "G9-K64-avg50": Config(DEFAULT_PHOTONS, tuple(np.linspace(-0.75, 0.75, 9).tolist()), {"k": 64, "average": 0.5},
+    "G9-K64-avg50": Config(DEFAULT_PHOTONS, tuple(np.linspace(-0.75, 0.75, 9).tolist()), overrides={"k": 64},
                            about="nine phases, 5M photons in all, K = 64, parameters averaged over the last half"),
-    "tent-continuous": Config(DEFAULT_PHOTONS, overrides={"preset": "cpu-tent", "g_sampling": "continuous"},
+    "tent-continuous": Config(DEFAULT_PHOTONS, preset="cpu-tent",
                               about="the cpu-tent preset: tent phase features, g drawn continuously over G's range"),
-    "tent-mixed": Config(DEFAULT_PHOTONS, overrides={"preset": "cpu-tent", "g_sampling": "mixed"},
+    "tent-mixed": Config(DEFAULT_PHOTONS, preset="cpu-tent", overrides={"g_sampling": "mixed"},
                          about="tent phase features, half the training g at the phases, half continuous"),
-    "G0-K64-avg50": Config(1_000_000, (0.0,), {"k": 64, "average": 0.5},
+    "window-paper-anneal": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", {"lr_decay_start": 0.7,
+                                                                              "lr_decay_every": 25},
+                                  g_window=PHASE_WINDOW, about="the default with the paper's learning-rate anneal"),
+    "phases-anneal": Config(DEFAULT_PHOTONS, overrides={"lr_decay_start": 0.5, "lr_decay_every": 10},
+                            about="cpu-phases with the default's learning-rate anneal"),
+    "G0-K64-avg50": Config(1_000_000, (0.0,), overrides={"k": 64},
                            about="one phase (g = 0), 1M photons: the field without any g to model"),
 }
 
@@ -122,7 +139,7 @@ def train(scene: Scene, name: str, config: Config, work: Path, seed: int) -> tup
     """The configuration's map and fitted field for ``scene`` (reused from ``work`` when finished with the same
     settings and code)."""
     run = work / scene.name / f"{name}-{code_tag()}"
-    settings = FitSettings.from_preset("cpu", seed=seed, **config.overrides)
+    settings = FitSettings.from_preset(config.preset, seed=seed, **config.overrides)
     t0 = time.perf_counter()
     pmap = trace_photons(scene, config.photons, phases=config.phases, seed=seed, progress=False)
     trace_s = time.perf_counter() - t0
@@ -139,9 +156,16 @@ def compare(img: np.ndarray, ref: np.ndarray) -> dict[str, float]:
     return {"mean": float(img.mean() / max(ref.mean(), 1e-30)), "rel_l2": relative_l2(img, ref), "ssim": ssim(img, ref)}
 
 
-def score(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], gs: list[float], args: argparse.Namespace,
-          work: Path) -> list[dict[str, Any]]:
-    """Field and photon-map L_i against the reference at every g."""
+def map_answers(pmap: Any, config: Config, g: float) -> bool:
+    """Whether the configuration's photon map has a target at g (its phase, or a whole window around g)."""
+    if config.g_window is None:
+        return bool(np.any(np.isclose(pmap.phases, g)))
+    return bool(min(pmap.phases) + config.g_window - 1e-9 <= g <= max(pmap.phases) - config.g_window + 1e-9)
+
+
+def score(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], config: Config, gs: list[float],
+          args: argparse.Namespace, work: Path) -> list[dict[str, Any]]:
+    """Field and photon-map L_i against the reference at every g (in_G: g is one of the field's phases G)."""
     estimator = TorchFieldEstimator(model, scene.medium())
     radius = final_radius(settings)
     rows = []
@@ -149,10 +173,11 @@ def score(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], gs: lis
         ref = reference_li(scene, g, args.size, args.ref_spp, work)
         view = scene.with_overrides(g=g, width=args.size, height=args.size)
         li = render_first_interaction(view, estimator, spp=args.spp, seed=7, progress=False).layers["L_i"]
-        row: dict[str, Any] = {"g": g, "in_G": bool(np.any(np.isclose(pmap.phases, g))), "field": compare(li, ref)}
-        if row["in_G"]:
+        row: dict[str, Any] = {"g": g, "in_G": bool(np.any(np.isclose(model.cfg.phases, g))),
+                               "field": compare(li, ref)}
+        if map_answers(pmap, config, g):
             pm = render_photon_mapped(view, pmap, k=settings["k"], radius=radius, spp=args.spp, seed=7,
-                                      progress=False).layers["L_i"]
+                                      progress=False, g_window=config.g_window).layers["L_i"]
             row["photon_map"] = compare(pm, ref)
         rows.append(row)
     return rows
@@ -193,8 +218,8 @@ def converged_error(img: np.ndarray, noise: float, ref: np.ndarray, ref_noise: f
             "bias_rel_l2": float(np.sqrt(max(0.0, c["rel_l2"] ** 2 - noise**2 - ref_noise**2)))}
 
 
-def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], args: argparse.Namespace,
-              work: Path) -> dict[str, Any]:
+def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], config: Config,
+              args: argparse.Namespace, work: Path) -> dict[str, Any]:
     """Neural and photon-mapped L (the field's training targets, as an image) at ``--converged-neural-spp`` and the
     path tracer at 1 / 4 spp (+ OIDN) against a high-spp path-traced L."""
     view = scene.with_overrides(width=args.size, height=args.size)
@@ -211,10 +236,10 @@ def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], arg
     estimator = TorchFieldEstimator(model, scene.medium())
     renders = {"neural": lambda seed: render_first_interaction(view, estimator, spp=args.converged_neural_spp,
                                                                seed=seed, progress=False).layers["L"]}
-    if np.any(np.isclose(pmap.phases, scene.g)):
+    if map_answers(pmap, config, scene.g):
         renders["photon_map"] = lambda seed: render_photon_mapped(
             view, pmap, k=settings["k"], radius=final_radius(settings), spp=args.converged_neural_spp, seed=seed,
-            progress=False).layers["L"]
+            progress=False, g_window=config.g_window).layers["L"]
     for name, render in renders.items():
         t0 = time.perf_counter()
         a, b = render(7), render(8)
@@ -234,7 +259,7 @@ def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], arg
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", nargs="*", help="builtin scenes (default: all)")
-    ap.add_argument("--configs", nargs="*", default=["default", "paper-like"], help=f"of {list(CONFIGS)}")
+    ap.add_argument("--configs", nargs="*", default=["default", "phases"], help=f"of {list(CONFIGS)}")
     ap.add_argument("--gs", type=float, nargs="*", default=None, help="g values (default: G and +-0.35, +-0.6)")
     ap.add_argument("--size", type=int, default=96)
     ap.add_argument("--spp", type=int, default=32, help="field and photon-map samples per pixel")
@@ -257,13 +282,14 @@ def main(argv: list[str] | None = None) -> None:
         scene = builtin_scene(name)
         for cname in args.configs:
             config = CONFIGS[cname]
-            midpoints = [(a + b) / 2 for a, b in zip(config.phases[:-1], config.phases[1:], strict=True)]
-            gs = args.gs if args.gs is not None else sorted({*config.phases, *BETWEEN, *midpoints})
             pmap, model, facts = train(scene, cname, config, args.work, args.seed)
-            rows = score(scene, pmap, model, facts["settings"], gs, args, args.work)
+            nodes = model.cfg.phases
+            midpoints = [(a + b) / 2 for a, b in zip(nodes[:-1], nodes[1:], strict=True)]
+            gs = args.gs if args.gs is not None else sorted({*nodes, *BETWEEN, *midpoints})
+            rows = score(scene, pmap, model, facts["settings"], config, gs, args, args.work)
             entry = {**facts, "rows": rows, "summary": summarize(rows)}
             if args.converged:
-                entry["converged"] = converged(scene, pmap, model, facts["settings"], args, args.work)
+                entry["converged"] = converged(scene, pmap, model, facts["settings"], config, args, args.work)
             results[f"{name}/{cname}"] = entry
             print(f"{name} / {cname}: trace {facts['trace_s']:.1f} s, fit {facts['fit_s']:.0f} s")
             for r in rows:
@@ -284,8 +310,9 @@ def main(argv: list[str] | None = None) -> None:
                     + f"; reference noise {c['reference']['noise_rel_l2']:.3f}")
     write_report(args.out, "fidelity", finish_info(info, {}),
                  {k: v for k, v in vars(args).items() if k not in ("work", "out")} | {"work": str(args.work)},
-                 configs={k: {"photons": c.photons, "phases": list(c.phases), "overrides": c.overrides,
-                              "about": c.about} for k, c in CONFIGS.items()},
+                 configs={k: {"photons": c.photons, "phases": list(c.phases), "preset": c.preset,
+                              "overrides": c.overrides, "g_window": c.g_window, "about": c.about}
+                          for k, c in CONFIGS.items()},
                  results=results)
 
 

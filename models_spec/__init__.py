@@ -22,15 +22,19 @@ from photon_fields.models_spec.fingerprint import (
     scene_fingerprint,
 )
 from photon_fields.models_spec.photon_map import (
+    DEFAULT_MAP_PHASES,
     DEFAULT_PHASES,
     DEFAULT_PHOTONS,
     PAPER_PHASES,
+    PHASE_BINS,
+    PHASE_WINDOW,
     PHOTON_MAP_FORMAT,
     PHOTON_MAP_VERSION,
 )
 
 __all__ = ["scene_fingerprint", "fingerprint_parts", "mismatch_detail", "FINGERPRINT_PARTS",
-           "DEFAULT_PHASES", "DEFAULT_PHOTONS", "PAPER_PHASES", "PHOTON_MAP_FORMAT", "PHOTON_MAP_VERSION",
+           "DEFAULT_MAP_PHASES", "DEFAULT_PHASES", "DEFAULT_PHOTONS", "PAPER_PHASES", "PHASE_BINS", "PHASE_WINDOW",
+           "PHOTON_MAP_FORMAT", "PHOTON_MAP_VERSION",
            "DEFAULT_PSI",
            "FieldConfig", "encode_radiance", "decode_radiance", "normalize_position", "direction_input",
            "BUNDLE_FORMAT", "BUNDLE_VERSION"]

@@ -30,13 +30,23 @@ PHOTON_MAP_FORMAT = "photon-fields/photon-map"
 PHOTON_MAP_VERSION = 1
 #: The paper's phase set G (Sec. 3.2): "the best compromise between tracing and training speed and quality".
 PAPER_PHASES: tuple[float, ...] = (-0.75, 0.0, 0.75)
-#: The product's phase set: the paper's with the midpoints added. L_i depends on g far from linearly, and a
-#: field that has seen three g values is 25-50 % off between them; with five it stays within ~13 % on the
-#: embedded scenes (bench/README.md, ``bench_fidelity.py``).
+#: Five phases: the paper's with the midpoints added. L_i depends on g far from linearly, and a field that has
+#: seen three g values is 25-50 % off between them; with five it stays within ~15 % on the embedded scenes
+#: (bench/README.md, ``bench_fidelity.py``). Also the tent nodes of a field trained from a kernel in g.
 DEFAULT_PHASES: tuple[float, ...] = (-0.75, -0.375, 0.0, 0.375, 0.75)
-#: Photon records a map holds by default: a million per phase of DEFAULT_PHASES (more photons per phase
-#: shrink the KNN ball at the same K, and with it the density estimate's bias at dense surfaces).
+#: Photon records a map holds by default: a million per phase of DEFAULT_PHASES, or ~135k per bin of PHASE_BINS
+#: (a window of the kernel in g then holds ~680k). More photons per phase (or window) shrink the KNN ball at the
+#: same K, and with it the density estimate's bias at dense surfaces.
 DEFAULT_PHOTONS = 1_000_000 * len(DEFAULT_PHASES)
+#: Narrow phase bins for a kernel in g (:mod:`photon_fields.runtime.photons.phase_window`): 37 bins 0.05 apart over
+#: [-0.9, 0.9], so that the window of every g in [-0.75, 0.75] (DEFAULT_PHASES' range) lies whole inside them.
+PHASE_BINS: tuple[float, ...] = tuple(round(-0.9 + 0.05 * i, 6) for i in range(37))
+#: Half-width h of the triangular kernel in g over PHASE_BINS: a window holds 5 bins with weight, ~14 % of the
+#: map's photons, about as many as one phase of a DEFAULT_PHASES map of the same size.
+PHASE_WINDOW = 0.15
+#: The phase set a map is traced with by default (``pfn-train trace``, :func:`trace_photons`): the narrow bins the
+#: default ``cpu`` preset trains any g from. A map of DEFAULT_PHASES (or the paper's) trains with ``cpu-phases``.
+DEFAULT_MAP_PHASES: tuple[float, ...] = PHASE_BINS
 PHOTON_MAP_ARRAYS = {"position": ("float32", 3), "direction": ("float32", 3), "power": ("float32", 3),
                      "phase": ("uint8", 0)}
 #: Metadata keys a photon map must have, and the ones it may have besides.

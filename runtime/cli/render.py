@@ -198,7 +198,9 @@ def load_inputs(args: argparse.Namespace, kind: str | None, scene: Any,
             raise InputError(args.map, f"no --scene given, so the default scene '{scene.name}' was used; the map "
                              f"was traced for {pmap.mismatch(scene.fingerprint_parts())}; pass --scene")
         warning = check_map_matches_scene(pmap, scene, args.force)
-        pmap.phase_index(scene.g, "--g")
+        from photon_fields.runtime.photons.phase_window import answerable, map_window
+
+        answerable(pmap.phases, scene.g, map_window(pmap.phases), "--g")
         return {"pmap": pmap, "force": args.force}, [warning] if warning else [], None
     if kind == "bundle":
         from photon_fields.runtime.field.field import PhotonField

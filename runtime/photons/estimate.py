@@ -33,7 +33,9 @@ volume lookups per query, small next to the K-photon search.
 
 The search itself (grid, adaptive radius, r = r_max when fewer than K photons are found) is
 :mod:`photon_fields.runtime.photons.knn`. The estimate is phase-selective: only photons traced with
-the queried g are used, so g must be one of the map's phases.
+the queried g are used, so g must be one of the map's phases; or, with ``g_window`` = h, a map traced in narrow
+phase bins answers any g from the bins within h of it, weighted by a triangular kernel
+(:mod:`photon_fields.runtime.photons.phase_window`).
 """
 
 from __future__ import annotations
@@ -42,7 +44,8 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.photons.knn import build_photon_index, indexed_radiance
+from photon_fields.runtime.photons.knn import PhotonIndex, build_photon_index, indexed_radiance
+from photon_fields.runtime.photons.phase_window import check_window, window_weights
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.medium import Medium, extinction_at, extinction_batch
@@ -87,34 +90,65 @@ def support_fraction(m: Medium, x: np.ndarray, r: np.ndarray, pattern: np.ndarra
 
 
 class PhotonMapEstimator:
-    """Q(x, d, g) from a photon map: an :class:`photon_fields.runtime.wavefront.first_interaction.IndirectEstimator`."""
+    """Q(x, d, g) from a photon map: an :class:`photon_fields.runtime.wavefront.first_interaction.IndirectEstimator`.
 
-    def __init__(self, pmap: PhotonMap, medium: Medium, *, k: int = DEFAULT_K, radius: float = DEFAULT_RADIUS):
+    ``g_window`` None: g must be one of the map's phases (the paper). A half-width h: any g with a phase bin
+    within h, from the triangular kernel in g over the map's bins (module docstring)."""
+
+    def __init__(self, pmap: PhotonMap, medium: Medium, *, k: int = DEFAULT_K, radius: float = DEFAULT_RADIUS,
+                 g_window: float | None = None):
         if k < 2:
             raise InputError("k", f"must be >= 2 (the K-th photon only sets the radius), got {k}")
         if not (radius > 0 and np.isfinite(radius)):
             raise InputError("radius", f"must be a positive number (world units), got {radius}")
-        self.pmap, self.medium, self.k, self.radius = pmap, medium, int(k), float(radius)
-        self._indices: dict[int, object] = {}
+        if g_window is not None:
+            check_window(pmap.phases, g_window)
+        self.pmap, self.medium, self.k, self.radius, self.g_window = pmap, medium, int(k), float(radius), g_window
+        self._indices: dict[int, PhotonIndex] = {}
+        self._windows: dict[float, PhotonIndex] = {}
         self._pattern = ball_pattern()
         self.found: list[np.ndarray] = []  # photons used per query, for statistics
 
-    def index(self, phase: int):  # noqa: ANN201
+    def _weighted(self, bins: np.ndarray, bin_weights: np.ndarray) -> PhotonIndex:
+        """Search structure of the photons of ``bins``, each bin's weighted by ``bin_weights``, with weights
+        w_b Phi / sigma_t(x_n)."""
+        sel = np.isin(self.pmap.phase, bins)
+        pos = self.pmap.position[sel].astype(np.float64)
+        scale = np.zeros(len(self.pmap.phases))
+        scale[bins] = bin_weights
+        sigma = extinction_batch(self.medium, np.ascontiguousarray(pos.T))
+        # Photons sit at real collisions (sigma_t > 0 there); the floor only guards a map traced with
+        # a different transfer function, which the fingerprint check normally refuses.
+        # (power * w_b) / sigma, in this order: with w_b = 1 bit for bit the single-phase weights
+        weights = self.pmap.power[sel].astype(np.float64) * scale[self.pmap.phase[sel]][:, None]
+        weights /= np.maximum(sigma, 1e-12)[:, None]
+        return build_photon_index(pos, self.pmap.direction[sel], weights)
+
+    def index(self, phase: int) -> PhotonIndex:
         """Search structure of one phase's photons, with weights Phi / sigma_t(x_n) (built once)."""
         if phase not in self._indices:
-            sub = self.pmap.subset(phase)
-            pos = sub.position.astype(np.float64)
-            sigma = extinction_batch(self.medium, np.ascontiguousarray(pos.T))
-            # Photons sit at real collisions (sigma_t > 0 there); the floor only guards a map traced with
-            # a different transfer function, which the fingerprint check normally refuses.
-            weights = sub.power.astype(np.float64) / np.maximum(sigma, 1e-12)[:, None]
-            self._indices[phase] = build_photon_index(pos, sub.direction, weights)
+            self._indices[phase] = self._weighted(np.array([phase]), np.ones(1))
         return self._indices[phase]
 
+    def window_index(self, g: float) -> PhotonIndex:
+        """Search structure of the kernel in g around ``g`` (needs ``g_window``; built once per g)."""
+        if self.g_window is None:
+            raise ValueError("window_index needs an estimator with a g_window")
+        key = round(float(g), 9)
+        if key not in self._windows:
+            self._windows[key] = self._weighted(*window_weights(self.pmap.phases, g, self.g_window))
+        return self._windows[key]
+
+    def index_for(self, g: float) -> PhotonIndex:
+        """The search structure that answers ``g``: its window with ``g_window``, else its own phase's."""
+        if self.g_window is not None:
+            return self.window_index(g)
+        return self.index(self.pmap.phase_index(g, "g"))
+
     def __call__(self, x: np.ndarray, d: np.ndarray, g: float) -> np.ndarray:
-        phase = self.pmap.phase_index(g, "g")
+        index = self.index_for(g)
         xq = np.ascontiguousarray(x.T)
-        est, r, found = indexed_radiance(self.index(phase), xq, np.ascontiguousarray(d.T), g, self.k, self.radius)
+        est, r, found = indexed_radiance(index, xq, np.ascontiguousarray(d.T), g, self.k, self.radius)
         self.found.append(found)
         est /= support_fraction(self.medium, xq, np.where(np.isfinite(r), r, 0.0), self._pattern)[:, None]
         return np.ascontiguousarray(est.T)

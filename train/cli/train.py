@@ -4,6 +4,7 @@ Examples::
 
     pfn-train trace vortex --photons 1M --out maps/vortex.npz
     pfn-train trace my_scene.json --photons 3M --phases -0.75 0 0.75 --seed 7 --out maps/mine.npz
+    pfn-train fit my_scene.json --map maps/mine.npz --out runs/mine/ --preset cpu-phases   # a map of a few phases
     pfn-train fit vortex --map maps/vortex.npz --out runs/vortex/            # preset cpu
     pfn-train fit vortex --map maps/vortex.npz --out runs/paper/ --preset paper
     pfn-train all blobs --photons 1M --out runs/blobs/                       # trace + fit + export
@@ -11,8 +12,10 @@ Examples::
 
 ``fit`` writes ``checkpoint.pt``, ``log.json``, ``loss.png`` and ``domain.json`` (the world box, for the
 export) into the ``--out`` folder (see :mod:`photon_fields.train.fit.loop`). Options left out come from the preset
-(``--preset``: cpu, paper, tiny). ``export`` writes the runtime's bundle (:mod:`train.export.bundle`); ``all``
-ends with it (``OUT/field.pfn``, replaced if present).
+(``--preset``: cpu, cpu-phases, paper, tiny). A map traced with the default phases (narrow bins) trains any g
+with the default preset; a map of a few phases needs ``--preset cpu-phases`` (or ``--g-sampling discrete``).
+``export`` writes the runtime's bundle (:mod:`train.export.bundle`); ``all`` ends with it (``OUT/field.pfn``,
+replaced if present).
 
 Bad input exits with status 2 and one line on stderr: ``error: <input>: <problem>``.
 """
@@ -26,7 +29,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from photon_fields.models_spec import DEFAULT_PHASES, DEFAULT_PHOTONS
+from photon_fields.models_spec import DEFAULT_MAP_PHASES, DEFAULT_PHOTONS
 from photon_fields.runtime.cli.common import (
     OneLineArgumentParser,
     check_seed,
@@ -92,8 +95,10 @@ def _add_trace_options(t: argparse.ArgumentParser) -> None:
     """The scene and photon-tracing options of ``trace`` and ``all``."""
     t.add_argument("scene", help="builtin scene name (vortex, blobs, shell) or a scene JSON file")
     t.add_argument("--photons", default=f"{DEFAULT_PHOTONS // 1_000_000}M",
-                   help="records to store, e.g. 1M, 250k (default: a million per phase)")
-    t.add_argument("--phases", type=float, nargs="+", default=list(DEFAULT_PHASES), help="the phase set G")
+                   help="records to store, e.g. 1M, 250k")
+    t.add_argument("--phases", type=float, nargs="+", default=None,
+                   help="the phase set G (default: 37 narrow bins over [-0.9, 0.9], from which the cpu preset trains "
+                        "any g in [-0.75, 0.75]; a few phases, e.g. -0.75 0 0.75, need --preset cpu-phases)")
     t.add_argument("--max-bounces", type=int, default=16, help="max collisions per photon path")
 
 
@@ -115,6 +120,9 @@ def _add_fit_options(f: argparse.ArgumentParser) -> None:
     f.add_argument("--loss", choices=["linear", "log"], default=None,
                    help="training loss: relative L2 of the decoded radiance (unbiased under noisy targets) or of the "
                         "log-encoded output (the paper's) (default: the preset's)")
+    f.add_argument("--g-sampling", choices=["discrete", "continuous", "mixed", "window"], default=None,
+                   help="training g: the map's phases (the paper), continuous between them, half of each, or any g "
+                        "from a kernel in g over a map traced in narrow phase bins (default: the preset's)")
     f.add_argument("--average", type=float, default=None,
                    help="share of the last steps whose parameters are averaged into the final field, 0: the last "
                         "step's (default: the preset's)")
@@ -131,12 +139,12 @@ def cmd_trace(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     photons = parse_count(args.photons)
-    check_phases(args.phases, "--phases")
+    phases = check_phases(args.phases if args.phases is not None else DEFAULT_MAP_PHASES, "--phases")
     check_seed(args.seed)
     set_threads(args.threads)
     scene = load_scene(args.scene)
     prepare_output(out, ".npz", force=args.force, what="a photon map")
-    pmap = trace_photons(scene, photons, phases=args.phases, max_bounces=args.max_bounces, seed=args.seed,
+    pmap = trace_photons(scene, photons, phases=phases, max_bounces=args.max_bounces, seed=args.seed,
                          progress=not args.quiet)
     pmap.save(out)
     meta = pmap.metadata()
@@ -152,7 +160,7 @@ def _fit_settings(args: argparse.Namespace):  # noqa: ANN202  (photon_fields.tra
 
     settings = FitSettings.from_preset(args.preset, steps=args.steps, batch=args.batch, lr=args.lr, k=args.k,
                                        schedule_kind=args.schedule, sampling=args.sampling, loss=args.loss,
-                                       average=args.average,
+                                       average=args.average, g_sampling=args.g_sampling,
                                        seed=args.seed,
                                        checkpoint_every=args.checkpoint_every)
     settings.validate()
@@ -188,10 +196,10 @@ def _set_all_threads(threads: int | None) -> None:
 def _run_fit(args: argparse.Namespace, scene, pmap, settings) -> int:  # noqa: ANN001
     from photon_fields.train.export.bundle import write_run_domain
     from photon_fields.train.fit.loop import fit
-    from photon_fields.train.fit.targets import check_phase_bins
+    from photon_fields.train.fit.targets import check_map_for_sampling
 
     out = Path(args.out)
-    check_phase_bins(pmap)  # refuse before anything is written into the run folder
+    check_map_for_sampling(pmap, settings.g_sampling)  # refuse before anything is written into the run folder
     write_run_domain(out, scene, args.scene)  # the world box the export needs (checkpoints do not hold it)
     result = fit(scene, pmap, out, settings, progress=not args.quiet)
     t = result.log["totals"]
@@ -225,13 +233,13 @@ def cmd_all(args: argparse.Namespace) -> int:
     from photon_fields.train.photons.tracing import check_phases, trace_photons
 
     photons = parse_count(args.photons)
-    check_phases(args.phases, "--phases")
+    phases = check_phases(args.phases if args.phases is not None else DEFAULT_MAP_PHASES, "--phases")
     settings = _fit_settings(args)
     _set_all_threads(args.threads)
     scene = load_scene(args.scene)
     out = Path(args.out)
     _prepare_run_folder(out, args.force, ALL_OUTPUTS)
-    pmap = trace_photons(scene, photons, phases=args.phases, max_bounces=args.max_bounces, seed=args.seed,
+    pmap = trace_photons(scene, photons, phases=phases, max_bounces=args.max_bounces, seed=args.seed,
                          progress=not args.quiet)
     map_path = pmap.save(out / "map.npz")
     secs = pmap.metadata()["trace_seconds"]

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np  # noqa: E402
 
-from photon_fields.models_spec import DEFAULT_PHASES  # noqa: E402
+from photon_fields.models_spec import DEFAULT_MAP_PHASES, DEFAULT_PHASES  # noqa: E402
 from photon_fields.runtime.cli.common import (  # noqa: E402
     OneLineArgumentParser,
     check_seed,
@@ -72,11 +72,13 @@ class EvalPlan:
     noise_size: int
     noise_reference_spp: int
     eval_size: int
+    phases: tuple[float, ...]  # the maps' phase set: the one the preset trains from
 
 
 FULL = EvalPlan(tuple(BUILTIN_SCENES), "cpu", None, (300_000, 1_000_000), (1_000_000, 3_000_000), 1_000_000,
-                (512, 512), 3, 256, 4, 256, 128, 1024, 128)
-QUICK = EvalPlan(("blobs",), "tiny", 30, (20_000,), (20_000,), 30_000, (48, 48), 1, 32, 2, 16, 32, 32, 32)
+                (512, 512), 3, 256, 4, 256, 128, 1024, 128, DEFAULT_MAP_PHASES)
+QUICK = EvalPlan(("blobs",), "tiny", 30, (20_000,), (20_000,), 30_000, (48, 48), 1, 32, 2, 16, 32, 32, 32,
+                 DEFAULT_PHASES)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -160,11 +162,12 @@ class Evaluation:
 
         key = (name, photons)
         if key not in self._maps:
-            path = self.work / name / f"map_{photons}_s{self.seed}.npz"
+            path = self.work / name / f"map_{photons}_p{len(self.plan.phases)}_s{self.seed}.npz"
             if path.exists():
                 self._maps[key] = PhotonMap.load(path, expected_fingerprint=self.scene(name).fingerprint())
             else:
-                pmap = trace_photons(self.scene(name), photons, seed=self.seed, progress=self.progress)
+                pmap = trace_photons(self.scene(name), photons, phases=self.plan.phases, seed=self.seed,
+                                     progress=self.progress)
                 pmap.save(path)
                 self._maps[key] = pmap
         return self._maps[key]
@@ -251,15 +254,15 @@ class Evaluation:
             for photons in self.plan.trace_counts:
                 _say(f"2. tracing: {name}, {photons:,} photons")
                 t0 = time.perf_counter()
-                pmap = trace_photons(scene, photons, seed=self.seed, progress=self.progress)
+                pmap = trace_photons(scene, photons, phases=self.plan.phases, seed=self.seed, progress=self.progress)
                 dt = time.perf_counter() - t0
                 if photons == self.plan.train_photons:
                     self._maps[(name, photons)] = pmap
-                    pmap.save(self.work / name / f"map_{photons}_s{self.seed}.npz")
+                    pmap.save(self.work / name / f"map_{photons}_p{len(self.plan.phases)}_s{self.seed}.npz")
                 rows.append([name, f"{photons:,}", dt, len(pmap) / dt / 1e6, pmap.emitted])
                 data[f"{name}/{photons}"] = {"seconds": dt, "records": len(pmap), "emitted": pmap.emitted}
         self.data["tracing"] = data
-        return (f"## 2. Photon tracing (Table 3)\n\nAlg. 1, {len(DEFAULT_PHASES)} phases, max 16 collisions, "
+        return (f"## 2. Photon tracing (Table 3)\n\nAlg. 1, {len(self.plan.phases)} phases, max 16 collisions, "
                 f"{os.cpu_count()} cores.\n\n"
                 + _md_table(["scene", "photons", "seconds", "M records/s", "paths"], rows) + "\n")
 

@@ -135,15 +135,15 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
 
     t_start = time.perf_counter()
     preset = PRESETS[settings.preset]
-    cfg = field_config_for(preset, tuple(pmap.phases), settings.psi)
+    sampler = TargetSampler(pmap, scene.medium(), k=settings.k, psi=settings.psi, seed=settings.seed,
+                            sampling=settings.sampling, g_sampling=settings.g_sampling)
+    cfg = field_config_for(preset, sampler.field_phases, settings.psi)
     schedule = settings.resolve_schedule(len(pmap))
     total = settings.steps
     boundaries = schedule.boundaries(total)
     torch.manual_seed(settings.seed)
     model = TorchPhotonField(cfg, seed=settings.seed)
     opt = TcnnAdam(model.matrix_parameters(), model.table_parameters())
-    sampler = TargetSampler(pmap, scene.medium(), k=settings.k, psi=cfg.psi, seed=settings.seed,
-                            sampling=settings.sampling, g_sampling=settings.g_sampling)
     val = sampler.validation_set(settings.val_points, schedule.final_radius)
     val_every = settings.val_every or max(1, total // 10)
     average_from = averaging_start(total, settings.average)
@@ -189,7 +189,7 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
         with _deterministic_torch():
             for step in range(total):
                 radius = schedule.radius_at(step, total)
-                lr = lr_at(step, total, settings.lr)
+                lr = lr_at(step, total, settings.lr, settings.lr_decay_start, settings.lr_decay_every)
                 batch = sampler.sample(settings.batch, radius)
                 if sampler_hook is not None:
                     batch = sampler_hook(batch, step)

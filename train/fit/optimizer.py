@@ -7,8 +7,11 @@ moments and does not advance its step count, so rarely touched table entries are
 momentum. The MLP matrices always step. The update runs in a numba kernel, elementwise in float32, so the
 result does not depend on the thread count.
 
-:func:`lr_at`: ``lr`` until 70 % of the run, then x0.92 at that step and every 25 steps after it (tcnn's
-ExponentialDecay semantics, Sec. 3.5.1).
+:func:`lr_at`: ``lr`` until a share ``start`` of the run (the paper: 70 %), then x0.92 at that step and every
+``every`` steps after it (the paper: 25; tcnn's ExponentialDecay semantics, Sec. 3.5.1). The ``cpu`` preset
+anneals harder (from 50 %, every 10 steps: the last step's rate is ~4 % of the first's), so that the
+parameters' SGD fluctuation around the fit to noisy targets, which the log-encoded output turns into a bias of
+the decoded radiance, is small when the run ends (docs/training.md).
 """
 
 from __future__ import annotations
@@ -81,9 +84,9 @@ class TcnnAdam:
             p.grad = None
 
 
-def lr_at(step: int, total: int, lr: float) -> float:
-    """Learning rate at 0-based ``step``: x0.92 at ``round(0.7 total)`` and every 25 steps after it."""
-    start = int(math.floor(LR_DECAY_START * total + 0.5))
-    if step < start:
+def lr_at(step: int, total: int, lr: float, start: float = LR_DECAY_START, every: int = LR_DECAY_EVERY) -> float:
+    """Learning rate at 0-based ``step``: x0.92 at ``round(start total)`` and every ``every`` steps after it."""
+    first = int(math.floor(start * total + 0.5))
+    if step < first:
         return lr
-    return lr * LR_DECAY ** ((step - start) // LR_DECAY_EVERY + 1)
+    return lr * LR_DECAY ** ((step - first) // every + 1)

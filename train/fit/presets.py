@@ -5,10 +5,15 @@
   CPU cores; kept to reproduce the paper.
 - ``cpu``: the default, chosen for useful targets per second on 2 cores: samples in the medium's support
   (the renderer never queries empty space), the final radius from the start, small batches and many steps,
-  a richer network than its cost suggests because targets, not the network, dominate a step.
-- ``cpu-tent``: experimental, ``cpu`` with one tent function of g per phase as extra MLP inputs and training g
-  drawn continuously over G's range; it removes the field's tilt across g in G where the plain one has it, but
-  its between-phase targets interpolate the earlier bounces and were no better overall (bench/README.md).
+  a richer network than its cost suggests because targets, not the network, dominate a step; any g of
+  [-0.75, 0.75] trained from a kernel in g over a map traced in narrow phase bins (``g_sampling="window"``,
+  :mod:`photon_fields.runtime.photons.phase_window`), one tent function of g per node besides g itself, and a
+  harder learning-rate anneal. Needs a map of :data:`photon_fields.models_spec.photon_map.PHASE_BINS` (what
+  ``pfn-train trace`` makes by default).
+- ``cpu-phases``: ``cpu`` as it was before the kernel in g: trains at the map's phases only (the paper's way,
+  any map of a few phases), scalar g, the paper's anneal.
+- ``cpu-tent``: experimental, ``cpu-phases`` with one tent function of g per phase and training g drawn
+  continuously over G's range, targets interpolated between the two phases around g (bench/README.md).
 - ``tiny``: a seconds-long configuration for smoke tests.
 
 :class:`photon_fields.train.fit.settings.FitSettings` takes its defaults from :data:`DEFAULT_PRESET`, so the
@@ -51,6 +56,11 @@ class Preset:
     loss: str = "linear"
     """Training loss (:mod:`photon_fields.train.fit.loss`): "linear" (relative L2 of the decoded radiance,
     unbiased under noisy targets) or "log" (tcnn's relative L2 of the encoded output, the paper's)."""
+    lr_decay_start: float = 0.7
+    """Share of the steps after which the learning rate decays (x0.92 per ``lr_decay_every`` steps; the paper:
+    0.7)."""
+    lr_decay_every: int = 25
+    """Steps between two x0.92 decays of the learning rate (the paper: 25)."""
     average: float = 0.0
     """Share of the last training steps whose parameters are averaged into the final field (Polyak-Ruppert
     averaging, :mod:`photon_fields.train.fit.averaging`); 0: the last step's parameters (the paper). Each step
@@ -65,17 +75,19 @@ class Preset:
     """One line for ``--help`` and reports."""
 
 
-_CPU = Preset(HashGridConfig(3, 8, 4, 16, 16, 1.5), HashGridConfig(2, 6, 2, 14, 4, 1.6), 64, 3,
-              steps=800, batch=1 << 12, lr=1e-2, schedule="naive", sampling="support", k=64, average=0.5,
-              about="provisional CPU default: trace (1M) + fit in about 2 minutes")
+_CPU_PHASES = Preset(HashGridConfig(3, 8, 4, 16, 16, 1.5), HashGridConfig(2, 6, 2, 14, 4, 1.6), 64, 3,
+                     steps=800, batch=1 << 12, lr=1e-2, schedule="naive", sampling="support", k=64, average=0.5,
+                     about="cpu at the map's phases only (any map of a few phases), scalar g")
 
 PRESETS: dict[str, Preset] = {
     "paper": Preset(PAPER_POSITION, PAPER_DIRECTION, 64, 4, steps=3000, batch=1 << 16, lr=1e-2,
                     schedule="staggered", sampling="box", loss="log",
                     about="Sec. 3.4/3.5 as published (hours on 2 CPU cores)"),
-    "cpu": _CPU,
-    "cpu-tent": replace(_CPU, phase_encoding="tent", g_sampling="continuous",
-                        about="experimental: cpu with tent phase features and continuous g (bench/README.md)"),
+    "cpu": replace(_CPU_PHASES, phase_encoding="tent", g_sampling="window", lr_decay_start=0.5, lr_decay_every=10,
+                   about="the default: any g from a kernel in g over a map in narrow phase bins; ~1.5 min on 2 cores"),
+    "cpu-phases": _CPU_PHASES,
+    "cpu-tent": replace(_CPU_PHASES, phase_encoding="tent", g_sampling="continuous",
+                        about="experimental: cpu-phases with tent phase features and continuous g (bench/README.md)"),
     "tiny": Preset(HashGridConfig(3, 4, 2, 12, 8, 2.0), HashGridConfig(2, 2, 2, 8, 4, 2.0), 16, 1,
                    steps=50, batch=1 << 10, lr=1e-2, schedule="staggered", sampling="box",
                    about="smoke tests: seconds"),

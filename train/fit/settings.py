@@ -33,6 +33,10 @@ class FitSettings:
     """Samples per step."""
     lr: float = _DEFAULT.lr
     """Adam's learning rate before the decay."""
+    lr_decay_start: float = _DEFAULT.lr_decay_start
+    """Share of the steps after which the learning rate decays."""
+    lr_decay_every: int = _DEFAULT.lr_decay_every
+    """Steps between two x0.92 decays of the learning rate."""
     k: int = _DEFAULT.k
     """Photons per target estimate (Eq. 5's K)."""
     schedule: KnnSchedule | None = None
@@ -65,7 +69,8 @@ class FitSettings:
             raise InputError("--preset", f"unknown preset {name!r} (available: {', '.join(PRESETS)})")
         p = PRESETS[name]
         base = cls(preset=name, steps=p.steps, batch=p.batch, lr=p.lr, schedule_kind=p.schedule,
-                   sampling=p.sampling, loss=p.loss, k=p.k, average=p.average, g_sampling=p.g_sampling)
+                   sampling=p.sampling, loss=p.loss, k=p.k, average=p.average, g_sampling=p.g_sampling,
+                   lr_decay_start=p.lr_decay_start, lr_decay_every=p.lr_decay_every)
         return replace(base, **{k: v for k, v in overrides.items() if v is not None})
 
     def validate(self) -> None:
@@ -74,11 +79,15 @@ class FitSettings:
             raise InputError("--preset", f"unknown preset {self.preset!r} (available: {', '.join(PRESETS)})")
         for name, v, lo, hi in (("--steps", self.steps, 1, 10**7), ("--batch", self.batch, 1, 1 << 22),
                                 ("--k", self.k, 2, 1 << 16), ("--checkpoint-every", self.checkpoint_every, 1, 10**9),
+                                ("learning-rate decay interval", self.lr_decay_every, 1, 10**7),
                                 ("validation points", self.val_points, 1, 1 << 22)):
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise InputError(name, f"must be an integer in [{lo}, {hi}], got {v!r}")
         if not (math.isfinite(self.lr) and 0 < self.lr <= 10):
             raise InputError("--lr", f"must be in (0, 10], got {self.lr}")
+        if not (isinstance(self.lr_decay_start, int | float) and 0.0 <= self.lr_decay_start <= 1.0):
+            raise InputError("learning-rate decay start", f"must be in [0, 1] (a share of the steps), "
+                             f"got {self.lr_decay_start!r}")
         if self.schedule_kind not in ("staggered", "naive"):
             raise InputError("--schedule", f"must be 'staggered' or 'naive', got {self.schedule_kind!r}")
         if not (isinstance(self.average, int | float) and 0.0 <= self.average < 1.0):

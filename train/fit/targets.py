@@ -14,7 +14,16 @@ Every training step draws a fresh batch (Sec. 3.3: "regenerate a new batch ... f
   linear interpolation), and the phase function is evaluated at g itself. Only the light's earlier bounces
   are interpolated, not the last one, whose dependence on g is the sharpest (L_i is strongly convex in g near
   |g| = 0.75); and the field sees every g it will be asked for, not only the phases; ``"mixed"``: half the
-  samples continuous, half at the phases (where the targets interpolate nothing);
+  samples continuous, half at the phases (where the targets interpolate nothing); or ``"window"``, for a map
+  traced in narrow phase bins (:data:`photon_fields.models_spec.photon_map.PHASE_BINS`): g over the range whose
+  kernel in g is whole (:func:`photon_fields.runtime.photons.phase_window.window_range`, [-0.75, 0.75] for
+  PHASE_BINS) with the arcsine density 1 / (pi sqrt((g - lo)(hi - g))) (Chebyshev's, g = lo + (hi - lo)
+  (1 - cos(pi u)) / 2: the ends, where L_i changes fastest with g and a fit is held from one side only, get
+  more samples; uniform g left the field 11-15 % off at g = -0.75 on blobs, docs/training.md), the photons
+  from the triangular kernel of half-width PHASE_WINDOW around one of the two window centres next to g
+  (centres at most :data:`WINDOW_STRIDE` apart, chosen with the tent weights, so the kernel's mean is g), the
+  phase function at g itself. Nothing is interpolated between distant phases: the earlier bounces are averaged
+  over a window of +-0.15 (+ the centre spacing), the last bounce is exact;
 
 and the target is Q(x, d, g) of :class:`photon_fields.runtime.photons.estimate.PhotonMapEstimator` (Eq. 5 with 1/sigma_t
 photon weights and the support-fraction boundary correction) with K photons and the schedule's current
@@ -39,7 +48,7 @@ seed : int
     Seeds the sampler's own ``numpy.random.Generator`` (training batches); the validation set uses an
     independent stream of the same seed, so its size never changes the training batches.
 sampling : "box" or "support"
-g_sampling : "discrete", "continuous" or "mixed"
+g_sampling : "discrete", "continuous", "mixed" or "window"
 
 Timing: every :meth:`TargetSampler.sample` adds its wall time to ``seconds`` (and the query count to
 ``queries``); :mod:`photon_fields.train.fit.loop` reports it per step next to the training step.
@@ -58,11 +67,16 @@ from photon_fields.models_spec.encoding import direction_input, encode_radiance,
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.estimate import DEFAULT_K, PhotonMapEstimator, ball_pattern, support_fraction
 from photon_fields.runtime.photons.knn import indexed_radiance
+from photon_fields.runtime.photons.phase_window import PHASE_WINDOW, check_window, window_range
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.transport.medium import Medium, extinction_at
 
 SAMPLING_MODES = ("box", "support")
-G_SAMPLING_MODES = ("discrete", "continuous", "mixed")
+G_SAMPLING_MODES = ("discrete", "continuous", "mixed", "window")
+#: Largest spacing of the window centres of ``g_sampling="window"`` (the targets' kernels in g).
+WINDOW_STRIDE = 0.1
+#: Tent nodes of a field trained with windows: this many, evenly spread over the window range.
+WINDOW_FIELD_NODES = 5
 _MAX_REJECTION_DRAWS = 1 << 26  # candidates before giving up on an (almost) empty support
 
 
@@ -97,6 +111,18 @@ def check_phase_bins(pmap: PhotonMap) -> None:
                          f"{[int(c) for c in counts]}); re-trace with more photons")
 
 
+def check_map_for_sampling(pmap: PhotonMap, g_sampling: str) -> None:
+    """Refuse, in one line, a map the g sampling cannot train from: an empty phase bin, or for ``"window"`` phase
+    bins too sparse for a kernel in g (a map of a few phases: fit it with another g sampling)."""
+    check_phase_bins(pmap)
+    if g_sampling == "window":
+        try:
+            check_window(pmap.phases, PHASE_WINDOW)
+            window_range(pmap.phases, PHASE_WINDOW)
+        except InputError as exc:
+            raise InputError(exc.what, f"{exc.problem}; or fit this map with --g-sampling discrete") from None
+
+
 def uniform_directions(rng: np.random.Generator, n: int) -> np.ndarray:
     """(n, 3) uniform unit vectors: z uniform in [-1, 1], azimuth uniform (Archimedes)."""
     z = 1.0 - 2.0 * rng.random(n)
@@ -115,13 +141,20 @@ class TargetSampler:
         if g_sampling not in G_SAMPLING_MODES:
             raise InputError("g sampling", f"must be one of {G_SAMPLING_MODES}, got {g_sampling!r}")
         self.g_sampling = g_sampling
-        check_phase_bins(pmap)
+        check_map_for_sampling(pmap, g_sampling)
         t0 = time.perf_counter()
         self.pmap, self.medium, self.k, self.psi, self.sampling = pmap, medium, int(k), float(psi), sampling
-        # The estimator owns the search structures (weights Phi / sigma_t): build every phase's once, now.
-        self.estimator = PhotonMapEstimator(pmap, medium, k=k)
-        self.indices = [self.estimator.index(p) for p in range(len(pmap.phases))]
-        self.phases = np.asarray(pmap.phases, dtype=np.float64)
+        # The estimator owns the search structures (weights Phi / sigma_t): build every phase's (or every
+        # window's) once, now.
+        if g_sampling == "window":
+            lo, hi = window_range(pmap.phases, PHASE_WINDOW)
+            self.estimator = PhotonMapEstimator(pmap, medium, k=k, g_window=PHASE_WINDOW)
+            self.phases = np.linspace(lo, hi, max(2, int(np.ceil((hi - lo) / WINDOW_STRIDE - 1e-9)) + 1))
+            self.indices = [self.estimator.window_index(c) for c in self.phases]
+        else:
+            self.estimator = PhotonMapEstimator(pmap, medium, k=k)
+            self.phases = np.asarray(pmap.phases, dtype=np.float64)
+            self.indices = [self.estimator.index(p) for p in range(len(pmap.phases))]
         self._occupied = np.flatnonzero(medium.majorant.ravel() > 0.0)
         if self._occupied.size == 0:
             raise InputError("scene", "the medium is empty (zero extinction everywhere)")
@@ -131,6 +164,15 @@ class TargetSampler:
         self.build_seconds = time.perf_counter() - t0
         self.seconds = 0.0
         self.queries = 0
+
+    @property
+    def field_phases(self) -> tuple[float, ...]:
+        """The phase set the field records (its tent nodes, :class:`photon_fields.models_spec.encoding.FieldConfig`):
+        the map's phases, or with windows :data:`WINDOW_FIELD_NODES` g evenly spread over the window range."""
+        if self.g_sampling != "window":
+            return tuple(float(g) for g in self.pmap.phases)
+        nodes = np.linspace(self.phases[0], self.phases[-1], WINDOW_FIELD_NODES)
+        return tuple(round(float(g), 6) for g in nodes)
 
     # --- sampling -------------------------------------------------------------------------------------
 
@@ -162,8 +204,8 @@ class TargetSampler:
 
     def draw(self, rng: np.random.Generator, n: int,
              mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """World positions (n, 3), unit travel directions (n, 3), g (n,) and the phase indices (n,) whose
-        photons estimate each target."""
+        """World positions (n, 3), unit travel directions (n, 3), g (n,) and the indices (n,) of the phases (or
+        windows) whose photons estimate each target."""
         x = self._positions(rng, n, mode)
         d = uniform_directions(rng, n)
         if self.g_sampling == "discrete" or len(self.phases) == 1:
@@ -171,7 +213,10 @@ class TargetSampler:
             return x, d, self.phases[ph], ph
         order = np.argsort(self.phases, kind="stable")
         sg = self.phases[order]
-        g = sg[0] + rng.random(n) * (sg[-1] - sg[0])
+        u = rng.random(n)
+        if self.g_sampling == "window":  # arcsine density: more samples towards the ends of the range
+            u = 0.5 * (1.0 - np.cos(np.pi * u))
+        g = sg[0] + u * (sg[-1] - sg[0])
         if self.g_sampling == "mixed":  # half of the samples exactly at a phase
             at_phase = rng.random(n) < 0.5
             g[at_phase] = self.phases[rng.integers(0, len(self.phases), int(at_phase.sum()))]
@@ -184,7 +229,7 @@ class TargetSampler:
     def estimate(self, x: np.ndarray, d: np.ndarray, g: np.ndarray, ph: np.ndarray,
                  radius: float) -> tuple[np.ndarray, np.ndarray]:
         """Q (n, 3) float64 and photons used (n,) at world points x (n, 3), directions d (n, 3), phase function
-        coefficients g (n,), from the photons of phases ph (n,)."""
+        coefficients g (n,), from the photons of phases (or windows) ph (n,)."""
         n = x.shape[0]
         q = np.zeros((n, 3))
         found = np.zeros(n, dtype=np.int64)

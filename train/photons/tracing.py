@@ -6,8 +6,9 @@ photons : int >= 1
     Target number of stored records ("photons in the map", as in the paper's Table 3). Photon paths are
     traced in fixed-size chunks until each phase holds at least ``ceil(photons / |G|)`` records; the map
     keeps every record of a phase's paths up to the one that reaches its quota.
-phases : sequence of g in [-1, 1] (default ``models_spec.DEFAULT_PHASES``: the paper's G = {-0.75, 0, 0.75}
-    with the midpoints)
+phases : sequence of g in [-1, 1] (default ``models_spec.DEFAULT_MAP_PHASES``: 37 narrow bins over [-0.9, 0.9],
+    read with a kernel in g, :mod:`photon_fields.runtime.photons.phase_window`; or a few phases such as
+    ``models_spec.DEFAULT_PHASES``, the paper's G = {-0.75, 0, 0.75} with the midpoints)
     Each photon path scatters with one g of G at every vertex. Paths are assigned to the phases
     round-robin and every phase is traced until it holds ``photons / |G|`` records, so the phases are
     equally represented in the map ("equally distributed over ... the number of phases", Sec. 4.4)
@@ -47,7 +48,7 @@ import numpy as np
 from numba import njit, prange
 from tqdm import tqdm
 
-from photon_fields.models_spec import DEFAULT_PHASES
+from photon_fields.models_spec import DEFAULT_MAP_PHASES
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.scene.scene import Scene
@@ -150,7 +151,7 @@ def check_phases(phases: Sequence[float], what: str = "phases") -> tuple[float, 
     return gs
 
 
-def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAULT_PHASES, max_bounces: int = 16,
+def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAULT_MAP_PHASES, max_bounces: int = 16,
                   seed: int = 0, progress: bool = True) -> PhotonMap:
     """Alg. 1: trace photon paths until the map holds at least ``photons`` records."""
     if isinstance(photons, bool) or not isinstance(photons, (int, np.integer)) or photons < 1:

@@ -137,7 +137,8 @@ def test_parity_tent_phase_features(tmp_path: Path) -> None:
     """The cpu-tent architecture (g plus one tent per phase as MLP inputs): the runtime builds the same input
     columns as torch, at the phases, between them, beyond them, one g per query and one g for all."""
     cfg = field_config_for(PRESETS["cpu-tent"], PHASES)
-    assert cfg.phase_encoding == "tent" and cfg.input_dims == field_config_for(PRESETS["cpu"], PHASES).input_dims + 3
+    assert cfg.phase_encoding == "tent"
+    assert cfg.input_dims == field_config_for(PRESETS["cpu-phases"], PHASES).input_dims + 3
     model = make_model(cfg, seed=5)
     bmin, bsize = [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]
     run = make_run(tmp_path / "run", model, bmin, bsize)

@@ -88,7 +88,7 @@ def test_photon_map_white_furnace_under_an_environment_light() -> None:
 
 
 def test_phase_not_in_map_and_foreign_map_are_refused(thin_scene: Scene) -> None:
-    pmap = trace_photons(thin_scene, 5_000, seed=1, progress=False)
+    pmap = trace_photons(thin_scene, 5_000, phases=(-0.75, 0.0, 0.75), seed=1, progress=False)
     with pytest.raises(InputError, match="phase set"):
         render_photon_mapped(thin_scene.with_overrides(g=0.3), pmap, progress=False)
     other = builtin_scene("blobs", resolution=32)

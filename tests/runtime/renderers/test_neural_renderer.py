@@ -131,7 +131,8 @@ def test_orbit_writes_numbered_frames_with_timings(scene, pmap, tmp_path) -> Non
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
-    """blobs at 32^3, 300k photons, a short cpu-preset fit, exported: (scene, pmap, bundle path)."""
+    """blobs at 32^3, 300k photons in the paper's three phases, a short cpu-phases fit, exported: (scene, pmap,
+    bundle path)."""
     pytest.importorskip("torch")
     from conftest import tiny_scene_dict
 
@@ -143,7 +144,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
     folder = tmp_path_factory.mktemp("neural")
     scene = scene_from_dict(tiny_scene_dict(), folder)
     pmap = trace_photons(scene, 300_000, phases=PAPER_PHASES, seed=4, progress=False)
-    settings = FitSettings.from_preset("cpu", steps=300, batch=2048, val_points=1024, checkpoint_every=10_000)
+    settings = FitSettings.from_preset("cpu-phases", steps=300, batch=2048, val_points=1024, checkpoint_every=10_000)
     fit(scene, pmap, folder / "run", settings, progress=False)
     bundle = export_bundle(folder / "run", folder / "blobs.pfn", scene=scene).path
     return scene, pmap, bundle
@@ -154,8 +155,8 @@ def test_neural_render_is_close_to_the_path_tracer(trained) -> None:  # noqa: AN
     not equality. Neural at 32 spp vs the path tracer at 512 spp, 32x32 pixels; relative L2 of L over 4x4-pixel
     block means (so the bias, not the noise, is measured).
 
-    Measured with the cpu preset (K = 64, parameters averaged over the last half of the steps), map seeds 4-9 with
-    fit seeds 0-5: g = 0 (in G) 0.030-0.037, mean L ratio 0.974-1.000 (1.000 at the fixture's seeds); g = 0.35
+    Measured with the cpu-phases preset (K = 64, parameters averaged over the last half of the steps), map seeds 4-9
+    with fit seeds 0-5: g = 0 (in G) 0.030-0.037, mean L ratio 0.974-1.000 (1.000 at the fixture's seeds); g = 0.35
     (outside G, interpolated) 0.050-0.136, ratio 0.880-1.021. Before K - 1 and the averaging (K = 1024, the log
     loss): 0.050-0.103 and 0.902-0.955 at g = 0, 0.096-0.236 at g = 0.35. Two path-traced images differ by
     0.011 / 0.016. Bounds: relative L2 0.06 and 0.2; mean ratio of L at g = 0 in [0.955, 1.03], which a 5 % scale

@@ -13,9 +13,9 @@ from photon_fields.train.eval import report as eval_report  # noqa: E402
 from photon_fields.train.eval.report import QUICK, _main  # noqa: E402
 
 #: --quick's own plan trains with the tiny preset for 30 steps, whose field has not learnt anything (its
-#: numbers "mean nothing"); this test gives the same sections a field that has (cpu preset, 80 steps,
+#: numbers "mean nothing"); this test gives the same sections a field that has (cpu-phases preset, 80 steps,
 #: 100k photons, +8 s), so the reported numbers can be bounded and a broken pipeline fails.
-LEARNT = dataclasses.replace(QUICK, preset="cpu", steps=80, train_photons=100_000)
+LEARNT = dataclasses.replace(QUICK, preset="cpu-phases", steps=80, train_photons=100_000)
 
 
 def test_quick_evaluation_writes_every_section_and_figure_with_sane_numbers(tmp_path, monkeypatch) -> None:  # noqa: ANN001
