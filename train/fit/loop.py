@@ -137,7 +137,7 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
     preset = PRESETS[settings.preset]
     sampler = TargetSampler(pmap, scene.medium(), k=settings.k, psi=settings.psi, seed=settings.seed,
                             sampling=settings.sampling, g_sampling=settings.g_sampling)
-    cfg = field_config_for(preset, sampler.field_phases, settings.psi)
+    cfg = field_config_for(preset, sampler.field_phases(preset.phase_nodes), settings.psi)
     schedule = settings.resolve_schedule(len(pmap))
     total = settings.steps
     boundaries = schedule.boundaries(total)

@@ -7,9 +7,9 @@
   (the renderer never queries empty space), the final radius from the start, small batches and many steps,
   a richer network than its cost suggests because targets, not the network, dominate a step; any g of
   [-0.75, 0.75] trained from a kernel in g over a map traced in narrow phase bins (``g_sampling="window"``,
-  :mod:`photon_fields.runtime.photons.phase_window`), one tent function of g per node besides g itself, and a
-  harder learning-rate anneal. Needs a map of :data:`photon_fields.models_spec.photon_map.PHASE_BINS` (what
-  ``pfn-train trace`` makes by default).
+  :mod:`photon_fields.runtime.photons.phase_window`), g itself and one tent function per node of 16 (0.1 apart:
+  five nodes could not follow shell's dip in g at -0.6), and a harder learning-rate anneal. Needs a map of
+  :data:`photon_fields.models_spec.photon_map.PHASE_BINS` (what ``pfn-train trace`` makes by default).
 - ``cpu-phases``: ``cpu`` as it was before the kernel in g: trains at the map's phases only (the paper's way,
   any map of a few phases), scalar g, the paper's anneal.
 - ``cpu-tent``: experimental, ``cpu-phases`` with one tent function of g per phase and training g drawn
@@ -68,6 +68,9 @@ class Preset:
     phase_encoding: str = "scalar"
     """How g enters the MLP (:func:`photon_fields.models_spec.encoding.phase_features`): "scalar" (the paper) or
     "tent" (g and one tent function per phase, which lets the bias-free MLP bend at every phase)."""
+    phase_nodes: int = 5
+    """Tent nodes of a field trained from a kernel in g (``g_sampling="window"``), evenly spread over the g it
+    is trained on; a field trained at a map's phases has one per phase."""
     g_sampling: str = "discrete"
     """Training g (:mod:`photon_fields.train.fit.targets`): "discrete" (the phases G, the paper), "continuous"
     (uniform over [min G, max G], targets from the two nearest phases' photons) or "mixed" (half of each)."""
@@ -83,7 +86,8 @@ PRESETS: dict[str, Preset] = {
     "paper": Preset(PAPER_POSITION, PAPER_DIRECTION, 64, 4, steps=3000, batch=1 << 16, lr=1e-2,
                     schedule="staggered", sampling="box", loss="log",
                     about="Sec. 3.4/3.5 as published (hours on 2 CPU cores)"),
-    "cpu": replace(_CPU_PHASES, phase_encoding="tent", g_sampling="window", lr_decay_start=0.5, lr_decay_every=10,
+    "cpu": replace(_CPU_PHASES, phase_encoding="tent", g_sampling="window", phase_nodes=16, lr_decay_start=0.5,
+                   lr_decay_every=10,
                    about="the default: any g from a kernel in g over a map in narrow phase bins; ~1.5 min on 2 cores"),
     "cpu-phases": _CPU_PHASES,
     "cpu-tent": replace(_CPU_PHASES, phase_encoding="tent", g_sampling="continuous",

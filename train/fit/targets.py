@@ -75,7 +75,7 @@ SAMPLING_MODES = ("box", "support")
 G_SAMPLING_MODES = ("discrete", "continuous", "mixed", "window")
 #: Largest spacing of the window centres of ``g_sampling="window"`` (the targets' kernels in g).
 WINDOW_STRIDE = 0.1
-#: Tent nodes of a field trained with windows: this many, evenly spread over the window range.
+#: Tent nodes of a field trained with windows by default (:attr:`photon_fields.train.fit.presets.Preset.phase_nodes`).
 WINDOW_FIELD_NODES = 5
 _MAX_REJECTION_DRAWS = 1 << 26  # candidates before giving up on an (almost) empty support
 
@@ -165,14 +165,12 @@ class TargetSampler:
         self.seconds = 0.0
         self.queries = 0
 
-    @property
-    def field_phases(self) -> tuple[float, ...]:
+    def field_phases(self, nodes: int = WINDOW_FIELD_NODES) -> tuple[float, ...]:
         """The phase set the field records (its tent nodes, :class:`photon_fields.models_spec.encoding.FieldConfig`):
-        the map's phases, or with windows :data:`WINDOW_FIELD_NODES` g evenly spread over the window range."""
+        the map's phases, or with windows ``nodes`` g evenly spread over the window range."""
         if self.g_sampling != "window":
             return tuple(float(g) for g in self.pmap.phases)
-        nodes = np.linspace(self.phases[0], self.phases[-1], WINDOW_FIELD_NODES)
-        return tuple(round(float(g), 6) for g in nodes)
+        return tuple(round(float(g), 6) for g in np.linspace(self.phases[0], self.phases[-1], max(2, int(nodes))))
 
     # --- sampling -------------------------------------------------------------------------------------
 
