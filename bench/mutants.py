@@ -124,6 +124,11 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/train/fit/test_field_training.py::"
             "test_window_g_has_the_arcsine_density_over_whole_windows_and_takes_the_kernels_around_it",),
            "training g uniform over the window range: the ends, where L_i changes fastest, get too few samples"),
+    Mutant("tent_columns_random_init", "train/field/network.py",
+           "layers[0].weight[:, cfg.input_dims - cfg.phase_dims + 1:] = 0.0",
+           "layers[0].weight[:, cfg.input_dims - cfg.phase_dims + 1:] *= 1.0",
+           ("tests/train/fit/test_field_training.py::test_tent_columns_start_at_zero",),
+           "the tent columns keep their random initial weights: a random offset, and a dip in L, at every node"),
     Mutant("knn_phase_cos_sign", "runtime/photons/knn.py",
            "p = hg_eval(g[i], -(dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz))",
            "p = hg_eval(g[i], dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz)",

@@ -102,7 +102,8 @@ def small_field_config():  # noqa: ANN201  (models_spec.encoding.FieldConfig)
 
 
 def make_model(cfg, seed: int = 0):  # noqa: ANN001, ANN201  (FieldConfig -> the torch field)
-    """The torch field of ``cfg`` with its hash tables uniform in [-1, 1], so errors cannot hide."""
+    """The torch field of ``cfg`` with its hash tables uniform in [-1, 1] and its tent columns (which start at
+    zero) random, so errors cannot hide."""
     import torch
 
     from photon_fields.train.field.network import TorchPhotonField as TorchField
@@ -112,6 +113,9 @@ def make_model(cfg, seed: int = 0):  # noqa: ANN001, ANN201  (FieldConfig -> the
     with torch.no_grad():
         for t in model.table_parameters():
             t.copy_(torch.rand(t.shape, generator=gen) * 2 - 1)
+        first = model.matrix_parameters()[0]
+        tents = first[:, cfg.input_dims - cfg.phase_dims + 1:]
+        tents.copy_(torch.rand(tents.shape, generator=gen) - 0.5)
     return model.eval()
 
 

@@ -74,6 +74,12 @@ class TorchPhotonField(nn.Module):
             if i < len(widths) - 2:
                 layers.append(nn.ReLU())
         self.mlp = nn.Sequential(*layers)
+        if cfg.phase_dims > 1:
+            # The tent columns start at zero: with random columns every node would carry its own random offset
+            # into the hidden layer, and their variance (largest at a node, where one tent alone is 1) comes
+            # out of the ReLUs as a dip in L at every node that training does not remove (docs/training.md).
+            with torch.no_grad():
+                layers[0].weight[:, cfg.input_dims - cfg.phase_dims + 1:] = 0.0
 
     def table_parameters(self) -> list[nn.Parameter]:
         """The hash tables: tcnn's "non-matrix" parameters (sparse gradients, lazily updated by its Adam)."""
