@@ -109,6 +109,26 @@ def test_targets_equal_the_photon_map_estimator(tiny: tuple) -> None:
     assert sampler.seconds > 0 and sampler.queries == 2000
 
 
+def test_batches_come_fresh_from_targets_estimated_ahead(tiny: tuple) -> None:
+    """The sampler estimates several batches at once (about per_set per phase) and hands them out in order:
+    every sample is used once, its target is the one a direct estimate gives, and a new radius drops the pool."""
+    scene, pmap, _, _ = tiny  # three phases: pools of round(3 * 100 / 64) = 5 batches
+    m = scene.medium()
+    sampler = TargetSampler(pmap, m, k=32, psi=5.0, seed=4, sampling="support", per_set=100)
+    batches = [sampler.sample(64, 0.05) for _ in range(6)]
+    assert sampler.estimated == 640 and sampler.queries == 384
+    pos = np.concatenate([b.pos.numpy() for b in batches])
+    assert len(np.unique(pos, axis=0)) == len(pos)
+    twin = TargetSampler(pmap, m, k=32, psi=5.0, seed=4, sampling="support")
+    x, d, g, ph = twin.draw(twin.rng, 320, "support")
+    q, found = twin.estimate(x, d, g, ph, 0.05)
+    assert np.array_equal(np.concatenate([b.q for b in batches[:5]]), q)
+    assert np.array_equal(np.concatenate([b.found for b in batches[:5]]), found)
+    assert np.array_equal(np.concatenate([b.g.numpy()[:, 0] for b in batches[:5]]), g.astype(np.float32))
+    sampler.sample(64, 0.02)  # the schedule's next radius: the rest of the pool is not used
+    assert sampler.estimated == 960
+
+
 def test_support_sampling_is_uniform_over_the_medium(tiny: tuple) -> None:
     from photon_fields.runtime.transport.medium import extinction_batch
 
