@@ -37,6 +37,7 @@ bench: $(STAMP)
 	$(PY) bench/bench_field.py
 	$(PY) bench/bench_render.py
 	$(PY) bench/bench_training.py
+	$(PY) bench/bench_targets.py
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache

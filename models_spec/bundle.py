@@ -23,10 +23,10 @@ Evaluating a bundle (what ``runtime.field.field.PhotonField.query`` does, and wh
 world position x -> ``normalize_position(x, bmin, bsize)`` (the manifest's ``domain``), unit camera-ray
 travel direction d -> ``direction_input(d)`` (:mod:`photon_fields.models_spec.encoding`), both hash-encoded exactly as
 :mod:`photon_fields.models_spec.hashgrid` defines (tiny-cuda-nn's HashGrid; the primes are repeated in the manifest),
-concatenated with ``phase_features(g, phases, phase_encoding)`` (g, plus one tent per phase when the field's
-``phase_encoding`` is "tent") in the column order of ``inputs.layout``, the ONNX MLP gives L', and Eq. 7
-(``decode_radiance``, psi from the manifest) gives the radiance Q(x, d, g) that the photon-map estimate
-(Eq. 5) supplies during training.
+concatenated with ``phase_features(g, phases, phase_encoding)`` (g, plus one tent or cubic B-spline weight per
+phase when the field's ``phase_encoding`` is "tent" or "spline") in the column order of ``inputs.layout``, the
+ONNX MLP gives L', and Eq. 7 (``decode_radiance``, psi from the manifest) gives the radiance Q(x, d, g) that the
+photon-map estimate (Eq. 5) supplies during training.
 
 Manifest (version :data:`BUNDLE_VERSION`; :data:`MANIFEST_SCHEMA` is its JSON Schema, shipped as
 ``models_spec/manifest.schema.json``, generated from the dict, test-checked to be in sync)
@@ -183,7 +183,7 @@ MANIFEST_SCHEMA: dict[str, Any] = {
             "hidden_layers": {"type": "integer", "minimum": 1, "maximum": 64},
             "psi": {"type": "number", "exclusiveMinimum": 0, "maximum": 30},
             "phases": {"type": "array", "items": {"type": "number", "minimum": -1, "maximum": 1}, "minItems": 1},
-            "phase_encoding": {"type": "string", "enum": ["tent"]},
+            "phase_encoding": {"type": "string", "enum": ["tent", "spline"]},
         }, required=["version", "position", "direction", "hidden_width", "hidden_layers", "psi", "phases"]),
         "hash_primes": {"type": "array", "const": [int(p) for p in HASH_PRIMES]},
         "encodings": _obj({"position": {"$ref": "#/$defs/geometry"}, "direction": {"$ref": "#/$defs/geometry"}}),

@@ -38,7 +38,14 @@ Inputs (Sec. 3.1, Eq. 2: ``P(x, g, omega)``)
   Why: the MLP has no biases, so from g alone it can bend its output in g only where position and direction
   features happen to cancel; trained on several phases, such a field tilts across g (a few to 10 % bright at
   one end of G and dark at the other, where its photon map is right at every g; bench/README.md). The tents give
-  it a kink at every phase.
+  it a kink at every phase. With the ``"spline"`` encoding, by the uniform cubic B-spline weights of g on the
+  phases (which must then be evenly spaced, h apart): B((g - G_j) / h) with B the cubic B-spline kernel
+  (2/3 - t^2 + |t|^3 / 2 for |t| < 1, (2 - |t|)^3 / 6 for |t| < 2), the weights of the two nodes just outside
+  G added to the end nodes, g clamped to [min G, max G]; they sum to 1 there. Why not tents: the first layer
+  of a tent field is linear in g between two nodes, and a least-squares line through a curved stretch is off
+  in one direction at its ends and in the other in the middle: trained on every g, a tent field was 2-4 %
+  darker at each node than half-way between (docs/training.md). The splines are smooth (C2) and give the
+  first layer a cubic in g between nodes.
 
 The network input is ``[hash_position(x) (Lp Fp), hash_direction(d) (Ld Fd), phase features (1 or 1 + |G|)]``
 in this order.
@@ -55,9 +62,9 @@ psi : float in (0, 30]
     Eq. 6 / 7 precision (above).
 phases : tuple of g in [-1, 1]
     The phase set G the field was trained on (the photon map's); g between them is interpolated.
-phase_encoding : "scalar" (default, the paper) or "tent"
-    The phase features (above). A "scalar" config's dict has no ``phase_encoding`` key, so configs written
-    before it existed read unchanged.
+phase_encoding : "scalar" (default, the paper), "tent" or "spline"
+    The phase features (above); "spline" needs two or more evenly spaced, increasing phases. A "scalar"
+    config's dict has no ``phase_encoding`` key, so configs written before it existed read unchanged.
 """
 
 from __future__ import annotations
@@ -75,7 +82,9 @@ from photon_fields.models_spec.photon_map import DEFAULT_PHASES
 DEFAULT_PSI = 5.0
 FIELD_CONFIG_VERSION = 1
 #: The phase encodings a FieldConfig may name (module docstring).
-PHASE_ENCODINGS = ("scalar", "tent")
+PHASE_ENCODINGS = ("scalar", "tent", "spline")
+#: Largest departure from even spacing the "spline" encoding accepts in its phases (they are stored rounded).
+SPLINE_SPACING_TOLERANCE = 1e-5
 OUTPUT_CHANNELS = 3
 
 
@@ -131,18 +140,51 @@ def phase_input(g: np.ndarray | float, n: int | None = None) -> np.ndarray:
     return ga.reshape(-1, 1)
 
 
+def cubic_bspline(t: np.ndarray) -> np.ndarray:
+    """The uniform cubic B-spline kernel B(t): 2/3 - t^2 + |t|^3 / 2 for |t| < 1, (2 - |t|)^3 / 6 for
+    |t| < 2, else 0. Its integer shifts sum to 1 and it is twice continuously differentiable."""
+    a = np.abs(t)
+    return np.where(a < 1.0, 2.0 / 3.0 - a * a + 0.5 * a * a * a, np.where(a < 2.0, (2.0 - a) ** 3 / 6.0, 0.0))
+
+
+def check_spline_phases(phases: tuple[float, ...]) -> None:
+    """Refuse phases the "spline" encoding cannot use: fewer than two, not increasing or not evenly spaced."""
+    p = np.asarray(phases, dtype=np.float64)
+    if p.size < 2 or not np.all(np.diff(p) > 0):
+        raise ValueError(f"the spline phase encoding needs two or more increasing phases, got {tuple(phases)}")
+    h = (p[-1] - p[0]) / (p.size - 1)
+    if np.max(np.abs(p - (p[0] + h * np.arange(p.size)))) > SPLINE_SPACING_TOLERANCE:
+        raise ValueError(f"the spline phase encoding needs evenly spaced phases, got {tuple(phases)}")
+
+
+def _spline_weights(g: np.ndarray, phases: tuple[float, ...]) -> np.ndarray:
+    """(n, |G|) cubic B-spline weights of g on the evenly spaced phases (module docstring)."""
+    p = np.asarray(phases, dtype=np.float64)
+    h = (p[-1] - p[0]) / (p.size - 1)
+    t = (np.clip(g, p[0], p[-1]) - p[0]) / h  # g in node units, in [0, |G| - 1]
+    w = cubic_bspline(t[:, None] - np.arange(p.size)[None, :])
+    w[:, 0] += cubic_bspline(t + 1.0)  # the node at min G - h, outside G
+    w[:, -1] += cubic_bspline(t - p.size)  # the node at max G + h
+    return w
+
+
 def phase_features(g: np.ndarray, phases: tuple[float, ...], encoding: str) -> np.ndarray:
-    """Phase coefficients (n,) -> float32 (n, 1) for ``"scalar"``, (n, 1 + |G|) for ``"tent"``: g, then the tent
-    of each phase in the order of ``phases`` (module docstring). The tents of a g sum to 1."""
+    """Phase coefficients (n,) -> float32 (n, 1) for ``"scalar"``, (n, 1 + |G|) for ``"tent"`` and ``"spline"``:
+    g, then the tent (or cubic B-spline) weight of each phase in the order of ``phases`` (module docstring).
+    The weights of a g sum to 1."""
     ga = np.asarray(g, dtype=np.float64).reshape(-1)
     if encoding == "scalar":
         return ga.astype(np.float32).reshape(-1, 1)
-    if encoding != "tent":
+    if encoding not in PHASE_ENCODINGS:
         raise ValueError(f"unknown phase encoding {encoding!r} (one of {PHASE_ENCODINGS})")
     if ga.shape[0] > 1 and (ga == ga[0]).all():  # one g for the whole batch (a rendered frame): one row
         return np.repeat(phase_features(ga[:1], phases, encoding), ga.shape[0], axis=0)
     out = np.empty((ga.shape[0], 1 + len(phases)), np.float32)
     out[:, 0] = ga
+    if encoding == "spline":
+        check_spline_phases(phases)
+        out[:, 1:] = _spline_weights(ga, phases)
+        return out
     order = np.argsort(np.asarray(phases, dtype=np.float64), kind="stable")
     sorted_g = np.asarray(phases, dtype=np.float64)[order]
     for rank, j in enumerate(order):
@@ -188,11 +230,16 @@ class FieldConfig:
         if self.phase_encoding not in PHASE_ENCODINGS:
             raise ValueError(f"FieldConfig.phase_encoding must be one of {PHASE_ENCODINGS}, "
                              f"got {self.phase_encoding!r}")
+        if self.phase_encoding == "spline":
+            try:
+                check_spline_phases(phases)
+            except ValueError as e:
+                raise ValueError(f"FieldConfig.phases: {e}") from None
 
     @property
     def phase_dims(self) -> int:
-        """Columns of :func:`phase_features`: 1, or 1 + |G| with the tent encoding."""
-        return 1 + (len(self.phases) if self.phase_encoding == "tent" else 0)
+        """Columns of :func:`phase_features`: 1, or 1 + |G| with the tent or spline encoding."""
+        return 1 + (len(self.phases) if self.phase_encoding != "scalar" else 0)
 
     @property
     def input_dims(self) -> int:

@@ -133,6 +133,37 @@ def test_phase_features_tents_interpolate_between_the_phases() -> None:
         phase_features(g, phases, "onehot")
 
 
+def test_phase_features_splines_are_smooth_cubic_b_spline_weights() -> None:
+    phases = tuple(np.linspace(-0.75, 0.75, 7).round(6))  # h = 0.25
+    g = np.linspace(-1.0, 1.0, 2001)
+    f = phase_features(g, phases, "spline").astype(np.float64)
+    assert f.shape == (2001, 8)
+    np.testing.assert_array_equal(f[:, 0], g.astype(np.float32))
+    np.testing.assert_allclose(f[:, 1:].sum(axis=1), 1.0, atol=1e-6)  # a partition of unity, ends included
+    w = phase_features(np.array([0.0, 0.125, -0.75, -0.9]), phases, "spline")[:, 1:].astype(np.float64)
+    np.testing.assert_allclose(w[0], [0, 0, 1 / 6, 2 / 3, 1 / 6, 0, 0], atol=1e-7)  # at a node
+    b_half, b_one_half = 2 / 3 - 0.25 + 0.0625, 0.5**3 / 6  # B(1/2), B(3/2): half-way between two nodes
+    np.testing.assert_allclose(w[1], [0, 0, b_one_half, b_half, b_half, b_one_half, 0], atol=1e-7)
+    np.testing.assert_allclose(w[2], [5 / 6, 1 / 6, 0, 0, 0, 0, 0], atol=1e-7)  # the node outside folded in
+    np.testing.assert_allclose(w[3], w[2], atol=1e-7)  # beyond the ends: clamped
+    # Cubic B-splines reproduce linear functions away from the ends: sum_j G_j w_j(g) = g.
+    inner = (g >= -0.5) & (g <= 0.5)
+    np.testing.assert_allclose(f[inner, 1:] @ np.array(phases), g[inner], atol=1e-6)
+    # Smooth (C1) over G where tents have kinks: the slope changes by O(dg) between neighbouring g, also at the
+    # nodes (a tent's slope jumps by 2 / h = 8 there). Only beyond the ends, where g is clamped, it stops.
+    dg = g[1] - g[0]
+    slope = np.diff(f[(g >= -0.75) & (g <= 0.75), 1:], axis=0) / dg
+    assert np.max(np.abs(np.diff(slope, axis=0))) < 3 * dg / 0.25**2
+    with pytest.raises(ValueError, match="evenly spaced"):
+        phase_features(g, (-0.75, 0.0, 0.5), "spline")
+    with pytest.raises(ValueError, match="increasing"):
+        phase_features(g, (0.5, 0.0, -0.5), "spline")
+    with pytest.raises(ValueError, match="FieldConfig.phases: .*evenly spaced"):
+        FieldConfig(phases=(-0.75, 0.0, 0.5), phase_encoding="spline")
+    cfg = FieldConfig(phases=phases, phase_encoding="spline")
+    assert cfg.phase_dims == 8 and FieldConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+
+
 def test_field_config_phase_encoding() -> None:
     scalar = FieldConfig(phases=(-0.75, 0.0, 0.75))
     tent = FieldConfig(phases=(-0.75, 0.0, 0.75), phase_encoding="tent")

@@ -67,7 +67,8 @@ class Preset:
     moves the field towards its batch's noisy targets; the average of the iterates keeps what they agree on."""
     phase_encoding: str = "scalar"
     """How g enters the MLP (:func:`photon_fields.models_spec.encoding.phase_features`): "scalar" (the paper) or
-    "tent" (g and one tent function per phase, which lets the bias-free MLP bend at every phase)."""
+    "tent" (g and one tent function per phase, which lets the bias-free MLP bend at every phase) or "spline" (g and
+    the cubic B-spline weights of evenly spaced nodes: smooth in g, so no dip at the nodes)."""
     phase_nodes: int = 5
     """Tent nodes of a field trained from a kernel in g (``g_sampling="window"``), evenly spread over the g it
     is trained on; a field trained at a map's phases has one per phase."""
@@ -86,7 +87,7 @@ PRESETS: dict[str, Preset] = {
     "paper": Preset(PAPER_POSITION, PAPER_DIRECTION, 64, 4, steps=3000, batch=1 << 16, lr=1e-2,
                     schedule="staggered", sampling="box", loss="log",
                     about="Sec. 3.4/3.5 as published (hours on 2 CPU cores)"),
-    "cpu": replace(_CPU_PHASES, phase_encoding="tent", g_sampling="window", phase_nodes=16, lr_decay_start=0.5,
+    "cpu": replace(_CPU_PHASES, phase_encoding="spline", g_sampling="window", phase_nodes=16, lr_decay_start=0.5,
                    lr_decay_every=10,
                    about="the default: any g from a kernel in g over a map in narrow phase bins; ~1.5 min on 2 cores"),
     "cpu-phases": _CPU_PHASES,

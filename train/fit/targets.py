@@ -52,7 +52,7 @@ g_sampling : "discrete", "continuous", "mixed" or "window"
 
 Targets ahead. The estimates are computed for several steps' batches at once (:data:`TARGETS_PER_SET` per
 phase or window, :meth:`TargetSampler.sample` then hands them out a batch at a time): every sample is still
-drawn fresh and used once, but a search structure answers ~2000 queries per call instead of a batch's share
+drawn fresh and used once, but a search structure answers ~4000 queries per call instead of a batch's share
 (256 of 4096 with 16 windows), and the Morton-ordered queries then find their photons in cache. The pool
 is dropped when the schedule's radius changes. Measured in bench/README.md ("Targets ahead").
 
@@ -83,7 +83,7 @@ G_SAMPLING_MODES = ("discrete", "continuous", "mixed", "window")
 #: Largest spacing of the window centres of ``g_sampling="window"`` (the targets' kernels in g).
 WINDOW_STRIDE = 0.1
 #: Targets computed at once per phase (or window) of the map: the pool :meth:`TargetSampler.sample` serves from.
-TARGETS_PER_SET = 2048
+TARGETS_PER_SET = 4096
 #: Tent nodes of a field trained with windows by default (:attr:`photon_fields.train.fit.presets.Preset.phase_nodes`).
 WINDOW_FIELD_NODES = 5
 _MAX_REJECTION_DRAWS = 1 << 26  # candidates before giving up on an (almost) empty support

@@ -133,17 +133,19 @@ def test_parity_cpu_preset_in_a_non_unit_box(tmp_path: Path) -> None:
     assert np.abs(field.query_encoded(x, d, g) - want).max() <= 1e-5
 
 
-def test_parity_tent_phase_features(tmp_path: Path) -> None:
-    """The cpu-tent architecture (g plus one tent per phase as MLP inputs): the runtime builds the same input
-    columns as torch, at the phases, between them, beyond them, one g per query and one g for all."""
-    cfg = field_config_for(PRESETS["cpu-tent"], PHASES)
-    assert cfg.phase_encoding == "tent"
+@pytest.mark.parametrize(("preset", "encoding"), [("cpu-tent", "tent"), ("cpu", "spline")])
+def test_parity_phase_features(tmp_path: Path, preset: str, encoding: str) -> None:
+    """The tent and the spline architectures (g plus one tent, or cubic B-spline weight, per phase as MLP inputs):
+    the runtime builds the same input columns as torch, at the phases, between them, beyond them, one g per query
+    and one g for all."""
+    cfg = field_config_for(PRESETS[preset], PHASES)
+    assert cfg.phase_encoding == encoding
     assert cfg.input_dims == field_config_for(PRESETS["cpu-phases"], PHASES).input_dims + 3
     model = make_model(cfg, seed=5)
     bmin, bsize = [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]
     run = make_run(tmp_path / "run", model, bmin, bsize)
-    field = PhotonField.load(export_bundle(run, tmp_path / "tent.pfn").path, threads=1)
-    assert field.config.phase_encoding == "tent"
+    field = PhotonField.load(export_bundle(run, tmp_path / f"{encoding}.pfn").path, threads=1)
+    assert field.config.phase_encoding == encoding
     rng = np.random.default_rng(6)
     x, d = rng.random((3000, 3)), unit(rng.standard_normal((3000, 3)))
     g = rng.choice([*PHASES, -0.6, -0.1, 0.35, 0.9, -1.0], 3000)
