@@ -65,8 +65,8 @@ clustered photons (bench/bench_knn.py data, K = 1024, r_max 0.01 to 0.1) the sea
 within the measurement noise (~15 %) for occupancies between ~15 and ~100, and 30-50 % higher at 5 or
 240 for the saturated radii; 32 sits in the middle of the flat range on a log scale.
 
-The number of cells is capped at ``max(4096, 4 n)`` (cell_start then costs at most 32 bytes per
-photon), which enlarges h when needed, a requested one included: strongly clustered maps with far
+The number of cells is capped at ``max(4096, 4 n)`` (cell_start, int32 below 2^31 photons, then costs at most
+16 bytes per photon), which enlarges h when needed, a requested one included: strongly clustered maps with far
 outliers reach the cap before the target occupancy and pay in scanning, not in correctness. n = 0 or
 a zero-size bounding box gives a single cell (edge 1 unless requested).
 
@@ -135,7 +135,7 @@ class PhotonGrid(NamedTuple):
 
     positions: np.ndarray  # (n, 3) float64, sorted by cell
     order: np.ndarray  # (n,) int64: positions[i] == input_positions[order[i]]
-    cell_start: np.ndarray  # (ncells + 1,) int64
+    cell_start: np.ndarray  # (ncells + 1,) int32 (int64 from 2^31 photons): the largest array of a clustered map
     origin: np.ndarray  # (3,) float64
     cell_size: float
     dims: np.ndarray  # (3,) int64
@@ -244,6 +244,8 @@ def build_photon_grid(positions: np.ndarray, cell_size: float | None = None) -> 
         h = _cap_cell_size(extent, float(cell_size), max_cells)
     dims = _dims_for(extent, h)
     order, start = _counting_sort(_cell_ids(pos, origin, 1.0 / h, dims), int(np.prod(dims)))
+    if n < np.iinfo(np.int32).max:
+        start = start.astype(np.int32)  # up to 4 cells per photon: half the memory of int64
     return PhotonGrid(np.ascontiguousarray(pos[order]), order, start, origin, float(h), dims)
 
 
@@ -520,8 +522,8 @@ def _search(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: floa
                     zb = z1 if shell else za
                     if za < z0 or zb > z1 or za > zb:
                         continue
-                    j = cell_start[base + za]
-                    b = cell_start[base + zb + 1]
+                    j = np.int64(cell_start[base + za])
+                    b = np.int64(cell_start[base + zb + 1])
                     while j < b:
                         if count == cap:
                             count, bound = _compact(d2, idx, count, k, tmp, bound)

@@ -353,9 +353,11 @@ def test_default_cell_size_rule(rng: np.random.Generator) -> None:
         assert TARGET_OCCUPANCY / 2 < occupancy < 2 * TARGET_OCCUPANCY
         assert grid.cell_start[-1] == len(pts) and len(counts) == grid.dims.prod()
         np.testing.assert_array_equal(grid.positions, pts[grid.order])
-    # Strong clustering with far outliers: the cell-count cap (4 per photon) binds before the target.
+    # Strong clustering with far outliers: the cell-count cap (4 per photon) binds before the target, and the
+    # cell table, the grid's largest array then, is int32 (16 bytes per photon, not 32).
     grid = build_photon_grid(clustered(20000, rng))
     assert 40000 < grid.dims.prod() <= 80000
+    assert grid.cell_start.dtype == np.int32 and grid.cell_start[-1] == 20000
     # A tiny requested cell size is enlarged to respect the cap (4096 cells at least).
     grid = build_photon_grid(rng.uniform(0, 1, (1000, 3)), 1e-4)
     assert grid.dims.prod() <= 4096 and grid.cell_size > 1e-4
