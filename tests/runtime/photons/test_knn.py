@@ -180,6 +180,11 @@ def test_empty_map_and_k_larger_than_n(rng: np.random.Generator) -> None:
     assert (np.sort(idx[:, :5], axis=1) == np.arange(5)).all()
 
 
+def as_stored(a: np.ndarray) -> np.ndarray:
+    """Photon attributes as a PhotonIndex stores them (float32), back in float64."""
+    return a.astype(np.float32).astype(np.float64)
+
+
 @pytest.mark.parametrize("g", [0.0, 0.6, -0.3])
 @pytest.mark.parametrize("cell_size", [None, 0.01, 0.08, 3.0])
 def test_radiance_matches_brute_force(g: float, cell_size: float | None) -> None:
@@ -193,7 +198,9 @@ def test_radiance_matches_brute_force(g: float, cell_size: float | None) -> None
     grid = build_photon_grid(pts, cell_size)
     for k, r_max in [(32, 0.05), (200, 0.1), (600, 0.2), (64, math.inf)]:
         est, radius, found = knn_radiance(grid, dirs, wts, qs, view, g, k, r_max)
-        ref_est, ref_radius, ref_found = brute_radiance(pts, dirs, wts, qs, view, g, k, r_max)
+        # The index stores directions and weights as float32 (knn.PhotonIndex): the reference uses the same
+        # values, so the arithmetic can still be compared to 1e-9.
+        ref_est, ref_radius, ref_found = brute_radiance(pts, as_stored(dirs), as_stored(wts), qs, view, g, k, r_max)
         np.testing.assert_array_equal(found, ref_found)
         np.testing.assert_allclose(radius, ref_radius, rtol=1e-12)
         np.testing.assert_allclose(est, ref_est, rtol=1e-9, atol=0.0)
@@ -209,7 +216,8 @@ def test_radiance_phase_turns_photons_towards_the_camera(g: float) -> None:
     scattering. A photon already travelling along -d goes straight on (HG at cos = 1, the forward peak
     (1 + g) / (4 pi (1 - g)^2)); one travelling along d turns back (cos = -1: (1 - g) / (4 pi (1 + g)^2)); one
     travelling across turns by 90 degrees ((1 - g^2) / (4 pi (1 + g^2)^1.5)). One photon of weight 1 per
-    query, r_max 0.5 (fewer than K photons: the ball of radius r_max)."""
+    query, r_max 0.5 (fewer than K photons: the ball of radius r_max). The photon's direction is stored as
+    float32 (knn.PhotonIndex), which moves HG at its forward peak by ~1e-6: rtol 1e-5."""
     d = np.array([0.6, 0.0, 0.8])
     across = np.array([0.0, 1.0, 0.0])
     grid = build_photon_grid(np.zeros((1, 3)))
@@ -219,10 +227,10 @@ def test_radiance_phase_turns_photons_towards_the_camera(g: float) -> None:
                                      4, 0.5)
         want = (1 - g * g) / (4 * math.pi * (1 + g * g - 2 * g * cos) ** 1.5) / vol
         assert found[0] == 1
-        np.testing.assert_allclose(est[0], want, rtol=1e-12)
+        np.testing.assert_allclose(est[0], want, rtol=1e-5)
     forward = (1 + g) / (4 * math.pi * (1 - g) ** 2) / vol
     est, _, _ = knn_radiance(grid, -d[None, :], np.ones((1, 3)), np.zeros((1, 3)), d[None, :], g, 4, 0.5)
-    np.testing.assert_allclose(est[0], forward, rtol=1e-12)
+    np.testing.assert_allclose(est[0], forward, rtol=1e-5)
 
 
 def test_radiance_zero_photons_and_infinite_r_max(rng: np.random.Generator) -> None:

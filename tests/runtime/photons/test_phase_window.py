@@ -82,7 +82,8 @@ def test_window_estimate_is_the_weighted_sum_of_the_bins_estimates(thin_scene: S
     mixed = sum(wb * indexed_radiance(est.index(int(b)), x, d, g, 1 << 16, 0.08)[0] for b, wb in zip(idx, w,
                                                                                                    strict=True))
     assert window.mean() > 0
-    np.testing.assert_allclose(window, mixed, rtol=1e-9, atol=1e-12 * window.max())
+    # rtol 1e-6: the two sides round their (differently scaled) photon weights to float32 (knn.PhotonIndex).
+    np.testing.assert_allclose(window, mixed, rtol=1e-6, atol=1e-12 * window.max())
 
 
 def test_windowed_photon_map_converges_to_path_tracer_between_bins(thin_scene: Scene) -> None:
