@@ -53,6 +53,7 @@ from photon_fields.models_spec import (  # noqa: E402
     PHASE_WINDOW,
 )
 from photon_fields.runtime.eval.metrics import relative_l2, ssim  # noqa: E402
+from photon_fields.runtime.photons.phase_window import window_range  # noqa: E402
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
 from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped  # noqa: E402
 from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
@@ -88,7 +89,7 @@ class Config:
 
 CONFIGS: dict[str, Config] = {
     "default": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", g_window=PHASE_WINDOW,
-                      about="the product's defaults: 37 phase bins, any g from a kernel in g, tent features, anneal"),
+                      about="the product's defaults: 37 phase bins, any g from a kernel in g, spline features, anneal"),
     "phases": Config(DEFAULT_PHOTONS, about="the defaults before the kernel in g: five phases, 1M photons each, "
                                             "the field trained at the phases (cpu-phases)"),
     "paper-like": Config(1_000_000, PAPER_PHASES, overrides={"loss": "log", "k": 1024},
@@ -165,7 +166,8 @@ def map_answers(pmap: Any, config: Config, g: float) -> bool:
     """Whether the configuration's photon map has a target at g (its phase, or a whole window around g)."""
     if config.g_window is None:
         return bool(np.any(np.isclose(pmap.phases, g)))
-    return bool(min(pmap.phases) + config.g_window - 1e-9 <= g <= max(pmap.phases) - config.g_window + 1e-9)
+    lo, hi = window_range(pmap.phases, config.g_window)
+    return lo - 1e-9 <= g <= hi + 1e-9
 
 
 def score(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], config: Config, gs: list[float],

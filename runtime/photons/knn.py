@@ -263,7 +263,7 @@ def _gather_attributes(grid: PhotonGrid, directions: np.ndarray,
     n = grid.order.shape[0]
     out = []
     for name, a in (("directions", directions), ("weights", weights)):
-        a = np.asarray(a, dtype=np.float64)
+        a = np.asarray(a)
         if a.shape != (n, 3):
             raise ValueError(f"{name} must have shape ({n}, 3) like the grid's positions, got {a.shape}")
         out.append(np.take(a, grid.order, axis=0).astype(np.float32))  # np.take: ~3x faster than a[order] here

@@ -75,9 +75,10 @@ class TorchPhotonField(nn.Module):
                 layers.append(nn.ReLU())
         self.mlp = nn.Sequential(*layers)
         if cfg.phase_dims > 1:
-            # The tent columns start at zero: with random columns every node would carry its own random offset
-            # into the hidden layer, and their variance (largest at a node, where one tent alone is 1) comes
-            # out of the ReLUs as a dip in L at every node that training does not remove (docs/training.md).
+            # The columns of the per-node phase features (tents or splines) start at zero: with random columns
+            # every node would carry its own random offset into the hidden layer, and their variance (largest at
+            # a node, where one tent alone is 1) came out of the ReLUs as a dip in L at every tent node that
+            # training did not remove (docs/training.md).
             with torch.no_grad():
                 layers[0].weight[:, cfg.input_dims - cfg.phase_dims + 1:] = 0.0
 

@@ -7,8 +7,8 @@
   (the renderer never queries empty space), the final radius from the start, small batches and many steps,
   a richer network than its cost suggests because targets, not the network, dominate a step; any g of
   [-0.75, 0.75] trained from a kernel in g over a map traced in narrow phase bins (``g_sampling="window"``,
-  :mod:`photon_fields.runtime.photons.phase_window`), g itself and one tent function per node of 16 (0.1 apart:
-  five nodes could not follow shell's dip in g at -0.6), and a harder learning-rate anneal. Needs a map of
+  :mod:`photon_fields.runtime.photons.phase_window`), g itself and its cubic B-spline weights on 16 nodes (0.1
+  apart: five nodes could not follow shell's dip in g at -0.6), and a harder learning-rate anneal. Needs a map of
   :data:`photon_fields.models_spec.photon_map.PHASE_BINS` (what ``pfn-train trace`` makes by default).
 - ``cpu-phases``: ``cpu`` as it was before the kernel in g: trains at the map's phases only (the paper's way,
   any map of a few phases), scalar g, the paper's anneal.
@@ -70,8 +70,9 @@ class Preset:
     "tent" (g and one tent function per phase, which lets the bias-free MLP bend at every phase) or "spline" (g and
     the cubic B-spline weights of evenly spaced nodes: smooth in g, so no dip at the nodes)."""
     phase_nodes: int = 5
-    """Tent nodes of a field trained from a kernel in g (``g_sampling="window"``), evenly spread over the g it
-    is trained on; a field trained at a map's phases has one per phase."""
+    """Nodes of the phase features (tents or splines) of a field trained from a kernel in g
+    (``g_sampling="window"``), evenly spread over the g it is trained on; a field trained at a map's phases has one
+    per phase."""
     g_sampling: str = "discrete"
     """Training g (:mod:`photon_fields.train.fit.targets`): "discrete" (the phases G, the paper), "continuous"
     (uniform over [min G, max G], targets from the two nearest phases' photons) or "mixed" (half of each)."""

@@ -84,8 +84,6 @@ G_SAMPLING_MODES = ("discrete", "continuous", "mixed", "window")
 WINDOW_STRIDE = 0.1
 #: Targets computed at once per phase (or window) of the map: the pool :meth:`TargetSampler.sample` serves from.
 TARGETS_PER_SET = 4096
-#: Tent nodes of a field trained with windows by default (:attr:`photon_fields.train.fit.presets.Preset.phase_nodes`).
-WINDOW_FIELD_NODES = 5
 _MAX_REJECTION_DRAWS = 1 << 26  # candidates before giving up on an (almost) empty support
 
 
@@ -179,9 +177,10 @@ class TargetSampler:
         self._pool_radius = -1.0
         self._pool_next = 0
 
-    def field_phases(self, nodes: int = WINDOW_FIELD_NODES) -> tuple[float, ...]:
-        """The phase set the field records (its tent nodes, :class:`photon_fields.models_spec.encoding.FieldConfig`):
-        the map's phases, or with windows ``nodes`` g evenly spread over the window range."""
+    def field_phases(self, nodes: int) -> tuple[float, ...]:
+        """The phase set the field records (the nodes of its phase features,
+        :class:`photon_fields.models_spec.encoding.FieldConfig`): the map's phases, or with windows ``nodes`` g
+        evenly spread over the window range (:attr:`photon_fields.train.fit.presets.Preset.phase_nodes`)."""
         if self.g_sampling != "window":
             return tuple(float(g) for g in self.pmap.phases)
         return tuple(round(float(g), 6) for g in np.linspace(self.phases[0], self.phases[-1], max(2, int(nodes))))
