@@ -50,6 +50,7 @@ DEFAULT_OUT = ROOT / "bench" / "results" / "mutants.json"
 LIGHTS = "tests/runtime/photons/test_light_kinds.py::test_photon_map_li_matches_path_tracer_per_light_kind"
 EMITTERS = "tests/runtime/transport/test_emitters.py"
 TRACING = "tests/train/photons/test_photon_tracing.py"
+CAMERA = "tests/runtime/wavefront/test_camera_estimators.py"
 
 
 @dataclass(frozen=True)
@@ -76,7 +77,8 @@ MUTANTS: tuple[Mutant, ...] = (
             "tests/runtime/field/test_bundle.py::test_fit_records_its_psi_and_the_bundle_decodes_with_it"),
            "the runtime decodes Eq. 7 with the default psi = 5 instead of the bundle's"),
     Mutant("li_without_albedo", "runtime/wavefront/first_interaction.py",
-           'film.splat("L_i", fi.pixel, q, distinct, weight=fi.albedo)', 'film.splat("L_i", fi.pixel, q, distinct)',
+           'film.splat("L_i", fi.pixel, q, distinct, weight=throughput)',
+           'film.splat("L_i", fi.pixel, q, distinct, weight=throughput / fi.albedo)',
            (f"{LIGHTS}[point_outside]", f"{LIGHTS}[directional]", f"{LIGHTS}[environment]"),
            "L_i composed without the albedo at the camera vertex (neural and photon-map renderers)"),
     Mutant("hg_cos_sign", "runtime/transport/phase.py", "denom = 1.0 + g * g - 2.0 * g * cos_theta",
@@ -195,6 +197,22 @@ MUTANTS: tuple[Mutant, ...] = (
            "                    pass  # the field",
            ("tests/train/fit/test_field_training.py::test_averaging_changes_the_field_not_the_optimization",),
            "the parameter average is kept but never becomes the field: the last, noisy iterate is exported"),
+    Mutant("forced_weight_dropped", "runtime/wavefront/first_interaction.py",
+           "throughput = fi.albedo * fi.weight if forced else fi.albedo", "throughput = fi.albedo",
+           (f"{CAMERA}::test_forced_and_delta_estimate_the_same_image[L_i-forced]",),
+           "the forced camera estimator's collisions are not weighted by the ray's collision probability"),
+    Mutant("forced_score_after_update", "runtime/transport/tracking.py", "                    w = tr * sigma / maj",
+           "                    w = tr * (1.0 - sigma / maj)",
+           (f"{CAMERA}::test_resampled_collision_matches_delta_tracking_on_one_ray",),
+           "the resampled collision scores each tentative collision with the null-collision factor"),
+    Mutant("forced_environment_unweighted", "runtime/wavefront/first_interaction.py",
+           "weight=np.broadcast_to(transmit[seen][None, :], (3, seen.shape[0])))", ")",
+           (f"{CAMERA}::test_forced_and_delta_estimate_the_same_image[L_e-forced]",),
+           "the environment behind the volume is seen at full strength by every ray with a transmittance estimate"),
+    Mutant("forced_roulette_unweighted", "runtime/wavefront/first_interaction.py", "                    w = w_min\n",
+           "",
+           (f"{CAMERA}::test_forced_and_delta_estimate_the_same_image[L_i-forced, roulette]",),
+           "a low-weight collision that survives the roulette keeps its weight instead of the roulette's"),
 )
 
 

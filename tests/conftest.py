@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np  # noqa: E402
@@ -190,3 +191,26 @@ def pole_and_seam_directions(rng: np.random.Generator, n_random: int = 300) -> n
     return np.concatenate([v / np.linalg.norm(v, axis=1, keepdims=True),
                            [[0, 0, 1], [0, 0, -1], [-1, 0.0, 0], [-1, -0.0, 0], [1, 0, 0], [0, 1, 0],
                             [-0.6, 0.0, 0.8], [-0.6, -0.0, -0.8], [-1, 1e-12, 0], [-1, -1e-12, 0]]])
+
+
+def block_means(img: np.ndarray, b: int = 6) -> np.ndarray:
+    """Means over b x b pixel blocks of an (H, W, C) image (the units of the block z-score tests)."""
+    h, w = img.shape[:2]
+    return img[: h // b * b, : w // b * b].reshape(h // b, b, w // b, b, -1).mean(axis=(1, 3))
+
+
+def mean_and_error(images: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Per block: the mean over independent renders and its standard error."""
+    blocks = np.stack([block_means(img) for img in images])
+    return blocks.mean(0), blocks.std(0, ddof=1) / math.sqrt(len(images))
+
+
+def assert_estimates_agree(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], what: str) -> None:
+    """Two independent estimators of one image (per block: mean, standard error) converge to one mean: block
+    z-scores (98th percentile < 4.5, max < 6) and the whole image's z-score (< 5)."""
+    (ma, sa), (mb, sb) = a, b
+    z = np.abs(ma - mb) / np.sqrt(sa**2 + sb**2 + 1e-12)
+    # Whole-image means: the sharpest check of a missing fraction of the light.
+    zm = abs(ma.mean() - mb.mean()) / math.sqrt(np.mean(sa) ** 2 / 4 + np.mean(sb) ** 2 / 4 + 1e-12)
+    assert np.percentile(z, 98) < 4.5 and z.max() < 6.0, (what, float(np.percentile(z, 98)), float(z.max()))
+    assert zm < 5.0, (what, float(ma.mean()), float(mb.mean()), zm)

@@ -58,12 +58,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", default=None, help="WIDTHxHEIGHT (default: the scene camera's)")
     p.add_argument("--g", type=float, default=None, help="Henyey-Greenstein g in [-1, 1] (default: the scene's)")
     p.add_argument("--seed", type=int, default=0, help="random seed: same seed, same image")
+    shared: dict[str, tuple[Any, list[str]]] = {}  # an option several renderers take is one flag
     for renderer in RENDERERS.values():
         for opt in renderer.options:
-            if opt.type is None:
-                p.add_argument(opt.flag, action="store_true", help=f"{renderer.name}: {opt.help}")
-            else:
-                p.add_argument(opt.flag, type=opt.type, default=opt.default, help=f"{renderer.name}: {opt.help}")
+            shared.setdefault(opt.flag, (opt, []))[1].append(renderer.name)
+    for opt, names in shared.values():
+        if opt.type is None:
+            p.add_argument(opt.flag, action="store_true", help=f"{', '.join(names)}: {opt.help}")
+        else:
+            p.add_argument(opt.flag, type=opt.type, default=opt.default, help=f"{', '.join(names)}: {opt.help}")
     p.add_argument("--map", default=None, help="photonmap: photon map (.npz) from `pfn-train trace`")
     p.add_argument("--bundle", default=None, help="field: photon-field bundle (NAME.pfn) from `pfn-train export`")
     p.add_argument("--precision", default="fp32",

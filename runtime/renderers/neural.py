@@ -4,8 +4,10 @@ Stages (each timed under its own name in ``RenderResult.timings_ms``; code in
 :mod:`runtime.wavefront.first_interaction`, shared with the photon-map renderer so the two differ only in stage 3):
 
 1. ``sample_first_interactions``: one jittered camera ray per (pixel, sample) work item, clipped to the
-   volume box and delta-tracked to its first interaction, in one fused numba pass; rays that miss the box
-   or leave it without an interaction leave a hole (and add the environment to L_e);
+   volume box and tracked to its first interaction by the camera estimator ("forced" by default: a
+   collision resampled from the whole ray, weighted by the ray's collision probability; "delta": the path
+   tracer's delta tracking), in one fused numba pass; rays that miss the box or leave it without an
+   interaction leave a hole (and add the environment to L_e);
 2. ``compact``: holes are removed before anything reaches the field;
 3. ``estimate_indirect``: the field :class:`photon_fields.runtime.field.field.PhotonField` predicts Q(x, d, g) at every
    interaction (hash encoding, batched onnxruntime inference, Eq. 7 decode), at the render's g, which may
@@ -34,9 +36,10 @@ APIs:
 Fly-around sequences of any renderer are :mod:`photon_fields.runtime.renderers.orbit`.
 
 Why it is faster than the path tracer, and by how much at most: it saves the path tracer's later bounces
-only. Delta tracking every camera ray to its first interaction is the path tracer's first bounce, the same
-kernel and the same random numbers (the layers must agree bit for bit), so L_i can be at most (path tracer
-L) / (first-interaction stage) times faster. ``bench/bench_render.py`` measures it (bench/README.md).
+only. Tracking every camera ray to its first interaction is the path tracer's first bounce (with the "delta"
+camera estimator the same kernel and the same random numbers: the layers agree bit for bit), so L_i can be
+at most (path tracer L) / (first-interaction stage) times faster. ``bench/bench_render.py`` measures it
+(bench/README.md).
 
 Memory: work is processed in batches of ``batch_size`` work items (default 2^18): the first interactions, the
 field's input buffer (chunked again inside the field) and the film (3 layers x 3 float64 per pixel) bound
@@ -50,17 +53,24 @@ from typing import Any
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.wavefront.batches import DEFAULT_BATCH, RenderResult
 from photon_fields.runtime.wavefront.film import Film
-from photon_fields.runtime.wavefront.first_interaction import IndirectEstimator, render_first_interaction
+from photon_fields.runtime.wavefront.first_interaction import (
+    DEFAULT_CAMERA_ESTIMATOR,
+    IndirectEstimator,
+    render_first_interaction,
+)
 
 
 def render_neural(scene: Scene, estimator: IndirectEstimator | None, *, spp: int = 1, seed: int = 0,
                   batch_size: int = DEFAULT_BATCH, progress: bool = True, direct: bool = True,
-                  film: Film | None = None, first_sample: int = 0) -> RenderResult:
+                  film: Film | None = None, first_sample: int = 0,
+                  camera: str = DEFAULT_CAMERA_ESTIMATOR) -> RenderResult:
     """Alg. 2 with ``estimator`` (normally ``PhotonField.estimator()``) for L_i; see the module docstring.
-    ``estimator=None`` renders L_d only, ``direct=False`` L_i only (for timing the terms separately)."""
+    ``estimator=None`` renders L_d only, ``direct=False`` L_i only (for timing the terms separately).
+    ``camera`` picks how first interactions are sampled (``first_interaction.CAMERA_ESTIMATORS``)."""
     stats_before = _field_seconds(estimator)
     result = render_first_interaction(scene, estimator, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
-                                      desc="neural rendering", direct=direct, film=film, first_sample=first_sample)
+                                      desc="neural rendering", direct=direct, film=film, first_sample=first_sample,
+                                      camera=camera)
     after = _field_seconds(estimator)
     for key, value in after.items():  # the field's own split of stage 4: encoding / inference / decoding
         result.timings_ms[f"estimate_indirect.{key}"] = (value - stats_before.get(key, 0.0)) * 1e3
@@ -82,8 +92,9 @@ class ProgressiveRender:
     frame's timings; ``samples`` is the samples per pixel accumulated."""
 
     def __init__(self, scene: Scene, estimator: IndirectEstimator | None, *, spp: int = 1, seed: int = 0,
-                 batch_size: int = DEFAULT_BATCH) -> None:
+                 batch_size: int = DEFAULT_BATCH, camera: str = DEFAULT_CAMERA_ESTIMATOR) -> None:
         self.scene, self.estimator, self.spp, self.seed, self.batch_size = scene, estimator, int(spp), seed, batch_size
+        self.camera = camera
         self.film = Film(scene.camera.width, scene.camera.height)
         self.frames = 0
 
@@ -93,6 +104,6 @@ class ProgressiveRender:
 
     def frame(self) -> RenderResult:
         result = render_neural(self.scene, self.estimator, spp=self.spp, seed=self.seed, batch_size=self.batch_size,
-                               progress=False, film=self.film, first_sample=self.film.samples)
+                               progress=False, film=self.film, first_sample=self.film.samples, camera=self.camera)
         self.frames += 1
         return result

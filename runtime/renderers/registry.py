@@ -49,6 +49,17 @@ def float_in(lo: float, hi: float, unit: str, *, open_low: bool = False) -> Call
     return check
 
 
+def one_of(choices: tuple[str, ...]) -> Callable[[str, Any], str]:
+    """A check for a string option that must be one of ``choices``."""
+
+    def check(flag: str, value: Any) -> str:
+        if value not in choices:
+            raise InputError(flag, f"must be one of {', '.join(choices)}, got {value!r}")
+        return value
+
+    return check
+
+
 def negate(flag: str, value: Any) -> bool:
     """For a ``--no-X`` switch that sets keyword ``X``."""
     return not value
@@ -97,6 +108,12 @@ class Renderer:
         return getattr(importlib.import_module(module), name)
 
 
+#: The first-interaction renderers' camera estimator (runtime.wavefront.first_interaction.CAMERA_ESTIMATORS; spelt
+#: out here so that building the command line does not import numba kernels).
+CAMERA_OPTION = Option("--camera-estimator", "camera", "camera estimator: forced (a collision resampled from the "
+                       "whole ray, weighted by its collision probability; less noise in thin media) or delta (delta "
+                       "tracking, the path tracer's first bounce)", str, "forced", one_of(("forced", "delta")))
+
 RENDERERS: dict[str, Renderer] = {r.name: r for r in (
     Renderer("pt", "volumetric path tracer (reference)",
              "photon_fields.runtime.renderers.path_tracer:render_path_traced",
@@ -111,8 +128,9 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
              "photon_fields.runtime.renderers.photon_mapped:render_photon_mapped",
              (Option("--k", "k", "photons per estimate (K)", int, 1024, int_in(2, 1 << 16)),
               Option("--radius", "radius", "max search radius, in units of the volume box's longest side", float,
-                     0.05, float_in(0, 2, "box units", open_low=True))),
+                     0.05, float_in(0, 2, "box units", open_low=True)), CAMERA_OPTION),
              input="map"),
     Renderer("field", "the neural renderer (Alg. 2): first interactions + NEE + the photon field's L_i "
-             "(needs --bundle)", "photon_fields.runtime.renderers.neural:render_neural", input="bundle"),
+             "(needs --bundle)", "photon_fields.runtime.renderers.neural:render_neural", (CAMERA_OPTION,),
+             input="bundle"),
 )}

@@ -6,14 +6,14 @@ ground truth with identical samples.
 
 Stages over structure-of-arrays batches of work items (pixel, sample):
 
-1. ``sample_first_interactions`` (camera rays, clipping and delta tracking fused into one numba pass, see
+1. ``sample_first_interactions`` (camera rays, clipping and tracking fused into one numba pass, see
    :func:`sample_first_interactions`): one jittered camera ray per work item, clipped to the volume box and
-   delta-tracked to its first interaction, with the albedo there; rays that miss the box or escape add the
-   environment to L_e;
+   tracked to its first interaction by the camera estimator (below), with the albedo there; rays that miss
+   the box or escape add the environment to L_e;
 2. ``compact``: the interacting items are packed densely, no holes reach the estimators;
 3. ``estimate_indirect``: the estimator's in-scattered indirect radiance Q(x, d, g) at every sample;
 4. ``estimate_direct``: next-event estimation to every light with ratio-tracked shadow rays;
-5. ``compose``: L_d = a(x) * NEE, L_i = a(x) * Q, accumulated per pixel and divided by spp.
+5. ``compose``: L_d = W a(x) * NEE, L_i = W a(x) * Q, accumulated per pixel and divided by spp.
 
 The estimator we implement (and why it matches the path tracer's split). With delta tracking, the
 first real collision x is sampled with pdf sigma_t T, and the path tracer weights everything scattered
@@ -30,8 +30,18 @@ class has a single estimator; MIS is only needed where two strategies estimate t
 and phase sampling do for the environment inside the path tracer), and sigma_s becomes the albedo
 because the delta-tracking pdf supplies the 1 / sigma_t. Each sample is a separate camera ray with its
 own sub-pixel jitter (Alg. 2 reuses identical ray parameters; jittering antialiases at no cost).
-Camera rays use the same random streams as the path tracer, so with the same seed the first
-interactions, and the NEE estimates for delta lights, are identical to the path tracer's.
+Camera rays use the same random streams as the path tracer, so with the same seed and the "delta" camera
+estimator the first interactions, and the NEE estimates for delta lights, are identical to the path tracer's.
+
+The camera estimators (:data:`CAMERA_ESTIMATORS`). "delta" samples x as above, with weight W = 1: a ray
+through a thin medium interacts with probability 1 - T(t_max), so a pixel is a hit-or-miss sample. "forced"
+(the default) walks the whole ray with ratio tracking and resamples one of its tentative collisions
+(:func:`photon_fields.runtime.transport.tracking.resampled_collision`): x is then distributed as before,
+restricted to the ray (pdf sigma_t T / (1 - T(t_max)) in expectation), and W, the walk's unbiased estimate of
+1 - T(t_max), weights it, so every ray that crosses the medium contributes; the environment behind the
+volume is weighted by the walk's transmittance estimate instead of being seen or not. Both estimate the
+same image (tests/runtime/wavefront/test_camera_estimators.py); docs/rendering.md has the derivation and
+what each costs.
 """
 
 from __future__ import annotations
@@ -44,10 +54,12 @@ from typing import Protocol
 import numpy as np
 from numba import njit, prange
 
+from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.direct_light import direct_light_batch
 from photon_fields.runtime.transport.medium import Medium, albedo_at
-from photon_fields.runtime.transport.tracking import delta_track
+from photon_fields.runtime.transport.rng import next_float
+from photon_fields.runtime.transport.tracking import delta_track, resampled_collision
 from photon_fields.runtime.wavefront.batches import (
     DEFAULT_BATCH,
     RenderResult,
@@ -66,6 +78,17 @@ class IndirectEstimator(Protocol):
     def __call__(self, x: np.ndarray, d: np.ndarray, g: float) -> np.ndarray: ...
 
 
+#: The camera estimators: how a camera ray's first interaction is sampled and weighted (docs/rendering.md).
+#: "delta": delta tracking to the first real collision, weight 1 (the path tracer's first bounce, bit for bit);
+#: "forced": one collision resampled from the ratio-tracking walk along the whole ray, weighted by the walk's
+#: estimate W of the collision probability (runtime.transport.tracking), so that a ray through thin media
+#: interacts with weight W instead of rarely with weight 1.
+CAMERA_ESTIMATORS = ("delta", "forced")
+DEFAULT_CAMERA_ESTIMATOR = "forced"
+#: "forced": a collision of weight W < FORCED_MIN_WEIGHT is kept with probability W / FORCED_MIN_WEIGHT and then
+#: weighted FORCED_MIN_WEIGHT (Russian roulette on the weight), which bounds the field and NEE work per frame.
+FORCED_MIN_WEIGHT = 0.25
+
 #: Status of a work item after :func:`sample_first_interactions`.
 MISSED_BOX, ESCAPED, INTERACTED = 0, 1, 2
 #: Work items per parallel task of the fused kernel: the interacting items of a task are packed at its start,
@@ -83,7 +106,8 @@ class FirstInteractions:
     x: np.ndarray  # float64 (3, n): first real collision
     d: np.ndarray  # float64 (3, n): unit camera-ray travel direction
     albedo: np.ndarray  # float64 (3, n): sigma_s / sigma_t at x
-    rng: np.ndarray  # uint64 (n,): random state after the camera jitter and the delta tracking (NEE goes on)
+    rng: np.ndarray  # uint64 (n,): random state after the camera jitter and the tracking (NEE goes on)
+    weight: np.ndarray  # float64 (n,): the camera estimator's weight of the collision (1 for "delta")
 
     def __len__(self) -> int:
         return int(self.pixel.shape[0])
@@ -91,18 +115,23 @@ class FirstInteractions:
     @classmethod
     def empty(cls, n: int) -> FirstInteractions:
         return cls(np.empty(n, np.int64), np.empty((3, n)), np.empty((3, n)), np.empty((3, n)),
-                   np.empty(n, np.uint64))
+                   np.empty(n, np.uint64), np.empty(n))
 
 
 @njit(cache=True, parallel=True)
 def _first_interactions(m: Medium, eye: np.ndarray, origin: np.ndarray, du: np.ndarray, dv: np.ndarray, width: int,
-                        n_pixels: int, start: int, count: int, seed: int, block: int, pixel: np.ndarray,
-                        x: np.ndarray, d: np.ndarray, albedo: np.ndarray, rng: np.ndarray,
-                        status: np.ndarray) -> np.ndarray:
-    """Work items ``start .. start + count - 1``: camera ray, clip, delta tracking, albedo, in one pass per item
-    (the same inlined arithmetic as ``generate_camera_rays`` -> ``clip_rays_to_volume`` -> ``delta_track_batch``
-    and the same random draws, so the collisions equal the path tracer's bit for bit). Task k packs its
-    interacting items at ``k * block``; returns per task (interacting items, items inside the box)."""
+                        n_pixels: int, start: int, count: int, seed: int, block: int, forced: bool, w_min: float,
+                        pixel: np.ndarray, x: np.ndarray, d: np.ndarray, albedo: np.ndarray, rng: np.ndarray,
+                        weight: np.ndarray, status: np.ndarray, transmit: np.ndarray) -> np.ndarray:
+    """Work items ``start .. start + count - 1``: camera ray, clip, tracking, albedo, in one pass per item.
+
+    ``forced`` False ("delta"): delta tracking, the same inlined arithmetic as ``generate_camera_rays`` ->
+    ``clip_rays_to_volume`` -> ``delta_track_batch`` and the same random draws, so the collisions equal the
+    path tracer's bit for bit; weight 1. ``forced`` True: the collision resampled from the ratio-tracking walk
+    with weight W (:func:`resampled_collision`), kept with probability min(1, W / w_min) and then weighted
+    max(W, w_min); ``transmit`` gets each item's estimate of the transmittance to the box exit (1 for a
+    miss). Task k packs its interacting items at ``k * block``; returns per task (interacting items, items
+    inside the box)."""
     nblocks = (count + block - 1) // block
     counts = np.zeros((nblocks, 2), np.int64)
     s0 = np.uint64(seed)
@@ -112,15 +141,26 @@ def _first_interactions(m: Medium, eye: np.ndarray, origin: np.ndarray, du: np.n
         for i in range(b * block, min(count, (b + 1) * block)):
             dx, dy, dz, p, s = camera_ray(origin, du, dv, width, n_pixels, start + i, s0)
             hit, ox, oy, oz, tmax = clip_to_box(m, eye[0], eye[1], eye[2], dx, dy, dz)
+            transmit[i] = 1.0
             if not hit:
                 status[i] = MISSED_BOX
                 continue
             inside += 1
-            t, s = delta_track(m, ox, oy, oz, dx, dy, dz, 0.0, tmax, s)
+            w = 1.0
+            if forced:
+                t, w, transmit[i], s = resampled_collision(m, ox, oy, oz, dx, dy, dz, 0.0, tmax, s)
+                if math.isfinite(t) and w < w_min:
+                    s, u = next_float(s)
+                    t = t if u * w_min < w else math.inf
+                    w = w_min
+            else:
+                t, s = delta_track(m, ox, oy, oz, dx, dy, dz, 0.0, tmax, s)
             if not math.isfinite(t):
                 status[i] = ESCAPED
                 continue
             status[i] = INTERACTED
+            if not forced:
+                transmit[i] = 0.0
             ox += t * dx
             oy += t * dy
             oz += t * dz
@@ -129,6 +169,7 @@ def _first_interactions(m: Medium, eye: np.ndarray, origin: np.ndarray, du: np.n
             d[0, k], d[1, k], d[2, k] = dx, dy, dz
             albedo[0, k], albedo[1, k], albedo[2, k] = albedo_at(m, ox, oy, oz)
             rng[k] = s
+            weight[k] = w
             k += 1
         counts[b, 0] = k - b * block
         counts[b, 1] = inside
@@ -137,8 +178,8 @@ def _first_interactions(m: Medium, eye: np.ndarray, origin: np.ndarray, du: np.n
 
 @njit(cache=True, parallel=True)
 def _pack(counts: np.ndarray, block: int, src_pixel: np.ndarray, src_x: np.ndarray, src_d: np.ndarray,
-          src_albedo: np.ndarray, src_rng: np.ndarray, pixel: np.ndarray, x: np.ndarray, d: np.ndarray,
-          albedo: np.ndarray, rng: np.ndarray) -> None:
+          src_albedo: np.ndarray, src_rng: np.ndarray, src_weight: np.ndarray, pixel: np.ndarray, x: np.ndarray,
+          d: np.ndarray, albedo: np.ndarray, rng: np.ndarray, weight: np.ndarray) -> None:
     nblocks = counts.shape[0]
     offsets = np.zeros(nblocks, np.int64)
     for b in range(1, nblocks):
@@ -148,43 +189,56 @@ def _pack(counts: np.ndarray, block: int, src_pixel: np.ndarray, src_x: np.ndarr
             i, o = b * block + j, offsets[b] + j
             pixel[o] = src_pixel[i]
             rng[o] = src_rng[i]
+            weight[o] = src_weight[i]
             for c in range(3):
                 x[c, o] = src_x[c, i]
                 d[c, o] = src_d[c, i]
                 albedo[c, o] = src_albedo[c, i]
 
 
+def check_camera_estimator(name: str) -> bool:
+    """Whether ``name`` is the forced estimator; refuses names not in :data:`CAMERA_ESTIMATORS` in one line."""
+    if name not in CAMERA_ESTIMATORS:
+        raise InputError("camera estimator", f"must be one of {', '.join(CAMERA_ESTIMATORS)}, got {name!r}")
+    return name == "forced"
+
+
 def sample_first_interactions(scene: Scene, m: Medium, start: int, count: int, seed: int,
-                              scratch: FirstInteractions, status: np.ndarray) -> np.ndarray:
+                              scratch: FirstInteractions, status: np.ndarray, transmit: np.ndarray,
+                              camera: str = DEFAULT_CAMERA_ESTIMATOR) -> np.ndarray:
     """Stages 1-2 fused: for work items ``start .. start + count - 1`` generate the jittered camera ray, clip it
-    to the volume box, delta-track it to its first real collision and look up the albedo there, in one numba
-    pass that writes only the interacting items (into ``scratch``, per task; ``status`` (count,) gets each
-    item's MISSED_BOX / ESCAPED / INTERACTED). Returns the per-task counts for
+    to the volume box, sample its first interaction with the ``camera`` estimator (:data:`CAMERA_ESTIMATORS`)
+    and look up the albedo there, in one numba pass that writes only the interacting items (into ``scratch``,
+    per task; ``status`` (count,) gets each item's MISSED_BOX / ESCAPED / INTERACTED, ``transmit`` (count,)
+    its weight for the environment behind the volume). Returns the per-task counts for
     :func:`compact_first_interactions`: (interacting, inside the box) per task.
 
     Why fused: the separate stages built a RayBatch of every camera ray (8 arrays, most of them unused
     here), clipped it, compacted it, tracked it and compacted again; the rays that miss the box or escape
     (70-90 % on the builtin scenes) only cost their tracking; what is left is the tracking itself, the path
     tracer's first bounce."""
+    forced = check_camera_estimator(camera)
     cam = scene.camera
     origin, du, dv = cam.image_plane()
     return _first_interactions(m, np.ascontiguousarray(cam.eye, dtype=np.float64), origin, du, dv, cam.width,
-                               cam.width * cam.height, int(start), int(count), int(seed), _BLOCK, scratch.pixel,
-                               scratch.x, scratch.d, scratch.albedo, scratch.rng, status)
+                               cam.width * cam.height, int(start), int(count), int(seed), _BLOCK, forced,
+                               FORCED_MIN_WEIGHT, scratch.pixel, scratch.x, scratch.d, scratch.albedo, scratch.rng,
+                               scratch.weight, status, transmit)
 
 
 def compact_first_interactions(scratch: FirstInteractions, counts: np.ndarray) -> FirstInteractions:
     """Stage 3: the interacting items, densely packed in work-item order (no holes reach the estimators)."""
     out = FirstInteractions.empty(int(counts[:, 0].sum()))
-    _pack(counts, _BLOCK, scratch.pixel, scratch.x, scratch.d, scratch.albedo, scratch.rng,
-          out.pixel, out.x, out.d, out.albedo, out.rng)
+    _pack(counts, _BLOCK, scratch.pixel, scratch.x, scratch.d, scratch.albedo, scratch.rng, scratch.weight,
+          out.pixel, out.x, out.d, out.albedo, out.rng, out.weight)
     return out
 
 
 def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, *, spp: int = 1, seed: int = 0,
                              batch_size: int = DEFAULT_BATCH, progress: bool = True, desc: str = "rendering",
-                             direct: bool = True, film: Film | None = None, first_sample: int = 0) -> RenderResult:
-    """Render ``spp`` samples per pixel (stages in the module docstring).
+                             direct: bool = True, film: Film | None = None, first_sample: int = 0,
+                             camera: str = DEFAULT_CAMERA_ESTIMATOR) -> RenderResult:
+    """Render ``spp`` samples per pixel (stages in the module docstring) with the ``camera`` estimator.
 
     ``estimator`` None skips stage 4 (L_i = 0) and ``direct`` False stage 5 (L_d = 0): the benchmarks time
     L_d and L_i alone this way. ``film`` accumulates into an existing film (its sample count grows by
@@ -204,34 +258,49 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
     n_pixels = film.width * film.height
     first, total = first_sample * n_pixels, n_pixels * spp
     batch = min(batch_size, total)
-    scratch, status = FirstInteractions.empty(batch), np.empty(batch, np.uint8)
+    forced = check_camera_estimator(camera)
+    scratch, status, transmit = FirstInteractions.empty(batch), np.empty(batch, np.uint8), np.empty(batch)
     distinct = batch <= n_pixels  # consecutive work items: no pixel twice in one batch (Film.splat)
     n_rays = n_samples = 0
     with tqdm(total=total, desc=desc, unit="spl", unit_scale=True, disable=not progress, leave=False) as bar:
         for start in range(first, first + total, batch):
             count = min(batch, first + total - start)
             with timer("sample_first_interactions"):
-                counts = sample_first_interactions(scene, m, start, count, seed, scratch, status)
+                counts = sample_first_interactions(scene, m, start, count, seed, scratch, status, transmit, camera)
             n_rays += int(counts[:, 1].sum())
-            if env is not None:  # misses first, then escapes: the order the separate stages added them in
-                for which in (MISSED_BOX, ESCAPED):
-                    pixel = (np.flatnonzero(status[:count] == which) + start) % n_pixels
-                    film.splat("L_e", pixel, np.broadcast_to(env[:, None], (3, pixel.shape[0])), distinct)
+            if env is not None:
+                splat_environment(film, env, status[:count], transmit[:count], start, n_pixels, distinct, forced)
             with timer("compact"):
                 fi = compact_first_interactions(scratch, counts)
             n_samples += len(fi)
             bar.update(count)
             if len(fi) == 0:
                 continue
+            throughput = fi.albedo * fi.weight if forced else fi.albedo
             if estimator is not None:
                 with timer("estimate_indirect"):
                     q = estimator(fi.x, fi.d, scene.g)
                 with timer("compose"):
-                    film.splat("L_i", fi.pixel, q, distinct, weight=fi.albedo)
+                    film.splat("L_i", fi.pixel, q, distinct, weight=throughput)
             if direct:
                 with timer("estimate_direct"):
                     nee = direct_light_batch(m, kind, vec, rgb, scene.g, fi.x, fi.d, fi.rng, False)
                 with timer("compose"):
-                    film.splat("L_d", fi.pixel, nee, distinct, weight=fi.albedo)
+                    film.splat("L_d", fi.pixel, nee, distinct, weight=throughput)
     return finish(film, timer, spp, t_start, {"rays_in_volume": float(n_rays), "samples_in_volume": float(n_samples),
                                              "compaction_removed": 1.0 - n_samples / max(n_rays, 1)})
+
+
+def splat_environment(film: Film, env: np.ndarray, status: np.ndarray, transmit: np.ndarray, start: int,
+                      n_pixels: int, distinct: bool, forced: bool) -> None:
+    """L_e of one batch: the environment behind every ray that misses the box and, inside it, behind every
+    ray that escapes ("delta", in that order, as the separate stages added them) or weighted by each ray's
+    transmittance estimate ("forced")."""
+    if not forced:
+        for which in (MISSED_BOX, ESCAPED):
+            pixel = (np.flatnonzero(status == which) + start) % n_pixels
+            film.splat("L_e", pixel, np.broadcast_to(env[:, None], (3, pixel.shape[0])), distinct)
+        return
+    seen = np.flatnonzero(transmit > 0.0)
+    film.splat("L_e", (seen + start) % n_pixels, np.broadcast_to(env[:, None], (3, seen.shape[0])), distinct,
+               weight=np.broadcast_to(transmit[seen][None, :], (3, seen.shape[0])))

@@ -321,6 +321,8 @@ CASES += [
     (R, lambda a, d, o: ["--max-depth", "0", *SIZE, "--out", str(o / "r.exr")], "--max-depth"),
     (R, lambda a, d, o: ["--method", "raymarch", "--step", "0", *SIZE, "--out", str(o / "r.exr")], "--step"),
     (R, lambda a, d, o: [*PHOTONMAP(a), "--k", "0", *SIZE, "--out", str(o / "r.exr")], "--k"),
+    (R, lambda a, d, o: [*PHOTONMAP(a), "--camera-estimator", "ratio", *SIZE, "--out", str(o / "r.exr")],
+     "--camera-estimator"),
     (R, lambda a, d, o: [*PHOTONMAP(a), "--radius", "-1", *SIZE, "--out", str(o / "r.exr")], "--radius"),
     (R, lambda a, d, o: [*FIELD(a), "--precision", "int4", *SIZE, "--out", str(o / "r.exr")], "--precision"),
     (R, lambda a, d, o: [*FIELD(a), "--orbit", "0", *SIZE, "--out", str(o / "r.exr")], "--orbit"),

@@ -46,10 +46,10 @@ def test_support_fraction_at_box_faces_and_corners() -> None:
 
 
 def test_photon_map_renderer_direct_light_equals_path_tracer(thin_scene: Scene) -> None:
-    """Same seed, same first interactions and shadow rays: L_d is identical to the path tracer's for
-    delta lights, whatever the estimator does for L_i."""
+    """Same seed, same first interactions (the "delta" camera estimator) and shadow rays: L_d is identical to
+    the path tracer's for delta lights, whatever the estimator does for L_i."""
     pmap = trace_photons(thin_scene, 20_000, seed=1, progress=False)
-    pm = render_photon_mapped(thin_scene, pmap, spp=4, seed=7, progress=False).layers
+    pm = render_photon_mapped(thin_scene, pmap, spp=4, seed=7, progress=False, camera="delta").layers
     pt = render_path_traced(thin_scene, spp=4, seed=7, progress=False).layers
     np.testing.assert_array_equal(pm["L_d"], pt["L_d"])
     assert pm["L_i"].mean() > 0

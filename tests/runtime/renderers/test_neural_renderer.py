@@ -37,8 +37,8 @@ def pmap(scene: Scene):  # noqa: ANN201
 
 def test_photon_map_estimator_in_place_of_the_field_gives_the_photon_map_and_path_tracer_layers(scene, pmap) -> None:  # noqa: ANN001
     est = PhotonMapEstimator(pmap, scene.medium(), k=128, radius=0.1)
-    neural = render_neural(scene, est, spp=3, seed=5, progress=False, batch_size=500).layers
-    ref = render_photon_mapped(scene, pmap, k=128, radius=0.1, spp=3, seed=5, progress=False).layers
+    neural = render_neural(scene, est, spp=3, seed=5, progress=False, batch_size=500, camera="delta").layers
+    ref = render_photon_mapped(scene, pmap, k=128, radius=0.1, spp=3, seed=5, progress=False, camera="delta").layers
     np.testing.assert_array_equal(neural["L_i"], ref["L_i"])
     assert neural["L_i"].mean() > 0
     pt = render_path_traced(scene, spp=3, seed=5, progress=False).layers
@@ -72,8 +72,8 @@ def test_fused_first_interactions_equal_the_separate_stages(scene, start, count)
     x = rays.o + t * rays.d
     albedo = np.array([albedo_at(m, *x[:, i]) for i in range(len(rays))]).reshape(-1, 3).T
 
-    scratch, status = FirstInteractions.empty(count), np.empty(count, np.uint8)
-    counts = sample_first_interactions(scene, m, start, count, 7, scratch, status)
+    scratch, status, transmit = FirstInteractions.empty(count), np.empty(count, np.uint8), np.empty(count)
+    counts = sample_first_interactions(scene, m, start, count, 7, scratch, status, transmit, "delta")
     fi = compact_first_interactions(scratch, counts)
     assert 0 < len(fi) < count and int(counts[:, 1].sum()) == int(inside.sum())
     np.testing.assert_array_equal(fi.pixel, rays.pixel)
@@ -83,6 +83,8 @@ def test_fused_first_interactions_equal_the_separate_stages(scene, start, count)
     np.testing.assert_array_equal(fi.albedo, albedo)
     np.testing.assert_array_equal(status == MISSED_BOX, ~inside)
     assert np.all(np.isin(status, (MISSED_BOX, ESCAPED, INTERACTED))) and (status == INTERACTED).sum() == len(fi)
+    np.testing.assert_array_equal(transmit, (status != INTERACTED).astype(float))
+    np.testing.assert_array_equal(fi.weight, 1.0)
 
 
 def test_progressive_frames_add_up_to_one_render(scene, pmap) -> None:  # noqa: ANN001

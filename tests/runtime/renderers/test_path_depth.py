@@ -11,11 +11,9 @@ coloured, density-dependent albedo and an anisotropic phase (g = -0.4) keep the 
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
-from conftest import small_camera, smooth_field
+from conftest import assert_estimates_agree, mean_and_error, small_camera, smooth_field
 
 from photon_fields.runtime.renderers.path_tracer import render_path_traced
 from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, PointLight
@@ -37,28 +35,10 @@ def _scene(light: object, g: float = -0.4) -> Scene:
     return Scene(vol, _coloured_tf(), (light,), small_camera(18), g, "depth")
 
 
-def _block_means(img: np.ndarray, b: int = 6) -> np.ndarray:
-    h, w = img.shape[:2]
-    return img[: h // b * b, : w // b * b].reshape(h // b, b, w // b, b, -1).mean(axis=(1, 3))
-
-
 def _stats(scene: Scene, seeds: range, **kw: object) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Per layer: block means over independent renders, (mean, standard error)."""
     renders = [render_path_traced(scene, seed=s, progress=False, **kw).layers for s in seeds]
-    out = {}
-    for layer in ("L_d", "L_i"):
-        imgs = np.stack([_block_means(r[layer]) for r in renders])
-        out[layer] = imgs.mean(0), imgs.std(0, ddof=1) / math.sqrt(len(seeds))
-    return out
-
-
-def _assert_agree(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], what: str) -> None:
-    (ma, sa), (mb, sb) = a, b
-    z = np.abs(ma - mb) / np.sqrt(sa**2 + sb**2 + 1e-12)
-    # Whole-image means: the sharpest check of a missing fraction of the light.
-    zm = abs(ma.mean() - mb.mean()) / math.sqrt(np.mean(sa) ** 2 / 4 + np.mean(sb) ** 2 / 4 + 1e-12)
-    assert np.percentile(z, 98) < 4.5 and z.max() < 6.0, (what, float(np.percentile(z, 98)), float(z.max()))
-    assert zm < 5.0, (what, float(ma.mean()), float(mb.mean()), zm)
+    return {layer: mean_and_error([r[layer] for r in renders]) for layer in ("L_d", "L_i")}
 
 
 @pytest.mark.parametrize("depth", [1, 2, DEFAULT_DEPTH])
@@ -69,7 +49,7 @@ def test_environment_nee_and_phase_sampling_agree_at_every_depth(depth: int) -> 
     nee = _stats(scene, range(10), spp=8, max_depth=depth, nee=True)
     phase = _stats(scene, range(100, 110), spp=8, max_depth=depth, nee=False)
     for layer in ("L_d", "L_i"):
-        _assert_agree(nee[layer], phase[layer], f"{layer} at depth {depth}")
+        assert_estimates_agree(nee[layer], phase[layer], f"{layer} at depth {depth}")
     if depth == 1:
         assert nee["L_i"][0].max() == 0.0 and phase["L_i"][0].max() == 0.0  # single scattering: no L_i
     else:
@@ -91,7 +71,7 @@ def test_single_scattering_does_not_depend_on_max_depth(name: str, nee: bool) ->
     full = _stats(scene, range(8), spp=8, max_depth=DEFAULT_DEPTH, nee=nee)["L_d"]
     for depth in (1, 2):
         cut = _stats(scene, range(200 + 10 * depth, 208 + 10 * depth), spp=8, max_depth=depth, nee=nee)["L_d"]
-        _assert_agree(cut, full, f"{name}: L_d at depth {depth} vs {DEFAULT_DEPTH}")
+        assert_estimates_agree(cut, full, f"{name}: L_d at depth {depth} vs {DEFAULT_DEPTH}")
 
 
 def test_depth_counts_vertices_without_nee() -> None:
