@@ -1,0 +1,205 @@
+"""Equal-error speedup: how much sooner the neural renderer reaches an image of a given error than the path tracer.
+
+For each scene (default: every builtin) at ``--size`` (default 256x256), everything in one process after a
+warm-up, against the path tracer at ``--ref-spp`` (default 512; cached in ``--work``):
+
+- the path tracer at 1, 2, 4, ... ``--pt-max-spp`` spp: wall time (best of ``--repeats``) and rel. L2 (mean over
+  the repeats' seeds): its error-time curve;
+- the neural renderer with each camera estimator (``--cameras``, default delta and forced) at ``--spps``
+  (default 1, 4, 32): wall time and rel. L2 the same way;
+- per neural point, the **equal-error speedup**: the path tracer's time to reach the neural image's rel. L2,
+  interpolated log-log on its curve (extrapolated from the last two points when the neural image is better
+  than the curve's end, marked ``>``), over the neural time;
+- with ``pyoidn`` installed (``pip install pyoidn``), the same for the path tracer and the neural renderer at 1
+  and 4 spp denoised by Intel Open Image Denoise (colour only, HDR), the denoiser's time included.
+
+Bundles: ``--bundle SCENE=PATH``, else those of ``bench_render.py`` (``bench/results/render/<scene>.pfn``,
+trained there when missing). Output: a table on stdout, JSON (default ``bench/results/equal_error.json``) with the
+machine record, and a plot of error against time per scene beside it (PNG).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np  # noqa: E402
+from bench_render import bundle_for  # noqa: E402
+from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
+
+from photon_fields.runtime.eval.metrics import relative_l2  # noqa: E402
+from photon_fields.runtime.field.field import PhotonField  # noqa: E402
+from photon_fields.runtime.renderers.neural import render_neural  # noqa: E402
+from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
+from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
+from photon_fields.runtime.wavefront.first_interaction import CAMERA_ESTIMATORS  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+DEFAULT_OUT = HERE / "results" / "equal_error.json"
+DEFAULT_WORK = HERE / "results" / "equal_error"
+
+
+def reference(scene: Scene, spp: int, work: Path) -> np.ndarray:
+    """The path tracer's L at ``spp`` (cached in ``work`` per scene, size and spp)."""
+    cam = scene.camera
+    path = work / f"ref_{scene.name}_{cam.width}x{cam.height}_{spp}.npy"
+    if not path.exists():
+        t0 = time.perf_counter()
+        img = render_path_traced(scene, spp=spp, seed=10_000, progress=False).layers["L"]
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.save(path, img)
+        print(f"  reference {scene.name} {spp} spp: {time.perf_counter() - t0:.1f} s", flush=True)
+    return np.load(path)
+
+
+def oidn() -> Callable[[np.ndarray], np.ndarray] | None:
+    """Open Image Denoise (colour only, HDR) when pyoidn is installed, else None."""
+    try:
+        import pyoidn
+    except ImportError:
+        return None
+    return lambda img: np.asarray(pyoidn.denoise(np.ascontiguousarray(img, dtype=np.float32), hdr=True))
+
+
+def measure(render: Callable[[int], np.ndarray], ref: np.ndarray, repeats: int,
+            denoise: Callable[[np.ndarray], np.ndarray] | None = None) -> dict[str, float]:
+    """Best wall time and mean rel. L2 over ``repeats`` seeds of ``render(seed) -> L`` (denoised after, if given)."""
+    times, errors = [], []
+    for seed in range(repeats):
+        t0 = time.perf_counter()
+        img = render(seed)
+        if denoise is not None:
+            img = denoise(img)
+        times.append(time.perf_counter() - t0)
+        errors.append(relative_l2(img, ref))
+    return {"ms": min(times) * 1e3, "rel_l2": float(np.mean(errors)), "rel_l2_spread": float(np.std(errors))}
+
+
+def time_to_error(curve: list[dict[str, float]], error: float) -> tuple[float, bool]:
+    """The path tracer's time (ms) to reach ``error``, log-log interpolated on ``curve`` (rows with ms and
+    rel_l2, spp ascending); extrapolated beyond its ends from the two nearest points (then True)."""
+    ms = np.log([c["ms"] for c in curve])
+    err = np.log([c["rel_l2"] for c in curve])
+    e = np.log(error)
+    for i in range(len(curve) - 1):
+        if err[i] >= e >= err[i + 1]:
+            f = (err[i] - e) / max(err[i] - err[i + 1], 1e-12)
+            return float(np.exp(ms[i] + f * (ms[i + 1] - ms[i]))), False
+    i = 0 if e > err[0] else len(curve) - 2
+    slope = (ms[i + 1] - ms[i]) / min(err[i + 1] - err[i], -1e-12)
+    return float(np.exp(ms[i] + (e - err[i]) * slope)), True
+
+
+def scene_curves(scene: Scene, est: Any, ref: np.ndarray, args: argparse.Namespace, pt_spps: list[int],
+                 denoise: Callable[[np.ndarray], np.ndarray] | None) -> dict[str, list[dict[str, Any]]]:
+    """Per method, its (spp, ms, rel. L2) points: the path tracer's curve, the neural renderer's per camera
+    estimator and, with ``denoise``, both at 1 and 4 spp denoised."""
+
+    def pt(spp: int) -> Callable[[int], np.ndarray]:
+        return lambda seed: render_path_traced(scene, spp=spp, seed=seed, progress=False).layers["L"]
+
+    def neural(spp: int, camera: str) -> Callable[[int], np.ndarray]:
+        return lambda seed: render_neural(scene, est, spp=spp, seed=seed, progress=False, camera=camera).layers["L"]
+
+    curves = {"path tracer": [{"spp": s, **measure(pt(s), ref, args.repeats)} for s in pt_spps]}
+    for camera in args.cameras:
+        curves[f"neural {camera}"] = [{"spp": s, **measure(neural(s, camera), ref, args.repeats)} for s in args.spps]
+    if denoise is not None:
+        curves["path tracer + OIDN"] = [{"spp": s, **measure(pt(s), ref, args.repeats, denoise)} for s in (1, 4)]
+        for camera in args.cameras:
+            curves[f"neural {camera} + OIDN"] = [{"spp": s, **measure(neural(s, camera), ref, args.repeats, denoise)}
+                                                 for s in (1, 4)]
+    return curves
+
+
+def plot(results: dict[str, Any], path: Path) -> None:
+    """Error against time, log-log, one panel per scene."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(results), figsize=(4.2 * len(results), 3.8), dpi=100, squeeze=False)
+    for ax, (name, r) in zip(axes[0], results.items(), strict=True):
+        for method, rows in r["curves"].items():
+            ax.plot([p["ms"] for p in rows], [p["rel_l2"] for p in rows], "o-", ms=3, label=method)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(name)
+        ax.set_xlabel("ms per image")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0][0].set_ylabel("rel. L2 against the reference")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenes", nargs="*", help="builtin scenes (default: all)")
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--ref-spp", type=int, default=512)
+    ap.add_argument("--pt-max-spp", type=int, default=64)
+    ap.add_argument("--spps", type=int, nargs="*", default=[1, 4, 32], help="neural samples per pixel")
+    ap.add_argument("--cameras", nargs="*", default=list(CAMERA_ESTIMATORS), help="camera estimators")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--bundle", action="append", default=[], metavar="SCENE=PATH")
+    ap.add_argument("--work", type=Path, default=DEFAULT_WORK)
+    ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    args = ap.parse_args(argv)
+    unknown = [c for c in args.cameras if c not in CAMERA_ESTIMATORS]
+    if unknown:
+        raise SystemExit(f"unknown camera estimator(s) {unknown}; available: {', '.join(CAMERA_ESTIMATORS)}")
+    given = dict(b.split("=", 1) for b in args.bundle)
+    denoise = oidn()
+    if denoise is None:
+        print("pyoidn is not installed: no OIDN rows (pip install pyoidn)")
+    info = machine_info()
+    results: dict[str, Any] = {}
+    pt_spps = [1 << i for i in range(int(np.log2(args.pt_max_spp)) + 1)]
+    for name in parse_scenes(args.scenes):
+        base = builtin_scene(name)
+        scene = base.with_overrides(width=args.size, height=args.size)
+        field = PhotonField.load(bundle_for(name, base, given), expected_fingerprint=base.fingerprint())
+        est = field.estimator()
+        ref = reference(scene, args.ref_spp, args.work)
+        warm = scene.with_overrides(width=32, height=32)
+        render_path_traced(warm, spp=1, progress=False)
+        for camera in args.cameras:
+            render_neural(warm, est, spp=1, progress=False, camera=camera)
+
+        curves = scene_curves(scene, est, ref, args, pt_spps, denoise)
+        for method, rows in curves.items():
+            if method == "path tracer":
+                continue
+            for row in rows:
+                t, extrapolated = time_to_error(curves["path tracer"], row["rel_l2"])
+                row["equal_error_speedup"] = t / row["ms"]
+                row["extrapolated"] = extrapolated
+        results[name] = {"bundle": str(bundle_for(name, base, given)), "curves": curves}
+        print(f"\n{name} ({args.size}x{args.size}, reference: path tracer {args.ref_spp} spp)")
+        print(f"  {'method':28s} {'spp':>4s} {'ms':>8s} {'rel. L2':>8s} {'speedup':>8s}")
+        for method, rows in curves.items():
+            for row in rows:
+                speed = row.get("equal_error_speedup")
+                mark = ">" if row.get("extrapolated") else " "
+                speed_s = f"{mark}{speed:6.1f}x" if speed is not None else ""
+                print(f"  {method:28s} {row['spp']:4d} {row['ms']:8.1f} {row['rel_l2']:8.3f} {speed_s:>8s}", flush=True)
+    info = finish_info(info, {})
+    write_report(args.out, "equal_error", info, {"size": args.size, "ref_spp": args.ref_spp, "pt_spps": pt_spps,
+                                                 "spps": args.spps, "cameras": args.cameras,
+                                                 "repeats": args.repeats, "oidn": denoise is not None},
+                 results=results)
+    plot(results, args.out.with_suffix(".png"))
+    print(f"wrote {args.out.with_suffix('.png')}")
+
+
+if __name__ == "__main__":
+    main()
