@@ -148,15 +148,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--ref-spp", type=int, default=512)
     ap.add_argument("--pt-max-spp", type=int, default=64)
     ap.add_argument("--spps", type=int, nargs="*", default=[1, 4, 32], help="neural samples per pixel")
-    ap.add_argument("--cameras", nargs="*", default=list(CAMERA_ESTIMATORS), help="camera estimators")
+    ap.add_argument("--cameras", nargs="*", default=list(CAMERA_ESTIMATORS), choices=CAMERA_ESTIMATORS,
+                    help="camera estimators")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--bundle", action="append", default=[], metavar="SCENE=PATH")
     ap.add_argument("--work", type=Path, default=DEFAULT_WORK)
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = ap.parse_args(argv)
-    unknown = [c for c in args.cameras if c not in CAMERA_ESTIMATORS]
-    if unknown:
-        raise SystemExit(f"unknown camera estimator(s) {unknown}; available: {', '.join(CAMERA_ESTIMATORS)}")
     given = dict(b.split("=", 1) for b in args.bundle)
     denoise = oidn()
     if denoise is None:
