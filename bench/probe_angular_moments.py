@@ -28,10 +28,9 @@ from common import finish_info, machine_info, parse_scenes, write_report  # noqa
 from numpy.polynomial import legendre  # noqa: E402
 
 from photon_fields.models_spec import DEFAULT_PHOTONS, PHASE_WINDOW  # noqa: E402
-from photon_fields.runtime.photons.knn import build_photon_grid, knn_query  # noqa: E402
-from photon_fields.runtime.photons.phase_window import window_weights  # noqa: E402
+from photon_fields.runtime.photons.estimate import PhotonMapEstimator  # noqa: E402
+from photon_fields.runtime.photons.knn import PhotonIndex, knn_query  # noqa: E402
 from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
-from photon_fields.runtime.transport.medium import extinction_batch  # noqa: E402
 from photon_fields.runtime.wavefront.first_interaction import render_first_interaction  # noqa: E402
 from photon_fields.train.photons.tracing import trace_photons  # noqa: E402
 
@@ -51,26 +50,22 @@ def first_interactions(scene: Scene, size: int) -> tuple[np.ndarray, np.ndarray]
             return np.zeros_like(x)
 
     view = scene.with_overrides(width=size, height=size)
-    render_first_interaction(view, Recorder(), spp=1, seed=7, progress=False, direct=False)
+    # delta: every recorded point has weight 1 (forced collisions would need their weights in the mean)
+    render_first_interaction(view, Recorder(), spp=1, seed=7, progress=False, direct=False, camera="delta")
     return (np.ascontiguousarray(np.concatenate([s[0] for s in seen], 1).T),
             np.ascontiguousarray(np.concatenate([s[1] for s in seen], 1).T))
 
 
-def neighbours(scene: Scene, pmap: Any, g: float, x: np.ndarray, d: np.ndarray, k: int,
+def neighbours(index: PhotonIndex, x: np.ndarray, d: np.ndarray, k: int,
                radius: float) -> tuple[np.ndarray, np.ndarray]:
     """Scattering cosines (q, k) and luminance weights Phi w_b / sigma_t (q, k; 0 where no photon) of the
-    photons the window estimate at g sums."""
-    bins, bin_weights = window_weights(pmap.phases, g, PHASE_WINDOW)
-    sel = np.isin(pmap.phase, bins)
-    pos = pmap.position[sel].astype(np.float64)
-    scale = np.zeros(len(pmap.phases))
-    scale[bins] = bin_weights
-    sigma = extinction_batch(scene.medium(), np.ascontiguousarray(pos.T))
-    w = pmap.power[sel].astype(np.float64).mean(1) * scale[pmap.phase[sel]] / np.maximum(sigma, 1e-12)
-    idx, _ = knn_query(build_photon_grid(pos), x, k, radius)
-    safe = np.where(idx >= 0, idx, 0)
-    cos = -np.einsum("qkc,qc->qk", pmap.direction[sel].astype(np.float64)[safe], d)
-    return cos, np.where(idx >= 0, w[safe], 0.0)
+    photons the estimate over ``index`` (the renderer's window index at g) sums."""
+    idx, _ = knn_query(index.grid, x, k, radius)  # indices in the index's input order
+    at = np.empty_like(index.grid.order)
+    at[index.grid.order] = np.arange(at.shape[0])  # input order -> grid order, where the attributes are
+    found = np.where(idx >= 0, at[np.where(idx >= 0, idx, 0)], 0)
+    cos = -np.einsum("qkc,qc->qk", index.directions[found].astype(np.float64), d)
+    return cos, np.where(idx >= 0, index.weights[found].astype(np.float64).mean(2), 0.0)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -86,10 +81,11 @@ def main(argv: list[str] | None = None) -> None:
     for name in parse_scenes(args.scenes):
         scene = builtin_scene(name)
         pmap = trace_photons(scene, args.photons, seed=0, progress=False)
+        estimator = PhotonMapEstimator(pmap, scene.medium(), k=K, radius=args.radius, g_window=PHASE_WINDOW)
         rows = []
         for g in GS:
             x, d = first_interactions(scene.with_overrides(g=g), args.size)
-            cos, w = neighbours(scene, pmap, g, x, d, K, args.radius)
+            cos, w = neighbours(estimator.window_index(g), x, d, K, args.radius)
             full = ((1 - g * g) / (4 * np.pi * (1 + g * g - 2 * g * cos) ** 1.5) * w).sum(1)
             row: dict[str, Any] = {"g": g}
             for n in BANDS:
