@@ -31,7 +31,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
 from bench_render import bundle_for  # noqa: E402
-from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
+from common import finish_info, machine_info, oidn_denoiser, parse_scenes, write_report  # noqa: E402
 
 from photon_fields.runtime.eval.metrics import relative_l2  # noqa: E402
 from photon_fields.runtime.field.field import PhotonField  # noqa: E402
@@ -56,15 +56,6 @@ def reference(scene: Scene, spp: int, work: Path) -> np.ndarray:
         np.save(path, img)
         print(f"  reference {scene.name} {spp} spp: {time.perf_counter() - t0:.1f} s", flush=True)
     return np.load(path)
-
-
-def oidn() -> Callable[[np.ndarray], np.ndarray] | None:
-    """Open Image Denoise (colour only, HDR) when pyoidn is installed, else None."""
-    try:
-        import pyoidn
-    except ImportError:
-        return None
-    return lambda img: np.asarray(pyoidn.denoise(np.ascontiguousarray(img, dtype=np.float32), hdr=True))
 
 
 def measure(render: Callable[[int], np.ndarray], ref: np.ndarray, repeats: int,
@@ -156,7 +147,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = ap.parse_args(argv)
     given = dict(b.split("=", 1) for b in args.bundle)
-    denoise = oidn()
+    denoise = oidn_denoiser()
     if denoise is None:
         print("pyoidn is not installed: no OIDN rows (pip install pyoidn)")
     info = machine_info()

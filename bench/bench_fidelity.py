@@ -43,7 +43,7 @@ from typing import Any
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
-from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
+from common import finish_info, machine_info, oidn_denoiser, parse_scenes, write_report  # noqa: E402
 
 from photon_fields.models_spec import (  # noqa: E402
     DEFAULT_MAP_PHASES,
@@ -219,15 +219,6 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, float]:
     return out
 
 
-def denoise(img: np.ndarray) -> np.ndarray | None:
-    """Open Image Denoise (colour only, HDR) when pyoidn is installed, else None."""
-    try:
-        import pyoidn
-    except ImportError:
-        return None
-    return np.asarray(pyoidn.denoise(np.ascontiguousarray(img, dtype=np.float32), hdr=True))
-
-
 def final_radius(settings: dict[str, Any]) -> float:
     """The fit's last KNN search radius (world units)."""
     return settings["schedule"]["stages"][-1]["radius_percent"] / 100.0 if settings.get("schedule") else 0.05
@@ -269,13 +260,13 @@ def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], con
         a, b = render(7), render(8)
         out[name] = {"spp": 2 * args.converged_neural_spp, "wall_s": time.perf_counter() - t0,
                      **converged_error(0.5 * (a + b), relative_l2(a, b) / 2.0, ref, out["reference"]["noise_rel_l2"])}
+    denoise = oidn_denoiser()
     for spp in (1, 4):
         t0 = time.perf_counter()
         pt = render_path_traced(view, spp=spp, seed=99, progress=False).layers["L"]
         entry = {"spp": spp, "wall_s": time.perf_counter() - t0, **compare(pt, ref)}
-        den = denoise(pt)
-        if den is not None:
-            entry["oidn"] = compare(den, ref)
+        if denoise is not None:
+            entry["oidn"] = compare(denoise(pt), ref)
         out[f"pt_{spp}spp"] = entry
     return out
 
