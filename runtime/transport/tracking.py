@@ -17,8 +17,18 @@
   the integral with one evaluation of f. Derivation and measurements: docs/rendering.md.
 
 All walk the majorant grid of :mod:`runtime.transport.medium` with a 3D DDA (Amanatides & Woo 1987) and use the
-macrocell's local majorant, so empty macrocells are skipped in one step. The exponential's
-memorylessness makes restarting the sampling at each macrocell boundary exact.
+macrocell's local majorant; from an empty macrocell they leap over the cube of empty macrocells ahead of it
+(``Medium.leap``), so empty space costs a few steps per ray. Tentative collisions are a Poisson process whose rate
+is the majorant, piecewise constant along the ray: one exponential optical depth is drawn per tentative collision
+and spent across macrocells (inversion of the piecewise-linear majorant optical depth), so a macrocell the ray
+only crosses costs no random number. Boundary distances are computed in closed form from each plane's
+index, and empty macrocells draw no random numbers, so leaping or stepping cell by cell gives the same samples
+bit for bit (``build_medium(..., leap=False)`` steps; the tests compare both).
+
+The kernels are inlined into their callers (``inline="always"``): numba passes the medium's arrays to a
+compiled call with reference counting, which cost more than a short walk. After editing them, clear the
+``__pycache__`` folders: numba's cache does not recompile a caller in another module when an inlined kernel
+changes.
 
 Kernels take one ray and return ``(value, rng_state)`` (``resampled_collision``: ``(t, W, T, rng_state)``);
 ``delta_track_batch``/``ratio_track_batch`` run them over structure-of-arrays ray batches (``o``/``d`` of
@@ -43,26 +53,64 @@ _DELTA, _RATIO, _RESAMPLE = 0, 1, 2
 
 
 @njit(cache=True, inline="always")
-def _axis_setup(o: float, d: float, bmin: float, cells_per_unit: float, n: int,
-                t: float) -> tuple[int, int, float, float]:
-    """DDA set-up on one axis: (cell, step, t_next_boundary, t_per_cell)."""
-    p = (o + t * d - bmin) * cells_per_unit
-    cell = min(max(int(math.floor(p)), 0), n - 1)
-    if d > 0.0:
-        return cell, 1, t + (cell + 1 - p) / (d * cells_per_unit), 1.0 / (d * cells_per_unit)
-    if d < 0.0:
-        return cell, -1, t + (cell - p) / (d * cells_per_unit), -1.0 / (d * cells_per_unit)
-    return cell, 0, math.inf, math.inf
+def _cell_index(p: float, bmin: float, cells_per_unit: float, n: int) -> int:
+    """Index of the macrocell holding coordinate ``p`` on one axis, clamped to the grid."""
+    return min(max(int(math.floor((p - bmin) * cells_per_unit)), 0), n - 1)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
+def _plane_distance(o: float, inv_d: float, bmin: float, cell_size: float, plane: int) -> float:
+    """Ray distance to the macrocell boundary plane ``plane`` (0 .. n) of one axis. In closed form from the
+    plane's index, so that every walk, leaping or not, computes the same distance for the same plane."""
+    return (bmin + plane * cell_size - o) * inv_d
+
+
+@njit(cache=True, inline="always")
+def _next_boundary(o: float, inv_d: float, bmin: float, cell_size: float, cell: int, step: int) -> float:
+    """Distance to where the ray leaves macrocell ``cell`` on one axis (inf if it does not move on it)."""
+    if step > 0:
+        return _plane_distance(o, inv_d, bmin, cell_size, cell + 1)
+    if step < 0:
+        return _plane_distance(o, inv_d, bmin, cell_size, cell)
+    return math.inf
+
+
+@njit(cache=True, inline="always")
+def _cube_exit(o: float, inv_d: float, bmin: float, cell_size: float, cell: int, step: int, r: int) -> float:
+    """Distance to where the ray leaves the ``r`` cells from ``cell`` on in its direction on one axis."""
+    if step > 0:
+        return _plane_distance(o, inv_d, bmin, cell_size, cell + r)
+    if step < 0:
+        return _plane_distance(o, inv_d, bmin, cell_size, cell - r + 1)
+    return math.inf
+
+
+@njit(cache=True, inline="always")
+def _within(i: int, cell: int, step: int, r: int) -> int:
+    """``i`` clamped to the ``r`` cells from ``cell`` on in direction ``step`` (0 counts as forward)."""
+    if step < 0:
+        return min(max(i, cell - r + 1), cell)
+    return min(max(i, cell), cell + r - 1)
+
+
+@njit(cache=True, inline="always")
+def _sign(d: float) -> int:
+    return 1 if d > 0.0 else (-1 if d < 0.0 else 0)
+
+
+@njit(cache=True, inline="always")
 def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmin: float,
            tmax: float, state: np.uint64, mode: int) -> tuple[float, float, float, np.uint64]:
-    """Shared DDA walk, returning (t, W, T, state).
+    """Shared walk, returning (t, W, T, state).
 
     mode _DELTA: t = the real-collision distance (inf on escape). mode _RATIO: T = the transmittance estimate
     over [tmin, tmax]. mode _RESAMPLE: the ratio-tracking walk that also keeps one tentative collision t
-    (inf if none scored) with W = sum of the scores (module docstring) and T its transmittance estimate."""
+    (inf if none scored) with W = sum of the scores (module docstring) and T its transmittance estimate.
+
+    The walk: a 3D DDA over the majorant grid; in a macrocell with majorant > 0 the optical depth to the next
+    tentative collision is spent (module docstring); from an empty macrocell it leaps over the cube of empty macrocells
+    ahead of it (``Medium.leap``). Inlined into every caller: a call passing the medium's arrays costs more
+    than a short walk."""
     t0, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
     tmin = max(tmin, t0)
     tmax = min(tmax, t1)
@@ -72,19 +120,69 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
     if tmin >= tmax:
         return kept, w_sum, tr, state
     cx, cy, cz = m.majorant.shape
-    ix, sx, nx_t, dx_t = _axis_setup(ox, dx, m.bmin[0], cx / m.bsize[0], cx, tmin)
-    iy, sy, ny_t, dy_t = _axis_setup(oy, dy, m.bmin[1], cy / m.bsize[1], cy, tmin)
-    iz, sz, nz_t, dz_t = _axis_setup(oz, dz, m.bmin[2], cz / m.bsize[2], cz, tmin)
+    bx, by, bz = m.bmin[0], m.bmin[1], m.bmin[2]
+    hx, hy, hz = m.bsize[0] / cx, m.bsize[1] / cy, m.bsize[2] / cz
+    gx, gy, gz = cx / m.bsize[0], cy / m.bsize[1], cz / m.bsize[2]
+    sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
+    ivx = 1.0 / dx if sx != 0 else math.inf
+    ivy = 1.0 / dy if sy != 0 else math.inf
+    ivz = 1.0 / dz if sz != 0 else math.inf
     t = tmin
+    ix = _cell_index(ox + t * dx, bx, gx, cx)
+    iy = _cell_index(oy + t * dy, by, gy, cy)
+    iz = _cell_index(oz + t * dz, bz, gz, cz)
+    nx_t = _next_boundary(ox, ivx, bx, hx, ix, sx)
+    ny_t = _next_boundary(oy, ivy, by, hy, iy, sy)
+    nz_t = _next_boundary(oz, ivz, bz, hz, iz, sz)
+    octant = (sx >= 0) + 2 * (sy >= 0) + 4 * (sz >= 0)
+    tau = -1.0  # majorant optical depth left to the next tentative collision (< 0: not drawn yet)
     while True:
+        r = int(m.leap[octant, ix, iy, iz])
+        if r >= 2:
+            # The r^3 macrocells from this one on towards the ray's octant are empty: go to where the ray leaves
+            # them. The index on the exit axis is known; on the others the cube bounds the one found from the
+            # position.
+            ex = _cube_exit(ox, ivx, bx, hx, ix, sx, r)
+            ey = _cube_exit(oy, ivy, by, hy, iy, sy, r)
+            ez = _cube_exit(oz, ivz, bz, hz, iz, sz, r)
+            t = min(ex, ey, ez)
+            if t >= tmax:
+                break
+            if ex <= ey and ex <= ez:
+                iy = _within(_cell_index(oy + t * dy, by, gy, cy), iy, sy, r)
+                iz = _within(_cell_index(oz + t * dz, bz, gz, cz), iz, sz, r)
+                ix += sx * r
+                if ix < 0 or ix >= cx:
+                    break
+            elif ey <= ez:
+                ix = _within(_cell_index(ox + t * dx, bx, gx, cx), ix, sx, r)
+                iz = _within(_cell_index(oz + t * dz, bz, gz, cz), iz, sz, r)
+                iy += sy * r
+                if iy < 0 or iy >= cy:
+                    break
+            else:
+                ix = _within(_cell_index(ox + t * dx, bx, gx, cx), ix, sx, r)
+                iy = _within(_cell_index(oy + t * dy, by, gy, cy), iy, sy, r)
+                iz += sz * r
+                if iz < 0 or iz >= cz:
+                    break
+            nx_t = _next_boundary(ox, ivx, bx, hx, ix, sx)
+            ny_t = _next_boundary(oy, ivy, by, hy, iy, sy)
+            nz_t = _next_boundary(oz, ivz, bz, hz, iz, sz)
+            continue
         t_end = min(nx_t, ny_t, nz_t, tmax)
         maj = m.majorant[ix, iy, iz]
         if maj > 0.0:
             while True:
-                state, u = next_float(state)
-                t -= math.log(1.0 - u) / maj
-                if t >= t_end:
+                if tau < 0.0:
+                    state, u = next_float(state)
+                    tau = -math.log(1.0 - u)
+                depth = maj * (t_end - t)
+                if tau >= depth:
+                    tau -= depth
                     break
+                t += tau / maj
+                tau = -1.0
                 sigma = extinction_at(m, ox + t * dx, oy + t * dy, oz + t * dz)
                 if mode == _DELTA:
                     state, u = next_float(state)
@@ -104,28 +202,28 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
                         return kept, w_sum, 0.0, state
                     tr *= 2.0
         if t_end >= tmax:
-            return kept, w_sum, tr, state
+            break
         t = t_end
         # Step into the neighbouring macrocell across the nearest boundary.
         if nx_t <= ny_t and nx_t <= nz_t:
             ix += sx
-            nx_t += dx_t
             if ix < 0 or ix >= cx:
                 break
+            nx_t = _next_boundary(ox, ivx, bx, hx, ix, sx)
         elif ny_t <= nz_t:
             iy += sy
-            ny_t += dy_t
             if iy < 0 or iy >= cy:
                 break
+            ny_t = _next_boundary(oy, ivy, by, hy, iy, sy)
         else:
             iz += sz
-            nz_t += dz_t
             if iz < 0 or iz >= cz:
                 break
+            nz_t = _next_boundary(oz, ivz, bz, hz, iz, sz)
     return kept, w_sum, tr, state
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def delta_track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmin: float,
                 tmax: float, state: np.uint64) -> tuple[float, np.uint64]:
     """Distance to the next real collision in [tmin, tmax), or inf if the ray leaves without one."""
@@ -133,7 +231,7 @@ def delta_track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float
     return t, state
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def ratio_track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmin: float,
                 tmax: float, state: np.uint64) -> tuple[float, np.uint64]:
     """Unbiased transmittance estimate over [tmin, tmax]."""
@@ -141,7 +239,7 @@ def ratio_track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float
     return tr, state
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def resampled_collision(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmin: float,
                         tmax: float, state: np.uint64) -> tuple[float, float, float, np.uint64]:
     """One collision resampled from the ratio-tracking walk over [tmin, tmax] (module docstring):
