@@ -12,7 +12,8 @@ $(STAMP): pyproject.toml Makefile
 	$(PY) -m pip install --quiet --upgrade pip
 	# torch is pinned exactly: the CPU wheel is cached on these machines; a range would pull CUDA wheels.
 	$(PY) -m pip install --quiet "torch==2.13.0"
-	$(PY) -m pip install --quiet -e ".[train,test]"
+	# oidn: the tests exercise the optional denoiser too (the runtime imports and renders without it).
+	$(PY) -m pip install --quiet -e ".[train,test,oidn]"
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -10,8 +10,9 @@ warm-up, against the path tracer at ``--ref-spp`` (default 512; cached in ``--wo
 - per neural point, the **equal-error speedup**: the path tracer's time to reach the neural image's rel. L2,
   interpolated log-log on its curve (extrapolated from the last two points when the neural image is better
   than the curve's end, marked ``>``), over the neural time;
-- with ``pyoidn`` installed (``pip install pyoidn``), the same for the path tracer and the neural renderer at 1
-  and 4 spp denoised by Intel Open Image Denoise (colour only, HDR), the denoiser's time included.
+- with the ``oidn`` extra installed (``pip install 'photon-fields[oidn]'``), the same for the path tracer and the
+  neural renderer at 1 and 4 spp denoised by Intel Open Image Denoise (``photon_fields.runtime.denoise.oidn``, what
+  ``pfn-render --denoise oidn`` runs: colour only, HDR), the denoiser's time included.
 
 Bundles: ``--bundle SCENE=PATH``, else those of ``bench_render.py`` (``bench/results/render/<scene>.pfn``,
 trained there when missing). Output: a table on stdout, JSON (default ``bench/results/equal_error.json``) with the
@@ -31,8 +32,9 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
 from bench_render import bundle_for  # noqa: E402
-from common import finish_info, machine_info, oidn_denoiser, parse_scenes, write_report  # noqa: E402
+from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
 
+from photon_fields.runtime.denoise.oidn import denoise_oidn, oidn_available  # noqa: E402
 from photon_fields.runtime.eval.metrics import relative_l2  # noqa: E402
 from photon_fields.runtime.field.field import PhotonField  # noqa: E402
 from photon_fields.runtime.renderers.neural import render_neural  # noqa: E402
@@ -147,9 +149,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = ap.parse_args(argv)
     given = dict(b.split("=", 1) for b in args.bundle)
-    denoise = oidn_denoiser()
+    denoise = denoise_oidn if oidn_available() else None
     if denoise is None:
-        print("pyoidn is not installed: no OIDN rows (pip install pyoidn)")
+        print("pyoidn is not installed: no OIDN rows (pip install 'photon-fields[oidn]')")
     info = machine_info()
     results: dict[str, Any] = {}
     pt_spps = [1 << i for i in range(int(np.log2(args.pt_max_spp)) + 1)]

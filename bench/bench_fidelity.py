@@ -19,8 +19,9 @@ error over scenes, in G and outside G, and the ratio of the mean rel. L2 outside
 ``--converged-neural-spp``, default 256, with different seeds: their mean, its noise, and the error left without
 the noise of either image; the photon map's L likewise when the scene's g is in G) against the mean of two
 independent path-traced L at ``--converged-spp`` (default 2048 each; half their difference is the reference's own
-noise), next to the path tracer at 1 and 4 spp, denoised by Intel Open Image Denoise when ``pyoidn`` is installed
-(``pip install pyoidn``; skipped with a note if not).
+noise), next to the path tracer at 1 and 4 spp, denoised by Intel Open Image Denoise
+(``photon_fields.runtime.denoise.oidn``) when the ``oidn`` extra is installed (``pip install 'photon-fields[oidn]'``;
+skipped if not).
 
 ``--seeds`` fits one field per seed (each from its own map) and reports, per g, the field's mean over the seeds
 with their spread: one seed's mean moves by a few percent (docs/training.md), so a claim of 1-3 % needs
@@ -43,7 +44,7 @@ from typing import Any
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
-from common import finish_info, machine_info, oidn_denoiser, parse_scenes, write_report  # noqa: E402
+from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
 
 from photon_fields.models_spec import (  # noqa: E402
     DEFAULT_MAP_PHASES,
@@ -52,6 +53,7 @@ from photon_fields.models_spec import (  # noqa: E402
     PAPER_PHASES,
     PHASE_WINDOW,
 )
+from photon_fields.runtime.denoise.oidn import denoise_oidn, oidn_available  # noqa: E402
 from photon_fields.runtime.eval.metrics import relative_l2, ssim  # noqa: E402
 from photon_fields.runtime.photons.phase_window import window_range  # noqa: E402
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
@@ -260,7 +262,7 @@ def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], con
         a, b = render(7), render(8)
         out[name] = {"spp": 2 * args.converged_neural_spp, "wall_s": time.perf_counter() - t0,
                      **converged_error(0.5 * (a + b), relative_l2(a, b) / 2.0, ref, out["reference"]["noise_rel_l2"])}
-    denoise = oidn_denoiser()
+    denoise = denoise_oidn if oidn_available() else None
     for spp in (1, 4):
         t0 = time.perf_counter()
         pt = render_path_traced(view, spp=spp, seed=99, progress=False).layers["L"]

@@ -12,7 +12,6 @@ import json
 import os
 import platform
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -82,11 +81,3 @@ def write_report(path: Path, bench: str, info: dict[str, Any], config: dict[str,
     path.write_text(json.dumps(doc, indent=2) + "\n")
     print(f"\nwrote {path}")
 
-
-def oidn_denoiser() -> Callable[[np.ndarray], np.ndarray] | None:
-    """Intel Open Image Denoise on an (H, W, 3) image (colour only, HDR) when pyoidn is installed, else None."""
-    try:
-        import pyoidn
-    except ImportError:
-        return None
-    return lambda img: np.asarray(pyoidn.denoise(np.ascontiguousarray(img, dtype=np.float32), hdr=True))

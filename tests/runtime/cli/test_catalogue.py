@@ -332,6 +332,9 @@ CASES += [
     (R, lambda a, d, o: ["--batch-size", "0", *SIZE, "--out", str(o / "r.exr")], "--batch-size"),
     (R, lambda a, d, o: ["--exposure", "nan", *SIZE, "--out", str(o / "r.exr")], "--exposure"),
     (R, lambda a, d, o: ["--seed", HUGE_SEED, *SIZE, "--out", str(o / "r.exr")], "--seed"),
+    (R, lambda a, d, o: ["--denoise", "wavelet", *SIZE, "--out", str(o / "r.exr")], "--denoise"),
+    # OIDN denoises single images: refused with --orbit (before the pyoidn check, so on any machine).
+    (R, lambda a, d, o: ["--denoise", "oidn", "--orbit", "2", *SIZE, "--out", str(o / "r.exr")], "--denoise oidn"),
     (T, lambda a, d, o: ["trace", "blobs", "--max-bounces", "1", "--out", str(o / "m.npz")], "max_bounces"),
     (T, lambda a, d, o: ["trace", "blobs", "--threads", "0", "--out", str(o / "m.npz")], "--threads"),
     (T, lambda a, d, o: ["trace", "blobs", "--seed", HUGE_SEED, "--out", str(o / "m.npz")], "--seed"),

@@ -269,6 +269,8 @@ BAD_ARGS = [
     (["--batch-size", "0"], "--batch-size"),
     (["--exposure", "nan"], "--exposure"),
     (["--seed", str(1 << 70)], "--seed"),
+    (["--denoise", "magic"], "--denoise"),
+    (["--denoise", "oidn", "--orbit", "2"], "--orbit"),
     (["--bogus"], "--bogus"),
 ]
 
