@@ -1,0 +1,193 @@
+"""A deterministic, noise-free depth per pixel of a volume, for reprojecting denoiser history.
+
+Temporal denoisers reproject each pixel's history along the image motion of "the" world point it sees
+(Iglesias-Guitian et al. Sec. 6, "Optical Flow Estimation"). In a participating medium a camera ray has no
+single surface point; the paper takes "the closest world coordinate ... of the first real collision according
+to delta tracking", one random collision per frame, and calls it a heuristic. A random depth changes from
+frame to frame and would shake the reprojection, and the renderers output none, so we use a quantile
+(default: the median) of the same first-collision distribution instead, computed exactly along the centre ray
+of the pixel: with ``tau(t)`` the optical depth from the box entry and ``T_exit`` the transmittance of the
+whole ray, the distance ``t*`` with
+
+    1 - exp(-tau(t*)) = quantile (1 - T_exit),   i.e.   tau(t*) = -ln(1 - quantile (1 - T_exit)),
+
+where that fraction of the rays that collide at all have collided. It is the paper's choice without its noise,
+and it follows the densest visible layer (the 0.25 and 0.75 quantiles warped 64-spp frames no better than the
+median in development runs). A ray whose collision probability
+``1 - T_exit`` is below ``min_opacity`` (1e-3: the wisps of a thin medium still need their depth) sees the
+background at infinity, which reprojects with the camera's rotation only.
+
+Cost: the march runs on a coarse copy of the extinction, the mean of ``sigma_t`` at the voxel centres of each
+``block``^3 block (``block = 2``: a 96^3 volume becomes 48^3 cells), with a 3-D DDA (Amanatides & Woo 1987)
+over its cells, inside which ``sigma_t`` is constant and ``tau`` grows linearly, so ``t*`` is exact for the
+coarse grid. Two walks per ray (the first for ``T_exit``, ending once the ray is opaque), one parallel region.
+``stride = 2`` (default) marches one ray per 2x2 pixels, through the block's centre, and gives the block's
+pixels its depth: 4x cheaper, with no measurable change in the denoised orbits (development runs, vortex and
+shell). Milliseconds per 512x512 frame: bench/README.md (``bench/bench_denoise.py``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from photon_fields.runtime.denoise.reprojection import EYE, HEIGHT, WIDTH, pack_view, pixel_direction
+from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.scene.camera import Camera
+from photon_fields.runtime.transport.medium import Medium
+
+DEFAULT_BLOCK = 2  # voxels per coarse cell edge
+DEFAULT_MIN_OPACITY = 1e-3  # collision probability below which a pixel sees the background at infinity
+DEFAULT_QUANTILE = 0.5  # of the first-collision distribution along the ray
+DEFAULT_STRIDE = 2  # one ray per stride x stride pixels
+_TAU_OPAQUE = 12.0  # exp(-12) = 6e-6: the rest of the ray cannot move the median
+
+
+def coarse_extinction(m: Medium, block: int = DEFAULT_BLOCK) -> np.ndarray:
+    """Mean extinction over ``block``^3 voxel blocks (the grid is padded at the far ends by repeating the border
+    voxels), from the transfer function's extinction table at the voxel values: ``sigma_t`` at each voxel centre,
+    where trilinear interpolation returns the voxel's own value."""
+    lut = m.ext_lut
+    sigma = np.interp(m.density.astype(np.float64), np.linspace(0.0, 1.0, lut.shape[0]), lut)
+    n = np.array(sigma.shape)
+    cells = -(-n // block)
+    pad = [(0, int(c * block - s)) for c, s in zip(cells, n, strict=True)]
+    sigma = np.pad(sigma, pad, mode="edge")
+    c = [int(v) for v in cells]
+    return np.ascontiguousarray(sigma.reshape(c[0], block, c[1], block, c[2], block).mean(axis=(1, 3, 5)))
+
+
+class DepthEstimator:
+    """First-collision-quantile depth maps of one medium (module docstring); the coarse grid is built once.
+
+    ``block`` (voxels per coarse cell), ``min_opacity``, ``quantile`` and ``stride`` as in the module
+    docstring."""
+
+    def __init__(self, medium: Medium, *, block: int = DEFAULT_BLOCK, min_opacity: float = DEFAULT_MIN_OPACITY,
+                 quantile: float = DEFAULT_QUANTILE, stride: int = DEFAULT_STRIDE) -> None:
+        for name, v in (("block", block), ("stride", stride)):
+            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
+                raise InputError(f"depth {name}", f"must be an integer in [1, 64], got {v!r}")
+        for name, v in (("min_opacity", min_opacity), ("quantile", quantile)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 < v < 1.0:
+                raise InputError(f"depth {name}", f"must be a number in (0, 1), got {v!r}")
+        self.quantile = float(quantile)
+        self.stride = int(stride)
+        self.grid = coarse_extinction(medium, block)
+        self.bmin = np.ascontiguousarray(medium.bmin, dtype=np.float64)
+        self.bsize = np.ascontiguousarray(medium.bsize, dtype=np.float64)
+        # Coarse cells per world unit: a cell is ``block`` voxels wide (the last one may reach past the box).
+        self.per_unit = np.asarray(medium.density.shape, dtype=np.float64) / (self.bsize * block)
+        self.min_opacity = float(min_opacity)
+
+    def depth(self, camera: Camera) -> np.ndarray:
+        """(H, W) float32 distance from the eye along each pixel's centre ray (with ``stride`` > 1: its block's
+        centre ray) to the quantile of the first collision, inf where the pixel sees (almost) no medium."""
+        s = self.stride
+        out = np.empty((-(-camera.height // s), -(-camera.width // s)), dtype=np.float32)
+        _depth_image(self.grid, self.bmin, self.bsize, self.per_unit, pack_view(camera), self.min_opacity,
+                     self.quantile, s, out)
+        if s == 1:
+            return out
+        return np.ascontiguousarray(np.repeat(np.repeat(out, s, axis=0), s, axis=1)[:camera.height, :camera.width])
+
+
+@njit(cache=True, inline="always")
+def _box(bmin: np.ndarray, bsize: np.ndarray, ox: float, oy: float, oz: float, dx: float, dy: float,
+         dz: float) -> tuple[float, float]:
+    """Slab test (t_near clamped to 0, t_far); t_near >= t_far is a miss."""
+    t0, t1 = 0.0, math.inf
+    for a in range(3):
+        o = (ox, oy, oz)[a]
+        d = (dx, dy, dz)[a]
+        lo = bmin[a]
+        hi = bmin[a] + bsize[a]
+        if abs(d) < 1e-300:
+            if o < lo or o > hi:
+                return 1.0, 0.0
+            continue
+        ta = (lo - o) / d
+        tb = (hi - o) / d
+        if ta > tb:
+            ta, tb = tb, ta
+        t0 = max(t0, ta)
+        t1 = min(t1, tb)
+    return t0, t1
+
+
+@njit(cache=True, inline="always")
+def _axis(o: float, d: float, bmin: float, per_unit: float, n: int, t: float) -> tuple[int, int, float, float]:
+    """DDA set-up on one axis at distance ``t``: (cell, step, distance of the next cell boundary, distance
+    per cell)."""
+    p = (o + t * d - bmin) * per_unit
+    c = min(max(int(math.floor(p)), 0), n - 1)
+    if d > 0.0:
+        return c, 1, (bmin + (c + 1) / per_unit - o) / d, 1.0 / (per_unit * d)
+    if d < 0.0:
+        return c, -1, (bmin + c / per_unit - o) / d, -1.0 / (per_unit * d)
+    return c, 0, math.inf, math.inf
+
+
+@njit(cache=True)
+def _walk(grid: np.ndarray, bmin: np.ndarray, per_unit: np.ndarray, ox: float, oy: float, oz: float, dx: float,
+          dy: float, dz: float, t0: float, t1: float, tau_stop: float) -> tuple[float, float]:
+    """3-D DDA over the coarse cells from ``t0`` to ``t1``: (optical depth reached, distance where it reached
+    ``tau_stop``, or inf if it never did)."""
+    nx, ny, nz = grid.shape
+    ts = t0 + 1e-9 * (t1 - t0)  # the entry point's cell, not the one behind it
+    cx, sx, nxt, dtx = _axis(ox, dx, bmin[0], per_unit[0], nx, ts)
+    cy, sy, nyt, dty = _axis(oy, dy, bmin[1], per_unit[1], ny, ts)
+    cz, sz, nzt, dtz = _axis(oz, dz, bmin[2], per_unit[2], nz, ts)
+    tau = 0.0
+    t = t0
+    while t < t1:
+        t_end = min(nxt, nyt, nzt, t1)
+        sigma = grid[cx, cy, cz]
+        if sigma > 0.0 and t_end > t:
+            seg = sigma * (t_end - t)
+            if tau + seg >= tau_stop:
+                return tau_stop, t + (tau_stop - tau) / sigma
+            tau += seg
+        t = t_end
+        if nxt <= nyt and nxt <= nzt:
+            cx += sx
+            nxt += dtx
+            if cx < 0 or cx >= nx:
+                break
+        elif nyt <= nzt:
+            cy += sy
+            nyt += dty
+            if cy < 0 or cy >= ny:
+                break
+        else:
+            cz += sz
+            nzt += dtz
+            if cz < 0 or cz >= nz:
+                break
+    return tau, math.inf
+
+
+@njit(cache=True, parallel=True)
+def _depth_image(grid: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, per_unit: np.ndarray, view: np.ndarray,
+                 min_opacity: float, quantile: float, stride: int, out: np.ndarray) -> None:
+    """One depth per ``stride`` x ``stride`` block of pixels (``out`` has a cell per block), along the ray
+    through the centre of the pixels the block covers (module docstring)."""
+    h, w = out.shape
+    ox, oy, oz = view[EYE], view[EYE + 1], view[EYE + 2]
+    for py in prange(h):
+        cy = 0.5 * (stride * py + min(stride * (py + 1), view[HEIGHT]))
+        for px in range(w):
+            cx = 0.5 * (stride * px + min(stride * (px + 1), view[WIDTH]))
+            dx, dy, dz = pixel_direction(view, cx, cy)
+            t0, t1 = _box(bmin, bsize, ox, oy, oz, dx, dy, dz)
+            depth = math.inf
+            if t0 < t1:
+                tau_exit, _ = _walk(grid, bmin, per_unit, ox, oy, oz, dx, dy, dz, t0, t1, _TAU_OPAQUE)
+                opacity = 1.0 - math.exp(-tau_exit)
+                if opacity >= min_opacity:
+                    tau_half = -math.log(1.0 - quantile * opacity)
+                    _, t_half = _walk(grid, bmin, per_unit, ox, oy, oz, dx, dy, dz, t0, t1, tau_half)
+                    depth = t_half if t_half < math.inf else t1
+            out[py, px] = depth
