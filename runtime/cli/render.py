@@ -15,6 +15,7 @@ Bad input exits with status 2 and one line on stderr: ``error: <input>: <problem
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import sys
@@ -148,12 +149,17 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     make_parent(out)
     render = renderer.render_function()
 
-    def render_frame(view: Any, progress: bool) -> Any:
-        return render(view, spp=spp, seed=args.seed, batch_size=args.batch_size, progress=progress, **inputs,
+    def render_frame(view: Any, progress: bool, seed: int = args.seed) -> Any:
+        return render(view, spp=spp, seed=seed, batch_size=args.batch_size, progress=progress, **inputs,
                       **options)
 
     if args.orbit is not None:
-        return run_orbit(args, scene, lambda view: render_frame(view, False), out, spp, exposure)
+        if denoiser is None:
+            return run_orbit(args, scene, lambda view: render_frame(view, False), out, spp, exposure)
+        # A temporal denoiser averages over frames: each needs its own samples (runtime/renderers/orbit.py).
+        seeds = itertools.count(args.seed)
+        return run_orbit(args, scene, lambda view: render_frame(view, False, next(seeds)), out, spp, exposure,
+                         denoiser.sequence_denoiser(scene))
 
     t0 = time.perf_counter()
     result = render_frame(scene, not args.quiet)
@@ -199,12 +205,9 @@ def resolve_denoiser(args: argparse.Namespace) -> Denoiser | None:
         return None
     denoiser = DENOISERS[one_of(DENOISER_NAMES)("--denoise", args.denoise)]
     what = f"--denoise {denoiser.name}"
-    if args.orbit is not None:
-        if not denoiser.stills or denoiser.sequences:
-            # The orbit (runtime/renderers/orbit.py) takes no denoiser yet: refused rather than ignored.
-            raise InputError(what, "--orbit sequences cannot be denoised yet")
+    if args.orbit is not None and not denoiser.sequences:
         raise InputError(what, "denoises single images, not --orbit sequences")
-    if not denoiser.stills:
+    if args.orbit is None and not denoiser.stills:
         raise InputError(what, "denoises frame sequences: use it with --orbit N")
     denoiser.check_available(what)
     return denoiser
@@ -327,18 +330,26 @@ def exposure_from_report(path_text: str) -> float:
 
 
 def run_orbit(args: argparse.Namespace, scene: Any, render_frame: Any, out: Path, spp: int,
-              exposure: float | None) -> dict[str, Any]:
-    """``--orbit N``: N frames orbiting the volume, numbered files beside ``out``, a timings JSON."""
+              exposure: float | None, denoiser: Any = None) -> dict[str, Any]:
+    """``--orbit N``: N frames orbiting the volume, numbered files beside ``out``, a timings JSON; with a
+    sequence ``denoiser`` (``--denoise wrls``) every frame's L denoised and its seed ``--seed`` + frame index."""
     from photon_fields.runtime.renderers.orbit import render_orbit
 
     summary = render_orbit(scene, render_frame, out, frames=args.orbit, spp=spp, degrees=args.orbit_degrees,
-                           exposure=exposure, progress=not args.quiet)
+                           exposure=exposure, progress=not args.quiet, denoiser=denoiser,
+                           record={"method": args.method, "seed": args.seed,
+                                   "seeds": "seed + frame index" if denoiser is not None else "seed"})
     files = summary["files"]
-    return {"wall_s": float(sum(summary["frame_s"])), "timings_ms": summary["stage_ms_per_frame"],
+    info = {"wall_s": float(sum(summary["frame_s"])), "timings_ms": summary["stage_ms_per_frame"],
             "written": [files[0], "...", files[-1], summary["timings_file"]] if len(files) > 2 else
             [*files, summary["timings_file"]],
             "orbit": f"{summary['frames']} frames, mean {summary['mean_s'] * 1e3:.0f} ms, median "
                      f"{summary['median_s'] * 1e3:.0f} ms, p95 {summary['p95_s'] * 1e3:.0f} ms per frame"}
+    if denoiser is not None:
+        d = summary["denoiser"]
+        info["denoise"] = (f"{d['name']}, mean {d['mean_denoise_ms']:.0f} ms per frame (+ {d['mean_depth_ms']:.0f} ms "
+                           "depth map)")
+    return info
 
 
 def format_timings(timings_ms: dict[str, float]) -> str:

@@ -88,7 +88,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, fields, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -98,6 +98,9 @@ from photon_fields.runtime.denoise.wrls_kernels import PLANES, STATE, prepare, s
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.scene.camera import Camera
 from photon_fields.runtime.transport.medium import Medium
+
+if TYPE_CHECKING:
+    from photon_fields.runtime.scene.scene import Scene
 
 PREDICTORS = ("history", "feature")
 
@@ -291,3 +294,9 @@ class WRLSDenoiser:
     def _kernel_depth(depth: np.ndarray) -> np.ndarray:
         """The kernels' depth format: infinity (background) as -1 (they are compiled with fastmath)."""
         return np.where(np.isinf(depth), np.float32(-1.0), depth).astype(np.float32)
+
+
+def for_scene(scene: Scene, **overrides: Any) -> WRLSDenoiser:
+    """A denoiser for frame sequences of ``scene``: its camera's size, depth maps from its medium (the
+    ``sequence`` factory of ``pfn-render --denoise wrls``, :mod:`photon_fields.runtime.denoise.registry`)."""
+    return WRLSDenoiser(scene.camera.width, scene.camera.height, medium=scene.medium(), **overrides)

@@ -48,6 +48,7 @@ it, so a 1280x720, 16 spp render needs a few hundred MB whatever the spp.
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 from photon_fields.runtime.scene.scene import Scene
@@ -89,14 +90,24 @@ class ProgressiveRender:
     """Accumulates frames of one camera: frame n adds ``spp`` samples per pixel to the same film.
 
     ``frame()`` returns the accumulated image so far (layers are means over all samples) with the new
-    frame's timings; ``samples`` is the samples per pixel accumulated."""
+    frame's timings; ``samples`` is the samples per pixel accumulated.
+
+    ``denoiser``: a temporal denoiser for this camera's frames
+    (:class:`photon_fields.runtime.denoise.wrls.WRLSDenoiser`), fed the *accumulated* L after every frame (its
+    noise keeps falling, and the output with it; fed each frame's new samples alone it would stop at its
+    feature's noise floor). The result's ``L`` is then the denoised image, ``L_noisy`` the accumulation, and
+    ``timings_ms["denoise"]`` the denoiser's time; the other layers stay the accumulation's."""
 
     def __init__(self, scene: Scene, estimator: IndirectEstimator | None, *, spp: int = 1, seed: int = 0,
-                 batch_size: int = DEFAULT_BATCH, camera: str = DEFAULT_CAMERA_ESTIMATOR) -> None:
+                 batch_size: int = DEFAULT_BATCH, camera: str = DEFAULT_CAMERA_ESTIMATOR,
+                 denoiser: Any = None) -> None:
         self.scene, self.estimator, self.spp, self.seed, self.batch_size = scene, estimator, int(spp), seed, batch_size
         self.camera = camera
         self.film = Film(scene.camera.width, scene.camera.height)
         self.frames = 0
+        self.denoiser = denoiser
+        if denoiser is not None:
+            denoiser.reset()
 
     @property
     def samples(self) -> int:
@@ -106,4 +117,10 @@ class ProgressiveRender:
         result = render_neural(self.scene, self.estimator, spp=self.spp, seed=self.seed, batch_size=self.batch_size,
                                progress=False, film=self.film, first_sample=self.film.samples, camera=self.camera)
         self.frames += 1
+        if self.denoiser is not None:
+            t0 = time.perf_counter()
+            noisy = result.layers["L"]
+            result.layers = {"L": self.denoiser.denoise(noisy, camera=self.scene.camera), "L_noisy": noisy,
+                             **{k: v for k, v in result.layers.items() if k != "L"}}
+            result.timings_ms["denoise"] = (time.perf_counter() - t0) * 1e3
         return result

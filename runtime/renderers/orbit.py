@@ -51,7 +51,8 @@ def orbit_timings_path(out: Path) -> Path:
 
 def render_orbit(scene: Scene, render_frame: Callable[[Scene], RenderResult], out: Path, *, frames: int,
                  spp: int = 1, degrees: float = 360.0, exposure: float | None = None,
-                 progress: bool = True, denoiser: WRLSDenoiser | None = None) -> dict[str, Any]:
+                 progress: bool = True, denoiser: WRLSDenoiser | None = None,
+                 record: dict[str, Any] | None = None) -> dict[str, Any]:
     """Render ``frames`` views orbiting the scene camera's target by ``degrees`` in all with ``render_frame``,
     each to a numbered EXR + PNG beside ``out`` (:func:`orbit_frame_paths`); ``exposure`` in stops, or None
     for the first frame's automatic exposure, kept for all frames. ``spp`` is recorded, not used: it is
@@ -62,7 +63,8 @@ def render_orbit(scene: Scene, render_frame: Callable[[Scene], RenderResult], ou
     first, through which every frame's L goes (module docstring); ``frame_s`` stays the render's time, the
     denoiser's and the depth map's are ``denoise_ms`` and ``depth_ms`` per frame. ``render_frame`` should then
     draw fresh samples for every frame (a different seed per call): with one seed for all frames the noise of
-    consecutive views is strongly correlated, and averaging it over time removes little."""
+    consecutive views is strongly correlated, and averaging it over time removes little. ``record``: more
+    entries for the timings file (e.g. the method and seeds)."""
     from tqdm import tqdm
 
     from photon_fields.runtime.io.images import auto_exposure_stops, tonemap_srgb, write_image_set, write_png
@@ -99,11 +101,15 @@ def render_orbit(scene: Scene, render_frame: Callable[[Scene], RenderResult], ou
             layers = {**layers, "L": clean, "L_noisy": layers["L"]}
         if exposure is None:
             exposure = auto_exposure_stops(layers["L"])
-        write_image_set(paths[i], layers, metadata={"photon_fields.frame": str(i)}, exposure=exposure)
+        meta = {"photon_fields.frame": str(i)}
+        if denoiser is not None:
+            meta["photon_fields.denoiser"] = "wrls"
+        write_image_set(paths[i], layers, metadata=meta, exposure=exposure)
         if denoiser is not None:
             write_png(orbit_noisy_png_path(paths[i]), tonemap_srgb(layers["L_noisy"], exposure))
     w = np.asarray(walls)
-    summary = {"frames": frames, "spp": spp, "size": [scene.camera.width, scene.camera.height], "degrees": degrees,
+    summary = {**(record or {}), "frames": frames, "spp": spp, "size": [scene.camera.width, scene.camera.height],
+               "degrees": degrees,
                "exposure_stops": exposure, "frame_s": walls, "mean_s": float(w.mean()), "median_s": float(np.median(w)),
                "p95_s": float(np.percentile(w, 95)), "fps": float(1.0 / w.mean()),
                "stage_ms_per_frame": {k: v / frames for k, v in stages.items()},

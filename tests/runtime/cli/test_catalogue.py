@@ -335,6 +335,8 @@ CASES += [
     (R, lambda a, d, o: ["--denoise", "wavelet", *SIZE, "--out", str(o / "r.exr")], "--denoise"),
     # OIDN denoises single images: refused with --orbit (before the pyoidn check, so on any machine).
     (R, lambda a, d, o: ["--denoise", "oidn", "--orbit", "2", *SIZE, "--out", str(o / "r.exr")], "--denoise oidn"),
+    # WRLS denoises frame sequences: refused without --orbit.
+    (R, lambda a, d, o: ["--denoise", "wrls", *SIZE, "--out", str(o / "r.exr")], "--denoise wrls"),
     (T, lambda a, d, o: ["trace", "blobs", "--max-bounces", "1", "--out", str(o / "m.npz")], "max_bounces"),
     (T, lambda a, d, o: ["trace", "blobs", "--threads", "0", "--out", str(o / "m.npz")], "--threads"),
     (T, lambda a, d, o: ["trace", "blobs", "--seed", HUGE_SEED, "--out", str(o / "m.npz")], "--seed"),

@@ -271,6 +271,7 @@ BAD_ARGS = [
     (["--seed", str(1 << 70)], "--seed"),
     (["--denoise", "magic"], "--denoise"),
     (["--denoise", "oidn", "--orbit", "2"], "--orbit"),
+    (["--denoise", "wrls"], "--denoise wrls"),  # a sequence denoiser needs --orbit
     (["--bogus"], "--bogus"),
 ]
 
@@ -289,6 +290,30 @@ def test_bad_input_exits_2_with_one_line(
     assert captured.out == ""
     assert files_in(out_dir) == []  # not even the folder's contents
     assert files_in(tmp_path) == []
+
+
+def test_orbit_denoised_with_wrls(tmp_path: Path, warm: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--orbit N --denoise wrls``: every frame's L denoised, the renderer's kept as L_noisy, and frame i rendered
+    with seed --seed + i (a temporal denoiser needs fresh samples per frame): its L_noisy is, bit for bit, frame i
+    of an undenoised orbit with --seed + i."""
+    from photon_fields.runtime.renderers.orbit import orbit_frame_paths, orbit_noisy_png_path
+
+    out = tmp_path / "wrls" / "f.exr"
+    assert render(out, "--orbit", "3", "--orbit-degrees", "6", "--seed", "5", "--denoise", "wrls") == 0
+    assert "denoised: wrls" in capsys.readouterr().out
+    frames = orbit_frame_paths(out, 3)
+    layers = [read_exr(f)[0] for f in frames]
+    assert all(orbit_noisy_png_path(f).is_file() and f.with_suffix(".png").is_file() for f in frames)
+    for frame in layers:
+        assert set(frame) == LAYERS | {"L_noisy"}
+        assert not np.array_equal(frame["L"], frame["L_noisy"])
+    for i in (1, 2):
+        plain = tmp_path / f"plain{i}" / "f.exr"
+        assert render(plain, "--orbit", "3", "--orbit-degrees", "6", "--seed", str(5 + i)) == 0
+        assert np.array_equal(read_exr(orbit_frame_paths(plain, 3)[i])[0]["L"], layers[i]["L_noisy"]), i
+    timings = json.loads((tmp_path / "wrls" / "f_timings.json").read_text())
+    assert timings["denoiser"]["name"] == "wrls" and len(timings["denoiser"]["denoise_ms"]) == 3
+    assert (timings["seed"], timings["seeds"], timings["method"]) == (5, "seed + frame index", "pt")
 
 
 def test_unknown_scene_lists_builtins(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

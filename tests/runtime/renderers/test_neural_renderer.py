@@ -100,6 +100,30 @@ def test_progressive_frames_add_up_to_one_render(scene, pmap) -> None:  # noqa: 
     assert not np.allclose(first, once["L"])  # frames really add new samples
 
 
+def test_progressive_render_denoised_with_wrls(scene) -> None:  # noqa: ANN001
+    """With a WRLS denoiser, every frame's L is the denoised accumulation, closer to the converged image than
+    the accumulation itself, which is kept unchanged as L_noisy (L_d only: no estimator)."""
+    from photon_fields.runtime.denoise.wrls import for_scene
+
+    def rel_l2(a: np.ndarray, ref: np.ndarray) -> float:
+        return float(np.sqrt(np.mean((a - ref) ** 2) / np.mean(ref**2)))
+
+    w, h = scene.camera.width, scene.camera.height
+    plain = ProgressiveRender(scene, None, spp=1, seed=4)
+    denoised = ProgressiveRender(scene, None, spp=1, seed=4, denoiser=for_scene(scene))
+    reference = render_neural(scene, None, spp=1024, seed=99, progress=False).layers["L"]
+    errors = []
+    for _ in range(6):
+        a, b = plain.frame(), denoised.frame()
+        np.testing.assert_array_equal(b.layers["L_noisy"], a.layers["L"])
+        np.testing.assert_array_equal(b.layers["L_d"], a.layers["L_d"])
+        assert b.layers["L"].shape == (h, w, 3) and "denoise" in b.timings_ms
+        errors.append((rel_l2(a.layers["L"], reference), rel_l2(b.layers["L"], reference)))
+    noisy, clean = np.array(errors).T
+    assert np.all(clean < 0.9 * noisy), errors
+    assert clean[-1] < clean[0], errors  # it follows the accumulation down
+
+
 def test_direct_and_indirect_passes_separately(scene, pmap) -> None:  # noqa: ANN001
     est = PhotonMapEstimator(pmap, scene.medium(), k=64, radius=0.1)
     full = render_neural(scene, est, spp=2, seed=1, progress=False)
