@@ -13,6 +13,11 @@ warm-up, against the path tracer at ``--ref-spp`` (default 512; cached in ``--wo
 - with the ``oidn`` extra installed (``pip install 'photon-fields[oidn]'``), the same for the path tracer and the
   neural renderer at 1 and 4 spp denoised by Intel Open Image Denoise (``photon_fields.runtime.denoise.oidn``, what
   ``pfn-render --denoise oidn`` runs: colour only, HDR), the denoiser's time included.
+- the temporal WRLS denoiser (``photon_fields.runtime.denoise.wrls``) on a static camera, as a progressive render
+  shows it: 1-spp frames accumulated (the neural renderer per camera estimator, ``ProgressiveRender``, and the path
+  tracer, seed per frame) and the running mean denoised after every frame; rel. L2 after ``--wrls-frames``
+  frames (default 1, 4, 32), the time of all frames so far, denoising included. (On a moving camera, the same
+  denoiser's error and flicker along an orbit: ``bench_denoise.py``.)
 
 Bundles: ``--bundle SCENE=PATH``, else those of ``bench_render.py`` (``bench/results/render/<scene>.pfn``,
 trained there when missing). Output: a table on stdout, JSON (default ``bench/results/equal_error.json``) with the
@@ -35,6 +40,7 @@ from bench_render import bundle_for  # noqa: E402
 from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
 
 from photon_fields.runtime.denoise.oidn import denoise_oidn, oidn_available  # noqa: E402
+from photon_fields.runtime.denoise.wrls import for_scene  # noqa: E402
 from photon_fields.runtime.eval.metrics import relative_l2  # noqa: E402
 from photon_fields.runtime.field.field import PhotonField  # noqa: E402
 from photon_fields.runtime.renderers.neural import render_neural  # noqa: E402
@@ -89,6 +95,30 @@ def time_to_error(curve: list[dict[str, float]], error: float) -> tuple[float, b
     return float(np.exp(ms[i] + (e - err[i]) * slope)), True
 
 
+def progressive_wrls(frame: Callable[[int], np.ndarray], scene: Scene, ref: np.ndarray, frames: list[int],
+                     repeats: int) -> list[dict[str, Any]]:
+    """Static camera: ``frame(i)`` (a 1-spp L with its own samples) accumulated, the running mean denoised by
+    WRLS after every frame; per count in ``frames``, the best time of all frames so far and the mean rel. L2
+    over ``repeats`` sequences (seeds ``1000 r + i``)."""
+    last = max(frames)
+    times: dict[int, list[float]] = {k: [] for k in frames}
+    errors: dict[int, list[float]] = {k: [] for k in frames}
+    for r in range(repeats):
+        denoiser = for_scene(scene)
+        acc = np.zeros_like(ref, dtype=np.float64)
+        elapsed = 0.0
+        for i in range(1, last + 1):
+            t0 = time.perf_counter()
+            acc += frame(1000 * r + i)
+            out = denoiser.denoise((acc / i).astype(np.float32))
+            elapsed += time.perf_counter() - t0
+            if i in times:
+                times[i].append(elapsed)
+                errors[i].append(relative_l2(out, ref))
+    return [{"spp": k, "frames": k, "ms": min(times[k]) * 1e3, "rel_l2": float(np.mean(errors[k])),
+             "rel_l2_spread": float(np.std(errors[k]))} for k in frames]
+
+
 def scene_curves(scene: Scene, est: Any, ref: np.ndarray, args: argparse.Namespace, pt_spps: list[int],
                  denoise: Callable[[np.ndarray], np.ndarray] | None) -> dict[str, list[dict[str, Any]]]:
     """Per method, its (spp, ms, rel. L2) points: the path tracer's curve, the neural renderer's per camera
@@ -103,6 +133,10 @@ def scene_curves(scene: Scene, est: Any, ref: np.ndarray, args: argparse.Namespa
     curves = {"path tracer": [{"spp": s, **measure(pt(s), ref, args.repeats)} for s in pt_spps]}
     for camera in args.cameras:
         curves[f"neural {camera}"] = [{"spp": s, **measure(neural(s, camera), ref, args.repeats)} for s in args.spps]
+    curves["path tracer + WRLS (progressive)"] = progressive_wrls(pt(1), scene, ref, args.wrls_frames, args.repeats)
+    for camera in args.cameras:
+        curves[f"neural {camera} + WRLS (progressive)"] = progressive_wrls(neural(1, camera), scene, ref,
+                                                                         args.wrls_frames, args.repeats)
     if denoise is not None:
         curves["path tracer + OIDN"] = [{"spp": s, **measure(pt(s), ref, args.repeats, denoise)} for s in (1, 4)]
         for camera in args.cameras:
@@ -144,6 +178,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--cameras", nargs="*", default=list(CAMERA_ESTIMATORS), choices=CAMERA_ESTIMATORS,
                     help="camera estimators")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--wrls-frames", type=int, nargs="*", default=[1, 4, 32],
+                    help="progressive WRLS: rel. L2 after these many 1-spp frames")
     ap.add_argument("--bundle", action="append", default=[], metavar="SCENE=PATH")
     ap.add_argument("--work", type=Path, default=DEFAULT_WORK)
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
@@ -176,17 +212,18 @@ def main(argv: list[str] | None = None) -> None:
                 row["extrapolated"] = extrapolated
         results[name] = {"bundle": str(bundle_for(name, base, given)), "curves": curves}
         print(f"\n{name} ({args.size}x{args.size}, reference: path tracer {args.ref_spp} spp)")
-        print(f"  {'method':28s} {'spp':>4s} {'ms':>8s} {'rel. L2':>8s} {'speedup':>8s}")
+        print(f"  {'method':36s} {'spp':>4s} {'ms':>8s} {'rel. L2':>8s} {'speedup':>8s}")
         for method, rows in curves.items():
             for row in rows:
                 speed = row.get("equal_error_speedup")
                 mark = ">" if row.get("extrapolated") else " "
                 speed_s = f"{mark}{speed:6.1f}x" if speed is not None else ""
-                print(f"  {method:28s} {row['spp']:4d} {row['ms']:8.1f} {row['rel_l2']:8.3f} {speed_s:>8s}", flush=True)
+                print(f"  {method:36s} {row['spp']:4d} {row['ms']:8.1f} {row['rel_l2']:8.3f} {speed_s:>8s}", flush=True)
     info = finish_info(info, {})
     write_report(args.out, "equal_error", info, {"size": args.size, "ref_spp": args.ref_spp, "pt_spps": pt_spps,
                                                  "spps": args.spps, "cameras": args.cameras,
-                                                 "repeats": args.repeats, "oidn": denoise is not None},
+                                                 "repeats": args.repeats, "oidn": denoise is not None,
+                                                 "wrls_frames": args.wrls_frames},
                  results=results)
     plot(results, args.out.with_suffix(".png"))
     print(f"wrote {args.out.with_suffix('.png')}")
