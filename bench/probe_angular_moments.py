@@ -29,7 +29,8 @@ from numpy.polynomial import legendre  # noqa: E402
 
 from photon_fields.models_spec import DEFAULT_PHOTONS, PHASE_WINDOW  # noqa: E402
 from photon_fields.runtime.photons.estimate import PhotonMapEstimator  # noqa: E402
-from photon_fields.runtime.photons.knn import PhotonIndex, knn_query  # noqa: E402
+from photon_fields.runtime.photons.knn import knn_query  # noqa: E402
+from photon_fields.runtime.photons.photon_grid import PhotonIndex  # noqa: E402
 from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
 from photon_fields.runtime.wavefront.first_interaction import render_first_interaction  # noqa: E402
 from photon_fields.train.photons.tracing import trace_photons  # noqa: E402

@@ -44,8 +44,9 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.photons.knn import PhotonIndex, build_photon_index, indexed_radiance
+from photon_fields.runtime.photons.knn import indexed_radiance
 from photon_fields.runtime.photons.phase_window import check_window, window_weights
+from photon_fields.runtime.photons.photon_grid import PhotonIndex, build_photon_index
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.medium import Medium, extinction_at, extinction_batch

@@ -14,14 +14,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from photon_fields.runtime.photons.knn import (
-    TARGET_OCCUPANCY,
-    build_photon_grid,
-    build_photon_index,
-    indexed_radiance,
-    knn_query,
-    knn_radiance,
-)
+from photon_fields.runtime.photons.knn import indexed_radiance, knn_query, knn_radiance
+from photon_fields.runtime.photons.photon_grid import TARGET_OCCUPANCY, build_photon_grid, build_photon_index
 
 CELL_SIZES = [None, 0.004, 0.03, 0.2, 5.0]  # 0.004 hits the cell-count cap; 5.0 is a single cell
 
@@ -198,7 +192,7 @@ def test_radiance_matches_brute_force(g: float, cell_size: float | None) -> None
     grid = build_photon_grid(pts, cell_size)
     for k, r_max in [(32, 0.05), (200, 0.1), (600, 0.2), (64, math.inf)]:
         est, radius, found = knn_radiance(grid, dirs, wts, qs, view, g, k, r_max)
-        # The index stores directions and weights as float32 (knn.PhotonIndex): the reference uses the same
+        # The index stores directions and weights as float32 (photon_grid.PhotonIndex): the reference uses the same
         # values, so the arithmetic can still be compared to 1e-9.
         ref_est, ref_radius, ref_found = brute_radiance(pts, as_stored(dirs), as_stored(wts), qs, view, g, k, r_max)
         np.testing.assert_array_equal(found, ref_found)
@@ -217,7 +211,7 @@ def test_radiance_phase_turns_photons_towards_the_camera(g: float) -> None:
     (1 + g) / (4 pi (1 - g)^2)); one travelling along d turns back (cos = -1: (1 - g) / (4 pi (1 + g)^2)); one
     travelling across turns by 90 degrees ((1 - g^2) / (4 pi (1 + g^2)^1.5)). One photon of weight 1 per
     query, r_max 0.5 (fewer than K photons: the ball of radius r_max). The photon's direction is stored as
-    float32 (knn.PhotonIndex), which moves HG at its forward peak by ~1e-6: rtol 1e-5."""
+    float32 (photon_grid.PhotonIndex), which moves HG at its forward peak by ~1e-6: rtol 1e-5."""
     d = np.array([0.6, 0.0, 0.8])
     across = np.array([0.0, 1.0, 0.0])
     grid = build_photon_grid(np.zeros((1, 3)))

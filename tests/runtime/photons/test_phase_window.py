@@ -82,7 +82,7 @@ def test_window_estimate_is_the_weighted_sum_of_the_bins_estimates(thin_scene: S
     mixed = sum(wb * indexed_radiance(est.index(int(b)), x, d, g, 1 << 16, 0.08)[0] for b, wb in zip(idx, w,
                                                                                                    strict=True))
     assert window.mean() > 0
-    # rtol 1e-6: the two sides round their (differently scaled) photon weights to float32 (knn.PhotonIndex).
+    # rtol 1e-6: the two sides round their (differently scaled) photon weights to float32 (photon_grid.PhotonIndex).
     np.testing.assert_allclose(window, mixed, rtol=1e-6, atol=1e-12 * window.max())
 
 
