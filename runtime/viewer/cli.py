@@ -1,0 +1,81 @@
+"""``pfn-view``: explore a scene in the browser, rendered progressively on this machine (issue 15).
+
+    pfn-view vortex --bundle runs/vortex/field.pfn   # the neural renderer; prints the page's address
+    pfn-view my_scene.json                            # no bundle: the path tracer
+
+Binds to 127.0.0.1 unless ``--host`` says otherwise (with a warning: the page can drive renders and write
+screenshots). Bad input is refused in one ``error:`` line with exit status 2, before anything is served.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import sys
+import time
+import webbrowser
+from collections.abc import Sequence
+
+from photon_fields.runtime.cli.common import OneLineArgumentParser, check_seed, guarded
+from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.threads import set_threads
+
+
+def build_parser() -> OneLineArgumentParser:
+    p = OneLineArgumentParser(prog="pfn-view", description="Interactive progressive viewer in the browser.")
+    p.add_argument("scene", nargs="?", default=None,
+                   help="builtin scene (vortex, blobs, shell, head) or a scene JSON file (default: the bundle's)")
+    p.add_argument("--bundle", default=None, help="photon-field bundle (NAME.pfn): enables the neural renderer")
+    p.add_argument("--map", default=None, help="photon map (.npz): enables the photon-map renderer")
+    p.add_argument("--renderer", default=None, choices=["neural", "pt", "photonmap"],
+                   help="renderer to start with (default: neural with --bundle, else pt)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=int, default=0, help="port (default 0: any free port)")
+    p.add_argument("--out", default="pfn_view_out", help="folder screenshots are written to (the only one)")
+    p.add_argument("--size", default="512x512", help="frame size WIDTHxHEIGHT")
+    p.add_argument("--seed", type=int, default=0, help="random seed: the same inputs give the same frames")
+    p.add_argument("--max-spp", type=int, default=1024, help="stop refining a resting view at this many samples")
+    p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
+    p.add_argument("--force", action="store_true", help="use a bundle or map made for another scene")
+    p.add_argument("--no-browser", action="store_true", help="only print the address")
+    p.add_argument("--quiet", action="store_true", help="log warnings only")
+    return p
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    m = re.fullmatch(r"\s*(\d{1,6})\s*[xX]\s*(\d{1,6})\s*", text)
+    if m is None:
+        raise InputError("--size", f"expected WIDTHxHEIGHT such as 512x512, got {text!r}")
+    return int(m.group(1)), int(m.group(2))
+
+
+@guarded
+def _main(argv: Sequence[str] | None = None) -> int:
+    from photon_fields.runtime.viewer.launch import check_size, is_loopback, start
+
+    args = build_parser().parse_args(argv)
+    size = check_size(parse_size(args.size))
+    check_seed(args.seed)
+    if not 1 <= args.max_spp <= 1 << 16:
+        raise InputError("--max-spp", f"must be an integer in [1, {1 << 16}], got {args.max_spp}")
+    set_threads(args.threads)
+    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="pfn-view: %(message)s")
+    if not is_loopback(args.host):
+        print(f"warning: listening on {args.host}: anyone who can reach it can drive renders and write screenshots "
+              f"into {args.out}", file=sys.stderr)
+    server = start(args.scene, bundle=args.bundle, map=args.map, out=args.out, size=size, host=args.host,
+                   port=args.port, seed=args.seed, threads=args.threads, force=args.force, renderer=args.renderer,
+                   max_spp=args.max_spp)
+    print(f"pfn-view: {server.url} (Ctrl-C to stop)", flush=True)
+    if not args.no_browser:
+        webbrowser.open(server.url)
+    try:
+        while server.thread.is_alive():
+            time.sleep(0.5)
+    finally:
+        server.stop()
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    sys.exit(_main(argv))

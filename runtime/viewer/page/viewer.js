@@ -1,0 +1,146 @@
+// pfn-view page: sends input as JSON messages over one websocket and draws the frames it receives.
+// Frames are binary messages: 4-byte big-endian header length, JSON header, then JPEG or PNG bytes.
+"use strict";
+const $ = (id) => document.getElementById(id);
+const canvas = $("view");
+const ctx = canvas.getContext("2d");
+let ws = null;
+let seq = 0;
+let lastFrame = null;           // the last frame header, for the tests and the status line
+let framesShown = 0;
+let pendingOrbit = null;        // input is coalesced to one message per animation frame
+let pendingPan = null;
+let pendingZoom = 1.0;
+const sentAt = new Map();       // seq -> time sent (input-to-image latency)
+let lastLatency = null;
+const times = [];               // arrival times of the last frames (frame rate)
+
+function send(msg) {
+  if (!ws || ws.readyState !== WebSocket.OPEN) return;
+  seq += 1;
+  msg.seq = seq;
+  sentAt.set(seq, performance.now());
+  if (sentAt.size > 200) sentAt.delete(sentAt.keys().next().value);
+  ws.send(JSON.stringify(msg));
+}
+
+function flushInput() {
+  if (pendingOrbit) { send({type: "orbit", dx: pendingOrbit[0], dy: pendingOrbit[1]}); pendingOrbit = null; }
+  if (pendingPan) { send({type: "pan", dx: pendingPan[0], dy: pendingPan[1]}); pendingPan = null; }
+  if (pendingZoom !== 1.0) { send({type: "zoom", factor: Math.min(20, Math.max(0.05, pendingZoom))}); pendingZoom = 1.0; }
+  requestAnimationFrame(flushInput);
+}
+
+function setControl(control, value) { send({type: "set", control: control, value: value}); }
+
+function connect() {
+  const proto = location.protocol === "https:" ? "wss:" : "ws:";
+  ws = new WebSocket(`${proto}//${location.host}/ws`);
+  ws.binaryType = "arraybuffer";
+  ws.onopen = () => { $("status").textContent = "connected, waiting for the first frame..."; };
+  ws.onclose = () => { $("status").textContent = "disconnected (reload the page to reconnect)"; };
+  ws.onmessage = (ev) => {
+    if (typeof ev.data === "string") { onText(JSON.parse(ev.data)); return; }
+    const view = new DataView(ev.data);
+    const n = view.getUint32(0);
+    const header = JSON.parse(new TextDecoder().decode(new Uint8Array(ev.data, 4, n)));
+    const blob = new Blob([new Uint8Array(ev.data, 4 + n)], {type: header.format === "png" ? "image/png" : "image/jpeg"});
+    createImageBitmap(blob).then((bitmap) => {
+      if (canvas.width !== bitmap.width || canvas.height !== bitmap.height) {
+        canvas.width = bitmap.width; canvas.height = bitmap.height;
+      }
+      ctx.drawImage(bitmap, 0, 0);
+      bitmap.close();
+      const now = performance.now();
+      if (header.seq !== null && sentAt.has(header.seq)) { lastLatency = now - sentAt.get(header.seq); sentAt.delete(header.seq); }
+      times.push(now); while (times.length > 10) times.shift();
+      framesShown += 1;
+      lastFrame = header;
+      showStatus(header);
+    });
+  };
+}
+
+function showStatus(h) {
+  const fps = times.length > 1 ? (times.length - 1) * 1000 / (times[times.length - 1] - times[0]) : 0;
+  $("status").textContent =
+    `${h.renderer} ${h.layer} g=${h.g.toFixed(2)}\n` +
+    `${h.width}x${h.height}  spp ${h.spp}${h.denoised ? " (denoised)" : ""}\n` +
+    `frame ${h.total_ms.toFixed(0)} ms  render ${(h.render_ms || 0).toFixed(0)} ms\n` +
+    `${fps.toFixed(1)} frames/s` + (lastLatency !== null ? `  input->image ${lastLatency.toFixed(0)} ms` : "");
+  $("message").textContent = h.warnings.length ? h.warnings.join("; ") : $("message").textContent;
+}
+
+function onText(msg) {
+  if (msg.type === "state") buildControls(msg);
+  else if (msg.type === "error") $("message").textContent = "refused: " + msg.message;
+  else if (msg.type === "screenshot") $("message").textContent = "saved " + msg.files.map((f) => f.split("/").pop()).join(", ");
+}
+
+function buildControls(s) {
+  $("title").textContent = `pfn-view: ${s.scene}`;
+  const names = {neural: "neural (photon field)", pt: "path tracer", photonmap: "photon map"};
+  $("renderer").innerHTML = s.renderers.map((r) => `<option value="${r}">${names[r] || r}</option>`).join("");
+  $("renderer").value = s.renderer;
+  $("layer").value = s.layer;
+  $("g").value = s.g; $("g_value").textContent = Number(s.g).toFixed(2);
+  canvas.width = s.width; canvas.height = s.height;
+  $("lights").innerHTML = "";
+  s.lights.forEach((lt, i) => {
+    const f = document.createElement("fieldset");
+    let html = `<legend>light ${i} (${lt.kind})</legend>`;
+    if (lt.kind !== "environment") {
+      html += `<label>azimuth <span id="az${i}v">${lt.azimuth.toFixed(0)}</span>&deg;</label>` +
+        `<input id="az${i}" type="range" min="-180" max="180" step="1" value="${lt.azimuth}">` +
+        `<label>elevation <span id="el${i}v">${lt.elevation.toFixed(0)}</span>&deg;</label>` +
+        `<input id="el${i}" type="range" min="-90" max="90" step="1" value="${lt.elevation}">`;
+    }
+    const maxPower = Math.max(10, 4 * lt.power);
+    html += `<label>power <span id="pw${i}v">${lt.power.toFixed(2)}</span></label>` +
+      `<input id="pw${i}" type="range" min="0" max="${maxPower}" step="${maxPower / 200}" value="${lt.power}">`;
+    f.innerHTML = html;
+    $("lights").appendChild(f);
+    const hook = (id, key) => {
+      const el = $(id);
+      if (!el) return;
+      el.addEventListener("input", () => {
+        $(id + "v").textContent = Number(el.value).toFixed(key === "power" ? 2 : 0);
+        send({type: "light", index: i, [key]: Number(el.value)});
+      });
+    };
+    hook(`az${i}`, "azimuth"); hook(`el${i}`, "elevation"); hook(`pw${i}`, "power");
+  });
+}
+
+// --- input -------------------------------------------------------------------------------------
+let drag = null;
+canvas.addEventListener("pointerdown", (e) => { drag = {x: e.clientX, y: e.clientY, pan: e.shiftKey}; canvas.setPointerCapture(e.pointerId); });
+canvas.addEventListener("pointerup", () => { drag = null; });
+canvas.addEventListener("pointermove", (e) => {
+  if (!drag) return;
+  const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
+  drag.x = e.clientX; drag.y = e.clientY;
+  if (drag.pan || e.shiftKey) {
+    const h = canvas.clientHeight || canvas.height;
+    const p = pendingPan || [0, 0];
+    pendingPan = [Math.max(-10, Math.min(10, p[0] - dx / h)), Math.max(-10, Math.min(10, p[1] + dy / h))];
+  } else {
+    const o = pendingOrbit || [0, 0];
+    pendingOrbit = [Math.max(-360, Math.min(360, o[0] - dx * 0.4)), Math.max(-180, Math.min(180, o[1] + dy * 0.4))];
+  }
+});
+canvas.addEventListener("wheel", (e) => { e.preventDefault(); pendingZoom *= Math.exp(e.deltaY * 0.001); }, {passive: false});
+
+$("renderer").addEventListener("change", (e) => setControl("renderer", e.target.value));
+$("layer").addEventListener("change", (e) => setControl("layer", e.target.value));
+$("g").addEventListener("input", (e) => { $("g_value").textContent = Number(e.target.value).toFixed(2); setControl("g", Number(e.target.value)); });
+$("exposure").addEventListener("input", (e) => { $("exposure_value").textContent = (e.target.value >= 0 ? "+" : "") + Number(e.target.value).toFixed(1); setControl("exposure", Number(e.target.value)); });
+$("auto_exposure").addEventListener("click", () => { $("exposure").value = 0; $("exposure_value").textContent = "+0.0"; setControl("exposure", "auto"); });
+$("denoise").addEventListener("change", (e) => setControl("denoise", e.target.checked));
+$("lossless").addEventListener("change", (e) => setControl("format", e.target.checked ? "png" : "jpeg"));
+$("reset_camera").addEventListener("click", () => send({type: "reset_camera"}));
+$("screenshot").addEventListener("click", () => send({type: "screenshot"}));
+
+window.pfnView = {frames: () => framesShown, header: () => lastFrame, send: send};
+connect();
+requestAnimationFrame(flushInput);

@@ -1,0 +1,461 @@
+"""One page's render state machine: what to render next, progressive accumulation, denoising, frames.
+
+A :class:`ViewerSession` is driven from two threads:
+
+- the server's event loop calls :meth:`ViewerSession.apply` with each validated message; it only updates the
+  state under a lock (microseconds), so input is never queued behind a render;
+- the session's render thread calls :meth:`ViewerSession.next_frame`, which takes a snapshot of the newest
+  state, renders one frame of 1 sample per pixel, adds it to the accumulation and returns the encoded image.
+  Whatever changed while a frame rendered is picked up by the next one: intermediate camera positions are never
+  rendered (newest camera wins), and a frame's samples are never added to the accumulation of a newer state.
+
+Accumulation: every change that alters the image (camera, g, lights, renderer, frame size) starts a new
+*generation*; its frames add up sample by sample. The neural renderer's frame ``n`` draws samples
+``first_sample = n`` of one seed, so ``n`` frames are exactly one render of ``n`` spp (up to the float32
+rounding of each frame's mean); the path tracer and the photon-map renderer, which take no ``first_sample``,
+use seed ``seed + n`` for frame ``n``, so the mean converges to the same image statistically.
+
+Denoising (:class:`photon_fields.runtime.denoise.wrls.WRLSDenoiser`): while the camera moves every frame is a
+fresh 1-spp frame, denoised with the temporal history reprojected from the previous view. Once the camera rests
+the *accumulated* image is fed to the denoiser (its noise falls as 1 / samples, the WRLS docstring's static
+use) for the first :attr:`ViewerSession.denoise_frames` frames, then the plain accumulation is shown (the
+denoiser's slight blur would stay). A change that is not a camera move (g, lights, renderer, layer, size) is a
+cut: the denoiser forgets its history.
+
+Exposure: measured automatically (:func:`photon_fields.runtime.io.images.auto_exposure_stops`) on the first
+frame after a cut, and then kept while the camera moves so brightness does not flicker; the page's exposure
+control adds stops to it, and ``"auto"`` measures it again.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, PointLight
+from photon_fields.runtime.scene.scene import Scene
+from photon_fields.runtime.viewer.camera import OrbitView
+from photon_fields.runtime.viewer.encode import encode, tonemap
+from photon_fields.runtime.viewer.messages import NAME_PATTERN, RENDERER_NAMES, Message, MessageError
+
+#: Renders of all sessions of a process take turns: two pages rendering at once would each get half the cores
+#: and both miss their frame rate; one at a time keeps each frame as fast as the machine allows.
+RENDER_LOCK = threading.Lock()
+DEFAULT_MAX_SPP = 1024
+DEFAULT_DENOISE_FRAMES = 16
+ACCUMULATED_LAYERS = ("L", "L_d", "L_i", "L_e")
+
+
+@dataclass
+class LightControl:
+    """A light as the page edits it: where it comes from (azimuth, elevation in degrees about the scene's
+    vertical axis, y) and its power. Point lights keep their distance from the origin; an environment light
+    has a power only."""
+
+    kind: str
+    azimuth: float
+    elevation: float
+    power: float
+    distance: float
+    color: np.ndarray
+
+    @classmethod
+    def from_light(cls, light: Any) -> LightControl:
+        if isinstance(light, DirectionalLight):
+            toward = -light.direction
+            dist = 1.0
+        elif isinstance(light, PointLight):
+            dist = float(np.linalg.norm(light.position))
+            toward = light.position / dist if dist > 0 else np.array([0.0, 1.0, 0.0])
+        else:
+            return cls("environment", 0.0, 90.0, float(light.power), 0.0, light.color)
+        az = math.degrees(math.atan2(float(toward[2]), float(toward[0])))
+        el = math.degrees(math.asin(max(-1.0, min(1.0, float(toward[1])))))
+        kind = "directional" if isinstance(light, DirectionalLight) else "point"
+        return cls(kind, az, el, float(light.power), dist, light.color)
+
+    def toward(self) -> np.ndarray:
+        a, e = math.radians(self.azimuth), math.radians(self.elevation)
+        return np.array([math.cos(e) * math.cos(a), math.sin(e), math.cos(e) * math.sin(a)])
+
+    def light(self) -> Any:
+        if self.kind == "directional":
+            return DirectionalLight(-self.toward(), self.color, self.power)
+        if self.kind == "point":
+            return PointLight(self.toward() * self.distance, self.color, self.power)
+        return EnvironmentLight(self.color, self.power)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "azimuth": round(self.azimuth, 4), "elevation": round(self.elevation, 4),
+                "power": self.power}
+
+
+@dataclass
+class ViewState:
+    """Everything the page controls. Copied (shallowly) for each frame; treat as immutable outside the lock."""
+
+    view: OrbitView
+    renderer: str
+    layer: str = "L"
+    g: float = 0.0
+    lights: list[LightControl] = field(default_factory=list)
+    exposure_offset: float = 0.0
+    format: str = "jpeg"
+    denoise: bool = True
+    max_spp: int = DEFAULT_MAX_SPP
+    width: int = 512
+    height: int = 512
+
+
+@dataclass
+class Frame:
+    """One frame for the page: the encoded image and its header (what it shows, how long it took)."""
+
+    image: bytes
+    header: dict[str, Any]
+
+
+class ViewerSession:
+    """The render state of one page (module docstring). ``estimator``: a photon field's estimator (enables the
+    neural renderer), ``pmap``: a photon map (the photon-map renderer); the path tracer is always there.
+    ``out_dir``: the only folder screenshots are written to."""
+
+    def __init__(self, scene: Scene, *, estimator: Any = None, pmap: Any = None, out_dir: Path,
+                 seed: int = 0, width: int | None = None, height: int | None = None,
+                 renderer: str | None = None, max_spp: int = DEFAULT_MAX_SPP,
+                 denoise_frames: int = DEFAULT_DENOISE_FRAMES, info: dict[str, Any] | None = None) -> None:
+        self.base_scene = scene
+        self.estimator, self.pmap = estimator, pmap
+        self.out_dir = Path(out_dir)
+        self.seed = int(seed)
+        self.denoise_frames = int(denoise_frames)
+        self.info = dict(info or {})
+        self.available = [name for name in RENDERER_NAMES if self._has(name)]
+        if renderer is None:
+            renderer = "neural" if estimator is not None else "pt"
+        if renderer not in self.available:
+            raise InputError("renderer", f"'{renderer}' needs its input (neural: --bundle, photonmap: --map)")
+        self.trained_lights = [lt.to_dict() for lt in scene.lights]
+        cam = scene.camera
+        self.state = ViewState(OrbitView.from_camera(cam), renderer, g=scene.g,
+                               lights=[LightControl.from_light(lt) for lt in scene.lights], max_spp=int(max_spp),
+                               width=width or cam.width, height=height or cam.height)
+        self.lock = threading.Lock()
+        self.changed = threading.Condition(self.lock)
+        self.generation = 0  # bumped by every change that alters the image
+        self.cut = True  # the next generation starts the denoiser afresh (not a camera move)
+        self.redisplay = True  # the next frame must be sent even if nothing is left to render
+        self.reexpose = True  # measure the automatic exposure again on the next frame
+        self.last_seq: int | None = None
+        self.frames = 0
+        self.scene = scene
+        self._lights_version = 0
+        self._scene_lights_version = 0
+        # Owned by the render thread (next_frame), read by screenshot() under self.lock:
+        self._acc: dict[str, np.ndarray] = {}
+        self._acc_generation = -1
+        self._samples = 0
+        self._auto_stops: float | None = None
+        self._denoiser: Any = None
+        self._last_header: dict[str, Any] = {}
+        self._shot_lock = threading.Lock()
+
+    # ------------------------------------------------------------------------------------------------
+    # input (event-loop thread)
+
+    def _has(self, name: str) -> bool:
+        return {"neural": self.estimator is not None, "pt": True, "photonmap": self.pmap is not None}[name]
+
+    def apply(self, msg: Message) -> None:
+        """Apply a validated message to the state (a :class:`MessageError` if it cannot apply here: a renderer
+        without its input, a light that does not exist, a g the photon map cannot answer, all lights off).
+        Screenshots are not state: the server calls :meth:`screenshot`."""
+        f = msg.fields
+        with self.lock:
+            s = self.state
+            restart, cut, redisplay, reexpose = True, False, False, False
+            if msg.type == "orbit":
+                s.view = s.view.orbit(f["dx"], f["dy"])
+            elif msg.type == "pan":
+                s.view = s.view.pan(f["dx"], f["dy"])
+            elif msg.type == "zoom":
+                s.view = s.view.zoom(f["factor"])
+            elif msg.type == "reset_camera":
+                s.view = OrbitView.from_camera(self.base_scene.camera)
+            elif msg.type == "view":
+                if (f["width"], f["height"]) == (s.width, s.height):
+                    restart = False
+                s.width, s.height, cut = f["width"], f["height"], True
+            elif msg.type == "light":
+                self._apply_light(s, f)
+                cut = True
+            elif msg.type == "set":
+                restart, cut, redisplay, reexpose = self._apply_set(s, f["control"], f["value"])
+            elif msg.type == "screenshot":
+                restart = False
+            else:  # validate() knows no other types; a new one must be handled here first
+                raise MessageError(f"message type {msg.type!r} is not handled")
+            if msg.seq is not None:
+                self.last_seq = msg.seq
+            if restart:
+                self.generation += 1
+            self.cut = self.cut or cut
+            self.reexpose = self.reexpose or reexpose
+            self.redisplay = self.redisplay or redisplay or restart
+            self.changed.notify_all()
+
+    def _apply_light(self, s: ViewState, f: dict[str, Any]) -> None:
+        i = f["index"]
+        if i >= len(s.lights):
+            raise MessageError(f"light: index {i} but the scene has {len(s.lights)} light(s)")
+        light = replace(s.lights[i])
+        if light.kind == "environment" and ("azimuth" in f or "elevation" in f):
+            raise MessageError(f"light: light {i} is an environment light: it has a power but no direction")
+        for key in ("azimuth", "elevation", "power"):
+            if key in f:
+                setattr(light, key, f[key])
+        lights = [*s.lights[:i], light, *s.lights[i + 1:]]
+        if not any(float(np.max(lt.color)) * lt.power > 0 for lt in lights):
+            raise MessageError("light: at least one light must keep a power above 0")
+        s.lights = lights
+        self._lights_version += 1
+
+    def _apply_set(self, s: ViewState, control: str, value: Any) -> tuple[bool, bool, bool, bool]:
+        """Returns (restart the accumulation, cut the denoiser, redisplay, measure the exposure again). The
+        exposure is measured again when what is shown changes kind (renderer, layer), not when g moves: the
+        page should show g's effect, not have it normalized away."""
+        if control == "renderer":
+            if not self._has(value):
+                raise MessageError(f"renderer '{value}' is not available here (neural needs --bundle, photonmap "
+                                   f"--map); available: {', '.join(self.available)}")
+            self._check_g(value, s.g)
+            s.renderer = value
+            return True, True, True, True
+        if control == "g":
+            self._check_g(s.renderer, value)
+            s.g = value
+            return True, True, True, False
+        if control == "layer":
+            s.layer = value
+            return False, True, True, True
+        if control == "exposure":
+            if value is None:
+                s.exposure_offset = 0.0
+                return False, False, True, True
+            s.exposure_offset = value
+            return False, False, True, False
+        if control == "format":
+            s.format = value
+            return False, False, True, False
+        if control == "denoise":
+            s.denoise = value
+            return False, True, True, False
+        if control == "max_spp":
+            s.max_spp = value
+            return False, False, True, False
+        raise MessageError(f"set: control {control!r} is not handled")
+
+    def _check_g(self, renderer: str, g: float) -> None:
+        if renderer != "photonmap":
+            return
+        from photon_fields.runtime.photons.phase_window import answerable, map_window
+
+        try:
+            answerable(self.pmap.phases, g, map_window(self.pmap.phases), "g")
+        except InputError as err:
+            raise MessageError(f"the photon map cannot render this g: {err}") from None
+
+    # ------------------------------------------------------------------------------------------------
+    # rendering (render thread)
+
+    def wants_frame(self) -> bool:
+        """Whether :meth:`next_frame` has anything to do (call with :attr:`lock` held)."""
+        if self.redisplay or self.generation != self._acc_generation:
+            return True
+        return self._samples < self.state.max_spp
+
+    def wait_for_work(self, stop: threading.Event, timeout: float = 0.5) -> bool:
+        """Block until there is a frame to render (True) or ``timeout`` passes / ``stop`` is set (False)."""
+        with self.lock:
+            if stop.is_set():
+                return False
+            if self.wants_frame():
+                return True
+            self.changed.wait(timeout)
+            return not stop.is_set() and self.wants_frame()
+
+    def _scene_for(self, s: ViewState) -> Scene:
+        """The scene of state ``s`` (lights rebuilt only when they changed; the medium is shared)."""
+        if self._scene_lights_version != self._lights_version:
+            scene = replace(self.base_scene, lights=tuple(lt.light() for lt in s.lights), _cache={})
+            if "medium" in self.base_scene._cache:  # the medium does not depend on the lights
+                scene._cache["medium"] = self.base_scene._cache["medium"]
+            self.scene, self._scene_lights_version = scene, self._lights_version
+        return self.scene.with_overrides(g=s.g, camera=s.view.camera(s.width, s.height))
+
+    def next_frame(self) -> Frame:
+        """Render (or only re-encode) the next frame of the newest state (module docstring)."""
+        t0 = time.perf_counter()
+        with self.lock:
+            s = replace(self.state)
+            generation, cut, seq, reexpose = self.generation, self.cut, self.last_seq, self.reexpose
+            render = generation != self._acc_generation or self._samples < s.max_spp
+            self.cut = self.redisplay = self.reexpose = False
+            scene = self._scene_for(s)
+            if generation != self._acc_generation:
+                moved_only = not cut
+                self._acc, self._samples, self._acc_generation = {}, 0, generation
+            else:
+                moved_only = False
+        timings: dict[str, float] = {}
+        warnings = self._warnings(s)
+        if self._denoiser is None or (self._denoiser.width, self._denoiser.height) != (s.width, s.height):
+            from photon_fields.runtime.denoise.wrls import WRLSDenoiser
+
+            self._denoiser = WRLSDenoiser(s.width, s.height, medium=scene.medium())
+        elif cut:
+            self._denoiser.reset()
+        if reexpose:
+            self._auto_stops = None
+        if render:
+            t = time.perf_counter()
+            with RENDER_LOCK:
+                layers = self._render(scene, s.renderer, self._samples)
+            timings["render_ms"] = (time.perf_counter() - t) * 1e3
+            with self.lock:
+                if self._acc_generation == generation:
+                    if not self._acc:
+                        self._acc = {k: np.zeros(layers[k].shape, np.float64) for k in ACCUMULATED_LAYERS}
+                    for k in ACCUMULATED_LAYERS:
+                        self._acc[k] += layers[k]
+                    self._samples += 1
+        with self.lock:
+            samples = max(self._samples, 1)
+            mean = (self._acc[s.layer] / samples).astype(np.float32) if self._acc else None
+            n = self._samples
+        if mean is None:  # nothing rendered yet for this state (only possible on a redisplay race): black
+            mean = np.zeros((s.height, s.width, 3), np.float32)
+        shown, denoised = mean, False
+        if s.denoise and 0 < n <= self.denoise_frames:
+            t = time.perf_counter()
+            shown = self._denoiser.denoise(mean, camera=scene.camera)
+            timings["denoise_ms"] = (time.perf_counter() - t) * 1e3
+            denoised = True
+        if self._auto_stops is None:
+            from photon_fields.runtime.io.images import auto_exposure_stops
+
+            self._auto_stops = auto_exposure_stops(shown)
+        stops = self._auto_stops + s.exposure_offset
+        t = time.perf_counter()
+        data = encode(tonemap(shown, stops), s.format)
+        timings["encode_ms"] = (time.perf_counter() - t) * 1e3
+        timings["total_ms"] = (time.perf_counter() - t0) * 1e3
+        self.frames += 1
+        header = {"type": "frame", "frame": self.frames, "seq": seq, "generation": generation, "spp": n,
+                  "renderer": s.renderer, "layer": s.layer, "g": s.g, "width": s.width, "height": s.height,
+                  "format": s.format, "exposure": stops, "denoised": denoised, "moving": moved_only,
+                  "rendered": render, "warnings": warnings, **{k: round(v, 2) for k, v in timings.items()}}
+        self._last_header = header
+        return Frame(data, header)
+
+    def _render(self, scene: Scene, renderer: str, n: int) -> dict[str, np.ndarray]:
+        """Frame ``n`` of the accumulation: 1 sample per pixel (module docstring for the seeds)."""
+        if renderer == "neural":
+            from photon_fields.runtime.renderers.neural import render_neural
+
+            result = render_neural(scene, self.estimator, spp=1, seed=self.seed, progress=False, first_sample=n)
+        elif renderer == "pt":
+            from photon_fields.runtime.renderers.path_tracer import render_path_traced
+
+            result = render_path_traced(scene, spp=1, seed=self.seed + n, progress=False)
+        else:
+            from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
+
+            result = render_photon_mapped(scene, self.pmap, spp=1, seed=self.seed + n, progress=False)
+        return result.layers
+
+    def _warnings(self, s: ViewState) -> list[str]:
+        if s.renderer == "neural" and [lt.light().to_dict() for lt in s.lights] != self.trained_lights:
+            return ["the field was trained for the scene's lights: L_i does not follow light edits (L_d does)"]
+        if s.renderer == "photonmap" and [lt.light().to_dict() for lt in s.lights] != self.trained_lights:
+            return ["the photon map was traced for the scene's lights: L_i does not follow light edits (L_d does)"]
+        return []
+
+    # ------------------------------------------------------------------------------------------------
+    # state for the page, screenshots (either thread)
+
+    def describe(self) -> dict[str, Any]:
+        """The state the page builds its controls from (sent when it connects)."""
+        with self.lock:
+            s = self.state
+            return {"type": "state", "scene": self.base_scene.name, "renderers": self.available,
+                    "renderer": s.renderer, "layer": s.layer, "g": s.g, "exposure_offset": s.exposure_offset,
+                    "format": s.format, "denoise": s.denoise, "max_spp": s.max_spp, "width": s.width,
+                    "height": s.height, "lights": [lt.to_dict() for lt in s.lights], "out_dir": str(self.out_dir)}
+
+    def screenshot(self, name: str | None = None) -> list[Path]:
+        """Write the current accumulation: ``NAME.exr`` (all layers, linear), ``NAME.png`` (the shown layer at the
+        shown exposure, undenoised) and ``NAME.json`` (the view, renderer, lights, spp, seed) into the output
+        folder, each atomically. Refused (:class:`MessageError`) before anything is written when a file of that
+        name exists or the name is not a plain file name; a failed write removes what this call wrote."""
+        from photon_fields.runtime.io.atomic import atomic_write_text
+        from photon_fields.runtime.io.images import write_image_set
+
+        with self._shot_lock:
+            with self.lock:
+                if not self._acc:
+                    raise MessageError("screenshot: no frame has been rendered yet")
+                samples = self._samples
+                layers = {k: (v / samples).astype(np.float32) for k, v in self._acc.items()}
+                s = replace(self.state)
+                header = dict(self._last_header)
+                cam = s.view.camera(s.width, s.height)
+            stem = name if name is not None else self._free_stem()
+            if not NAME_PATTERN.fullmatch(stem):
+                raise MessageError(f"screenshot: {stem!r} is not a plain file name")
+            try:
+                self.out_dir.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise MessageError(f"screenshot: cannot create the output folder: {exc.strerror or exc}") from None
+            root = self.out_dir.resolve()
+            paths = [root / f"{stem}{ext}" for ext in (".exr", ".png", ".json")]
+            if any(p.parent != root for p in paths):  # NAME_PATTERN allows no separator; belt and braces
+                raise MessageError(f"screenshot: {stem!r} leaves the output folder")
+            existing = [p.name for p in paths if p.exists() or p.is_symlink()]
+            if existing:
+                raise MessageError(f"screenshot: {', '.join(existing)} exists in the output folder; choose another "
+                                   f"name (files are never replaced)")
+            report = {"scene": self.base_scene.name, "renderer": s.renderer, "layer": s.layer, "g": s.g,
+                      "spp": samples, "seed": self.seed, "exposure_stops": header.get("exposure"),
+                      "camera": cam.to_dict(), "lights": [lt.light().to_dict() for lt in s.lights],
+                      "frame_timings_ms": {k: v for k, v in header.items() if k.endswith("_ms")}, **self.info}
+            written: list[Path] = []
+            try:
+                written += write_image_set(paths[0], layers, {"photon_fields.viewer": json.dumps(report)},
+                                           png_layer=s.layer, exposure=header.get("exposure"))
+                atomic_write_text(paths[2], json.dumps(report, indent=2) + "\n")
+                written.append(paths[2])
+            except (OSError, InputError, ValueError) as exc:
+                for p in written:
+                    with contextlib.suppress(OSError):
+                        p.unlink()
+                raise MessageError(f"screenshot: writing failed: {exc}") from None
+            return written
+
+    def _free_stem(self) -> str:
+        base = "".join(c if c.isalnum() or c in "-_" else "_" for c in self.base_scene.name)[:40] or "view"
+        for i in range(1, 100000):
+            stem = f"{base}_{i:04d}"
+            if not any((self.out_dir / f"{stem}{ext}").exists() for ext in (".exr", ".png", ".json")):
+                return stem
+        raise MessageError("screenshot: no free file name left in the output folder")
+
