@@ -6,6 +6,7 @@ and must have, and for each key a check of its JSON type and range. Anything els
 
 - text that is not JSON, JSON that is not an object, a frame larger than :data:`MAX_MESSAGE_BYTES`;
 - an unknown ``type`` or control, an unknown or missing key;
+- a key given twice (JSON readers disagree on which one counts);
 - a wrong JSON type (``true`` is not a number, ``1.5`` is not an integer, a number is not a string);
 - NaN or infinities (Python's JSON reader accepts ``NaN`` and ``Infinity``; they are refused here), and
   numbers outside the control's range, including huge integers.
@@ -167,6 +168,14 @@ def _reject_constant(token: str) -> None:
     raise MessageError(f"{token} is not a number JSON allows")
 
 
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    keys = [k for k, _ in pairs]
+    if len(set(keys)) != len(keys):
+        dup = next(k for k in keys if keys.count(k) > 1)
+        raise MessageError(f"key {dup[:40]!r} appears more than once")
+    return dict(pairs)
+
+
 def parse(text: Any) -> Message:
     """The :class:`Message` in websocket text ``text``, or a :class:`MessageError` saying what is wrong."""
     if isinstance(text, (bytes, bytearray)):
@@ -177,7 +186,7 @@ def parse(text: Any) -> Message:
     if size > MAX_MESSAGE_BYTES:
         raise MessageError(f"message of {size} bytes is larger than the {MAX_MESSAGE_BYTES} allowed")
     try:
-        data = json.loads(text, parse_constant=_reject_constant)
+        data = json.loads(text, parse_constant=_reject_constant, object_pairs_hook=_no_duplicates)
     except MessageError:
         raise
     except (ValueError, RecursionError) as exc:

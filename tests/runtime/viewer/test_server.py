@@ -1,0 +1,142 @@
+"""The viewer's server over a real websocket (uvicorn on a free port of 127.0.0.1): the state message, frames
+whose header reports the input they include, every malformed message answered with an error while the same
+connection keeps serving, websockets from other origins and oversized frames refused, renders stopped when a
+page closes, and screenshots through the socket."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from viewer_helpers import inputs, split_frame
+
+pytest.importorskip("uvicorn")
+pytest.importorskip("starlette")
+from test_messages import BAD  # noqa: E402
+from websockets.exceptions import ConnectionClosed, InvalidStatus  # noqa: E402
+from websockets.sync.client import ClientConnection, connect  # noqa: E402
+
+from photon_fields.runtime.viewer.launch import ViewerServer  # noqa: E402
+from photon_fields.runtime.viewer.server import MAX_FRAME_BYTES  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ViewerServer]:
+    srv = ViewerServer(inputs(tmp_path_factory.mktemp("view") / "out"), port=0, warm=False, max_spp=1 << 16)
+    yield srv
+    srv.stop()
+
+
+def ws_url(srv: ViewerServer) -> str:
+    return srv.url.replace("http://", "ws://") + "ws"
+
+
+def next_frame(ws: ClientConnection, timeout: float = 60.0) -> tuple[dict, bytes]:
+    """The next binary frame (text messages in between are skipped)."""
+    end = time.monotonic() + timeout
+    while True:
+        m = ws.recv(timeout=max(0.1, end - time.monotonic()))
+        if isinstance(m, bytes):
+            return split_frame(m)
+
+
+def next_text(ws: ClientConnection, timeout: float = 30.0) -> dict:
+    end = time.monotonic() + timeout
+    while True:
+        m = ws.recv(timeout=max(0.1, end - time.monotonic()))
+        if isinstance(m, str):
+            return json.loads(m)
+
+
+def test_page_and_script_are_served(server: ViewerServer) -> None:
+    import urllib.request
+
+    page = urllib.request.urlopen(server.url, timeout=10).read().decode()
+    assert "<canvas" in page and "viewer.js" in page
+    script = urllib.request.urlopen(server.url + "viewer.js", timeout=10).read().decode()
+    assert "new WebSocket" in script
+    assert server.host == "127.0.0.1"
+
+
+def test_state_then_frames_that_report_their_input(server: ViewerServer) -> None:
+    with connect(ws_url(server), max_size=None) as ws:
+        state = json.loads(ws.recv(timeout=30))
+        assert state["type"] == "state" and state["renderers"] == ["neural", "pt"] and state["renderer"] == "pt"
+        header, image = next_frame(ws)
+        assert image[:2] == b"\xff\xd8" and header["width"] == 24  # a JPEG of the view's size
+        ws.send(json.dumps({"type": "orbit", "dx": 10, "dy": 0, "seq": 41}))
+        for _ in range(20):
+            header, _ = next_frame(ws)
+            if header["seq"] == 41:
+                break
+        assert header["seq"] == 41 and header["spp"] in (1, 2)
+
+
+def test_malformed_messages_are_refused_and_the_connection_keeps_serving(server: ViewerServer) -> None:
+    refused = server.stats.refused
+    with connect(ws_url(server), max_size=None) as ws:
+        next_text(ws)
+        bad = [text for text, _ in BAD if len(text.encode()) <= MAX_FRAME_BYTES]
+        for text in bad:
+            ws.send(text)
+        ws.send(b"\x00\xffbinary")
+        ws.send(json.dumps({"type": "light", "index": 9, "power": 1}))  # well formed, but no such light
+        errors = [next_text(ws) for _ in range(len(bad) + 2)]
+        assert all(e["type"] == "error" and e["message"] for e in errors)
+        ws.send(json.dumps({"type": "set", "control": "g", "value": 0.5, "seq": 99}))
+        for _ in range(20):
+            header, _ = next_frame(ws)
+            if header["seq"] == 99:
+                break
+        assert header["seq"] == 99 and header["g"] == 0.5
+    assert server.stats.refused - refused == len(bad) + 2
+
+
+def test_oversized_frame_closes_only_that_connection(server: ViewerServer) -> None:
+    with connect(ws_url(server), max_size=None) as ws:
+        next_text(ws)
+        ws.send("x" * (MAX_FRAME_BYTES + 10))
+        with pytest.raises(ConnectionClosed):
+            for _ in range(100):
+                ws.recv(timeout=30)
+    with connect(ws_url(server), max_size=None) as ws:  # the server still serves
+        assert next_text(ws)["type"] == "state"
+        next_frame(ws)
+
+
+def test_foreign_origin_is_refused(server: ViewerServer) -> None:
+    with pytest.raises(InvalidStatus) as info:
+        connect(ws_url(server), origin="http://evil.example", max_size=None)
+    assert info.value.response.status_code == 403
+    with connect(ws_url(server), origin=server.url.rstrip("/"), max_size=None) as ws:
+        assert next_text(ws)["type"] == "state"
+
+
+def test_closing_the_page_stops_its_renders(server: ViewerServer) -> None:
+    with connect(ws_url(server), max_size=None) as ws:
+        next_text(ws)
+        next_frame(ws)
+        assert server.stats.active >= 1
+    end = time.monotonic() + 30
+    while server.stats.active and time.monotonic() < end:
+        time.sleep(0.05)
+    assert server.stats.active == 0
+    frames = server.stats.frames
+    time.sleep(0.5)
+    assert server.stats.frames == frames  # nothing renders for a closed page
+
+
+def test_screenshot_through_the_socket(server: ViewerServer) -> None:
+    with connect(ws_url(server), max_size=None) as ws:
+        next_text(ws)
+        next_frame(ws)
+        ws.send(json.dumps({"type": "screenshot", "name": "via_ws"}))
+        reply = next_text(ws)
+        assert reply["type"] == "screenshot"
+        assert sorted(Path(f).name for f in reply["files"]) == ["via_ws.exr", "via_ws.json", "via_ws.png"]
+        assert all(Path(f).parent == server.inputs.out_dir.resolve() for f in reply["files"])
+        ws.send(json.dumps({"type": "screenshot", "name": "via_ws"}))
+        assert next_text(ws)["type"] == "error"

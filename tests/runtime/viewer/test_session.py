@@ -1,0 +1,206 @@
+"""The viewer's render state machine (runtime/viewer/session.py) on a 32^3 scene at 24x24: progressive
+accumulation (exactly one multi-spp render for the neural renderer), restarts on camera moves, newest state
+wins, g and light edits reach the image, layer and exposure changes do not restart, screenshots are atomic,
+complete and confined to the output folder."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from viewer_helpers import AnalyticField, make_session, msg, tiny_scene
+
+from photon_fields.runtime.io.images import read_exr
+from photon_fields.runtime.renderers.neural import render_neural
+from photon_fields.runtime.renderers.path_tracer import render_path_traced
+from photon_fields.runtime.viewer.messages import MessageError
+from photon_fields.runtime.viewer.session import ViewerSession
+
+
+def frames(session: ViewerSession, n: int) -> list[dict]:
+    return [session.next_frame().header for _ in range(n)]
+
+
+def accumulated(session: ViewerSession, layer: str) -> np.ndarray:
+    with session.lock:
+        return session._acc[layer] / session._samples
+
+
+def test_neural_accumulation_equals_one_render_with_all_samples(tmp_path: Path) -> None:
+    s = make_session(tmp_path)
+    hs = frames(s, 6)
+    assert [h["spp"] for h in hs] == [1, 2, 3, 4, 5, 6]
+    scene = tiny_scene().with_overrides(camera=s.state.view.camera(24, 24))
+    ref = render_neural(scene, AnalyticField(), spp=6, seed=5, progress=False).layers
+    for layer in ("L", "L_d", "L_i"):
+        assert np.abs(ref[layer]).max() > 0
+        np.testing.assert_allclose(accumulated(s, layer), ref[layer], rtol=2e-5, atol=1e-7)
+
+
+def test_path_tracer_accumulation_is_the_mean_of_seeded_frames(tmp_path: Path) -> None:
+    s = make_session(tmp_path, renderer="pt")
+    frames(s, 4)
+    scene = tiny_scene().with_overrides(camera=s.state.view.camera(24, 24))
+    mean = np.mean([render_path_traced(scene, spp=1, seed=5 + i, progress=False).layers["L"] for i in range(4)], 0)
+    np.testing.assert_allclose(accumulated(s, "L"), mean, rtol=1e-5, atol=1e-7)
+    # Four different frames, not one frame four times.
+    one = render_path_traced(scene, spp=1, seed=5, progress=False).layers["L"]
+    assert np.abs(accumulated(s, "L") - one).max() > 1e-3
+
+
+def test_camera_move_restarts_at_one_sample_and_newest_camera_wins(tmp_path: Path) -> None:
+    s = make_session(tmp_path)
+    assert [h["spp"] for h in frames(s, 3)] == [1, 2, 3]
+    for i in range(5):  # five drags arrive while a frame renders: only the last state is rendered
+        s.apply(msg("orbit", dx=4.0, dy=1.0, seq=10 + i))
+    h = s.next_frame().header
+    assert (h["spp"], h["seq"], h["moving"]) == (1, 14, True)
+    expected = make_session(tmp_path)
+    expected.apply(msg("orbit", dx=20.0, dy=5.0))
+    expected.next_frame()
+    np.testing.assert_allclose(accumulated(s, "L"), accumulated(expected, "L"), rtol=1e-6, atol=1e-8)
+    assert s.state.view.camera(24, 24).eye.tolist() == pytest.approx(expected.state.view.camera(24, 24).eye.tolist())
+    assert s.next_frame().header["spp"] == 2  # resting again: refining
+
+
+@pytest.mark.parametrize("renderer", ["neural", "pt"])
+def test_g_changes_the_indirect_layer_and_restarts(tmp_path: Path, renderer: str) -> None:
+    s = make_session(tmp_path, renderer=renderer)
+    frames(s, 2)
+    before = accumulated(s, "L_i").copy()
+    s.apply(msg("set", control="g", value=0.8))
+    assert s.next_frame().header["spp"] == 1
+    frames(s, 1)
+    after = accumulated(s, "L_i")
+    assert s.state.g == 0.8
+    assert np.abs(after - before).mean() > 0.05 * np.abs(before).mean()
+
+
+def test_layer_exposure_and_format_do_not_restart(tmp_path: Path) -> None:
+    s = make_session(tmp_path, max_spp=3)
+    frames(s, 3)
+    gen = s.generation
+    s.apply(msg("set", control="layer", value="L_i"))
+    s.apply(msg("set", control="exposure", value=2.0))
+    s.apply(msg("set", control="format", value="png"))
+    h = s.next_frame()
+    assert s.generation == gen and h.header["spp"] == 3 and not h.header["rendered"]
+    assert (h.header["layer"], h.header["format"]) == ("L_i", "png")
+    assert h.image[:8] == b"\x89PNG\r\n\x1a\n"
+    with s.lock:
+        assert not s.wants_frame()  # converged at max_spp: the render thread idles
+
+
+def test_exposure_offset_adds_stops_and_auto_measures_again(tmp_path: Path) -> None:
+    s = make_session(tmp_path)
+    base = s.next_frame().header["exposure"]
+    s.apply(msg("set", control="exposure", value=1.5))
+    assert s.next_frame().header["exposure"] == pytest.approx(base + 1.5)
+    s.apply(msg("set", control="g", value=0.5))  # g does not re-measure: its effect stays visible
+    assert s.next_frame().header["exposure"] == pytest.approx(base + 1.5)
+
+
+def test_light_edits_change_direct_light_and_are_checked(tmp_path: Path) -> None:
+    s = make_session(tmp_path)
+    frames(s, 2)
+    before = accumulated(s, "L_d").copy()
+    s.apply(msg("light", index=0, azimuth=s.state.lights[0].azimuth + 90.0))
+    h = s.next_frame().header
+    frames(s, 1)
+    assert np.abs(accumulated(s, "L_d") - before).mean() > 0.05 * np.abs(before).mean()
+    assert h["warnings"] and "trained" in h["warnings"][0]
+    s.apply(msg("light", index=0, power=0.0 + s.state.lights[0].power * 2))
+    with pytest.raises(MessageError, match="index 3"):
+        s.apply(msg("light", index=3, power=1.0))
+    with pytest.raises(MessageError, match="power above 0"):
+        s.apply(msg("light", index=0, power=0.0))
+
+
+def test_light_controls_round_trip_the_scene_lights(tmp_path: Path) -> None:
+    s = make_session(tmp_path)
+    for control, light in zip(s.state.lights, tiny_scene().lights, strict=True):
+        np.testing.assert_allclose(control.light().direction, light.direction, atol=1e-12)
+        assert control.light().power == light.power
+
+
+def test_renderer_without_its_input_is_refused(tmp_path: Path) -> None:
+    s = ViewerSession(tiny_scene(), out_dir=tmp_path, width=24, height=24)
+    assert s.available == ["pt"] and s.state.renderer == "pt"
+    with pytest.raises(MessageError, match="not available"):
+        s.apply(msg("set", control="renderer", value="neural"))
+    with pytest.raises(MessageError, match="not available"):
+        s.apply(msg("set", control="renderer", value="photonmap"))
+
+
+def test_moving_frames_are_denoised_then_accumulation_is_shown(tmp_path: Path) -> None:
+    s = make_session(tmp_path, denoise_frames=2)
+    hs = frames(s, 3)
+    assert [h["denoised"] for h in hs] == [True, True, False]
+    s.apply(msg("orbit", dx=2.0, dy=0.0))
+    assert s.next_frame().header["denoised"]
+    s.apply(msg("set", control="denoise", value=False))
+    assert not s.next_frame().header["denoised"]
+
+
+def test_view_resize_renders_at_the_new_size(tmp_path: Path) -> None:
+    s = make_session(tmp_path)
+    s.next_frame()
+    s.apply(msg("view", width=32, height=16))
+    h = s.next_frame().header
+    assert (h["width"], h["height"], h["spp"]) == (32, 16, 1)
+    assert accumulated(s, "L").shape == (16, 32, 3)
+
+
+def test_same_seed_same_frames(tmp_path: Path) -> None:
+    a, b = make_session(tmp_path), make_session(tmp_path)
+    assert [a.next_frame().image for _ in range(2)] == [b.next_frame().image for _ in range(2)]
+
+
+def test_screenshot_writes_exr_png_json_of_the_accumulation(tmp_path: Path) -> None:
+    out = tmp_path / "shots"
+    s = make_session(out)
+    with pytest.raises(MessageError, match="no frame"):
+        s.screenshot("early")
+    frames(s, 3)
+    files = s.screenshot("one")
+    assert sorted(p.name for p in out.iterdir()) == ["one.exr", "one.json", "one.png"]  # no temporary files
+    assert [p.name for p in files] == ["one.exr", "one.png", "one.json"]
+    layers, _ = read_exr(out / "one.exr")
+    np.testing.assert_allclose(layers["L_i"], accumulated(s, "L_i"), rtol=1e-6)
+    report = json.loads((out / "one.json").read_text())
+    assert report["spp"] == 3 and report["renderer"] == "neural" and report["seed"] == 5
+    assert report["camera"]["width"] == 24
+    auto = s.screenshot()
+    assert auto[0].name.endswith("_0001.exr") and len(list(out.iterdir())) == 6
+
+
+def test_screenshot_never_replaces_and_never_leaves_the_folder(tmp_path: Path) -> None:
+    out = tmp_path / "shots"
+    out.mkdir()
+    (out / "taken.png").write_bytes(b"keep me")
+    s = make_session(out)
+    s.next_frame()
+    with pytest.raises(MessageError, match="exists"):
+        s.screenshot("taken")
+    assert (out / "taken.png").read_bytes() == b"keep me" and not (out / "taken.exr").exists()
+    for bad in ("../up", "/tmp/abs", "sub/dir", ".hidden", "a" * 80):
+        with pytest.raises(MessageError):
+            s.screenshot(bad)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shots"]
+    assert sorted(p.name for p in out.iterdir()) == ["taken.png"]
+
+
+def test_failed_screenshot_write_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    out = tmp_path / "shots"
+    s = make_session(out)
+    s.next_frame()
+
+    def broken(*args: object, **kwargs: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("photon_fields.runtime.io.atomic.atomic_write_text", broken)
+    with pytest.raises(MessageError, match="writing failed"):
+        s.screenshot("full")
+    assert list(out.iterdir()) == []
