@@ -6,6 +6,7 @@ page closes, and screenshots through the socket."""
 from __future__ import annotations
 
 import json
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -140,3 +141,29 @@ def test_screenshot_through_the_socket(server: ViewerServer) -> None:
         assert all(Path(f).parent == server.inputs.out_dir.resolve() for f in reply["files"])
         ws.send(json.dumps({"type": "screenshot", "name": "via_ws"}))
         assert next_text(ws)["type"] == "error"
+
+
+def render_threads() -> int:
+    return sum(t.name == "pfn-view-render" and t.is_alive() for t in threading.enumerate())
+
+
+def test_closing_an_idle_page_ends_its_render_thread(tmp_path: Path) -> None:
+    """A converged view renders nothing and sends nothing, so only the close itself can end its thread."""
+    srv = ViewerServer(inputs(tmp_path / "out"), port=0, warm=False, max_spp=1)
+    try:
+        end = time.monotonic() + 30
+        while render_threads() and time.monotonic() < end:  # pages closed by earlier tests finish their frame
+            time.sleep(0.05)
+        before = render_threads()
+        assert before == 0
+        with connect(ws_url(srv), max_size=None) as ws:
+            next_text(ws)
+            next_frame(ws)
+            time.sleep(0.3)  # converged at 1 spp: idle
+            assert render_threads() == before + 1
+        end = time.monotonic() + 10
+        while render_threads() > before and time.monotonic() < end:
+            time.sleep(0.05)
+        assert render_threads() == before
+    finally:
+        srv.stop()

@@ -1,0 +1,143 @@
+"""The viewer in a real browser: headless Chromium from Debian's ``chromium`` and ``chromium-driver`` packages
+(never a downloaded browser), driven by selenium. Loads the page, waits for a frame, drags to orbit and checks
+the image changes, moves the g slider on the L_i layer and checks the image changes, takes a screenshot with
+the button and checks the files. Skipped, saying why, where Chromium or its driver is not installed.
+
+Frames converge at a small ``max_spp`` so that the image at rest is fixed: any difference is then the input's.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from PIL import Image
+from viewer_helpers import inputs
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+DRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
+if not (os.path.exists(CHROMIUM) and os.path.exists(DRIVER)):
+    pytest.skip("Chromium or chromedriver is not installed (Debian: apt-get install chromium chromium-driver; "
+                "`make install` does it where apt-get is available as root)", allow_module_level=True)
+pytest.importorskip("selenium", reason="selenium is not installed (pip install -e '.[browser-test]')")
+pytest.importorskip("uvicorn", reason="the view extra is not installed (pip install -e '.[view]')")
+
+from selenium import webdriver  # noqa: E402
+from selenium.webdriver.chrome.service import Service  # noqa: E402
+from selenium.webdriver.common.action_chains import ActionChains  # noqa: E402
+from selenium.webdriver.common.by import By  # noqa: E402
+from selenium.webdriver.common.keys import Keys  # noqa: E402
+from selenium.webdriver.support.ui import Select  # noqa: E402
+
+from photon_fields.runtime.viewer.launch import ViewerServer  # noqa: E402
+
+SIZE, MAX_SPP = 64, 3
+
+
+@pytest.fixture(scope="module")
+def page(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Any, ViewerServer]]:
+    out = tmp_path_factory.mktemp("browser") / "shots"
+    srv = ViewerServer(inputs(out, size=SIZE, renderer="neural"), port=0, warm=False, max_spp=MAX_SPP)
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = CHROMIUM
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                "--window-size=900,700", "--no-first-run", "--disable-extensions"):
+        opts.add_argument(arg)
+    os.environ.setdefault("SE_OFFLINE", "true")  # selenium must not fetch a browser or a driver
+    driver = webdriver.Chrome(options=opts, service=Service(executable_path=DRIVER))
+    driver.set_script_timeout(30)
+    try:
+        driver.get(srv.url)
+        yield driver, srv
+    finally:
+        driver.quit()
+        srv.stop()
+
+
+def wait_for(cond: Callable[[], Any], what: str, timeout: float = 60.0) -> Any:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = cond()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def header(driver: Any) -> dict | None:
+    return driver.execute_script("return window.pfnView && window.pfnView.header();")
+
+
+def settled(driver: Any, **want: Any) -> dict:
+    """Wait for a frame at MAX_SPP (the image at rest) whose header has the ``want`` values."""
+    def ok() -> dict | None:
+        h = header(driver)
+        return h if h and h["spp"] >= MAX_SPP and all(h.get(k) == v for k, v in want.items()) else None
+
+    return wait_for(ok, f"a settled frame with {want}")
+
+
+def pixels(driver: Any) -> np.ndarray:
+    url = driver.execute_script("return document.getElementById('view').toDataURL('image/png');")
+    return np.asarray(Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGB"), dtype=float)
+
+
+def test_page_shows_a_frame_and_dragging_orbits(page: tuple[Any, ViewerServer]) -> None:
+    driver, _ = page
+    wait_for(lambda: driver.execute_script("return window.pfnView && window.pfnView.frames();"), "a first frame")
+    settled(driver)
+    before = pixels(driver)
+    assert before.shape == (SIZE, SIZE, 3) and before.mean() > 1.0  # a real image, not a black canvas
+    time.sleep(0.3)
+    assert np.array_equal(pixels(driver), before)  # at rest the image stays put
+    canvas = driver.find_element(By.ID, "view")
+    chain = ActionChains(driver).click_and_hold(canvas)
+    for _ in range(6):
+        chain = chain.move_by_offset(10, 0).pause(0.03)
+    chain.release().perform()
+    wait_for(lambda: (header(driver) or {}).get("seq"), "a frame after the drag")
+    seq = driver.execute_script("return window.pfnView.header().seq;")
+    settled(driver, seq=seq)
+    after = pixels(driver)
+    assert np.abs(after - before).mean() > 2.0, np.abs(after - before).mean()
+
+
+def test_g_slider_changes_the_indirect_layer(page: tuple[Any, ViewerServer]) -> None:
+    driver, _ = page
+    Select(driver.find_element(By.ID, "layer")).select_by_value("L_i")
+    settled(driver, layer="L_i")
+    before = pixels(driver)
+    slider = driver.find_element(By.ID, "g")
+    slider.click()  # focus (the click itself may move it to the middle, g = 0)
+    slider.send_keys(*([Keys.ARROW_RIGHT] * 40))
+    g = float(driver.find_element(By.ID, "g").get_attribute("value"))
+    assert g > 0.3
+    h = settled(driver, layer="L_i", g=g)
+    after = pixels(driver)
+    assert h["g"] == pytest.approx(g)
+    assert np.abs(after - before).mean() > 2.0, np.abs(after - before).mean()
+
+
+def test_screenshot_button_writes_png_exr_json(page: tuple[Any, ViewerServer]) -> None:
+    driver, srv = page
+    settled(driver)
+    driver.find_element(By.ID, "screenshot").click()
+    text = wait_for(lambda: "saved" in driver.find_element(By.ID, "message").text
+                    and driver.find_element(By.ID, "message").text, "the screenshot message")
+    out = Path(srv.inputs.out_dir)
+    names = sorted(p.name for p in out.iterdir())
+    assert len(names) == 3 and {Path(n).suffix for n in names} == {".exr", ".png", ".json"}, names
+    assert all(n in text for n in names)
+    report = json.loads((out / [n for n in names if n.endswith(".json")][0]).read_text())
+    assert report["spp"] >= 1 and report["renderer"] == "neural"
+    png = Image.open(out / [n for n in names if n.endswith(".png")][0])
+    assert png.size == (SIZE, SIZE)
