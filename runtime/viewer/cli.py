@@ -79,3 +79,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     sys.exit(_main(argv))
+
+
+if __name__ == "__main__":
+    main()
