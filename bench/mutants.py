@@ -51,6 +51,7 @@ LIGHTS = "tests/runtime/photons/test_light_kinds.py::test_photon_map_li_matches_
 EMITTERS = "tests/runtime/transport/test_emitters.py"
 TRACING = "tests/train/photons/test_photon_tracing.py"
 CAMERA = "tests/runtime/wavefront/test_camera_estimators.py"
+VSESSION = "tests/runtime/viewer/test_session.py"
 
 
 @dataclass(frozen=True)
@@ -221,6 +222,33 @@ MUTANTS: tuple[Mutant, ...] = (
            "",
            (f"{CAMERA}::test_forced_and_delta_estimate_the_same_image[L_i-forced, roulette]",),
            "a low-weight collision that survives the roulette keeps its weight instead of the roulette's"),
+    # The viewer (issue 15, step 1): session, messages, server.
+    Mutant("viewer_same_samples", "runtime/viewer/session.py", "first_sample=n)", "first_sample=0)",
+           (f"{VSESSION}::test_neural_accumulation_equals_one_render_with_all_samples",),
+           "every progressive neural frame draws the same samples: the view never converges"),
+    Mutant("viewer_orbit_keeps_accumulating", "runtime/viewer/session.py",
+           "            if restart:\n                self.generation += 1",
+           "            if restart and msg.type != \"orbit\":\n                self.generation += 1",
+           (f"{VSESSION}::test_camera_move_restarts_at_one_sample_and_newest_camera_wins",),
+           "an orbit does not restart the accumulation: old views' samples smear into the new one"),
+    Mutant("viewer_g_ignored", "runtime/viewer/session.py", "            s.g = value", "            pass",
+           (f"{VSESSION}::test_g_changes_the_indirect_layer_and_restarts",),
+           "the g control is acknowledged but never reaches the renderer"),
+    Mutant("viewer_screenshot_replaces", "runtime/viewer/session.py",
+           "existing = [p.name for p in paths if p.exists() or p.is_symlink()]", "existing = []",
+           (f"{VSESSION}::test_screenshot_never_replaces_and_never_leaves_the_folder",),
+           "a screenshot silently replaces an existing file"),
+    Mutant("viewer_accepts_infinity", "runtime/viewer/messages.py", "if not math.isfinite(v):", "if False:",
+           ("tests/runtime/viewer/test_messages.py::test_bad_messages_are_refused_in_one_line",),
+           "a number like 1e400 (inf after parsing) reaches the camera"),
+    Mutant("viewer_any_origin", "runtime/viewer/server.py",
+           "if allowed_origins is not None and origin is not None and origin not in allowed_origins():",
+           "if False:", ("tests/runtime/viewer/test_server.py::test_foreign_origin_is_refused",),
+           "any web site open in the browser can drive the viewer on 127.0.0.1"),
+    Mutant("viewer_render_thread_leak", "runtime/viewer/server.py", "                worker.stop()\n",
+           "                pass\n",
+           ("tests/runtime/viewer/test_server.py::test_closing_an_idle_page_ends_its_render_thread",),
+           "a closed page's render thread lives on"),
 )
 
 
