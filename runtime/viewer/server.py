@@ -40,6 +40,7 @@ from starlette.responses import HTMLResponse, Response
 from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
+from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.viewer.messages import MAX_MESSAGE_BYTES, MessageError, parse
 from photon_fields.runtime.viewer.session import ViewerSession
 
@@ -71,8 +72,9 @@ class RenderWorker:
     websocket took the frame), until :meth:`stop`. Numba kernels and onnxruntime release the GIL, so the event
     loop keeps reading input while a frame renders."""
 
-    def __init__(self, session: ViewerSession, send: Callable[[bytes], None], stats: Stats) -> None:
-        self.session, self.send, self.stats = session, send, stats
+    def __init__(self, session: ViewerSession, send: Callable[[bytes], None], stats: Stats,
+                 send_text: Callable[[str], None] | None = None) -> None:
+        self.session, self.send, self.stats, self.send_text = session, send, stats, send_text
         self.stop_event = threading.Event()
         self.thread = threading.Thread(target=self._run, name="pfn-view-render", daemon=True)
         self.error: str | None = None
@@ -90,7 +92,16 @@ class RenderWorker:
             while not self.stop_event.is_set():
                 if not self.session.wait_for_work(self.stop_event):
                     continue
-                frame = self.session.next_frame()
+                try:
+                    frame = self.session.next_frame()
+                except (InputError, ValueError, MemoryError) as exc:
+                    # A frame that cannot be rendered (e.g. inputs the renderer refuses) is reported and the
+                    # loop waits for the next change instead of retrying the same state.
+                    log.warning("frame refused: %s", exc)
+                    self.session.hold()
+                    if self.send_text is not None:
+                        self.send_text(json.dumps({"type": "error", "message": f"cannot render this view: {exc}"}))
+                    continue
                 if self.stop_event.is_set():
                     break
                 head = json.dumps(frame.header).encode()
@@ -145,8 +156,11 @@ def create_app(make_session: Callable[[], ViewerSession], *, allowed_origins: Ca
             def send(data: bytes) -> None:
                 asyncio.run_coroutine_threadsafe(ws.send_bytes(data), loop).result(SEND_TIMEOUT)
 
+            def send_text(text: str) -> None:
+                asyncio.run_coroutine_threadsafe(ws.send_text(text), loop).result(SEND_TIMEOUT)
+
             await ws.send_text(json.dumps(session.describe()))
-            worker = RenderWorker(session, send, stats)
+            worker = RenderWorker(session, send, stats, send_text)
             worker.start()
             await _serve_messages(ws, session, stats)
         except WebSocketDisconnect:

@@ -367,6 +367,14 @@ class ViewerSession:
         self._last_header = header
         return Frame(data, header)
 
+    def hold(self) -> None:
+        """After a frame failed: render nothing more until the state changes (the same state would fail
+        again)."""
+        with self.lock:
+            self._acc_generation = self.generation
+            self._samples = max(self._samples, self.state.max_spp)
+            self.redisplay = False
+
     def _render(self, scene: Scene, renderer: str, n: int) -> dict[str, np.ndarray]:
         """Frame ``n`` of the accumulation: 1 sample per pixel (module docstring for the seeds)."""
         if renderer == "neural":

@@ -167,3 +167,40 @@ def test_closing_an_idle_page_ends_its_render_thread(tmp_path: Path) -> None:
         assert render_threads() == before
     finally:
         srv.stop()
+
+
+def test_a_frame_that_fails_is_reported_and_the_loop_waits_for_the_next_change(tmp_path: Path) -> None:
+    from viewer_helpers import make_session, msg
+
+    from photon_fields.runtime.errors import InputError
+    from photon_fields.runtime.viewer.server import RenderWorker, Stats
+
+    session = make_session(tmp_path, renderer="pt")
+    real = session._render
+    calls = []
+
+    def failing(scene, renderer, n):  # noqa: ANN001, ANN202
+        calls.append(scene.g)
+        if scene.g > 0.5:
+            raise InputError("g", "this renderer cannot answer it")
+        return real(scene, renderer, n)
+
+    session._render = failing
+    session.apply(msg("set", control="g", value=0.9))
+    binary, texts = [], []
+    worker = RenderWorker(session, binary.append, Stats(), texts.append)
+    worker.start()
+    try:
+        end = time.monotonic() + 30
+        while not texts and time.monotonic() < end:
+            time.sleep(0.02)
+        assert texts and json.loads(texts[0])["type"] == "error" and "cannot render" in texts[0]
+        time.sleep(0.3)
+        assert len(calls) == 1 and not binary  # held: the failing state is not retried in a loop
+        session.apply(msg("set", control="g", value=0.2))
+        while not binary and time.monotonic() < end:
+            time.sleep(0.02)
+        assert binary and worker.thread.is_alive()
+    finally:
+        worker.stop()
+        worker.thread.join(30)
