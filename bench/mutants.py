@@ -51,7 +51,7 @@ LIGHTS = "tests/runtime/photons/test_light_kinds.py::test_photon_map_li_matches_
 EMITTERS = "tests/runtime/transport/test_emitters.py"
 TRACING = "tests/train/photons/test_photon_tracing.py"
 CAMERA = "tests/runtime/wavefront/test_camera_estimators.py"
-VSESSION = "tests/runtime/viewer/test_session.py"
+VSESSION = "tests/runtime/viewer/test_viewer_session.py"
 
 
 @dataclass(frozen=True)
@@ -239,15 +239,15 @@ MUTANTS: tuple[Mutant, ...] = (
            (f"{VSESSION}::test_screenshot_never_replaces_and_never_leaves_the_folder",),
            "a screenshot silently replaces an existing file"),
     Mutant("viewer_accepts_infinity", "runtime/viewer/messages.py", "if not math.isfinite(v):", "if False:",
-           ("tests/runtime/viewer/test_messages.py::test_bad_messages_are_refused_in_one_line",),
+           ("tests/runtime/viewer/test_viewer_messages.py::test_bad_messages_are_refused_in_one_line",),
            "a number like 1e400 (inf after parsing) reaches the camera"),
     Mutant("viewer_any_origin", "runtime/viewer/server.py",
            "if allowed_origins is not None and origin is not None and origin not in allowed_origins():",
-           "if False:", ("tests/runtime/viewer/test_server.py::test_foreign_origin_is_refused",),
+           "if False:", ("tests/runtime/viewer/test_viewer_server.py::test_foreign_origin_is_refused",),
            "any web site open in the browser can drive the viewer on 127.0.0.1"),
     Mutant("viewer_render_thread_leak", "runtime/viewer/server.py", "                worker.stop()\n",
            "                pass\n",
-           ("tests/runtime/viewer/test_server.py::test_closing_an_idle_page_ends_its_render_thread",),
+           ("tests/runtime/viewer/test_viewer_server.py::test_closing_an_idle_page_ends_its_render_thread",),
            "a closed page's render thread lives on"),
 )
 

@@ -3,7 +3,7 @@
 :func:`tonemap` is :func:`photon_fields.runtime.io.images.tonemap_srgb` with a fixed exposure (ACES fitted curve,
 then the sRGB transfer function) in one numba pass: the numpy version's float64 temporaries cost more than a
 whole 1-spp frame budget at interactive sizes. It agrees with ``tonemap_srgb`` to one code value (float32 vs
-float64 rounding; tests/runtime/viewer/test_encode.py), so a screenshot's PNG, written by the shared image
+float64 rounding; tests/runtime/viewer/test_viewer_encode.py), so a screenshot's PNG, written by the shared image
 writer with the same exposure, looks like what the page showed.
 """
 

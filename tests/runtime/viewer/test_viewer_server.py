@@ -16,7 +16,7 @@ from viewer_helpers import inputs, split_frame
 
 pytest.importorskip("uvicorn")
 pytest.importorskip("starlette")
-from test_messages import BAD  # noqa: E402
+from test_viewer_messages import BAD  # noqa: E402
 from websockets.exceptions import ConnectionClosed, InvalidStatus  # noqa: E402
 from websockets.sync.client import ClientConnection, connect  # noqa: E402
 
@@ -60,6 +60,8 @@ def test_page_and_script_are_served(server: ViewerServer) -> None:
     script = urllib.request.urlopen(server.url + "viewer.js", timeout=10).read().decode()
     assert "new WebSocket" in script
     assert server.host == "127.0.0.1"
+    # The Jupyter cell's display: the page in an iframe.
+    assert f'src="{server.url}"' in server._repr_html_() and "<iframe" in server._repr_html_()
 
 
 def test_state_then_frames_that_report_their_input(server: ViewerServer) -> None:
