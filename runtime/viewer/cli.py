@@ -60,12 +60,12 @@ def _main(argv: Sequence[str] | None = None) -> int:
         raise InputError("--max-spp", f"must be an integer in [1, {1 << 16}], got {args.max_spp}")
     set_threads(args.threads)
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="pfn-view: %(message)s")
-    if not is_loopback(args.host):
-        print(f"warning: listening on {args.host}: anyone who can reach it can drive renders and write screenshots "
-              f"into {args.out}", file=sys.stderr)
     server = start(args.scene, bundle=args.bundle, map=args.map, out=args.out, size=size, host=args.host,
                    port=args.port, seed=args.seed, threads=args.threads, force=args.force, renderer=args.renderer,
                    max_spp=args.max_spp)
+    if not is_loopback(args.host):
+        print(f"warning: listening on {args.host}: anyone who can reach it can drive renders and write screenshots "
+              f"into {args.out}", file=sys.stderr)
     print(f"pfn-view: {server.url} (Ctrl-C to stop)", flush=True)
     if not args.no_browser:
         webbrowser.open(server.url)

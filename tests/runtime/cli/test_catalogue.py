@@ -1,7 +1,7 @@
 """The bad-input catalogue: every command refuses every kind of bad input with one line and nothing written.
 
 One table across scene files, volumes, transfer functions, lights, cameras, photon maps, bundles and the
-arguments of pfn-render, pfn-train, pfn-demo and pfn-eval. Each case builds its inputs in a fresh folder,
+arguments of pfn-render, pfn-train, pfn-demo, pfn-eval and pfn-view. Each case builds its inputs in a fresh folder,
 runs the command in-process, and checks: exit status 2, exactly one ``error: ...`` line on stderr naming
 the input (``needle``), nothing on stdout that claims success, and no file written to the output folder.
 Hypothesis fuzzes the two parsers users feed by hand (scene files, bundle manifests): any input either
@@ -31,6 +31,7 @@ from photon_fields.runtime.cli.render import _main as render_main  # noqa: E402
 from photon_fields.runtime.errors import InputError  # noqa: E402
 from photon_fields.runtime.photons.photon_map import PhotonMap  # noqa: E402
 from photon_fields.runtime.scene.scene import scene_from_dict  # noqa: E402
+from photon_fields.runtime.viewer.cli import _main as view_main  # noqa: E402
 from photon_fields.train.cli.demo import _main as demo_main  # noqa: E402
 from photon_fields.train.cli.train import _main as train_main  # noqa: E402
 from photon_fields.train.eval.report import _main as eval_main  # noqa: E402
@@ -107,7 +108,7 @@ def map_without_a_phase(a: dict[str, Path], d: Path) -> str:
 
 
 Case = tuple[str, Callable[[dict[str, Path], Path, Path], list[str]], str]
-R, T, D, E = "render", "train", "demo", "eval"
+R, T, D, E, V = "render", "train", "demo", "eval", "view"
 
 CASES: list[Case] = [
     # scene files
@@ -368,7 +369,27 @@ CASES += [
      "--seed"),
 ]
 
-MAINS = {R: render_main, T: train_main, D: demo_main, E: eval_main}
+# pfn-view (runtime/viewer/cli.py): refused before anything is served or written.
+VIEW = ["--no-browser", "--size", "16x16"]
+CASES += [
+    (V, lambda a, d, o: [str(d / "missing.json"), *VIEW, "--out", str(o / "shots")], "missing.json"),
+    (V, lambda a, d, o: [*VIEW, "--out", str(o / "shots")], "SCENE"),
+    (V, lambda a, d, o: [str(a["other"]), "--bundle", str(a["bundle"]), *VIEW, "--out", str(o / "shots")],
+     "another scene"),
+    (V, lambda a, d, o: [str(a["scene"]), "--bundle", str(d / "none.pfn"), *VIEW, "--out", str(o / "shots")],
+     "none.pfn"),
+    (V, lambda a, d, o: [str(a["other"]), "--map", str(a["map"]), *VIEW, "--out", str(o / "shots")], "another scene"),
+    (V, lambda a, d, o: [str(a["scene"]), *VIEW, "--out", (d / "f").write_text("x") and str(d / "f")], "--out"),
+    (V, lambda a, d, o: [str(a["scene"]), "--renderer", "neural", *VIEW, "--out", str(o / "shots")], "--renderer"),
+    (V, lambda a, d, o: [str(a["scene"]), "--host", "999.1.1.1", *VIEW, "--out", str(o / "shots")], "--host"),
+    (V, lambda a, d, o: [str(a["scene"]), "--port", "65536", *VIEW, "--out", str(o / "shots")], "--port"),
+    (V, lambda a, d, o: [str(a["scene"]), "--no-browser", "--size", "9x9", "--out", str(o / "shots")], "--size"),
+    (V, lambda a, d, o: [str(a["scene"]), "--seed", HUGE_SEED, *VIEW, "--out", str(o / "shots")], "--seed"),
+    (V, lambda a, d, o: [str(a["scene"]), "--max-spp", "0", *VIEW, "--out", str(o / "shots")], "--max-spp"),
+    (V, lambda a, d, o: [str(a["scene"]), "--threads", "0", *VIEW, "--out", str(o / "shots")], "--threads"),
+]
+
+MAINS = {R: render_main, T: train_main, D: demo_main, E: eval_main, V: view_main}
 #: Options whose refusals name the offending value (a file, folder or scene name), not the option: their
 #: cases are the scene-file, volume, photon-map, bundle and run-folder sections above.
 NAMED_BY_VALUE = {"--scene", "--map", "--bundle", "--out", "--work", "--scenes"}
@@ -394,6 +415,7 @@ def test_catalogue_covers_every_cli_and_option() -> None:
     from importlib import metadata
 
     from photon_fields.runtime.cli.render import build_parser as render_parser
+    from photon_fields.runtime.viewer.cli import build_parser as view_parser
     from photon_fields.train.cli.demo import build_parser as demo_parser
     from photon_fields.train.cli.train import build_parser as train_parser
     from photon_fields.train.eval.report import build_parser as eval_parser
@@ -403,7 +425,7 @@ def test_catalogue_covers_every_cli_and_option() -> None:
     for script in scripts:
         module = importlib.import_module(script.module)
         assert any(module._main is m for m in MAINS.values()), f"{script.name} ({script.value}) has no cases"
-    parsers = {R: render_parser(), T: train_parser(), D: demo_parser(), E: eval_parser()}
+    parsers = {R: render_parser(), T: train_parser(), D: demo_parser(), E: eval_parser(), V: view_parser()}
     for cli, parser in parsers.items():
         needles = {c[2].lstrip("-").replace("_", "-") for c in CASES if c[0] == cli}
         missing = sorted(opt for opt in _value_options(parser) - NAMED_BY_VALUE if opt.lstrip("-") not in needles)
