@@ -16,8 +16,8 @@ and pt):
 
 Goals (issue 15): >= 8 frames/s while dragging at 512x512 with the neural renderer at 1 spp per frame, on 2
 cores; first frame after a camera move <= 150 ms. Also reported: the server's own per-frame split (render,
-denoise, encode; medians) and the foreign load during each phase (``common.Contention``: another process on
-the machine halves a 2-core figure).
+denoise, encode; medians), the cores the viewer process used and the foreign load during each phase (other
+processes than the bench and the viewer; another busy process on the machine halves a 2-core figure).
 
     .venv/bin/python bench/bench_viewer.py --bundle /tmp/viewer_run/field.pfn            # ~1 min
     .venv/bin/python bench/bench_viewer.py --renderers pt --drag-seconds 4              # no bundle
@@ -101,6 +101,38 @@ class Client:
         self.ws.close()
 
 
+def process_cpu_seconds(pid: int) -> float | None:
+    """CPU seconds (user + system, all threads) of process ``pid`` so far, from /proc (None elsewhere)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class Foreign:
+    """Cores kept busy by processes other than this bench and the viewer it drives (``common.Contention``
+    counts the viewer, a child process, as foreign)."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid, self.contention = pid, Contention()
+        self.other_cores: float | None = None
+        self.viewer_cores: float | None = None
+
+    def __enter__(self) -> Foreign:
+        self.t, self.cpu = time.perf_counter(), process_cpu_seconds(self.pid)
+        self.contention.__enter__()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.contention.__exit__(*exc)
+        wall, cpu = time.perf_counter() - self.t, process_cpu_seconds(self.pid)
+        if cpu is not None and self.cpu is not None and wall > 0:
+            self.viewer_cores = round((cpu - self.cpu) / wall, 3)
+            if self.contention.other_cores is not None:
+                self.other_cores = round(max(self.contention.other_cores - self.viewer_cores, 0.0), 3)
+
+
 def median(xs: list[float]) -> float | None:
     return round(statistics.median(xs), 2) if xs else None
 
@@ -109,7 +141,7 @@ def p90(xs: list[float]) -> float | None:
     return round(sorted(xs)[int(0.9 * (len(xs) - 1))], 2) if xs else None
 
 
-def drag(client: Client, seconds: float, hz: float) -> dict[str, Any]:
+def drag(client: Client, seconds: float, hz: float, pid: int) -> dict[str, Any]:
     """Orbit messages at ``hz`` for ``seconds``; frames/s and per-frame latency (arrival - newest input sent)."""
     stop = threading.Event()
 
@@ -122,7 +154,7 @@ def drag(client: Client, seconds: float, hz: float) -> dict[str, Any]:
             time.sleep(max(0.0, nxt - time.perf_counter()))
 
     client.drain()
-    with Contention() as load:
+    with Foreign(pid) as load:
         t0 = time.perf_counter()
         thread = threading.Thread(target=sender, daemon=True)
         thread.start()
@@ -145,13 +177,13 @@ def drag(client: Client, seconds: float, hz: float) -> dict[str, Any]:
             "spp_max": max((h["spp"] for h in headers), default=None),
             "server_ms_median": {k: median([h[k] for h in headers if k in h])
                                  for k in ("render_ms", "denoise_ms", "encode_ms", "total_ms")},
-            "other_cores": load.other_cores}
+            "other_cores": load.other_cores, "viewer_cores": load.viewer_cores}
 
 
-def first_after_move(client: Client, moves: int, rest: float) -> dict[str, Any]:
+def first_after_move(client: Client, moves: int, rest: float, pid: int) -> dict[str, Any]:
     """From rest: one orbit message, then the time to the first frame that includes it."""
     lat = []
-    with Contention() as load:
+    with Foreign(pid) as load:
         for _ in range(moves):
             time.sleep(rest)
             client.drain()
@@ -159,7 +191,7 @@ def first_after_move(client: Client, moves: int, rest: float) -> dict[str, Any]:
             t, _ = client.wait_frame(lambda h, s=seq: h["seq"] is not None and h["seq"] >= s)
             lat.append((t - client.sent[seq]) * 1e3)
     return {"latency_ms": [round(x, 1) for x in lat], "latency_ms_median": median(lat), "latency_ms_p90": p90(lat),
-            "other_cores": load.other_cores}
+            "other_cores": load.other_cores, "viewer_cores": load.viewer_cores}
 
 
 def main() -> int:
@@ -202,8 +234,8 @@ def main() -> int:
         for name in renderers:
             client.send({"type": "set", "control": "renderer", "value": name})
             client.wait_frame(lambda h, n=name: h["renderer"] == n and h["spp"] >= 2)
-            d = drag(client, args.drag_seconds, args.input_hz)
-            m = first_after_move(client, args.moves, args.rest)
+            d = drag(client, args.drag_seconds, args.input_hz, proc.pid)
+            m = first_after_move(client, args.moves, args.rest, proc.pid)
             results[name] = {"drag": d, "first_frame_after_move": m}
             print(f"{name:7s} dragging: {d['frames_per_s']:5.1f} frames/s (input->image median "
                   f"{d['latency_ms_median']} ms, p90 {d['latency_ms_p90']} ms; server per frame "
