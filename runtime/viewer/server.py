@@ -104,6 +104,8 @@ class RenderWorker:
                     continue
                 if self.stop_event.is_set():
                     break
+                if frame is None:  # a stale refinement frame: the newer view renders next
+                    continue
                 head = json.dumps(frame.header).encode()
                 try:
                     self.send(struct.pack(">I", len(head)) + head + frame.image)

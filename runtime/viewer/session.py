@@ -157,6 +157,7 @@ class ViewerSession:
         self.reexpose = True  # measure the automatic exposure again on the next frame
         self.last_seq: int | None = None
         self.frames = 0
+        self.dropped = 0  # refinement frames of a view that changed while they rendered
         self.scene = scene
         self._lights_version = 0
         self._scene_lights_version = 0
@@ -302,8 +303,12 @@ class ViewerSession:
             self.scene, self._scene_lights_version = scene, self._lights_version
         return self.scene.with_overrides(g=s.g, camera=s.view.camera(s.width, s.height))
 
-    def next_frame(self) -> Frame:
-        """Render (or only re-encode) the next frame of the newest state (module docstring)."""
+    def next_frame(self) -> Frame | None:
+        """Render (or only re-encode) the next frame of the newest state (module docstring). None when the frame
+        was a refinement of a view that changed while it rendered: it is dropped before denoising and encoding
+        (its samples still count for its own accumulation, which is then discarded), so the new view's first
+        frame starts sooner. The first frame of every state is always shown, or a continuous drag of the
+        camera or of a slider would show nothing."""
         t0 = time.perf_counter()
         with self.lock:
             s = replace(self.state)
@@ -326,6 +331,7 @@ class ViewerSession:
             self._denoiser.reset()
         if reexpose:
             self._auto_stops = None
+        refining = render and self._samples > 0
         if render:
             t = time.perf_counter()
             with RENDER_LOCK:
@@ -339,6 +345,9 @@ class ViewerSession:
                         self._acc[k] += layers[k]
                     self._samples += 1
         with self.lock:
+            if refining and self.generation != generation:
+                self.dropped += 1
+                return None
             samples = max(self._samples, 1)
             mean = (self._acc[s.layer] / samples).astype(np.float32) if self._acc else None
             n = self._samples

@@ -204,3 +204,28 @@ def test_failed_screenshot_write_leaves_nothing(tmp_path: Path, monkeypatch: pyt
     with pytest.raises(MessageError, match="writing failed"):
         s.screenshot("full")
     assert list(out.iterdir()) == []
+
+
+def test_stale_refinement_frames_are_dropped_but_first_frames_never(tmp_path: Path) -> None:
+    """A refinement frame whose view changed while it rendered is dropped (the new view comes sooner); the
+    first frame of a state is shown even when stale, or a continuous drag would show nothing."""
+    s = make_session(tmp_path)
+    real = s._render
+
+    def render_while_input_arrives(scene, renderer, n):  # noqa: ANN001, ANN202
+        s.apply(msg("orbit", dx=1.0, dy=0.0))  # input arriving during every render
+        return real(scene, renderer, n)
+
+    assert s.next_frame() is not None  # first frame of the scene camera
+    s.apply(msg("orbit", dx=1.0, dy=0.0))
+    s._render = render_while_input_arrives
+    h1 = s.next_frame()  # first frame of the moved state, stale already: shown
+    assert h1 is not None and h1.header["spp"] == 1
+    s._render = real
+    assert s.next_frame().header["spp"] == 1  # the newest camera, first frame
+    assert s.next_frame().header["spp"] == 2  # refining at rest
+    s._render = render_while_input_arrives
+    assert s.next_frame() is None and s.dropped == 1  # a refinement overtaken by input: dropped
+    s._render = real
+    h = s.next_frame().header
+    assert (h["spp"], h["moving"]) == (1, True)
