@@ -9,8 +9,9 @@ and pt):
 - **dragging**: a sender thread sends an ``orbit`` message every ``1 / --input-hz`` s (default 60 Hz, a mouse
   drag) for ``--drag-seconds`` (default 8 s); frames/s is frames received over the window, and each frame's
   latency is its arrival minus the send time of the newest input it includes (its header's ``seq``);
-- **first frame after a move**: ``--moves`` times (default 10), the camera rests for ``--rest`` s (default 0.6;
-  the view refines meanwhile), then one ``orbit`` message; the time until the first frame that includes it.
+- **first frame after a move**: ``--moves`` times (default 10), the camera rests for a random time between
+  ``--rest`` and twice that (default 0.6 s; the view refines meanwhile, and the move lands at a random point of
+  the frame in flight), then one ``orbit`` message; the time until the first frame that includes it.
   This is the issue's "<= 150 ms from input event to image" without the browser's JPEG decode and draw (a few ms
   for 512x512).
 
@@ -31,6 +32,7 @@ import argparse
 import json
 import os
 import queue
+import random
 import statistics
 import struct
 import subprocess
@@ -183,9 +185,12 @@ def drag(client: Client, seconds: float, hz: float, pid: int) -> dict[str, Any]:
 def first_after_move(client: Client, moves: int, rest: float, pid: int) -> dict[str, Any]:
     """From rest: one orbit message, then the time to the first frame that includes it."""
     lat = []
+    rng = random.Random(1)
     with Foreign(pid) as load:
         for _ in range(moves):
-            time.sleep(rest)
+            # A random rest in [rest, 2 rest]: a fixed one would send every move at the same phase of the frame
+            # in flight, and the latency would depend on that phase rather than on the viewer.
+            time.sleep(rest * (1.0 + rng.random()))
             client.drain()
             seq = client.send({"type": "orbit", "dx": 2.0, "dy": 0.0})
             t, _ = client.wait_frame(lambda h, s=seq: h["seq"] is not None and h["seq"] >= s)
