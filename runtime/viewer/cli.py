@@ -10,6 +10,7 @@ screenshots). Bad input is refused in one ``error:`` line with exit status 2, be
 from __future__ import annotations
 
 import logging
+import os
 import re
 import sys
 import time
@@ -78,6 +79,10 @@ def _main(argv: Sequence[str] | None = None) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    # One OpenBLAS thread unless the user chose otherwise, set before numpy loads: the viewer's frames are numba
+    # and onnxruntime work, and OpenBLAS's spinning threads made building a procedural volume (matrix products)
+    # many times slower whenever another process held a core (docs/viewer.md), which delayed the first frame.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     sys.exit(_main(argv))
 
 
