@@ -36,6 +36,8 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--size", default="512x512", help="frame size WIDTHxHEIGHT")
     p.add_argument("--seed", type=int, default=0, help="random seed: the same inputs give the same frames")
     p.add_argument("--max-spp", type=int, default=1024, help="stop refining a resting view at this many samples")
+    p.add_argument("--drag-scale", type=float, default=1.0,
+                   help="render moving frames at this fraction of --size, in [0.25, 1] (resting frames: full size)")
     p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     p.add_argument("--force", action="store_true", help="use a bundle or map made for another scene")
     p.add_argument("--no-browser", action="store_true", help="only print the address")
@@ -63,7 +65,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="pfn-view: %(message)s")
     server = start(args.scene, bundle=args.bundle, map=args.map, out=args.out, size=size, host=args.host,
                    port=args.port, seed=args.seed, threads=args.threads, force=args.force, renderer=args.renderer,
-                   max_spp=args.max_spp)
+                   max_spp=args.max_spp, drag_scale=args.drag_scale)
     if not is_loopback(args.host):
         print(f"warning: listening on {args.host}: anyone who can reach it can drive renders and write screenshots "
               f"into {args.out}", file=sys.stderr)

@@ -140,6 +140,7 @@ CONTROLS: dict[str, Check] = {
     "format": choice(FORMATS),
     "denoise": lambda key, value: _boolean(key, value),
     "max_spp": integer(1, 1 << 16),
+    "drag_scale": number(0.25, 1.0),
 }
 
 

@@ -22,6 +22,11 @@ use) for the first :attr:`ViewerSession.denoise_frames` frames, then the plain a
 denoiser's slight blur would stay). A change that is not a camera move (g, lights, renderer, layer, size) is a
 cut: the denoiser forgets its history.
 
+Reduced moving frames (``drag_scale`` < 1, off by default): while the camera moves, frames are rendered at that
+fraction of the size (the page scales them up) and denoised by a denoiser of their own size; the first frame at
+rest starts a full-size accumulation. An interactive compromise, so that dragging stays fluid where a full-size
+frame is too slow; the page's selector and ``pfn-view --drag-scale`` set it.
+
 Exposure: measured automatically (:func:`photon_fields.runtime.io.images.auto_exposure_stops`) on the first
 frame after a cut, and then kept while the camera moves so brightness does not flicker; the page's exposure
 control adds stops to it, and ``"auto"`` measures it again.
@@ -45,7 +50,7 @@ from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLigh
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.viewer.camera import OrbitView
 from photon_fields.runtime.viewer.encode import encode, tonemap
-from photon_fields.runtime.viewer.messages import NAME_PATTERN, RENDERER_NAMES, Message, MessageError
+from photon_fields.runtime.viewer.messages import MIN_SIDE, NAME_PATTERN, RENDERER_NAMES, Message, MessageError
 
 #: Renders of all sessions of a process take turns: two pages rendering at once would each get half the cores
 #: and both miss their frame rate; one at a time keeps each frame as fast as the machine allows.
@@ -114,6 +119,8 @@ class ViewState:
     max_spp: int = DEFAULT_MAX_SPP
     width: int = 512
     height: int = 512
+    drag_scale: float = 1.0
+    """Moving frames are rendered at this fraction of the size (1: full size); resting frames always full."""
 
 
 @dataclass
@@ -132,7 +139,8 @@ class ViewerSession:
     def __init__(self, scene: Scene, *, estimator: Any = None, pmap: Any = None, out_dir: Path,
                  seed: int = 0, width: int | None = None, height: int | None = None,
                  renderer: str | None = None, max_spp: int = DEFAULT_MAX_SPP,
-                 denoise_frames: int = DEFAULT_DENOISE_FRAMES, info: dict[str, Any] | None = None) -> None:
+                 denoise_frames: int = DEFAULT_DENOISE_FRAMES, info: dict[str, Any] | None = None,
+                 drag_scale: float = 1.0) -> None:
         self.base_scene = scene
         self.estimator, self.pmap = estimator, pmap
         self.out_dir = Path(out_dir)
@@ -148,7 +156,7 @@ class ViewerSession:
         cam = scene.camera
         self.state = ViewState(OrbitView.from_camera(cam), renderer, g=scene.g,
                                lights=[LightControl.from_light(lt) for lt in scene.lights], max_spp=int(max_spp),
-                               width=width or cam.width, height=height or cam.height)
+                               width=width or cam.width, height=height or cam.height, drag_scale=float(drag_scale))
         self.lock = threading.Lock()
         self.changed = threading.Condition(self.lock)
         self.generation = 0  # bumped by every change that alters the image
@@ -165,8 +173,10 @@ class ViewerSession:
         self._acc: dict[str, np.ndarray] = {}
         self._acc_generation = -1
         self._samples = 0
+        self._acc_size: tuple[int, int] = (0, 0)  # (width, height) of the accumulation
         self._auto_stops: float | None = None
-        self._denoiser: Any = None
+        self._denoisers: dict[tuple[int, int], Any] = {}  # by frame size (full, and reduced while moving)
+        self._last_size: tuple[int, int] = (0, 0)
         self._last_header: dict[str, Any] = {}
         self._shot_lock = threading.Lock()
 
@@ -263,6 +273,9 @@ class ViewerSession:
         if control == "max_spp":
             s.max_spp = value
             return False, False, True, False
+        if control == "drag_scale":
+            s.drag_scale = value
+            return False, False, False, False
         raise MessageError(f"set: control {control!r} is not handled")
 
     def _check_g(self, renderer: str, g: float) -> None:
@@ -282,6 +295,8 @@ class ViewerSession:
         """Whether :meth:`next_frame` has anything to do (call with :attr:`lock` held)."""
         if self.redisplay or self.generation != self._acc_generation:
             return True
+        if self._acc_size != (self.state.width, self.state.height):
+            return True  # the last frame was a reduced moving frame: the resting view needs a full-size one
         return self._samples < self.state.max_spp
 
     def wait_for_work(self, stop: threading.Event, timeout: float = 0.5) -> bool:
@@ -294,14 +309,15 @@ class ViewerSession:
             self.changed.wait(timeout)
             return not stop.is_set() and self.wants_frame()
 
-    def _scene_for(self, s: ViewState) -> Scene:
-        """The scene of state ``s`` (lights rebuilt only when they changed; the medium is shared)."""
+    def _scene_for(self, s: ViewState, width: int, height: int) -> Scene:
+        """The scene of state ``s`` at ``width`` x ``height`` (lights rebuilt only when they changed; the medium
+        is shared)."""
         if self._scene_lights_version != self._lights_version:
             scene = replace(self.base_scene, lights=tuple(lt.light() for lt in s.lights), _cache={})
             if "medium" in self.base_scene._cache:  # the medium does not depend on the lights
                 scene._cache["medium"] = self.base_scene._cache["medium"]
             self.scene, self._scene_lights_version = scene, self._lights_version
-        return self.scene.with_overrides(g=s.g, camera=s.view.camera(s.width, s.height))
+        return self.scene.with_overrides(g=s.g, camera=s.view.camera(width, height))
 
     def next_frame(self) -> Frame | None:
         """Render (or only re-encode) the next frame of the newest state (module docstring). None when the frame
@@ -313,22 +329,36 @@ class ViewerSession:
         with self.lock:
             s = replace(self.state)
             generation, cut, seq, reexpose = self.generation, self.cut, self.last_seq, self.reexpose
-            render = generation != self._acc_generation or self._samples < s.max_spp
+            full = (s.width, s.height)
+            render = (generation != self._acc_generation or self._samples < s.max_spp
+                      or self._acc_size != full)
             self.cut = self.redisplay = self.reexpose = False
-            scene = self._scene_for(s)
             if generation != self._acc_generation:
                 moved_only = not cut
                 self._acc, self._samples, self._acc_generation = {}, 0, generation
             else:
                 moved_only = False
+            size = full
+            if moved_only and s.drag_scale < 1.0:
+                size = (max(MIN_SIDE, round(s.width * s.drag_scale)), max(MIN_SIDE, round(s.height * s.drag_scale)))
+            if render and self._acc_size != size:  # a reduced moving frame before: rest starts a full-size one
+                self._acc, self._samples = {}, 0
+            self._acc_size = size
+            scene = self._scene_for(s, *size)
         timings: dict[str, float] = {}
         warnings = self._warnings(s)
-        if self._denoiser is None or (self._denoiser.width, self._denoiser.height) != (s.width, s.height):
+        if cut:
+            for d in self._denoisers.values():
+                d.reset()
+        denoiser = self._denoisers.get(size)
+        if denoiser is None:
             from photon_fields.runtime.denoise.wrls import WRLSDenoiser
 
-            self._denoiser = WRLSDenoiser(s.width, s.height, medium=scene.medium())
-        elif cut:
-            self._denoiser.reset()
+            denoiser = WRLSDenoiser(*size, medium=scene.medium())
+            self._denoisers = {k: v for k, v in self._denoisers.items() if k in (full, size)} | {size: denoiser}
+        elif size != self._last_size:
+            denoiser.reset()  # its history is from before the last change of frame size: stale
+        self._last_size = size
         if reexpose:
             self._auto_stops = None
         refining = render and self._samples > 0
@@ -352,11 +382,11 @@ class ViewerSession:
             mean = (self._acc[s.layer] / samples).astype(np.float32) if self._acc else None
             n = self._samples
         if mean is None:  # nothing rendered yet for this state (only possible on a redisplay race): black
-            mean = np.zeros((s.height, s.width, 3), np.float32)
+            mean = np.zeros((size[1], size[0], 3), np.float32)
         shown, denoised = mean, False
         if s.denoise and 0 < n <= self.denoise_frames:
             t = time.perf_counter()
-            shown = self._denoiser.denoise(mean, camera=scene.camera)
+            shown = denoiser.denoise(mean, camera=scene.camera)
             timings["denoise_ms"] = (time.perf_counter() - t) * 1e3
             denoised = True
         if self._auto_stops is None:
@@ -370,7 +400,7 @@ class ViewerSession:
         timings["total_ms"] = (time.perf_counter() - t0) * 1e3
         self.frames += 1
         header = {"type": "frame", "frame": self.frames, "seq": seq, "generation": generation, "spp": n,
-                  "renderer": s.renderer, "layer": s.layer, "g": s.g, "width": s.width, "height": s.height,
+                  "renderer": s.renderer, "layer": s.layer, "g": s.g, "width": size[0], "height": size[1],
                   "format": s.format, "exposure": stops, "denoised": denoised, "moving": moved_only,
                   "rendered": render, "warnings": warnings, **{k: round(v, 2) for k, v in timings.items()}}
         self._last_header = header
@@ -417,7 +447,8 @@ class ViewerSession:
             return {"type": "state", "scene": self.base_scene.name, "renderers": self.available,
                     "renderer": s.renderer, "layer": s.layer, "g": s.g, "exposure_offset": s.exposure_offset,
                     "format": s.format, "denoise": s.denoise, "max_spp": s.max_spp, "width": s.width,
-                    "height": s.height, "lights": [lt.to_dict() for lt in s.lights], "out_dir": str(self.out_dir)}
+                    "height": s.height, "drag_scale": s.drag_scale, "lights": [lt.to_dict() for lt in s.lights],
+                    "out_dir": str(self.out_dir)}
 
     def screenshot(self, name: str | None = None) -> list[Path]:
         """Write the current accumulation: ``NAME.exr`` (all layers, linear), ``NAME.png`` (the shown layer at the
@@ -435,7 +466,7 @@ class ViewerSession:
                 layers = {k: (v / samples).astype(np.float32) for k, v in self._acc.items()}
                 s = replace(self.state)
                 header = dict(self._last_header)
-                cam = s.view.camera(s.width, s.height)
+                cam = s.view.camera(*self._acc_size)
             stem = name if name is not None else self._free_stem()
             if not NAME_PATTERN.fullmatch(stem):
                 raise MessageError(f"screenshot: {stem!r} is not a plain file name")

@@ -46,10 +46,9 @@ function connect() {
     const header = JSON.parse(new TextDecoder().decode(new Uint8Array(ev.data, 4, n)));
     const blob = new Blob([new Uint8Array(ev.data, 4 + n)], {type: header.format === "png" ? "image/png" : "image/jpeg"});
     createImageBitmap(blob).then((bitmap) => {
-      if (canvas.width !== bitmap.width || canvas.height !== bitmap.height) {
-        canvas.width = bitmap.width; canvas.height = bitmap.height;
-      }
-      ctx.drawImage(bitmap, 0, 0);
+      // Frames rendered at a reduced size while moving are scaled up to the canvas (the view's full size).
+      ctx.imageSmoothingEnabled = true;
+      ctx.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
       bitmap.close();
       const now = performance.now();
       if (header.seq !== null && sentAt.has(header.seq)) { lastLatency = now - sentAt.get(header.seq); sentAt.delete(header.seq); }
@@ -85,6 +84,7 @@ function buildControls(s) {
   $("layer").value = s.layer;
   $("g").value = s.g; $("g_value").textContent = Number(s.g).toFixed(2);
   canvas.width = s.width; canvas.height = s.height;
+  $("drag_scale").value = String(s.drag_scale);
   $("lights").innerHTML = "";
   s.lights.forEach((lt, i) => {
     const f = document.createElement("fieldset");
@@ -137,6 +137,7 @@ $("g").addEventListener("input", (e) => { $("g_value").textContent = Number(e.ta
 $("exposure").addEventListener("input", (e) => { $("exposure_value").textContent = (e.target.value >= 0 ? "+" : "") + Number(e.target.value).toFixed(1); setControl("exposure", Number(e.target.value)); });
 $("auto_exposure").addEventListener("click", () => { $("exposure").value = 0; $("exposure_value").textContent = "+0.0"; setControl("exposure", "auto"); });
 $("denoise").addEventListener("change", (e) => setControl("denoise", e.target.checked));
+$("drag_scale").addEventListener("change", (e) => setControl("drag_scale", Number(e.target.value)));
 $("lossless").addEventListener("change", (e) => setControl("format", e.target.checked ? "png" : "jpeg"));
 $("reset_camera").addEventListener("click", () => send({type: "reset_camera"}));
 $("screenshot").addEventListener("click", () => send({type: "screenshot"}));

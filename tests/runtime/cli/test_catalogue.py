@@ -387,6 +387,7 @@ CASES += [
     (V, lambda a, d, o: [str(a["scene"]), "--seed", HUGE_SEED, *VIEW, "--out", str(o / "shots")], "--seed"),
     (V, lambda a, d, o: [str(a["scene"]), "--max-spp", "0", *VIEW, "--out", str(o / "shots")], "--max-spp"),
     (V, lambda a, d, o: [str(a["scene"]), "--threads", "0", *VIEW, "--out", str(o / "shots")], "--threads"),
+    (V, lambda a, d, o: [str(a["scene"]), "--drag-scale", "0.1", *VIEW, "--out", str(o / "shots")], "--drag-scale"),
 ]
 
 MAINS = {R: render_main, T: train_main, D: demo_main, E: eval_main, V: view_main}

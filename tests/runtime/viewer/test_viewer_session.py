@@ -229,3 +229,26 @@ def test_stale_refinement_frames_are_dropped_but_first_frames_never(tmp_path: Pa
     s._render = real
     h = s.next_frame().header
     assert (h["spp"], h["moving"]) == (1, True)
+
+
+def test_drag_scale_renders_moving_frames_smaller_and_rest_at_full_size(tmp_path: Path) -> None:
+    s = make_session(tmp_path, size=32, drag_scale=0.5, max_spp=1)
+    assert s.next_frame().header["width"] == 32  # the first view rests: full size
+    s.apply(msg("orbit", dx=3.0, dy=0.0))
+    h = s.next_frame().header
+    assert (h["width"], h["height"], h["moving"], h["spp"]) == (16, 16, True, 1)
+    assert accumulated(s, "L").shape == (16, 16, 3)
+    with s.lock:
+        assert s.wants_frame()  # at rest again: a full-size frame is due although max_spp = 1 is reached
+    h = s.next_frame().header
+    assert (h["width"], h["spp"], h["moving"]) == (32, 1, False)
+    with s.lock:
+        assert not s.wants_frame()
+    # The resting accumulation is the one of a session that never rendered at reduced size.
+    other = make_session(tmp_path, size=32, max_spp=1)
+    other.apply(msg("orbit", dx=3.0, dy=0.0))
+    other.next_frame()
+    np.testing.assert_allclose(accumulated(s, "L"), accumulated(other, "L"), rtol=1e-6, atol=1e-8)
+    s.apply(msg("set", control="drag_scale", value=1.0))
+    s.apply(msg("orbit", dx=3.0, dy=0.0))
+    assert s.next_frame().header["width"] == 32
