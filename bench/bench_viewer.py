@@ -9,6 +9,8 @@ and pt):
 - **dragging**: a sender thread sends an ``orbit`` message every ``1 / --input-hz`` s (default 60 Hz, a mouse
   drag) for ``--drag-seconds`` (default 8 s); frames/s is frames received over the window, and each frame's
   latency is its arrival minus the send time of the newest input it includes (its header's ``seq``);
+- **at a reduced size** (``--drag-scales 1,0.5``): the drag and the moves from rest again, moving frames
+  rendered at that fraction of the size (``pfn-view --drag-scale``);
 - **first frame after a move**: ``--moves`` times (default 10), the camera rests for a random time between
   ``--rest`` and twice that (default 0.6 s; the view refines meanwhile, and the move lands at a random point of
   the frame in flight), then one ``orbit`` message; the time until the first frame that includes it.
@@ -205,6 +207,8 @@ def main() -> int:
     p.add_argument("--bundle", default=None, help="a bundle of the scene (enables the neural renderer)")
     p.add_argument("--renderers", default=None, help="comma list of neural, pt (default: neural if --bundle, pt)")
     p.add_argument("--size", default="512x512")
+    p.add_argument("--drag-scales", default="1",
+                   help="comma list of drag scales to measure dragging at (pfn-view --drag-scale; 1: full size)")
     p.add_argument("--drag-seconds", type=float, default=8.0)
     p.add_argument("--input-hz", type=float, default=60.0)
     p.add_argument("--moves", type=int, default=10)
@@ -213,6 +217,7 @@ def main() -> int:
     p.add_argument("--out", default=str(REPO / "bench" / "results" / "viewer.json"))
     args = p.parse_args()
     renderers = args.renderers.split(",") if args.renderers else (["neural"] if args.bundle else []) + ["pt"]
+    scales = [float(x) for x in args.drag_scales.split(",")]
     if "neural" in renderers and not args.bundle:
         raise SystemExit("the neural renderer needs --bundle")
     info = machine_info()
@@ -242,6 +247,18 @@ def main() -> int:
             d = drag(client, args.drag_seconds, args.input_hz, proc.pid)
             m = first_after_move(client, args.moves, args.rest, proc.pid)
             results[name] = {"drag": d, "first_frame_after_move": m}
+            for scale in scales:
+                if scale == 1.0:
+                    continue
+                client.send({"type": "set", "control": "drag_scale", "value": scale})
+                ds = drag(client, args.drag_seconds, args.input_hz, proc.pid)
+                ms = first_after_move(client, args.moves, args.rest, proc.pid)
+                results[name][f"drag_at_scale_{scale:g}"] = ds
+                results[name][f"first_frame_after_move_at_scale_{scale:g}"] = ms
+                print(f"{name:7s} dragging at {scale:g} of the size: {ds['frames_per_s']:5.1f} frames/s (input->image "
+                      f"median {ds['latency_ms_median']} ms; server per frame {ds['server_ms_median']}); first frame "
+                      f"after a move: median {ms['latency_ms_median']} ms, p90 {ms['latency_ms_p90']} ms")
+            client.send({"type": "set", "control": "drag_scale", "value": 1.0})
             print(f"{name:7s} dragging: {d['frames_per_s']:5.1f} frames/s (input->image median "
                   f"{d['latency_ms_median']} ms, p90 {d['latency_ms_p90']} ms; server per frame "
                   f"{d['server_ms_median']}; other cores {d['other_cores']})")
@@ -253,7 +270,7 @@ def main() -> int:
         proc.wait(30)
     config = {"scene": args.scene, "bundle": args.bundle, "size": args.size, "renderers": renderers,
               "drag_seconds": args.drag_seconds, "input_hz": args.input_hz, "moves": args.moves, "rest_s": args.rest,
-              "threads": args.threads}
+              "threads": args.threads, "drag_scales": scales}
     phases = {f"{n}.{k}": v for n, r in results.items() for k, v in r.items()}
     write_report(Path(args.out), "viewer", {**finish_info(info, phases), "cpu_record": cpu_record()}, config,
                  startup=startup, results=results)
