@@ -142,6 +142,7 @@ $("lossless").addEventListener("change", (e) => setControl("format", e.target.ch
 $("reset_camera").addEventListener("click", () => send({type: "reset_camera"}));
 $("screenshot").addEventListener("click", () => send({type: "screenshot"}));
 
-window.pfnView = {frames: () => framesShown, header: () => lastFrame, send: send};
+// For tests and the curious: frames shown, the last frame's header, the last input's number.
+window.pfnView = {frames: () => framesShown, header: () => lastFrame, lastSeq: () => seq, send: send};
 connect();
 requestAnimationFrame(flushInput);
