@@ -152,7 +152,7 @@ class ViewerSession:
             renderer = "neural" if estimator is not None else "pt"
         if renderer not in self.available:
             raise InputError("renderer", f"'{renderer}' needs its input (neural: --bundle, photonmap: --map)")
-        self.trained_lights = [lt.to_dict() for lt in scene.lights]
+        self.trained_lights = [LightControl.from_light(lt) for lt in scene.lights]
         cam = scene.camera
         self.state = ViewState(OrbitView.from_camera(cam), renderer, g=scene.g,
                                lights=[LightControl.from_light(lt) for lt in scene.lights], max_spp=int(max_spp),
@@ -366,6 +366,7 @@ class ViewerSession:
             t = time.perf_counter()
             with RENDER_LOCK:
                 layers = self._render(scene, s.renderer, self._samples)
+            layers = self._follow_light_power(layers, s)
             timings["render_ms"] = (time.perf_counter() - t) * 1e3
             with self.lock:
                 if self._acc_generation == generation:
@@ -430,12 +431,36 @@ class ViewerSession:
             result = render_photon_mapped(scene, self.pmap, spp=1, seed=self.seed + n, progress=False)
         return result.layers
 
+    def indirect_scale(self, s: ViewState) -> float | None:
+        """How the field's (or photon map's) L_i, made for the scene's lights, follows the page's light edits:
+        1 without edits; with a single light whose only edit is its power, the ratio of the powers (radiance is
+        linear in a light's power, so the rescaled L_i is exact); None otherwise (a moved light, or a power edit
+        among several lights: L_i would need retraining, and the page is warned)."""
+        def where(c: LightControl) -> tuple[Any, ...]:
+            return c.kind, c.azimuth, c.elevation, c.distance, tuple(np.asarray(c.color).tolist())
+
+        now, trained = s.lights, self.trained_lights
+        if [(where(a), a.power) for a in now] == [(where(b), b.power) for b in trained]:
+            return 1.0
+        if len(now) == 1 and where(now[0]) == where(trained[0]) and trained[0].power > 0:
+            return now[0].power / trained[0].power
+        return None
+
+    def _follow_light_power(self, layers: dict[str, np.ndarray], s: ViewState) -> dict[str, np.ndarray]:
+        """The field's or map's L_i rescaled to a single light's edited power (:meth:`indirect_scale`); L_d, from
+        next-event estimation with the edited lights, is already right."""
+        scale = self.indirect_scale(s) if s.renderer in ("neural", "photonmap") else 1.0
+        if scale is None or scale == 1.0:
+            return layers
+        li = (layers["L_i"] * np.float32(scale)).astype(np.float32)
+        return {**layers, "L_i": li, "L": (layers["L_e"] + layers["L_d"]) + li}
+
     def _warnings(self, s: ViewState) -> list[str]:
-        if s.renderer == "neural" and [lt.light().to_dict() for lt in s.lights] != self.trained_lights:
-            return ["the field was trained for the scene's lights: L_i does not follow light edits (L_d does)"]
-        if s.renderer == "photonmap" and [lt.light().to_dict() for lt in s.lights] != self.trained_lights:
-            return ["the photon map was traced for the scene's lights: L_i does not follow light edits (L_d does)"]
-        return []
+        if s.renderer == "pt" or self.indirect_scale(s) is not None:
+            return []
+        what = "field was trained" if s.renderer == "neural" else "photon map was traced"
+        return [f"the {what} for the scene's lights: L_i does not follow this light edit (L_d does; a single "
+                "light's power alone would be followed exactly)"]
 
     # ------------------------------------------------------------------------------------------------
     # state for the page, screenshots (either thread)
