@@ -58,6 +58,15 @@ RENDER_LOCK = threading.Lock()
 DEFAULT_MAX_SPP = 1024
 DEFAULT_DENOISE_FRAMES = 16
 ACCUMULATED_LAYERS = ("L", "L_d", "L_i", "L_e")
+#: ``set`` controls that only set the :class:`ViewState` field of their name, and what each then does:
+#: (restart the accumulation, cut the denoiser's history, redisplay, measure the exposure again).
+_FIELD_CONTROLS: dict[str, tuple[bool, bool, bool, bool]] = {
+    "layer": (False, True, True, True),
+    "format": (False, False, True, False),
+    "denoise": (False, True, True, False),
+    "max_spp": (False, False, True, False),
+    "drag_scale": (False, False, False, False),
+}
 
 
 @dataclass
@@ -255,27 +264,15 @@ class ViewerSession:
             self._check_g(s.renderer, value)
             s.g = value
             return True, True, True, False
-        if control == "layer":
-            s.layer = value
-            return False, True, True, True
         if control == "exposure":
             if value is None:
                 s.exposure_offset = 0.0
                 return False, False, True, True
             s.exposure_offset = value
             return False, False, True, False
-        if control == "format":
-            s.format = value
-            return False, False, True, False
-        if control == "denoise":
-            s.denoise = value
-            return False, True, True, False
-        if control == "max_spp":
-            s.max_spp = value
-            return False, False, True, False
-        if control == "drag_scale":
-            s.drag_scale = value
-            return False, False, False, False
+        if control in _FIELD_CONTROLS:
+            setattr(s, control, value)
+            return _FIELD_CONTROLS[control]
         raise MessageError(f"set: control {control!r} is not handled")
 
     def _check_g(self, renderer: str, g: float) -> None:
