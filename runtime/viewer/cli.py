@@ -36,13 +36,19 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--size", default="512x512", help="frame size WIDTHxHEIGHT")
     p.add_argument("--seed", type=int, default=0, help="random seed: the same inputs give the same frames")
     p.add_argument("--max-spp", type=int, default=1024, help="stop refining a resting view at this many samples")
-    p.add_argument("--drag-scale", type=float, default=1.0,
-                   help="render moving frames at this fraction of --size, in [0.25, 1] (resting frames: full size)")
+    p.add_argument("--drag-scale", type=_drag_scale, default="auto",
+                   help="render moving frames at this fraction of --size, in [0.25, 1], or auto: the size that "
+                        "keeps ~8 frames/s while moving (resting frames: always full size)")
     p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     p.add_argument("--force", action="store_true", help="use a bundle or map made for another scene")
     p.add_argument("--no-browser", action="store_true", help="only print the address")
     p.add_argument("--quiet", action="store_true", help="log warnings only")
     return p
+
+
+def _drag_scale(text: str) -> float | str:
+    """``--drag-scale``: ``auto`` or a number (its range is checked by :func:`launch.start`)."""
+    return "auto" if text == "auto" else float(text)
 
 
 def parse_size(text: str) -> tuple[int, int]:

@@ -134,7 +134,7 @@ class ViewerServer:
     """A running viewer: uvicorn serving the app on a daemon thread. ``url`` is the page; :meth:`stop` ends it."""
 
     def __init__(self, inputs: ViewerInputs, *, host: str = "127.0.0.1", port: int = 0, warm: bool = True,
-                 max_spp: int | None = None, drag_scale: float = 1.0) -> None:
+                 max_spp: int | None = None, drag_scale: float | str = "auto") -> None:
         import uvicorn
 
         from photon_fields.runtime.viewer.server import MAX_FRAME_BYTES, create_app
@@ -193,10 +193,12 @@ def start(scene: str | None = None, *, bundle: str | None = None, map: str | Non
           out: str | Path = "pfn_view_out", size: tuple[int, int] | None = None, host: str = "127.0.0.1",
           port: int = 0, seed: int = 0, threads: int | None = None, force: bool = False,
           renderer: str | None = None, warm: bool = True, max_spp: int | None = None,
-          drag_scale: float = 1.0) -> ViewerServer:
+          drag_scale: float | str = "auto") -> ViewerServer:
     """Load the inputs and serve the viewer (module docstring); returns the running :class:`ViewerServer`."""
-    if not (isinstance(drag_scale, (int, float)) and 0.25 <= drag_scale <= 1.0):
-        raise InputError("--drag-scale", f"must be a number in [0.25, 1], got {drag_scale!r}")
+    if drag_scale != "auto" and (isinstance(drag_scale, bool) or not isinstance(drag_scale, (int, float))
+                                 or not 0.25 <= drag_scale <= 1.0):
+        raise InputError("--drag-scale", f"must be auto or a number in [0.25, 1], got {drag_scale!r}")
     inputs = load_inputs(scene, bundle=bundle, map_path=map, out_dir=out, size=size, seed=seed, threads=threads,
                          force=force, renderer=renderer)
-    return ViewerServer(inputs, host=host, port=port, warm=warm, max_spp=max_spp, drag_scale=float(drag_scale))
+    return ViewerServer(inputs, host=host, port=port, warm=warm, max_spp=max_spp,
+                        drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale))

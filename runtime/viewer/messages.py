@@ -140,8 +140,15 @@ CONTROLS: dict[str, Check] = {
     "format": choice(FORMATS),
     "denoise": lambda key, value: _boolean(key, value),
     "max_spp": integer(1, 1 << 16),
-    "drag_scale": number(0.25, 1.0),
+    "drag_scale": lambda key, value: drag_scale(key, value),
 }
+
+
+def drag_scale(key: str, value: Any) -> float | str:
+    """The moving frames' size: a fraction of the view in [0.25, 1], or ``"auto"`` (chosen for the frame rate)."""
+    if value == "auto":
+        return "auto"
+    return number(0.25, 1.0)(key, value)
 
 
 def _boolean(key: str, value: Any) -> bool:

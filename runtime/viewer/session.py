@@ -22,10 +22,12 @@ use) for the first :attr:`ViewerSession.denoise_frames` frames, then the plain a
 denoiser's slight blur would stay). A change that is not a camera move (g, lights, renderer, layer, size) is a
 cut: the denoiser forgets its history.
 
-Reduced moving frames (``drag_scale`` < 1, off by default): while the camera moves, frames are rendered at that
-fraction of the size (the page scales them up) and denoised by a denoiser of their own size; the first frame at
-rest starts a full-size accumulation. An interactive compromise, so that dragging stays fluid where a full-size
-frame is too slow; the page's selector and ``pfn-view --drag-scale`` set it.
+Reduced moving frames (``drag_scale`` < 1, or ``"auto"``, ``pfn-view``'s default): while the camera moves, frames
+are rendered at that fraction of the size (the page scales them up) and denoised by a denoiser of their own size;
+the first frame at rest starts a full-size accumulation. An interactive compromise, so that dragging stays fluid
+where a full-size frame is too slow; the page's selector and ``pfn-view --drag-scale`` set it. ``"auto"`` picks
+the fraction from :data:`DRAG_LEVELS` after every moving frame (:func:`next_drag_level`) so that moving frames
+keep :data:`DRAG_FPS` frames per second (the level a drag ends with is where the next one starts).
 
 Exposure: measured automatically (:func:`photon_fields.runtime.io.images.auto_exposure_stops`) on the first
 frame after a cut, and then kept while the camera moves so brightness does not flicker; the page's exposure
@@ -58,6 +60,22 @@ RENDER_LOCK = threading.Lock()
 DEFAULT_MAX_SPP = 1024
 DEFAULT_DENOISE_FRAMES = 16
 ACCUMULATED_LAYERS = ("L", "L_d", "L_i", "L_e")
+#: ``drag_scale="auto"``: the sizes moving frames may take (fractions of the view; few, so that each keeps its
+#: denoiser's history across drags) and the frame rate they aim at while the camera moves.
+DRAG_LEVELS = (1.0, 0.75, 0.5, 0.375, 0.25)
+DRAG_FPS = 8.0
+
+
+def next_drag_level(level: int, frame_s: float, fps: float = DRAG_FPS) -> int:
+    """The :data:`DRAG_LEVELS` index for the next moving frame after one at ``level`` took ``frame_s`` seconds:
+    one level smaller when it missed the frame time 1 / ``fps`` by more than 15 %, one level larger when the
+    larger level's frame (time scaling with the pixel count) would still take at most 85 % of it, else the same."""
+    budget = 1.0 / fps
+    if frame_s > 1.15 * budget and level + 1 < len(DRAG_LEVELS):
+        return level + 1
+    if level > 0 and frame_s * (DRAG_LEVELS[level - 1] / DRAG_LEVELS[level]) ** 2 <= 0.85 * budget:
+        return level - 1
+    return level
 #: ``set`` controls that only set the :class:`ViewState` field of their name, and what each then does:
 #: (restart the accumulation, cut the denoiser's history, redisplay, measure the exposure again).
 _FIELD_CONTROLS: dict[str, tuple[bool, bool, bool, bool]] = {
@@ -128,7 +146,7 @@ class ViewState:
     max_spp: int = DEFAULT_MAX_SPP
     width: int = 512
     height: int = 512
-    drag_scale: float = 1.0
+    drag_scale: float | str = 1.0
     """Moving frames are rendered at this fraction of the size (1: full size); resting frames always full."""
 
 
@@ -149,7 +167,7 @@ class ViewerSession:
                  seed: int = 0, width: int | None = None, height: int | None = None,
                  renderer: str | None = None, max_spp: int = DEFAULT_MAX_SPP,
                  denoise_frames: int = DEFAULT_DENOISE_FRAMES, info: dict[str, Any] | None = None,
-                 drag_scale: float = 1.0) -> None:
+                 drag_scale: float | str = 1.0) -> None:
         self.base_scene = scene
         self.estimator, self.pmap = estimator, pmap
         self.out_dir = Path(out_dir)
@@ -165,7 +183,9 @@ class ViewerSession:
         cam = scene.camera
         self.state = ViewState(OrbitView.from_camera(cam), renderer, g=scene.g,
                                lights=[LightControl.from_light(lt) for lt in scene.lights], max_spp=int(max_spp),
-                               width=width or cam.width, height=height or cam.height, drag_scale=float(drag_scale))
+                               width=width or cam.width, height=height or cam.height,
+                               drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale))
+        self.drag_level = 0  # drag_scale "auto": the index in DRAG_LEVELS of the next moving frame
         self.lock = threading.Lock()
         self.changed = threading.Condition(self.lock)
         self.generation = 0  # bumped by every change that alters the image
@@ -336,8 +356,9 @@ class ViewerSession:
             else:
                 moved_only = False
             size = full
-            if moved_only and s.drag_scale < 1.0:
-                size = (max(MIN_SIDE, round(s.width * s.drag_scale)), max(MIN_SIDE, round(s.height * s.drag_scale)))
+            scale = DRAG_LEVELS[self.drag_level] if s.drag_scale == "auto" else float(s.drag_scale)
+            if moved_only and scale < 1.0:
+                size = (max(MIN_SIDE, round(s.width * scale)), max(MIN_SIDE, round(s.height * scale)))
             if render and self._acc_size != size:  # a reduced moving frame before: rest starts a full-size one
                 self._acc, self._samples = {}, 0
             self._acc_size = size
@@ -396,6 +417,8 @@ class ViewerSession:
         data = encode(tonemap(shown, stops), s.format)
         timings["encode_ms"] = (time.perf_counter() - t) * 1e3
         timings["total_ms"] = (time.perf_counter() - t0) * 1e3
+        if moved_only and s.drag_scale == "auto":
+            self.drag_level = next_drag_level(self.drag_level, timings["total_ms"] * 1e-3)
         self.frames += 1
         header = {"type": "frame", "frame": self.frames, "seq": seq, "generation": generation, "spp": n,
                   "renderer": s.renderer, "layer": s.layer, "g": s.g, "width": size[0], "height": size[1],

@@ -137,7 +137,10 @@ $("g").addEventListener("input", (e) => { $("g_value").textContent = Number(e.ta
 $("exposure").addEventListener("input", (e) => { $("exposure_value").textContent = (e.target.value >= 0 ? "+" : "") + Number(e.target.value).toFixed(1); setControl("exposure", Number(e.target.value)); });
 $("auto_exposure").addEventListener("click", () => { $("exposure").value = 0; $("exposure_value").textContent = "+0.0"; setControl("exposure", "auto"); });
 $("denoise").addEventListener("change", (e) => setControl("denoise", e.target.checked));
-$("drag_scale").addEventListener("change", (e) => setControl("drag_scale", Number(e.target.value)));
+$("drag_scale").addEventListener("change", (e) => {
+  const v = e.target.value;
+  setControl("drag_scale", v === "auto" ? "auto" : Number(v));
+});
 $("lossless").addEventListener("change", (e) => setControl("format", e.target.checked ? "png" : "jpeg"));
 $("reset_camera").addEventListener("click", () => send({type: "reset_camera"}));
 $("screenshot").addEventListener("click", () => send({type: "screenshot"}));

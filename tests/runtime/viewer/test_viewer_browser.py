@@ -46,7 +46,8 @@ SIZE, MAX_SPP = 64, 3
 @pytest.fixture(scope="module")
 def page(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Any, ViewerServer]]:
     out = tmp_path_factory.mktemp("browser") / "shots"
-    srv = ViewerServer(inputs(out, size=SIZE, renderer="neural"), port=0, warm=False, max_spp=MAX_SPP)
+    srv = ViewerServer(inputs(out, size=SIZE, renderer="neural"), port=0, warm=False, max_spp=MAX_SPP,
+                       drag_scale=1.0)  # full-size moving frames whatever the machine's speed
     opts = webdriver.ChromeOptions()
     opts.binary_location = CHROMIUM
     for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",

@@ -276,3 +276,46 @@ def test_drag_scale_renders_moving_frames_smaller_and_rest_at_full_size(tmp_path
     s.apply(msg("set", control="drag_scale", value=1.0))
     s.apply(msg("orbit", dx=3.0, dy=0.0))
     assert s.next_frame().header["width"] == 32
+
+
+def test_auto_drag_level_keeps_the_frame_rate() -> None:
+    """drag_scale "auto": a moving frame over budget steps one size down, one that leaves room for the next
+    size up (frame time scaling with the pixel count) steps up, anything between stays; the ends hold."""
+    from photon_fields.runtime.viewer.session import DRAG_LEVELS, next_drag_level
+
+    budget = 1.0 / 8.0
+    assert next_drag_level(0, 0.2, 8.0) == 1  # 200 ms at full size: smaller
+    assert next_drag_level(0, 0.01, 8.0) == 0  # the largest size stays
+    last = len(DRAG_LEVELS) - 1
+    assert next_drag_level(last, 5.0, 8.0) == last  # the smallest size stays however slow
+    for level in range(1, len(DRAG_LEVELS)):
+        grow = (DRAG_LEVELS[level - 1] / DRAG_LEVELS[level]) ** 2
+        assert next_drag_level(level, 0.8 * budget / grow, 8.0) == level - 1
+        assert next_drag_level(level, 0.9 * budget / grow, 8.0) == level  # the larger one would be too slow
+        assert next_drag_level(level, 1.1 * budget, 8.0) == level  # a little over: hold (no oscillation)
+    # A frame time that settles: stepping down from 250 ms at full size reaches a level within budget and stays.
+    level, cost_full = 0, 0.25
+    for _ in range(10):
+        level = next_drag_level(level, cost_full * DRAG_LEVELS[level] ** 2, 8.0)
+    assert cost_full * DRAG_LEVELS[level] ** 2 <= 1.15 * budget
+    assert level == next_drag_level(level, cost_full * DRAG_LEVELS[level] ** 2, 8.0)
+
+
+def test_auto_drag_scale_follows_the_level(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With drag_scale "auto" the moving frames take the size of the current level, which moves after every
+    moving frame (the level function is replaced by a fixed step, so the test does not depend on speed); frames
+    at rest stay full size."""
+    import photon_fields.runtime.viewer.session as session_module
+
+    monkeypatch.setattr(session_module, "next_drag_level", lambda level, frame_s: min(level + 2, 4))
+    s = make_session(tmp_path, size=64, drag_scale="auto", max_spp=1)
+    assert s.next_frame().header["width"] == 64
+    sizes = []
+    for _ in range(3):
+        s.apply(msg("orbit", dx=3.0, dy=0.0))
+        sizes.append(s.next_frame().header["width"])
+    assert sizes == [64, 32, 16]  # levels 0, 2, 4: 1, 0.5, 0.25 of 64
+    h = s.next_frame().header
+    assert (h["width"], h["moving"]) == (64, False)
+    s.apply(msg("set", control="drag_scale", value="auto"))  # the page's selector
+    assert s.state.drag_scale == "auto"
