@@ -20,7 +20,9 @@ background at infinity, which reprojects with the camera's rotation only.
 Cost: the march runs on a coarse copy of the extinction, the mean of ``sigma_t`` at the voxel centres of each
 ``block``^3 block (``block = 2``: a 96^3 volume becomes 48^3 cells), with a 3-D DDA (Amanatides & Woo 1987)
 over its cells, inside which ``sigma_t`` is constant and ``tau`` grows linearly, so ``t*`` is exact for the
-coarse grid. Two walks per ray (the first for ``T_exit``, ending once the ray is opaque), one parallel region.
+coarse grid; from an empty cell the walk leaps over the largest empty cube of cells ahead of it
+(:func:`photon_fields.runtime.transport.medium.leap_distances` on the coarse grid). Two walks per ray (the first
+for ``T_exit``, ending once the ray is opaque), one parallel region.
 ``stride = 2`` (default) marches one ray per 2x2 pixels, through the block's centre, and gives the block's
 pixels its depth: 4x cheaper, with no measurable change in the denoised orbits (development runs, vortex and
 shell). Milliseconds per 512x512 frame: bench/README.md (``bench/bench_denoise.py``).
@@ -36,7 +38,7 @@ from numba import njit, prange
 from photon_fields.runtime.denoise.reprojection import EYE, HEIGHT, WIDTH, pack_view, pixel_direction
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.scene.camera import Camera
-from photon_fields.runtime.transport.medium import Medium
+from photon_fields.runtime.transport.medium import Medium, leap_distances
 
 DEFAULT_BLOCK = 2  # voxels per coarse cell edge
 DEFAULT_MIN_OPACITY = 1e-3  # collision probability below which a pixel sees the background at infinity
@@ -63,10 +65,10 @@ class DepthEstimator:
     """First-collision-quantile depth maps of one medium (module docstring); the coarse grid is built once.
 
     ``block`` (voxels per coarse cell), ``min_opacity``, ``quantile`` and ``stride`` as in the module
-    docstring."""
+    docstring; ``leap`` False walks empty cells one by one (the same depths, slower: for tests and benches)."""
 
     def __init__(self, medium: Medium, *, block: int = DEFAULT_BLOCK, min_opacity: float = DEFAULT_MIN_OPACITY,
-                 quantile: float = DEFAULT_QUANTILE, stride: int = DEFAULT_STRIDE) -> None:
+                 quantile: float = DEFAULT_QUANTILE, stride: int = DEFAULT_STRIDE, leap: bool = True) -> None:
         for name, v in (("block", block), ("stride", stride)):
             if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
                 raise InputError(f"depth {name}", f"must be an integer in [1, 64], got {v!r}")
@@ -76,6 +78,9 @@ class DepthEstimator:
         self.quantile = float(quantile)
         self.stride = int(stride)
         self.grid = coarse_extinction(medium, block)
+        # Per direction octant, the largest empty cube of coarse cells at each cell (the majorant grid's table,
+        # runtime.transport.medium): walks jump over empty space.
+        self.leap = leap_distances(self.grid, leap)
         self.bmin = np.ascontiguousarray(medium.bmin, dtype=np.float64)
         self.bsize = np.ascontiguousarray(medium.bsize, dtype=np.float64)
         # Coarse cells per world unit: a cell is ``block`` voxels wide (the last one may reach past the box).
@@ -87,8 +92,8 @@ class DepthEstimator:
         centre ray) to the quantile of the first collision, inf where the pixel sees (almost) no medium."""
         s = self.stride
         out = np.empty((-(-camera.height // s), -(-camera.width // s)), dtype=np.float32)
-        _depth_image(self.grid, self.bmin, self.bsize, self.per_unit, pack_view(camera), self.min_opacity,
-                     self.quantile, s, out)
+        _depth_image(self.grid, self.leap, self.bmin, self.bsize, self.per_unit, pack_view(camera),
+                     self.min_opacity, self.quantile, s, out)
         if s == 1:
             return out
         return np.ascontiguousarray(np.repeat(np.repeat(out, s, axis=0), s, axis=1)[:camera.height, :camera.width])
@@ -131,20 +136,35 @@ def _axis(o: float, d: float, bmin: float, per_unit: float, n: int, t: float) ->
 
 
 @njit(cache=True)
-def _walk(grid: np.ndarray, bmin: np.ndarray, per_unit: np.ndarray, ox: float, oy: float, oz: float, dx: float,
-          dy: float, dz: float, t0: float, t1: float, tau_stop: float) -> tuple[float, float]:
+def _walk(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, per_unit: np.ndarray, ox: float, oy: float,
+          oz: float, dx: float, dy: float, dz: float, t0: float, t1: float, tau_stop: float) -> tuple[float, float]:
     """3-D DDA over the coarse cells from ``t0`` to ``t1``: (optical depth reached, distance where it reached
-    ``tau_stop``, or inf if it never did)."""
+    ``tau_stop``, or inf if it never did). From an empty cell it jumps to where the ray leaves the empty cube
+    ``leap`` holds for its direction octant, and sets the DDA up again there."""
     nx, ny, nz = grid.shape
-    ts = t0 + 1e-9 * (t1 - t0)  # the entry point's cell, not the one behind it
-    cx, sx, nxt, dtx = _axis(ox, dx, bmin[0], per_unit[0], nx, ts)
-    cy, sy, nyt, dty = _axis(oy, dy, bmin[1], per_unit[1], ny, ts)
-    cz, sz, nzt, dtz = _axis(oz, dz, bmin[2], per_unit[2], nz, ts)
+    nudge = 1e-9 * (t1 - t0)  # a set-up at distance t finds the cell the ray enters, not the one behind it
+    cx, sx, nxt, dtx = _axis(ox, dx, bmin[0], per_unit[0], nx, t0 + nudge)
+    cy, sy, nyt, dty = _axis(oy, dy, bmin[1], per_unit[1], ny, t0 + nudge)
+    cz, sz, nzt, dtz = _axis(oz, dz, bmin[2], per_unit[2], nz, t0 + nudge)
+    octant = (sx >= 0) + 2 * (sy >= 0) + 4 * (sz >= 0)
     tau = 0.0
     t = t0
     while t < t1:
-        t_end = min(nxt, nyt, nzt, t1)
         sigma = grid[cx, cy, cz]
+        r = int(leap[octant, cx, cy, cz])
+        if r >= 2:
+            # The r^3 cells from this one towards the ray's octant are empty: leave them on the axis whose r-th
+            # boundary comes first (unless rounding left no progress to make: then step as usual).
+            exit_t = min(nxt + (r - 1) * dtx, nyt + (r - 1) * dty, nzt + (r - 1) * dtz)
+            if exit_t > t:
+                if exit_t >= t1:
+                    break
+                t = exit_t
+                cx, sx, nxt, dtx = _axis(ox, dx, bmin[0], per_unit[0], nx, t + nudge)
+                cy, sy, nyt, dty = _axis(oy, dy, bmin[1], per_unit[1], ny, t + nudge)
+                cz, sz, nzt, dtz = _axis(oz, dz, bmin[2], per_unit[2], nz, t + nudge)
+                continue
+        t_end = min(nxt, nyt, nzt, t1)
         if sigma > 0.0 and t_end > t:
             seg = sigma * (t_end - t)
             if tau + seg >= tau_stop:
@@ -170,8 +190,8 @@ def _walk(grid: np.ndarray, bmin: np.ndarray, per_unit: np.ndarray, ox: float, o
 
 
 @njit(cache=True, parallel=True)
-def _depth_image(grid: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, per_unit: np.ndarray, view: np.ndarray,
-                 min_opacity: float, quantile: float, stride: int, out: np.ndarray) -> None:
+def _depth_image(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, per_unit: np.ndarray,
+                 view: np.ndarray, min_opacity: float, quantile: float, stride: int, out: np.ndarray) -> None:
     """One depth per ``stride`` x ``stride`` block of pixels (``out`` has a cell per block), along the ray
     through the centre of the pixels the block covers (module docstring)."""
     h, w = out.shape
@@ -184,10 +204,10 @@ def _depth_image(grid: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, per_unit
             t0, t1 = _box(bmin, bsize, ox, oy, oz, dx, dy, dz)
             depth = math.inf
             if t0 < t1:
-                tau_exit, _ = _walk(grid, bmin, per_unit, ox, oy, oz, dx, dy, dz, t0, t1, _TAU_OPAQUE)
+                tau_exit, _ = _walk(grid, leap, bmin, per_unit, ox, oy, oz, dx, dy, dz, t0, t1, _TAU_OPAQUE)
                 opacity = 1.0 - math.exp(-tau_exit)
                 if opacity >= min_opacity:
                     tau_half = -math.log(1.0 - quantile * opacity)
-                    _, t_half = _walk(grid, bmin, per_unit, ox, oy, oz, dx, dy, dz, t0, t1, tau_half)
+                    _, t_half = _walk(grid, leap, bmin, per_unit, ox, oy, oz, dx, dy, dz, t0, t1, tau_half)
                     depth = t_half if t_half < math.inf else t1
             out[py, px] = depth

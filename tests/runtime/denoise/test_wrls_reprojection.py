@@ -110,6 +110,24 @@ def test_depth_of_a_homogeneous_box_is_the_analytic_median_first_collision(box) 
         np.testing.assert_allclose(depth[fin], expected[fin], rtol=1e-5)
 
 
+@pytest.mark.parametrize("name", ["vortex", "shell", "head"])
+def test_depth_leaping_over_empty_cells_gives_the_cell_by_cell_depths(name: str) -> None:
+    """The depth walk jumps over empty cubes of coarse cells (runtime/denoise/depth.py); the depths are those of
+    the walk that steps every cell, on the embedded scenes' empty space and structure, from two views."""
+    from photon_fields.runtime.scene.scene import builtin_scene
+
+    scene = builtin_scene(name, resolution=48).with_overrides(width=40, height=32)
+    medium = scene.medium()
+    leaping, stepping = DepthEstimator(medium, stride=1), DepthEstimator(medium, stride=1, leap=False)
+    assert leaping.leap.max() >= 2 and stepping.leap.max() == 1  # there is empty space to leap over
+    for angle in (0.0, 137.0):
+        cam = orbit_camera(scene.camera, angle)
+        a, b = leaping.depth(cam), stepping.depth(cam)
+        np.testing.assert_array_equal(np.isinf(a), np.isinf(b))
+        assert np.isfinite(a).sum() > 50
+        np.testing.assert_allclose(a[np.isfinite(a)], b[np.isfinite(b)], rtol=1e-6)
+
+
 def test_depth_stride_gives_each_block_its_centre_ray_depth(box) -> None:  # noqa: ANN001
     cam = camera(41, 29)  # odd sizes: partial blocks at the right and bottom
     view = pack_view(cam)
