@@ -234,7 +234,7 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("viewer_g_ignored", "runtime/viewer/session.py", "            s.g = value", "            pass",
            (f"{VSESSION}::test_g_changes_the_indirect_layer_and_restarts",),
            "the g control is acknowledged but never reaches the renderer"),
-    Mutant("viewer_screenshot_replaces", "runtime/viewer/session.py",
+    Mutant("viewer_screenshot_replaces", "runtime/viewer/screenshot.py",
            "existing = [p.name for p in paths if p.exists() or p.is_symlink()]", "existing = []",
            (f"{VSESSION}::test_screenshot_never_replaces_and_never_leaves_the_folder",),
            "a screenshot silently replaces an existing file"),

@@ -36,9 +36,6 @@ control adds stops to it, and ``"auto"`` measures it again.
 
 from __future__ import annotations
 
-import contextlib
-import json
-import math
 import threading
 import time
 from dataclasses import dataclass, field, replace
@@ -48,11 +45,12 @@ from typing import Any
 import numpy as np
 
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, PointLight
 from photon_fields.runtime.scene.scene import Scene
+from photon_fields.runtime.viewer import screenshot
 from photon_fields.runtime.viewer.camera import OrbitView
 from photon_fields.runtime.viewer.encode import encode, tonemap
-from photon_fields.runtime.viewer.messages import MIN_SIDE, NAME_PATTERN, RENDERER_NAMES, Message, MessageError
+from photon_fields.runtime.viewer.light_control import LightControl
+from photon_fields.runtime.viewer.messages import MIN_SIDE, RENDERER_NAMES, Message, MessageError
 
 #: Renders of all sessions of a process take turns: two pages rendering at once would each get half the cores
 #: and both miss their frame rate; one at a time keeps each frame as fast as the machine allows.
@@ -85,50 +83,6 @@ _FIELD_CONTROLS: dict[str, tuple[bool, bool, bool, bool]] = {
     "max_spp": (False, False, True, False),
     "drag_scale": (False, False, False, False),
 }
-
-
-@dataclass
-class LightControl:
-    """A light as the page edits it: where it comes from (azimuth, elevation in degrees about the scene's
-    vertical axis, y) and its power. Point lights keep their distance from the origin; an environment light
-    has a power only."""
-
-    kind: str
-    azimuth: float
-    elevation: float
-    power: float
-    distance: float
-    color: np.ndarray
-
-    @classmethod
-    def from_light(cls, light: Any) -> LightControl:
-        if isinstance(light, DirectionalLight):
-            toward = -light.direction
-            dist = 1.0
-        elif isinstance(light, PointLight):
-            dist = float(np.linalg.norm(light.position))
-            toward = light.position / dist if dist > 0 else np.array([0.0, 1.0, 0.0])
-        else:
-            return cls("environment", 0.0, 90.0, float(light.power), 0.0, light.color)
-        az = math.degrees(math.atan2(float(toward[2]), float(toward[0])))
-        el = math.degrees(math.asin(max(-1.0, min(1.0, float(toward[1])))))
-        kind = "directional" if isinstance(light, DirectionalLight) else "point"
-        return cls(kind, az, el, float(light.power), dist, light.color)
-
-    def toward(self) -> np.ndarray:
-        a, e = math.radians(self.azimuth), math.radians(self.elevation)
-        return np.array([math.cos(e) * math.cos(a), math.sin(e), math.cos(e) * math.sin(a)])
-
-    def light(self) -> Any:
-        if self.kind == "directional":
-            return DirectionalLight(-self.toward(), self.color, self.power)
-        if self.kind == "point":
-            return PointLight(self.toward() * self.distance, self.color, self.power)
-        return EnvironmentLight(self.color, self.power)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"kind": self.kind, "azimuth": round(self.azimuth, 4), "elevation": round(self.elevation, 4),
-                "power": self.power}
 
 
 @dataclass
@@ -496,13 +450,10 @@ class ViewerSession:
                     "out_dir": str(self.out_dir)}
 
     def screenshot(self, name: str | None = None) -> list[Path]:
-        """Write the current accumulation: ``NAME.exr`` (all layers, linear), ``NAME.png`` (the shown layer at the
-        shown exposure, undenoised) and ``NAME.json`` (the view, renderer, lights, spp, seed) into the output
-        folder, each atomically. Refused (:class:`MessageError`) before anything is written when a file of that
-        name exists or the name is not a plain file name; a failed write removes what this call wrote."""
-        from photon_fields.runtime.io.atomic import atomic_write_text
-        from photon_fields.runtime.io.images import write_image_set
-
+        """Write the current accumulation as a screenshot (:func:`photon_fields.runtime.viewer.screenshot.write`):
+        ``NAME.exr`` (all layers, linear), ``NAME.png`` (the shown layer at the shown exposure, undenoised) and
+        ``NAME.json`` (the view, renderer, lights, spp, seed) in the output folder; a free ``SCENE_0001`` style
+        name when ``name`` is None."""
         with self._shot_lock:
             with self.lock:
                 if not self._acc:
@@ -512,43 +463,10 @@ class ViewerSession:
                 s = replace(self.state)
                 header = dict(self._last_header)
                 cam = s.view.camera(*self._acc_size)
-            stem = name if name is not None else self._free_stem()
-            if not NAME_PATTERN.fullmatch(stem):
-                raise MessageError(f"screenshot: {stem!r} is not a plain file name")
-            try:
-                self.out_dir.mkdir(parents=True, exist_ok=True)
-            except OSError as exc:
-                raise MessageError(f"screenshot: cannot create the output folder: {exc.strerror or exc}") from None
-            root = self.out_dir.resolve()
-            paths = [root / f"{stem}{ext}" for ext in (".exr", ".png", ".json")]
-            if any(p.parent != root for p in paths):  # NAME_PATTERN allows no separator; belt and braces
-                raise MessageError(f"screenshot: {stem!r} leaves the output folder")
-            existing = [p.name for p in paths if p.exists() or p.is_symlink()]
-            if existing:
-                raise MessageError(f"screenshot: {', '.join(existing)} exists in the output folder; choose another "
-                                   f"name (files are never replaced)")
+            stem = name if name is not None else screenshot.free_stem(self.out_dir, self.base_scene.name)
             report = {"scene": self.base_scene.name, "renderer": s.renderer, "layer": s.layer, "g": s.g,
                       "spp": samples, "seed": self.seed, "exposure_stops": header.get("exposure"),
                       "camera": cam.to_dict(), "lights": [lt.light().to_dict() for lt in s.lights],
                       "frame_timings_ms": {k: v for k, v in header.items() if k.endswith("_ms")}, **self.info}
-            written: list[Path] = []
-            try:
-                written += write_image_set(paths[0], layers, {"photon_fields.viewer": json.dumps(report)},
-                                           png_layer=s.layer, exposure=header.get("exposure"))
-                atomic_write_text(paths[2], json.dumps(report, indent=2) + "\n")
-                written.append(paths[2])
-            except (OSError, InputError, ValueError) as exc:
-                for p in written:
-                    with contextlib.suppress(OSError):
-                        p.unlink()
-                raise MessageError(f"screenshot: writing failed: {exc}") from None
-            return written
-
-    def _free_stem(self) -> str:
-        base = "".join(c if c.isalnum() or c in "-_" else "_" for c in self.base_scene.name)[:40] or "view"
-        for i in range(1, 100000):
-            stem = f"{base}_{i:04d}"
-            if not any((self.out_dir / f"{stem}{ext}").exists() for ext in (".exr", ".png", ".json")):
-                return stem
-        raise MessageError("screenshot: no free file name left in the output folder")
-
+            return screenshot.write(self.out_dir, stem, layers, report, png_layer=s.layer,
+                                    exposure=header.get("exposure"))

@@ -1,0 +1,56 @@
+"""A light as the viewer's page edits it (:class:`LightControl`): where it comes from, as azimuth and elevation
+about the scene's vertical axis, and its power; converted from and to the scene's lights."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, PointLight
+
+
+@dataclass
+class LightControl:
+    """A light as the page edits it: where it comes from (azimuth, elevation in degrees about the scene's
+    vertical axis, y) and its power. Point lights keep their distance from the origin; an environment light
+    has a power only."""
+
+    kind: str
+    azimuth: float
+    elevation: float
+    power: float
+    distance: float
+    color: np.ndarray
+
+    @classmethod
+    def from_light(cls, light: Any) -> LightControl:
+        if isinstance(light, DirectionalLight):
+            toward = -light.direction
+            dist = 1.0
+        elif isinstance(light, PointLight):
+            dist = float(np.linalg.norm(light.position))
+            toward = light.position / dist if dist > 0 else np.array([0.0, 1.0, 0.0])
+        else:
+            return cls("environment", 0.0, 90.0, float(light.power), 0.0, light.color)
+        az = math.degrees(math.atan2(float(toward[2]), float(toward[0])))
+        el = math.degrees(math.asin(max(-1.0, min(1.0, float(toward[1])))))
+        kind = "directional" if isinstance(light, DirectionalLight) else "point"
+        return cls(kind, az, el, float(light.power), dist, light.color)
+
+    def toward(self) -> np.ndarray:
+        a, e = math.radians(self.azimuth), math.radians(self.elevation)
+        return np.array([math.cos(e) * math.cos(a), math.sin(e), math.cos(e) * math.sin(a)])
+
+    def light(self) -> Any:
+        if self.kind == "directional":
+            return DirectionalLight(-self.toward(), self.color, self.power)
+        if self.kind == "point":
+            return PointLight(self.toward() * self.distance, self.color, self.power)
+        return EnvironmentLight(self.color, self.power)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "azimuth": round(self.azimuth, 4), "elevation": round(self.elevation, 4),
+                "power": self.power}
