@@ -104,6 +104,7 @@ if TYPE_CHECKING:
 
 PREDICTORS = ("history", "feature")
 
+
 @dataclass(frozen=True)
 class WRLSParams:
     """The denoiser's parameters, with the paper's values where it gives them (module docstring)."""
@@ -152,11 +153,13 @@ class WRLSDenoiser:
 
     ``params`` (default :class:`WRLSParams`), overridden by keyword (``WRLSDenoiser(w, h, alpha=0.8)``).
     ``medium``: the scene's medium (``scene.medium()``), from which depth maps are computed when a moving
-    camera comes without one. :meth:`denoise` keeps the per-pixel state between calls; :meth:`reset` forgets
-    it (a cut). ``timings_ms`` holds the last call's stage times (depth, reconstruct, temporal, spatial)."""
+    camera comes without one; or ``depth_estimator``, one already made for it (depth maps do not depend on the
+    frame size, so denoisers of several sizes can share one). :meth:`denoise` keeps the per-pixel state between
+    calls; :meth:`reset` forgets it (a cut). ``timings_ms`` holds the last call's stage times (depth,
+    reconstruct, temporal, spatial)."""
 
     def __init__(self, width: int, height: int, params: WRLSParams | None = None, *, medium: Medium | None = None,
-                 **overrides: Any) -> None:
+                 depth_estimator: DepthEstimator | None = None, **overrides: Any) -> None:
         for label, v in (("width", width), ("height", height)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 16384:
                 raise InputError(f"WRLS denoiser {label}", f"must be an integer in [1, 16384], got {v!r}")
@@ -167,7 +170,9 @@ class WRLSDenoiser:
                              f"known: {', '.join(sorted(known))}")
         self.width, self.height = int(width), int(height)
         self.params = replace(params or WRLSParams(), **overrides)
-        self.depth_estimator = DepthEstimator(medium) if medium is not None else None
+        if depth_estimator is None and medium is not None:
+            depth_estimator = DepthEstimator(medium)
+        self.depth_estimator = depth_estimator
         shape = (self.height, self.width)
         self._prev = np.zeros((*shape, STATE), np.float32)
         self._cur = np.zeros((*shape, STATE), np.float32)

@@ -159,6 +159,7 @@ class ViewerSession:
         self._acc_size: tuple[int, int] = (0, 0)  # (width, height) of the accumulation
         self._auto_stops: float | None = None
         self._denoisers: dict[tuple[int, int], Any] = {}  # by frame size (full, and reduced while moving)
+        self._depth: Any = None  # the denoisers' shared DepthEstimator (the medium does not change)
         self._last_size: tuple[int, int] = (0, 0)
         self._last_header: dict[str, Any] = {}
         self._shot_lock = threading.Lock()
@@ -324,9 +325,12 @@ class ViewerSession:
                 d.reset()
         denoiser = self._denoisers.get(size)
         if denoiser is None:
+            from photon_fields.runtime.denoise.depth import DepthEstimator
             from photon_fields.runtime.denoise.wrls import WRLSDenoiser
 
-            denoiser = WRLSDenoiser(*size, medium=scene.medium())
+            if self._depth is None:  # one for every frame size: building it takes tens of ms
+                self._depth = DepthEstimator(scene.medium())
+            denoiser = WRLSDenoiser(*size, depth_estimator=self._depth)
             self._denoisers = {k: v for k, v in self._denoisers.items() if k in (full, size)} | {size: denoiser}
         elif size != self._last_size:
             denoiser.reset()  # its history is from before the last change of frame size: stale

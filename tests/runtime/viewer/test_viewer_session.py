@@ -315,6 +315,8 @@ def test_auto_drag_scale_follows_the_level(tmp_path: Path, monkeypatch: pytest.M
         s.apply(msg("orbit", dx=3.0, dy=0.0))
         sizes.append(s.next_frame().header["width"])
     assert sizes == [64, 32, 16]  # levels 0, 2, 4: 1, 0.5, 0.25 of 64
+    # Denoisers of every size share one depth estimator (building one per size costs tens of ms mid-drag).
+    assert len(s._denoisers) == 2 and len({id(d.depth_estimator) for d in s._denoisers.values()}) == 1
     h = s.next_frame().header
     assert (h["width"], h["moving"]) == (64, False)
     s.apply(msg("set", control="drag_scale", value="auto"))  # the page's selector
