@@ -72,9 +72,9 @@ the block's faces; faces at the grid's edge count as infinitely far), is known:
 
 The early stop is what makes small K-th distances cheap: a query in a dense cluster stops after a ring
 or two whatever r_max is. The K-th distance is then found by a quickselect on values only (out of place,
-branch-free partitions, ties dropped and counted, see ``_kth_value``), and the buffer is compacted to
-exactly K entries (those below the K-th distance plus as many ties at it as needed; ties are broken by
-scan order, i.e. arbitrarily). A buffer that fills up (capacity 4 K + 64, or n + 1 if smaller, so that
+branch-free partitions, ties dropped and counted: :mod:`photon_fields.runtime.photons.knn_select`), and the
+buffer is compacted to exactly K entries (those below the K-th distance plus as many ties at it as needed; ties
+are broken by scan order, i.e. arbitrarily). A buffer that fills up (capacity 4 K + 64, or n + 1 if smaller, so that
 a huge K costs no memory beyond the photon count) is compacted the same way mid-scan, and the bound
 becomes "strictly closer than that K-th". Correctness never depends on the cell size: large cells cost
 scanning, small ones loop overhead. Tiny geometric slacks (1e-9 h) guard against rounding at cell faces.
@@ -94,13 +94,13 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from photon_fields.runtime.photons.knn_select import band, compact_to_k, heapsort, keep_k, kth_value
 from photon_fields.runtime.photons.photon_grid import PhotonGrid, PhotonIndex, cell_coord, gather_attributes
 from photon_fields.runtime.transport.phase import check_g, hg_eval
 
 _BLOCK = 64  # queries per work block
 _SLACK = 1e-9  # relative (to the cell size) safety margin at cell faces
 _FOUR_THIRDS_PI = 4.0 / 3.0 * math.pi
-_SAMPLES = 15  # pivot sample size of the selection
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -115,149 +115,6 @@ def _gap(p: float, face_lo: float, h: float, slack: float) -> float:
     if p > face_lo + h:
         return max(p - face_lo - h - slack, 0.0)
     return 0.0
-
-
-@njit(cache=True, inline="always")
-def _pivot(src: np.ndarray, n: int, kk: int, smp: np.ndarray) -> float:
-    """Pivot for selecting rank kk of src[:n]: the sample quantile nearest kk of _SAMPLES evenly spaced
-    entries (insertion-sorted into smp), or a median of 3 for short ranges."""
-    if n < 4 * _SAMPLES:
-        a = src[0]
-        b = src[n >> 1]
-        c = src[n - 1]
-        return max(min(a, b), min(max(a, b), c))
-    stride = n // _SAMPLES
-    for s in range(_SAMPLES):
-        v = src[stride // 2 + s * stride]
-        t = s
-        while t > 0 and smp[t - 1] > v:
-            smp[t] = smp[t - 1]
-            t -= 1
-        smp[t] = v
-    return smp[min(_SAMPLES - 1, kk * _SAMPLES // n)]
-
-
-@njit(cache=True)
-def _kth_value(d2: np.ndarray, count: int, k: int, tmp: np.ndarray) -> tuple[float, int]:
-    """The k-th smallest of d2[:count] and how many entries are strictly smaller; d2 is left untouched.
-
-    Quickselect on values only, out of place: each pass streams the range once, appending the entries
-    < pivot to one row of tmp and those > pivot to another, both unconditionally with conditional cursor
-    increments -- no data-dependent branch and no store-to-load chain through the array (an in-place
-    Lomuto partition was 3x slower). Only the side holding rank k is kept; it becomes the next source
-    and the other two rows the next destinations. Entries equal to the pivot are dropped and counted,
-    so runs of ties (duplicate photons) end the search at once."""
-    kk = k - 1
-    below = 0
-    src_row = -1  # -1: d2 itself
-    n = count
-    while True:
-        src = d2[:n] if src_row < 0 else tmp[src_row, :n]
-        if n == 1:
-            return src[0], below
-        lo_row = 0 if src_row != 0 else 1
-        hi_row = 3 - lo_row - src_row if src_row >= 0 else 1
-        dlo = tmp[lo_row]
-        dhi = tmp[hi_row]
-        x = _pivot(src, n, kk, dlo)
-        nlo = 0
-        nhi = 0
-        for j in range(n):
-            v = src[j]
-            dlo[nlo] = v
-            dhi[nhi] = v
-            nlo += v < x
-            nhi += v > x
-        if kk < nlo:
-            src_row, n = lo_row, nlo
-        elif kk < n - nhi:
-            return x, below + nlo
-        else:
-            below += n - nhi
-            kk -= n - nhi
-            src_row, n = hi_row, nhi
-
-
-@njit(cache=True)
-def _heapsort(d2: np.ndarray, idx: np.ndarray, m: int) -> None:
-    """In-place ascending sort of d2/idx[:m] (no allocation: safe inside prange)."""
-    for start in range(m // 2 - 1, -1, -1):
-        _sift_down(d2, idx, start, m)
-    for end in range(m - 1, 0, -1):
-        d2[0], d2[end] = d2[end], d2[0]
-        idx[0], idx[end] = idx[end], idx[0]
-        _sift_down(d2, idx, 0, end)
-
-
-@njit(cache=True, inline="always")
-def _sift_down(d2: np.ndarray, idx: np.ndarray, root: int, m: int) -> None:
-    while True:
-        child = 2 * root + 1
-        if child >= m:
-            return
-        if child + 1 < m and d2[child + 1] > d2[child]:
-            child += 1
-        if d2[root] >= d2[child]:
-            return
-        d2[root], d2[child] = d2[child], d2[root]
-        idx[root], idx[child] = idx[child], idx[root]
-        root = child
-
-
-@njit(cache=True)
-def _keep_k(d2: np.ndarray, idx: np.ndarray, count: int, k: int, kth: float, below: int) -> int:
-    """Compact d2/idx[:count] in place to exactly k entries: those < kth and the first k - below ties at
-    kth. Branchless stream compactions (the write cursor never overtakes the read cursor); the usual case
-    -- a single entry at kth -- needs one pass keeping d2 <= kth. Returns k."""
-    w = _filter(d2, idx, count, kth)
-    if w == k:
-        return k
-    # More ties at kth than places: a second pass over the survivors (all <= kth) counts them.
-    ties = k - below
-    m = w
-    w = 0
-    for j in range(m):
-        v = d2[j]
-        t = idx[j]
-        d2[w] = v
-        idx[w] = t
-        tie = v == kth
-        keep = (v < kth) | (tie & (ties > 0))
-        ties -= tie & keep
-        w += keep
-    return w
-
-
-@njit(cache=True)
-def _filter(d2: np.ndarray, idx: np.ndarray, count: int, limit: float) -> int:
-    """Keep the entries of d2/idx[:count] with d2 <= limit, in place and in order; returns their count."""
-    w = 0
-    for j in range(count):
-        v = d2[j]
-        t = idx[j]
-        d2[w] = v
-        idx[w] = t
-        w += v <= limit
-    return w
-
-
-@njit(cache=True)
-def _band(d2: np.ndarray, count: int, lower: float, limit: float, out: np.ndarray) -> int:
-    """Copy the values of d2[:count] in (lower, limit] to out (branch-free); returns how many."""
-    nb = 0
-    for j in range(count):
-        v = d2[j]
-        out[nb] = v
-        nb += (v > lower) & (v <= limit)
-    return nb
-
-
-@njit(cache=True)
-def _compact(d2: np.ndarray, idx: np.ndarray, count: int, k: int, tmp: np.ndarray, bound: float) -> tuple[int, float]:
-    """Full buffer: keep the k closest; returns (k, new bound). Kept out of line: it runs rarely."""
-    kth, below = _kth_value(d2, count, k, tmp)
-    # Strictly closer than the K-th from now on: a tie cannot improve the set.
-    return _keep_k(d2, idx, count, k, kth, below), min(bound, np.nextafter(kth, -np.inf))
 
 
 @njit(cache=True)
@@ -350,7 +207,7 @@ def _search(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: floa
                     b = np.int64(cell_start[base + zb + 1])
                     while j < b:
                         if count == cap:
-                            count, bound = _compact(d2, idx, count, k, tmp, bound)
+                            count, bound = compact_to_k(d2, idx, count, k, tmp, bound)
                         n = min(b - j, cap - count)  # cannot overflow the buffer
                         count = _scan_chunk(pos, j, n, x, y, z, d2, idx, count, bound)
                         j += n
@@ -424,12 +281,12 @@ def _search(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: floa
         return count, math.inf
     if limit < math.inf:
         # Everything <= lower is in, everything > limit out: select within the band (lower, limit].
-        nb = _band(d2, count, lower, limit, tmp[2])
-        kth, below = _kth_value(tmp[2], nb, k - n_lower, tmp)  # its later passes may reuse row 2
+        nb = band(d2, count, lower, limit, tmp[2])
+        kth, below = kth_value(tmp[2], nb, k - n_lower, tmp)  # its later passes may reuse row 2
         below += n_lower
     else:
-        kth, below = _kth_value(d2, count, k, tmp)
-    return _keep_k(d2, idx, count, k, kth, below), kth
+        kth, below = kth_value(d2, count, k, tmp)
+    return keep_k(d2, idx, count, k, kth, below), kth
 
 
 @njit(cache=True, inline="always")
@@ -465,7 +322,7 @@ def _knn_query_kernel(pos: np.ndarray, order: np.ndarray, cell_start: np.ndarray
             i = qorder[t]
             m, _ = _search(pos, cell_start, origin, h, dims, queries[i, 0], queries[i, 1], queries[i, 2], k,
                            r_max, d2[w], idx[w], tmp[w])
-            _heapsort(d2[w], idx[w], m)
+            heapsort(d2[w], idx[w], m)
             for j in range(m):
                 out_d[i, j] = d2[w, j]
                 out_i[i, j] = order[idx[w, j]]
