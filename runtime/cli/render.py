@@ -283,12 +283,13 @@ def check_outputs(args: argparse.Namespace, out: Path) -> None:
     if args.orbit is None:
         prepare_output(out, ".exr", (".png", ".json"), force=args.force, what="an earlier render", create=False)
         return
-    from photon_fields.runtime.renderers.orbit import orbit_frame_paths, orbit_timings_path
+    from photon_fields.runtime.renderers.orbit import orbit_frame_paths, orbit_noisy_png_path, orbit_timings_path
 
     frames = orbit_frame_paths(out, args.orbit)
     prepare_output(frames[0], ".exr", (".png",), force=args.force, what="an earlier orbit", create=False)
-    refuse_to_replace([*frames, *(f.with_suffix(".png") for f in frames), orbit_timings_path(out)], args.force,
-                      "an earlier orbit")
+    noisy = [orbit_noisy_png_path(f) for f in frames] if args.denoise is not None else []
+    refuse_to_replace([*frames, *(f.with_suffix(".png") for f in frames), *noisy, orbit_timings_path(out)],
+                      args.force, "an earlier orbit")
 
 
 def resolve_exposure_options(args: argparse.Namespace) -> tuple[float | None, str]:

@@ -93,6 +93,16 @@ def test_orbit_keeps_earlier_frames(tmp_path: Path, capsys: pytest.CaptureFixtur
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f_0002.png"]
 
 
+def test_denoised_orbit_keeps_earlier_noisy_previews(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--denoise wrls also writes NAME_0000_noisy.png per frame: an earlier one is refused like a frame."""
+    noisy = tmp_path / "f_0001_noisy.png"
+    noisy.write_bytes(b"earlier")
+    assert render_main(["--scene", "blobs", "--size", "16x16", "--spp", "1", "--quiet", "--orbit", "3",
+                        "--denoise", "wrls", "--out", str(tmp_path / "f.exr")]) == 2
+    refused(capsys, "f_0001_noisy.png")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f_0001_noisy.png"]
+
+
 def test_demo_keeps_an_earlier_demo(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "summary.txt").write_text("earlier")
     assert demo_main(["--scene", "blobs", "--photons", "3k", "--preset", "tiny", "--steps", "2", "--quiet",
