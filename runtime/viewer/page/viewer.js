@@ -8,6 +8,8 @@ let ws = null;
 let seq = 0;
 let lastFrame = null;           // the last frame header, for the tests and the status line
 let framesShown = 0;
+let framesArrived = 0;          // frames are numbered as they arrive; decoding may finish out of order,
+let framesDrawn = 0;            // and a frame older than the one on screen is never drawn over it
 let pendingOrbit = null;        // input is coalesced to one message per animation frame
 let pendingPan = null;
 let pendingZoom = 1.0;
@@ -45,7 +47,10 @@ function connect() {
     const n = view.getUint32(0);
     const header = JSON.parse(new TextDecoder().decode(new Uint8Array(ev.data, 4, n)));
     const blob = new Blob([new Uint8Array(ev.data, 4 + n)], {type: header.format === "png" ? "image/png" : "image/jpeg"});
+    const number = ++framesArrived;
     createImageBitmap(blob).then((bitmap) => {
+      if (number < framesDrawn) { bitmap.close(); return; }  // a newer frame is on screen already
+      framesDrawn = number;
       // Frames rendered at a reduced size while moving are scaled up to the canvas (the view's full size).
       ctx.imageSmoothingEnabled = true;
       ctx.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
