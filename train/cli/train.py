@@ -26,7 +26,7 @@ import argparse
 import json
 import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from photon_fields.models_spec import DEFAULT_MAP_PHASES, DEFAULT_PHOTONS
@@ -38,6 +38,7 @@ from photon_fields.runtime.cli.common import (
     refuse_to_replace,
 )
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.io.progress import Progress, ProgressFile, read_progress
 from photon_fields.runtime.threads import set_threads
 
 _COUNT = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kKmMgG]?)\s*$")
@@ -65,6 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.add_argument("--out", required=True, help="output photon map (.npz)")
     t.add_argument("--force", action="store_true", help="replace an existing photon map")
+    _add_progress_option(t)
 
     f = sub.add_parser("fit", help="fit a photon field to a photon map (Sec. 3.5)",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -131,6 +133,30 @@ def _add_fit_options(f: argparse.ArgumentParser) -> None:
     f.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     f.add_argument("--quiet", action="store_true", help="no progress bar")
     f.add_argument("--force", action="store_true", help="replace the results of an earlier run in --out")
+    _add_progress_option(f)
+
+
+def _add_progress_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--progress-file", default=None,
+                   help="also write the progress as JSON to this file (replaced atomically, read by pfn-view; "
+                        "format: photon_fields.runtime.io.progress)")
+
+
+def _progress(args: argparse.Namespace, stages: Sequence[str]) -> ProgressFile | None:
+    """The job's progress file, or None without --progress-file; written at once so a reader sees the job start."""
+    if args.progress_file is None:
+        return None
+    path = Path(args.progress_file)
+    if not path.parent.is_dir():
+        raise InputError("--progress-file", f"the folder of {str(path)!r} does not exist")
+    progress = ProgressFile(path, stages)
+    progress.update(stages[0], 0, 0)
+    return progress
+
+
+def _stage(progress: ProgressFile | None, stage: str) -> Callable[[int, int], None] | None:
+    """The ``on_progress(done, total)`` callback of one stage."""
+    return None if progress is None else (lambda done, total: progress.update(stage, done, total))
 
 
 def cmd_trace(args: argparse.Namespace) -> int:
@@ -144,9 +170,12 @@ def cmd_trace(args: argparse.Namespace) -> int:
     set_threads(args.threads)
     scene = load_scene(args.scene)
     prepare_output(out, ".npz", force=args.force, what="a photon map")
+    progress = _progress(args, ("trace",))
     pmap = trace_photons(scene, photons, phases=phases, max_bounces=args.max_bounces, seed=args.seed,
-                         progress=not args.quiet)
+                         progress=not args.quiet, on_progress=_stage(progress, "trace"))
     pmap.save(out)
+    if progress is not None:
+        progress.finish("done", f"photon map {out}")
     meta = pmap.metadata()
     secs = meta["trace_seconds"]
     print(f"traced {meta['stored']:,} photons ({meta['emitted']:,} paths) in {secs:.2f} s "
@@ -193,7 +222,8 @@ def _set_all_threads(threads: int | None) -> None:
         torch.set_num_threads(threads)  # the MLP
 
 
-def _run_fit(args: argparse.Namespace, scene, pmap, settings) -> int:  # noqa: ANN001
+def _run_fit(args: argparse.Namespace, scene, pmap, settings,  # noqa: ANN001
+             progress: ProgressFile | None = None) -> int:
     from photon_fields.train.export.bundle import write_run_domain
     from photon_fields.train.fit.loop import fit
     from photon_fields.train.fit.targets import check_map_for_sampling
@@ -201,7 +231,7 @@ def _run_fit(args: argparse.Namespace, scene, pmap, settings) -> int:  # noqa: A
     out = Path(args.out)
     check_map_for_sampling(pmap, settings.g_sampling)  # refuse before anything is written into the run folder
     write_run_domain(out, scene, args.scene)  # the world box the export needs (checkpoints do not hold it)
-    result = fit(scene, pmap, out, settings, progress=not args.quiet)
+    result = fit(scene, pmap, out, settings, progress=not args.quiet, on_progress=_stage(progress, "fit"))
     t = result.log["totals"]
     val = t["final_validation"] or {}
     print(f"fitted {t['steps_done']} steps x {settings.batch} samples in {t['wall_s']:.1f} s (targets "
@@ -225,7 +255,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if (out / "field.pfn").exists():
         print(f"note: {out / 'field.pfn'} is the earlier fit's bundle; re-export it with "
               f"pfn-train export {out} --force", file=sys.stderr)
-    return _run_fit(args, scene, pmap, settings)
+    progress = _progress(args, ("fit",))
+    _run_fit(args, scene, pmap, settings, progress)
+    if progress is not None:
+        progress.finish("done", f"run folder {out}")
+    return 0
 
 
 def cmd_all(args: argparse.Namespace) -> int:
@@ -239,16 +273,21 @@ def cmd_all(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     out = Path(args.out)
     _prepare_run_folder(out, args.force, ALL_OUTPUTS)
+    progress = _progress(args, ("trace", "fit", "export"))
     pmap = trace_photons(scene, photons, phases=phases, max_bounces=args.max_bounces, seed=args.seed,
-                         progress=not args.quiet)
+                         progress=not args.quiet, on_progress=_stage(progress, "trace"))
     map_path = pmap.save(out / "map.npz")
     secs = pmap.metadata()["trace_seconds"]
     print(f"traced {len(pmap):,} photons in {secs:.2f} s -> {map_path}")
-    _run_fit(args, scene, pmap, settings)
+    _run_fit(args, scene, pmap, settings, progress)
     from photon_fields.train.export.bundle import export_bundle
 
+    if progress is not None:
+        progress.update("export", 0, 1)
     res = export_bundle(out, out / "field.pfn", tables_dtype=args.tables_dtype, force=True)
     _print_export(res)
+    if progress is not None:
+        progress.finish("done", f"bundle {res.path}")
     return 0
 
 
@@ -274,7 +313,32 @@ def cmd_export(args: argparse.Namespace) -> int:
 @guarded
 def _main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return {"trace": cmd_trace, "fit": cmd_fit, "all": cmd_all, "export": cmd_export}[args.command](args)
+    command = {"trace": cmd_trace, "fit": cmd_fit, "all": cmd_all, "export": cmd_export}[args.command]
+    try:
+        return command(args)
+    except BaseException as exc:
+        _record_failure(args, exc)
+        raise
+
+
+def _record_failure(args: argparse.Namespace, exc: BaseException) -> None:
+    """Mark the progress file failed with the error's one line (what pfn-view shows), if the job wrote one."""
+    path = getattr(args, "progress_file", None)
+    if path is None or not Path(path).parent.is_dir():
+        return
+    line = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
+    previous = read_progress_quietly(path)
+    progress = ProgressFile(path, previous.stages if previous else ())
+    if previous is not None:
+        progress.update(previous.stage, previous.done, previous.total)
+    progress.finish("failed", line or type(exc).__name__)
+
+
+def read_progress_quietly(path: str) -> Progress | None:
+    try:
+        return read_progress(path)
+    except InputError:
+        return None
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -117,8 +117,10 @@ class FitResult:
 
 
 def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSettings | None = None, *,
-        progress: bool = True, sampler_hook: Callable[[TargetBatch, int], TargetBatch] | None = None) -> FitResult:
+        progress: bool = True, sampler_hook: Callable[[TargetBatch, int], TargetBatch] | None = None,
+        on_progress: Callable[[int, int], None] | None = None) -> FitResult:
     """Train a photon field on ``pmap`` (traced for ``scene``) and write checkpoint, log and plot to ``out_dir``.
+    ``on_progress(done, total)`` is called after every step (e.g. a progress file's update).
 
     ``sampler_hook(batch, step) -> batch`` may replace a batch (tests use it to inject a non-finite target)."""
     settings = settings or FitSettings.from_preset("cpu")
@@ -223,6 +225,8 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
                     save_checkpoint(ckpt, model, scene.fingerprint(), done, summary(done))
                     last_ckpt_step = done
                 bar.update(1)
+                if on_progress is not None:
+                    on_progress(done, total)
                 bar.set_postfix(loss=f"{loss_value:.4f}", r=f"{radius:.4g}",
                                 sps=f"{done * settings.batch / max(train_s + sampler.seconds, 1e-9):,.0f}")
     finally:

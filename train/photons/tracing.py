@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numba import njit, prange
@@ -152,8 +152,11 @@ def check_phases(phases: Sequence[float], what: str = "phases") -> tuple[float, 
 
 
 def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAULT_MAP_PHASES, max_bounces: int = 16,
-                  seed: int = 0, progress: bool = True) -> PhotonMap:
-    """Alg. 1: trace photon paths until the map holds at least ``photons`` records."""
+                  seed: int = 0, progress: bool = True,
+                  on_progress: Callable[[int, int], None] | None = None) -> PhotonMap:
+    """Alg. 1: trace photon paths until the map holds at least ``photons`` records. ``on_progress(done, total)``
+    is called after every chunk with the records stored so far (e.g. a
+    :class:`photon_fields.runtime.io.progress.ProgressFile`'s update)."""
     if isinstance(photons, bool) or not isinstance(photons, (int, np.integer)) or photons < 1:
         raise InputError("photons", f"must be a positive integer, got {photons!r}")
     if not 2 <= max_bounces <= 1024:
@@ -203,6 +206,8 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
                 stored[ph] += sel.size
                 emitted_per_phase[ph] += paths.size
                 bar.update(int(min(sel.size, quota * len(gs) - bar.n)))
+            if on_progress is not None:
+                on_progress(int(np.minimum(stored, quota).sum()), quota * len(gs))
             _check_progress(scene, stored, emitted_per_phase, quota)
     pos = np.concatenate([p[0] for ph_parts in parts for p in ph_parts])
     dirs = np.concatenate([p[1] for ph_parts in parts for p in ph_parts])
