@@ -343,3 +343,7 @@ def read_progress_quietly(path: str) -> Progress | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     sys.exit(_main(argv))
+
+
+if __name__ == "__main__":  # python -m photon_fields.train.cli.train (how pfn-view starts a background retrain)
+    main()
