@@ -223,9 +223,21 @@ MUTANTS: tuple[Mutant, ...] = (
            (f"{CAMERA}::test_forced_and_delta_estimate_the_same_image[L_i-forced, roulette]",),
            "a low-weight collision that survives the roulette keeps its weight instead of the roulette's"),
     # The viewer (issue 15, step 1): session, messages, server.
-    Mutant("viewer_same_samples", "runtime/viewer/session.py", "first_sample=n)", "first_sample=0)",
+    Mutant("viewer_same_samples", "runtime/viewer/field_in_use.py", "first_sample=n)", "first_sample=0)",
            (f"{VSESSION}::test_neural_accumulation_equals_one_render_with_all_samples",),
            "every progressive neural frame draws the same samples: the view never converges"),
+    Mutant("viewer_transfer_not_stale", "runtime/viewer/field_in_use.py",
+           "return not same_transfer(transfer, self.tf) or self.indirect_scale(lights) is None",
+           "return self.indirect_scale(lights) is None",
+           ("tests/runtime/viewer/test_viewer_transfer.py::"
+            "test_an_edit_marks_the_fields_indirect_light_stale_until_undone",),
+           "after a transfer-function edit the field's L_i is shown as if it were the edited scene's"),
+    Mutant("viewer_retrain_without_rest", "runtime/viewer/updater.py",
+           "start = wanted is not None and time.monotonic() - wanted_at >= self.settings.delay_s",
+           "start = wanted is not None",
+           ("tests/runtime/viewer/test_viewer_retrain.py::"
+            "test_a_job_starts_once_edits_rest_and_a_newer_edit_replaces_it",),
+           "every edit of a dragged control point starts (and kills) a training process"),
     Mutant("viewer_orbit_keeps_accumulating", "runtime/viewer/session.py",
            "            if restart:\n                self.generation += 1",
            "            if restart and msg.type != \"orbit\":\n                self.generation += 1",

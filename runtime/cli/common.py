@@ -84,3 +84,17 @@ def refuse_to_replace(paths: Iterable[Path], force: bool, what: str, name: str =
         shown = ", ".join(str(p) for p in found[:3]) + (f" and {len(found) - 3} more" if len(found) > 3 else "")
         raise InputError(name, f"{what} exists ({shown}); pass --force to replace it")
     return found
+
+
+_COUNT = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kKmMgG]?)\s*$")
+
+
+def parse_count(text: str, what: str = "--photons") -> int:
+    """'1M' -> 1_000_000, '250k' -> 250_000, '4000' -> 4000."""
+    m = _COUNT.match(str(text))
+    if not m:
+        raise InputError(what, f"expected a count such as 1M, 250k or 4000, got {text!r}")
+    value = float(m.group(1)) * {"": 1, "k": 1e3, "m": 1e6, "g": 1e9}[m.group(2).lower()]
+    if value < 1 or value != int(value):
+        raise InputError(what, f"must be a positive whole number, got {text!r}")
+    return int(value)

@@ -17,7 +17,7 @@ import time
 import webbrowser
 from collections.abc import Sequence
 
-from photon_fields.runtime.cli.common import OneLineArgumentParser, check_seed, guarded
+from photon_fields.runtime.cli.common import OneLineArgumentParser, check_seed, guarded, parse_count
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.threads import set_threads
 
@@ -40,6 +40,11 @@ def build_parser() -> OneLineArgumentParser:
                    help="render moving frames at this fraction of --size, in [0.25, 1], or auto: the size that "
                         "keeps ~8 frames/s while moving (resting frames: always full size)")
     p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
+    p.add_argument("--retrain-photons", default="1M",
+                   help="photons of the map a background retrain traces after a transfer-function or light edit")
+    p.add_argument("--no-auto-retrain", action="store_true",
+                   help="retrain only when the page's retrain button is pressed (default: after every edit that "
+                        "makes L_i stale, once the edits rest)")
     p.add_argument("--force", action="store_true", help="use a bundle or map made for another scene")
     p.add_argument("--no-browser", action="store_true", help="only print the address")
     p.add_argument("--quiet", action="store_true", help="log warnings only")
@@ -69,9 +74,13 @@ def _main(argv: Sequence[str] | None = None) -> int:
         raise InputError("--max-spp", f"must be an integer in [1, {1 << 16}], got {args.max_spp}")
     set_threads(args.threads)
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="pfn-view: %(message)s")
+    from photon_fields.runtime.viewer.retrain import RetrainSettings
+
+    retrain = RetrainSettings(photons=str(parse_count(args.retrain_photons, "--retrain-photons")),
+                              auto=not args.no_auto_retrain)
     server = start(args.scene, bundle=args.bundle, map=args.map, out=args.out, size=size, host=args.host,
                    port=args.port, seed=args.seed, threads=args.threads, force=args.force, renderer=args.renderer,
-                   max_spp=args.max_spp, drag_scale=args.drag_scale)
+                   max_spp=args.max_spp, drag_scale=args.drag_scale, retrain=retrain)
     if not is_loopback(args.host):
         print(f"warning: listening on {args.host}: anyone who can reach it can drive renders and write screenshots "
               f"into {args.out}", file=sys.stderr)

@@ -19,6 +19,7 @@ from typing import Any
 
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.viewer.messages import MAX_PIXELS, MAX_SIDE, MIN_SIDE
+from photon_fields.runtime.viewer.retrain import RetrainSettings
 
 log = logging.getLogger("photon_fields.viewer")
 
@@ -36,6 +37,7 @@ class ViewerInputs:
     height: int
     renderer: str | None
     info: dict[str, Any]
+    threads: int | None = None
 
 
 def load_inputs(scene: str | None, *, bundle: str | None = None, map_path: str | None = None,
@@ -87,7 +89,7 @@ def load_inputs(scene: str | None, *, bundle: str | None = None, map_path: str |
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError("--out", f"{str(out)!r} exists and is not a folder")
-    return ViewerInputs(sc, estimator, pmap, out, seed, sc.camera.width, sc.camera.height, renderer, info)
+    return ViewerInputs(sc, estimator, pmap, out, seed, sc.camera.width, sc.camera.height, renderer, info, threads)
 
 
 def check_size(size: tuple[int, int]) -> tuple[int, int]:
@@ -134,7 +136,8 @@ class ViewerServer:
     """A running viewer: uvicorn serving the app on a daemon thread. ``url`` is the page; :meth:`stop` ends it."""
 
     def __init__(self, inputs: ViewerInputs, *, host: str = "127.0.0.1", port: int = 0, warm: bool = True,
-                 max_spp: int | None = None, drag_scale: float | str = "auto") -> None:
+                 max_spp: int | None = None, drag_scale: float | str = "auto",
+                 retrain: RetrainSettings | None = None) -> None:
         import uvicorn
 
         from photon_fields.runtime.viewer.server import MAX_FRAME_BYTES, create_app
@@ -160,10 +163,13 @@ class ViewerServer:
             origins |= {f"http://localhost:{self.port}", f"http://127.0.0.1:{self.port}"}
 
         def make_session() -> ViewerSession:
-            return ViewerSession(inputs.scene, estimator=inputs.estimator, pmap=inputs.pmap, out_dir=inputs.out_dir,
-                                 seed=inputs.seed, width=inputs.width, height=inputs.height,
-                                 renderer=inputs.renderer, max_spp=max_spp or DEFAULT_MAX_SPP, info=inputs.info,
-                                 drag_scale=drag_scale)
+            session = ViewerSession(inputs.scene, estimator=inputs.estimator, pmap=inputs.pmap,
+                                    out_dir=inputs.out_dir, seed=inputs.seed, width=inputs.width,
+                                    height=inputs.height, renderer=inputs.renderer,
+                                    max_spp=max_spp or DEFAULT_MAX_SPP, info=inputs.info, drag_scale=drag_scale,
+                                    retrain=retrain)
+            session.field_threads = inputs.threads
+            return session
 
         app = create_app(make_session, allowed_origins=lambda: origins,
                          warm=(lambda: warm_kernels(inputs)) if warm else None)
@@ -193,7 +199,7 @@ def start(scene: str | None = None, *, bundle: str | None = None, map: str | Non
           out: str | Path = "pfn_view_out", size: tuple[int, int] | None = None, host: str = "127.0.0.1",
           port: int = 0, seed: int = 0, threads: int | None = None, force: bool = False,
           renderer: str | None = None, warm: bool = True, max_spp: int | None = None,
-          drag_scale: float | str = "auto") -> ViewerServer:
+          drag_scale: float | str = "auto", retrain: RetrainSettings | None = None) -> ViewerServer:
     """Load the inputs and serve the viewer (module docstring); returns the running :class:`ViewerServer`."""
     if drag_scale != "auto" and (isinstance(drag_scale, bool) or not isinstance(drag_scale, (int, float))
                                  or not 0.25 <= drag_scale <= 1.0):
@@ -201,4 +207,4 @@ def start(scene: str | None = None, *, bundle: str | None = None, map: str | Non
     inputs = load_inputs(scene, bundle=bundle, map_path=map, out_dir=out, size=size, seed=seed, threads=threads,
                          force=force, renderer=renderer)
     return ViewerServer(inputs, host=host, port=port, warm=warm, max_spp=max_spp,
-                        drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale))
+                        drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale), retrain=retrain)

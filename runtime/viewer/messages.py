@@ -26,7 +26,12 @@ report the last ``seq`` they include, which is how the page and the bench measur
 - ``{"type": "light", "index": i, "azimuth": deg, "elevation": deg, "power": p}``: light ``i``'s direction
   (where the light comes from) and power; ``azimuth`` / ``elevation`` / ``power`` each optional;
 - ``{"type": "view", "width": w, "height": h}``: the size the page shows frames at;
-- ``{"type": "screenshot"}`` (``"name"`` optional: a plain file stem): PNG + EXR + JSON into the output folder.
+- ``{"type": "screenshot"}`` (``"name"`` optional: a plain file stem): PNG + EXR + JSON into the output folder;
+- ``{"type": "transfer", "points": [{"s": f, "opacity": f, "albedo": [r, g, b]}, ...], "density_scale": f}``:
+  the transfer function (1 to :data:`MAX_TF_POINTS` points, ``s`` strictly increasing in [0, 1], opacity and
+  albedo in [0, 1]; the model is :class:`photon_fields.runtime.scene.transfer.TransferFunction`);
+- ``{"type": "retrain", "action": "start" | "cancel"}``: start a background retrain of the field for the
+  scene as edited now, or cancel the running one.
 """
 
 from __future__ import annotations
@@ -43,6 +48,8 @@ MAX_MESSAGE_BYTES = 4096
 #: Frame sizes a page may ask for (each side), and the most pixels in one frame: bounds the memory a page
 #: can make the server allocate (film, denoiser state, encoded frame).
 MIN_SIDE, MAX_SIDE, MAX_PIXELS = 16, 2048, 1920 * 1080
+#: The most control points a page's transfer function may have (a message stays under MAX_MESSAGE_BYTES).
+MAX_TF_POINTS = 32
 #: Renderers by the names the page uses, and what each is called in the renderer table.
 RENDERER_NAMES = {"neural": "field", "pt": "pt", "photonmap": "photonmap"}
 LAYERS = ("L", "L_d", "L_i")
@@ -157,6 +164,32 @@ def _boolean(key: str, value: Any) -> bool:
     return value
 
 
+_TF_POINT: dict[str, Check] = {"s": number(0.0, 1.0), "opacity": number(0.0, 1.0)}
+
+
+def tf_points(key: str, value: Any) -> list[dict[str, Any]]:
+    """A transfer function's control points: a list of 1 to :data:`MAX_TF_POINTS` objects with exactly ``s``,
+    ``opacity`` (numbers in [0, 1]) and ``albedo`` (three numbers in [0, 1]), ``s`` strictly increasing."""
+    if not isinstance(value, list) or not 1 <= len(value) <= MAX_TF_POINTS:
+        got = f"{len(value)} points" if isinstance(value, list) else type(value).__name__
+        raise MessageError(f"'{key}' must be a list of 1 to {MAX_TF_POINTS} control points, got {got}")
+    points = []
+    for i, p in enumerate(value):
+        where = f"{key}[{i}]"
+        if not isinstance(p, dict) or set(p) != {"s", "opacity", "albedo"}:
+            shown = sorted(str(k)[:20] for k in p)[:5] if isinstance(p, dict) else type(p).__name__
+            raise MessageError(f"'{where}' must be an object with exactly s, opacity, albedo, got {shown}")
+        point = {k: check(f"{where}.{k}", p[k]) for k, check in _TF_POINT.items()}
+        albedo = p["albedo"]
+        if not isinstance(albedo, list) or len(albedo) != 3:
+            raise MessageError(f"'{where}.albedo' must be a list of three numbers [r, g, b]")
+        point["albedo"] = [number(0.0, 1.0)(f"{where}.albedo", a) for a in albedo]
+        if points and point["s"] <= points[-1]["s"]:
+            raise MessageError(f"'{key}': s must increase strictly from point to point ({where})")
+        points.append(point)
+    return points
+
+
 #: Per message type: (required keys, optional keys), each key -> check. ``seq`` is optional everywhere.
 SCHEMAS: dict[str, tuple[dict[str, Check], dict[str, Check]]] = {
     "orbit": ({"dx": number(-360.0, 360.0), "dy": number(-180.0, 180.0)}, {}),
@@ -168,6 +201,8 @@ SCHEMAS: dict[str, tuple[dict[str, Check], dict[str, Check]]] = {
                                           "power": number(0.0, 1e6)}),
     "view": ({"width": integer(MIN_SIDE, MAX_SIDE), "height": integer(MIN_SIDE, MAX_SIDE)}, {}),
     "screenshot": ({}, {"name": name}),
+    "transfer": ({"points": tf_points, "density_scale": number(1e-3, 1e5)}, {}),
+    "retrain": ({"action": choice(("start", "cancel"))}, {}),
 }
 SEQ = integer(0, (1 << 53) - 1)
 

@@ -3,7 +3,7 @@
 Built on starlette (ASGI) and served by uvicorn; docs/viewer.md says why not trame. Routes:
 
 - ``GET /``: the page (``page/index.html``, plain HTML and JavaScript, no build step);
-- ``GET /viewer.js``: its script;
+- ``GET /viewer.js``, ``GET /tf_editor.js``: its scripts;
 - ``WS /ws``: the page's connection. The client sends JSON text messages
   (:mod:`photon_fields.runtime.viewer.messages`); the server sends a ``state`` text message on connect, an
   ``error`` text message for every refused message, a ``screenshot`` text message with the files written, and
@@ -90,6 +90,9 @@ class RenderWorker:
     def _run(self) -> None:
         try:
             while not self.stop_event.is_set():
+                status = self.session.poll_updates()  # background retraining: progress, a new field
+                if status is not None and self.send_text is not None:
+                    self.send_text(json.dumps(status))
                 if not self.session.wait_for_work(self.stop_event):
                     continue
                 try:
@@ -131,7 +134,7 @@ def create_app(make_session: Callable[[], ViewerSession], *, allowed_origins: Ca
         return HTMLResponse(_page_file("index.html"), headers={"Cache-Control": "no-store"})
 
     async def script(request: Request) -> Response:
-        return Response(_page_file("viewer.js"), media_type="text/javascript",
+        return Response(_page_file(request.url.path.lstrip("/")), media_type="text/javascript",
                         headers={"Cache-Control": "no-store"})
 
     async def socket(ws: WebSocket) -> None:
@@ -171,10 +174,12 @@ def create_app(make_session: Callable[[], ViewerSession], *, allowed_origins: Ca
             if worker is not None:
                 worker.stop()
                 await asyncio.to_thread(worker.thread.join, 60.0)
+                await asyncio.to_thread(worker.session.close)  # a background retrain stops with its page
             with lock:
                 stats.active -= 1
 
-    app = Starlette(routes=[Route("/", page), Route("/viewer.js", script), WebSocketRoute("/ws", socket)])
+    app = Starlette(routes=[Route("/", page), Route("/viewer.js", script), Route("/tf_editor.js", script),
+                            WebSocketRoute("/ws", socket)])
     app.state.stats = stats
     if warm is not None:
         threading.Thread(target=_warm_quietly, args=(warm,), name="pfn-view-warm", daemon=True).start()

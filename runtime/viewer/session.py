@@ -32,13 +32,18 @@ keep :data:`DRAG_FPS` frames per second (the level a drag ends with is where the
 Exposure: measured automatically (:func:`photon_fields.runtime.io.images.auto_exposure_stops`) on the first
 frame after a cut, and then kept while the camera moves so brightness does not flicker; the page's exposure
 control adds stops to it, and ``"auto"`` measures it again.
+
+Transfer-function and light edits (:mod:`photon_fields.runtime.viewer.field_in_use`): the edited scene renders at
+once (its medium, L_d, the path tracer); the field's L_i follows a single light's power exactly and is marked
+stale otherwise, while :class:`photon_fields.runtime.viewer.updater.FieldUpdater` retrains in the background and
+:meth:`ViewerSession.poll_updates` swaps the new field in.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -48,32 +53,21 @@ from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.viewer import screenshot
 from photon_fields.runtime.viewer.camera import OrbitView
+from photon_fields.runtime.viewer.drag_levels import DRAG_LEVELS, next_drag_level
 from photon_fields.runtime.viewer.encode import encode, tonemap
+from photon_fields.runtime.viewer.field_in_use import FieldInUse
 from photon_fields.runtime.viewer.light_control import LightControl
-from photon_fields.runtime.viewer.messages import MIN_SIDE, RENDERER_NAMES, Message, MessageError
+from photon_fields.runtime.viewer.messages import MIN_SIDE, Message, MessageError
+from photon_fields.runtime.viewer.retrain import RetrainSettings
+from photon_fields.runtime.viewer.transfer_edit import transfer_from_message, transfer_message, volume_histogram
+from photon_fields.runtime.viewer.updater import FieldUpdater
+from photon_fields.runtime.viewer.view_state import DEFAULT_MAX_SPP, Frame, ViewState
 
 #: Renders of all sessions of a process take turns: two pages rendering at once would each get half the cores
 #: and both miss their frame rate; one at a time keeps each frame as fast as the machine allows.
 RENDER_LOCK = threading.Lock()
-DEFAULT_MAX_SPP = 1024
 DEFAULT_DENOISE_FRAMES = 16
 ACCUMULATED_LAYERS = ("L", "L_d", "L_i", "L_e")
-#: ``drag_scale="auto"``: the sizes moving frames may take (fractions of the view; few, so that each keeps its
-#: denoiser's history across drags) and the frame rate they aim at while the camera moves.
-DRAG_LEVELS = (1.0, 0.75, 0.5, 0.375, 0.25)
-DRAG_FPS = 8.0
-
-
-def next_drag_level(level: int, frame_s: float, fps: float = DRAG_FPS) -> int:
-    """The :data:`DRAG_LEVELS` index for the next moving frame after one at ``level`` took ``frame_s`` seconds:
-    one level smaller when it missed the frame time 1 / ``fps`` by more than 15 %, one level larger when the
-    larger level's frame (time scaling with the pixel count) would still take at most 85 % of it, else the same."""
-    budget = 1.0 / fps
-    if frame_s > 1.15 * budget and level + 1 < len(DRAG_LEVELS):
-        return level + 1
-    if level > 0 and frame_s * (DRAG_LEVELS[level - 1] / DRAG_LEVELS[level]) ** 2 <= 0.85 * budget:
-        return level - 1
-    return level
 #: ``set`` controls that only set the :class:`ViewState` field of their name, and what each then does:
 #: (restart the accumulation, cut the denoiser's history, redisplay, measure the exposure again).
 _FIELD_CONTROLS: dict[str, tuple[bool, bool, bool, bool]] = {
@@ -85,33 +79,6 @@ _FIELD_CONTROLS: dict[str, tuple[bool, bool, bool, bool]] = {
 }
 
 
-@dataclass
-class ViewState:
-    """Everything the page controls. Copied (shallowly) for each frame; treat as immutable outside the lock."""
-
-    view: OrbitView
-    renderer: str
-    layer: str = "L"
-    g: float = 0.0
-    lights: list[LightControl] = field(default_factory=list)
-    exposure_offset: float = 0.0
-    format: str = "jpeg"
-    denoise: bool = True
-    max_spp: int = DEFAULT_MAX_SPP
-    width: int = 512
-    height: int = 512
-    drag_scale: float | str = 1.0
-    """Moving frames are rendered at this fraction of the size (1: full size); resting frames always full."""
-
-
-@dataclass
-class Frame:
-    """One frame for the page: the encoded image and its header (what it shows, how long it took)."""
-
-    image: bytes
-    header: dict[str, Any]
-
-
 class ViewerSession:
     """The render state of one page (module docstring). ``estimator``: a photon field's estimator (enables the
     neural renderer), ``pmap``: a photon map (the photon-map renderer); the path tracer is always there.
@@ -121,24 +88,24 @@ class ViewerSession:
                  seed: int = 0, width: int | None = None, height: int | None = None,
                  renderer: str | None = None, max_spp: int = DEFAULT_MAX_SPP,
                  denoise_frames: int = DEFAULT_DENOISE_FRAMES, info: dict[str, Any] | None = None,
-                 drag_scale: float | str = 1.0) -> None:
+                 drag_scale: float | str = 1.0, retrain: RetrainSettings | None = None) -> None:
         self.base_scene = scene
-        self.estimator, self.pmap = estimator, pmap
+        self.field = FieldInUse(scene, estimator, pmap)
         self.out_dir = Path(out_dir)
         self.seed = int(seed)
         self.denoise_frames = int(denoise_frames)
         self.info = dict(info or {})
-        self.available = [name for name in RENDERER_NAMES if self._has(name)]
         if renderer is None:
             renderer = "neural" if estimator is not None else "pt"
         if renderer not in self.available:
             raise InputError("renderer", f"'{renderer}' needs its input (neural: --bundle, photonmap: --map)")
-        self.trained_lights = [LightControl.from_light(lt) for lt in scene.lights]
         cam = scene.camera
         self.state = ViewState(OrbitView.from_camera(cam), renderer, g=scene.g,
                                lights=[LightControl.from_light(lt) for lt in scene.lights], max_spp=int(max_spp),
                                width=width or cam.width, height=height or cam.height,
-                               drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale))
+                               drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale),
+                               transfer=scene.tf)
+        self.updater = FieldUpdater(self.out_dir, retrain or RetrainSettings(), seed=self.seed)
         self.drag_level = 0  # drag_scale "auto": the index in DRAG_LEVELS of the next moving frame
         self.lock = threading.Lock()
         self.changed = threading.Condition(self.lock)
@@ -163,12 +130,24 @@ class ViewerSession:
         self._last_size: tuple[int, int] = (0, 0)
         self._last_header: dict[str, Any] = {}
         self._shot_lock = threading.Lock()
+        self._histogram: list[float] | None = None
+        self.field_threads: int | None = None  # onnxruntime threads of a retrained field (launch sets --threads)
 
     # ------------------------------------------------------------------------------------------------
     # input (event-loop thread)
 
-    def _has(self, name: str) -> bool:
-        return {"neural": self.estimator is not None, "pt": True, "photonmap": self.pmap is not None}[name]
+    @property
+    def estimator(self) -> Any:
+        return self.field.estimator
+
+    @property
+    def pmap(self) -> Any:
+        return self.field.pmap
+
+    @property
+    def available(self) -> list[str]:
+        """The renderers this session can use (page names)."""
+        return self.field.available
 
     def apply(self, msg: Message) -> None:
         """Apply a validated message to the state (a :class:`MessageError` if it cannot apply here: a renderer
@@ -197,16 +176,41 @@ class ViewerSession:
                 restart, cut, redisplay, reexpose = self._apply_set(s, f["control"], f["value"])
             elif msg.type == "screenshot":
                 restart = False
+            elif msg.type == "transfer":
+                s.transfer = transfer_from_message(f, self.base_scene.tf)
+                self._lights_version += 1  # the scene is rebuilt (its medium too) for the next frame
+                cut = True
+            elif msg.type == "retrain":
+                restart = False
+                if f["action"] == "cancel":
+                    self.updater.cancel()
+                else:
+                    self.updater.want(self.edited_scene(s), now=True)
             else:  # validate() knows no other types; a new one must be handled here first
                 raise MessageError(f"message type {msg.type!r} is not handled")
             if msg.seq is not None:
                 self.last_seq = msg.seq
+            # without a field or map nothing is stale: only the page's retrain button trains one
+            if msg.type in ("transfer", "light") and self.updater.settings.auto and self.field.exists \
+                    and self.field_stale(s):
+                self.updater.want(self.edited_scene(s))
             if restart:
                 self.generation += 1
             self.cut = self.cut or cut
             self.reexpose = self.reexpose or reexpose
             self.redisplay = self.redisplay or redisplay or restart
             self.changed.notify_all()
+
+    def edited_scene(self, s: ViewState) -> Scene:
+        """The scene as the page has edited it (transfer function and lights; camera and g are not part of
+        what a field is trained for)."""
+        return replace(self.base_scene, tf=s.transfer or self.base_scene.tf,
+                       lights=tuple(lt.light() for lt in s.lights), _cache={})
+
+    def field_stale(self, s: ViewState) -> bool:
+        """Whether the field's (and the map's) L_i is not the edited scene's: another transfer function, or a
+        light edit that :meth:`indirect_scale` cannot follow."""
+        return self.field.stale(s.transfer, s.lights)
 
     def _apply_light(self, s: ViewState, f: dict[str, Any]) -> None:
         i = f["index"]
@@ -229,7 +233,7 @@ class ViewerSession:
         exposure is measured again when what is shown changes kind (renderer, layer), not when g moves: the
         page should show g's effect, not have it normalized away."""
         if control == "renderer":
-            if not self._has(value):
+            if not self.field.has(value):
                 raise MessageError(f"renderer '{value}' is not available here (neural needs --bundle, photonmap "
                                    f"--map); available: {', '.join(self.available)}")
             self._check_g(value, s.g)
@@ -285,9 +289,11 @@ class ViewerSession:
         """The scene of state ``s`` at ``width`` x ``height`` (lights rebuilt only when they changed; the medium
         is shared)."""
         if self._scene_lights_version != self._lights_version:
-            scene = replace(self.base_scene, lights=tuple(lt.light() for lt in s.lights), _cache={})
-            if "medium" in self.base_scene._cache:  # the medium does not depend on the lights
-                scene._cache["medium"] = self.base_scene._cache["medium"]
+            scene = self.edited_scene(s)
+            if scene.tf is self.scene.tf and "medium" in self.scene._cache:  # the medium ignores the lights
+                scene._cache["medium"] = self.scene._cache["medium"]
+            else:  # a new transfer function: a new medium, and the depth it gives the denoisers
+                self._depth, self._denoisers = None, {}
             self.scene, self._scene_lights_version = scene, self._lights_version
         return self.scene.with_overrides(g=s.g, camera=s.view.camera(width, height))
 
@@ -319,7 +325,7 @@ class ViewerSession:
             self._acc_size = size
             scene = self._scene_for(s, *size)
         timings: dict[str, float] = {}
-        warnings = self._warnings(s)
+        warnings = self.field.warnings(s.renderer, s.transfer, s.lights, self.updater)
         if cut:
             for d in self._denoisers.values():
                 d.reset()
@@ -342,7 +348,7 @@ class ViewerSession:
             t = time.perf_counter()
             with RENDER_LOCK:
                 layers = self._render(scene, s.renderer, self._samples)
-            layers = self._follow_light_power(layers, s)
+            layers = self.field.follow_light_power(layers, s.renderer, s.lights)
             timings["render_ms"] = (time.perf_counter() - t) * 1e3
             with self.lock:
                 if self._acc_generation == generation:
@@ -379,11 +385,39 @@ class ViewerSession:
             self.drag_level = next_drag_level(self.drag_level, timings["total_ms"] * 1e-3)
         self.frames += 1
         header = {"type": "frame", "frame": self.frames, "seq": seq, "generation": generation, "spp": n,
+                  "stale": s.renderer != "pt" and self.field_stale(s),
                   "renderer": s.renderer, "layer": s.layer, "g": s.g, "width": size[0], "height": size[1],
                   "format": s.format, "exposure": stops, "denoised": denoised, "moving": moved_only,
                   "rendered": render, "warnings": warnings, **{k: round(v, 2) for k, v in timings.items()}}
         self._last_header = header
         return Frame(data, header)
+
+    def poll_updates(self) -> dict[str, Any] | None:
+        """Between frames (render thread): advance background retraining (:class:`FieldUpdater`); load a finished
+        job's field and map and swap them in. Returns a ``retrain`` status message for the page, or None."""
+        status, finished = self.updater.poll()
+        if finished is None:
+            return status
+        try:
+            field = FieldInUse.from_job(finished, self.field_threads)
+        except (InputError, OSError, ValueError) as exc:
+            return self.updater.failed(f"the new field could not be loaded: {exc}")
+        with self.lock:
+            first = self.field.estimator is None
+            self.field = field
+            if first and self.state.renderer == "pt":  # no field until now: show the one just trained
+                self.state.renderer = "neural"
+            self.generation += 1
+            self.cut = self.redisplay = True
+            self.changed.notify_all()
+            status = {**status, "renderers": list(self.available), "renderer": self.state.renderer,
+                      "bundle": str(finished.bundle)}
+            self.info["bundle"], self.info["map"] = str(finished.bundle), str(finished.photon_map)
+        return self.updater._emit(status)
+
+    def close(self) -> None:
+        """The page went away: stop its background job."""
+        self.updater.close()
 
     def hold(self) -> None:
         """After a frame failed: render nothing more until the state changes (the same state would fail
@@ -394,51 +428,16 @@ class ViewerSession:
             self.redisplay = False
 
     def _render(self, scene: Scene, renderer: str, n: int) -> dict[str, np.ndarray]:
-        """Frame ``n`` of the accumulation: 1 sample per pixel (module docstring for the seeds)."""
-        if renderer == "neural":
-            from photon_fields.runtime.renderers.neural import render_neural
+        """Frame ``n`` of the accumulation (module docstring for the seeds); while a background job trains, with
+        the cores it leaves."""
+        from photon_fields.runtime.threads import max_threads
 
-            result = render_neural(scene, self.estimator, spp=1, seed=self.seed, progress=False, first_sample=n)
-        elif renderer == "pt":
-            from photon_fields.runtime.renderers.path_tracer import render_path_traced
-
-            result = render_path_traced(scene, spp=1, seed=self.seed + n, progress=False)
-        else:
-            from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
-
-            result = render_photon_mapped(scene, self.pmap, spp=1, seed=self.seed + n, progress=False)
-        return result.layers
+        threads = max(1, max_threads() - self.updater.settings.threads) if self.updater.busy else None
+        return self.field.render(scene, renderer, seed=self.seed, n=n, threads=threads)
 
     def indirect_scale(self, s: ViewState) -> float | None:
-        """How the field's (or photon map's) L_i, made for the scene's lights, follows the page's light edits:
-        1 without edits; with a single light whose only edit is its power, the ratio of the powers (radiance is
-        linear in a light's power, so the rescaled L_i is exact); None otherwise (a moved light, or a power edit
-        among several lights: L_i would need retraining, and the page is warned)."""
-        def where(c: LightControl) -> tuple[Any, ...]:
-            return c.kind, c.azimuth, c.elevation, c.distance, tuple(np.asarray(c.color).tolist())
-
-        now, trained = s.lights, self.trained_lights
-        if [(where(a), a.power) for a in now] == [(where(b), b.power) for b in trained]:
-            return 1.0
-        if len(now) == 1 and where(now[0]) == where(trained[0]) and trained[0].power > 0:
-            return now[0].power / trained[0].power
-        return None
-
-    def _follow_light_power(self, layers: dict[str, np.ndarray], s: ViewState) -> dict[str, np.ndarray]:
-        """The field's or map's L_i rescaled to a single light's edited power (:meth:`indirect_scale`); L_d, from
-        next-event estimation with the edited lights, is already right."""
-        scale = self.indirect_scale(s) if s.renderer in ("neural", "photonmap") else 1.0
-        if scale is None or scale == 1.0:
-            return layers
-        li = (layers["L_i"] * np.float32(scale)).astype(np.float32)
-        return {**layers, "L_i": li, "L": (layers["L_e"] + layers["L_d"]) + li}
-
-    def _warnings(self, s: ViewState) -> list[str]:
-        if s.renderer == "pt" or self.indirect_scale(s) is not None:
-            return []
-        what = "field was trained" if s.renderer == "neural" else "photon map was traced"
-        return [f"the {what} for the scene's lights: L_i does not follow this light edit (L_d does; a single "
-                "light's power alone would be followed exactly)"]
+        """How L_i follows the page's light edits (:meth:`FieldInUse.indirect_scale`)."""
+        return self.field.indirect_scale(s.lights)
 
     # ------------------------------------------------------------------------------------------------
     # state for the page, screenshots (either thread)
@@ -451,7 +450,16 @@ class ViewerSession:
                     "renderer": s.renderer, "layer": s.layer, "g": s.g, "exposure_offset": s.exposure_offset,
                     "format": s.format, "denoise": s.denoise, "max_spp": s.max_spp, "width": s.width,
                     "height": s.height, "drag_scale": s.drag_scale, "lights": [lt.to_dict() for lt in s.lights],
-                    "out_dir": str(self.out_dir)}
+                    "out_dir": str(self.out_dir), "transfer": transfer_message(s.transfer or self.base_scene.tf),
+                    "histogram": self.histogram(),
+                    "retrain": {"available": self.updater.available, "why": self.updater.reason,
+                                "auto": self.updater.settings.auto, "status": self.updater.status()}}
+
+    def histogram(self) -> list[float]:
+        """The volume's histogram for the page's transfer-function editor (computed once)."""
+        if self._histogram is None:
+            self._histogram = volume_histogram(self.base_scene.volume)
+        return self._histogram
 
     def screenshot(self, name: str | None = None) -> list[Path]:
         """Write the current accumulation as a screenshot (:func:`photon_fields.runtime.viewer.screenshot.write`):
@@ -471,6 +479,9 @@ class ViewerSession:
             report = {"scene": self.base_scene.name, "renderer": s.renderer, "layer": s.layer, "g": s.g,
                       "spp": samples, "seed": self.seed, "exposure_stops": header.get("exposure"),
                       "camera": cam.to_dict(), "lights": [lt.light().to_dict() for lt in s.lights],
+                      "transfer_function": (s.transfer or self.base_scene.tf).to_dict(),
+                      "stale_indirect": s.renderer != "pt" and self.field_stale(s),
                       "frame_timings_ms": {k: v for k, v in header.items() if k.endswith("_ms")}, **self.info}
             return screenshot.write(self.out_dir, stem, layers, report, png_layer=s.layer,
                                     exposure=header.get("exposure"))
+

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -34,25 +33,13 @@ from photon_fields.runtime.cli.common import (
     OneLineArgumentParser,
     check_seed,
     guarded,
+    parse_count,
     prepare_output,
     refuse_to_replace,
 )
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.io.progress import Progress, ProgressFile, read_progress
 from photon_fields.runtime.threads import set_threads
-
-_COUNT = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([kKmMgG]?)\s*$")
-
-
-def parse_count(text: str, what: str = "--photons") -> int:
-    """'1M' -> 1_000_000, '250k' -> 250_000, '4000' -> 4000."""
-    m = _COUNT.match(str(text))
-    if not m:
-        raise InputError(what, f"expected a count such as 1M, 250k or 4000, got {text!r}")
-    value = float(m.group(1)) * {"": 1, "k": 1e3, "m": 1e6, "g": 1e9}[m.group(2).lower()]
-    if value < 1 or value != int(value):
-        raise InputError(what, f"must be a positive whole number, got {text!r}")
-    return int(value)
 
 
 def build_parser() -> argparse.ArgumentParser:

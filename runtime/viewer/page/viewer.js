@@ -13,6 +13,8 @@ let framesDrawn = 0;            // and a frame older than the one on screen is n
 let pendingOrbit = null;        // input is coalesced to one message per animation frame
 let pendingPan = null;
 let pendingZoom = 1.0;
+let pendingTransfer = null;     // the transfer-function editor's newest state, sent once per animation frame
+let lastRetrain = null;         // the last retrain status message
 const sentAt = new Map();       // seq -> time sent (input-to-image latency)
 let lastLatency = null;
 const times = [];               // arrival times of the last frames (frame rate)
@@ -30,6 +32,7 @@ function flushInput() {
   if (pendingOrbit) { send({type: "orbit", dx: pendingOrbit[0], dy: pendingOrbit[1]}); pendingOrbit = null; }
   if (pendingPan) { send({type: "pan", dx: pendingPan[0], dy: pendingPan[1]}); pendingPan = null; }
   if (pendingZoom !== 1.0) { send({type: "zoom", factor: Math.min(20, Math.max(0.05, pendingZoom))}); pendingZoom = 1.0; }
+  if (pendingTransfer) { send({type: "transfer", ...pendingTransfer}); pendingTransfer = null; }
   requestAnimationFrame(flushInput);
 }
 
@@ -73,19 +76,39 @@ function showStatus(h) {
     `frame ${h.total_ms.toFixed(0)} ms  render ${(h.render_ms || 0).toFixed(0)} ms\n` +
     `${fps.toFixed(1)} frames/s` + (lastLatency !== null ? `  input->image ${lastLatency.toFixed(0)} ms` : "");
   $("message").textContent = h.warnings.length ? h.warnings.join("; ") : $("message").textContent;
+  $("stale").style.display = h.stale ? "block" : "none";
+}
+
+function onRetrain(m) {
+  lastRetrain = m;
+  const pct = (100 * (m.fraction || 0)).toFixed(0);
+  $("retrain_state").textContent = m.state + (m.state === "running" && m.stage ? ` (${m.stage}, ${pct} %)` : "");
+  $("retrain_bar").value = m.fraction || 0;
+  $("retrain_line").textContent = m.message || (m.elapsed_s !== null && m.elapsed_s !== undefined ? `${m.elapsed_s.toFixed(0)} s` : "");
+  if (m.renderers) setRenderers(m.renderers, m.renderer);
+}
+
+function setRenderers(list, current) {
+  const names = {neural: "neural (photon field)", pt: "path tracer", photonmap: "photon map"};
+  $("renderer").innerHTML = list.map((r) => `<option value="${r}">${names[r] || r}</option>`).join("");
+  $("renderer").value = current;
 }
 
 function onText(msg) {
   if (msg.type === "state") buildControls(msg);
   else if (msg.type === "error") $("message").textContent = "refused: " + msg.message;
+  else if (msg.type === "retrain") onRetrain(msg);
   else if (msg.type === "screenshot") $("message").textContent = "saved " + msg.files.map((f) => f.split("/").pop()).join(", ");
 }
 
 function buildControls(s) {
   $("title").textContent = `pfn-view: ${s.scene}`;
-  const names = {neural: "neural (photon field)", pt: "path tracer", photonmap: "photon map"};
-  $("renderer").innerHTML = s.renderers.map((r) => `<option value="${r}">${names[r] || r}</option>`).join("");
-  $("renderer").value = s.renderer;
+  setRenderers(s.renderers, s.renderer);
+  tfEditor.load(s.transfer, s.histogram);
+  $("density").value = 0; $("density_value").textContent = s.transfer.density_scale.toPrecision(3);
+  $("retrain").disabled = !s.retrain.available;
+  if (!s.retrain.available) $("retrain_line").textContent = s.retrain.why;
+  if (s.retrain.status) onRetrain(s.retrain.status);
   $("layer").value = s.layer;
   $("g").value = s.g; $("g_value").textContent = Number(s.g).toFixed(2);
   canvas.width = s.width; canvas.height = s.height;
@@ -150,7 +173,17 @@ $("lossless").addEventListener("change", (e) => setControl("format", e.target.ch
 $("reset_camera").addEventListener("click", () => send({type: "reset_camera"}));
 $("screenshot").addEventListener("click", () => send({type: "screenshot"}));
 
-// For tests and the curious: frames shown, the last frame's header, the last input's number.
-window.pfnView = {frames: () => framesShown, header: () => lastFrame, lastSeq: () => seq, send: send};
+const tfEditor = createTfEditor($("tf"), (fields) => { pendingTransfer = fields; });
+$("tf").addEventListener("pointerdown", () => { const c = tfEditor.selectedColour(); if (c) $("tf_color").value = c; });
+$("tf_color").addEventListener("input", (e) => tfEditor.setColour(e.target.value));
+$("density").addEventListener("input", (e) => {
+  $("density_value").textContent = tfEditor.setDensityFactor(Math.pow(10, Number(e.target.value))).toPrecision(3);
+});
+$("retrain").addEventListener("click", () => send({type: "retrain", action: "start"}));
+$("retrain_cancel").addEventListener("click", () => send({type: "retrain", action: "cancel"}));
+
+// For tests and the curious: frames shown, the last frame's header, the last input's number, the retraining.
+window.pfnView = {frames: () => framesShown, header: () => lastFrame, lastSeq: () => seq, send: send,
+                  retrain: () => lastRetrain, tf: tfEditor};
 connect();
 requestAnimationFrame(flushInput);

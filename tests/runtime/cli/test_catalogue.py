@@ -341,6 +341,8 @@ CASES += [
     (T, lambda a, d, o: ["trace", "blobs", "--max-bounces", "1", "--out", str(o / "m.npz")], "max_bounces"),
     (T, lambda a, d, o: ["trace", "blobs", "--threads", "0", "--out", str(o / "m.npz")], "--threads"),
     (T, lambda a, d, o: ["trace", "blobs", "--seed", HUGE_SEED, "--out", str(o / "m.npz")], "--seed"),
+    (T, lambda a, d, o: ["trace", "blobs", "--progress-file", str(d / "no" / "p.json"), "--out", str(o / "m.npz")],
+     "--progress-file"),
     (T, lambda a, d, o: [*FIT(a), "--batch", "0", "--out", str(o / "run")], "--batch"),
     (T, lambda a, d, o: [*FIT(a), "--lr", "-1", "--out", str(o / "run")], "--lr"),
     (T, lambda a, d, o: [*FIT(a), "--k", "0", "--out", str(o / "run")], "--k"),
@@ -388,6 +390,8 @@ CASES += [
     (V, lambda a, d, o: [str(a["scene"]), "--max-spp", "0", *VIEW, "--out", str(o / "shots")], "--max-spp"),
     (V, lambda a, d, o: [str(a["scene"]), "--threads", "0", *VIEW, "--out", str(o / "shots")], "--threads"),
     (V, lambda a, d, o: [str(a["scene"]), "--drag-scale", "0.1", *VIEW, "--out", str(o / "shots")], "--drag-scale"),
+    (V, lambda a, d, o: [str(a["scene"]), "--retrain-photons", "1.5", *VIEW, "--out", str(o / "shots")],
+     "--retrain-photons"),
 ]
 
 MAINS = {R: render_main, T: train_main, D: demo_main, E: eval_main, V: view_main}

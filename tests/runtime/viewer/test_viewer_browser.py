@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pytest
 from PIL import Image
-from viewer_helpers import inputs
+from viewer_helpers import inputs, stand_in_trainer
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 DRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
@@ -46,8 +46,10 @@ SIZE, MAX_SPP = 64, 3
 @pytest.fixture(scope="module")
 def page(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Any, ViewerServer]]:
     out = tmp_path_factory.mktemp("browser") / "shots"
+    trainer = stand_in_trainer(tmp_path_factory.mktemp("trainer"), "slow", delay_s=0.2)
     srv = ViewerServer(inputs(out, size=SIZE, renderer="neural"), port=0, warm=False, max_spp=MAX_SPP,
-                       drag_scale=1.0)  # full-size moving frames whatever the machine's speed
+                       drag_scale=1.0,  # full-size moving frames whatever the machine's speed
+                       retrain=trainer)  # reports progress, then waits: the page shows a running retrain
     opts = webdriver.ChromeOptions()
     opts.binary_location = CHROMIUM
     for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
@@ -173,3 +175,36 @@ def test_screenshot_button_writes_png_exr_json(page: tuple[Any, ViewerServer]) -
     assert report["spp"] >= 1 and report["renderer"] == "neural"
     png = Image.open(out / [n for n in names if n.endswith(".png")][0])
     assert png.size == (SIZE, SIZE)
+
+
+def test_editing_the_transfer_function_marks_l_i_stale_and_shows_the_retraining(
+        page: tuple[Any, ViewerServer]) -> None:
+    """Last in the module: it leaves a retrain folder in the output folder. Drag the editor's brightest control
+    point down: the frame follows the edit (a new generation), the page marks L_i stale, and the background
+    retrain's progress appears (the stand-in trainer reports the fit at 50 %); cancel stops it."""
+    driver, srv = page
+    Select(driver.find_element(By.ID, "layer")).select_by_value("L")
+    h0 = settled(driver, layer="L")
+    assert not h0["stale"] and not driver.find_element(By.ID, "stale").is_displayed()
+    points = driver.execute_script("return window.pfnView.tf.message().points;")
+    i = max(range(len(points)), key=lambda k: points[k]["opacity"])
+    x, y = driver.execute_script(f"return window.pfnView.tf.pointOnPage({i});")
+    canvas = driver.find_element(By.ID, "tf")
+    rect = driver.execute_script("const r = arguments[0].getBoundingClientRect(); return [r.left, r.top];", canvas)
+    chain = ActionChains(driver).move_to_element_with_offset(canvas, 0, 0)  # the canvas's centre
+    size = canvas.size
+    chain.move_by_offset(round(x - rect[0] - size["width"] / 2), round(y - rect[1] - size["height"] / 2))
+    chain.click_and_hold().move_by_offset(0, 30).pause(0.05).move_by_offset(0, 10).release().perform()
+    after = driver.execute_script("return window.pfnView.tf.message().points;")
+    assert after[i]["opacity"] < points[i]["opacity"] - 0.1, (points[i], after[i])
+    h = settled(driver)
+    assert h["generation"] > h0["generation"] and h["stale"]
+    assert driver.find_element(By.ID, "stale").is_displayed()
+    status = wait_for(lambda: (r := driver.execute_script("return window.pfnView.retrain();"))
+                      and r["stage"] == "fit" and r, "the retrain's progress")
+    assert status["state"] == "running" and status["fraction"] == pytest.approx((1 + 0.5) / 3, abs=1e-3)
+    assert float(driver.find_element(By.ID, "retrain_bar").get_attribute("value")) > 0.4
+    assert "fit" in driver.find_element(By.ID, "retrain_state").text
+    driver.find_element(By.ID, "retrain_cancel").click()
+    wait_for(lambda: driver.execute_script("return window.pfnView.retrain().state;") == "cancelled", "the cancel")
+    assert "cancelled" in driver.find_element(By.ID, "retrain_state").text

@@ -36,6 +36,8 @@ def one_error_line(stderr: str) -> str:
     (["blobs", "--map", "missing.npz"], "missing.npz"),
     (["blobs", "--seed", str(1 << 70)], "--seed"),
     (["blobs", "--bogus"], "command line"),
+    (["blobs", "--retrain-photons", "lots"], "--retrain-photons"),
+    (["blobs", "--retrain-photons", "0"], "--retrain-photons"),
 ])
 def test_bad_input_is_one_line_and_status_2(argv: list[str], needle: str, tmp_path: Path,
                                             capsys: pytest.CaptureFixture[str]) -> None:

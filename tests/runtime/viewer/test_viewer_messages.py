@@ -41,15 +41,29 @@ VALID = [
     ('{"type": "view", "width": 640, "height": 480}', "view", {"width": 640, "height": 480}, None),
     ('{"type": "screenshot"}', "screenshot", {}, None),
     ('{"type": "screenshot", "name": "shot-1.v2"}', "screenshot", {"name": "shot-1.v2"}, None),
+    ('{"type": "transfer", "points": [{"s": 0, "opacity": 0, "albedo": [1, 1, 1]}, '
+     '{"s": 0.5, "opacity": 0.25, "albedo": [0.9, 0.5, 0.1]}], "density_scale": 40}', "transfer",
+     {"points": [{"s": 0.0, "opacity": 0.0, "albedo": [1.0, 1.0, 1.0]},
+                 {"s": 0.5, "opacity": 0.25, "albedo": [0.9, 0.5, 0.1]}], "density_scale": 40.0}, None),
+    ('{"type": "retrain", "action": "start", "seq": 9}', "retrain", {"action": "start"}, 9),
+    ('{"type": "retrain", "action": "cancel"}', "retrain", {"action": "cancel"}, None),
 ]
+
+
+def plain(value: object) -> bool:
+    """Only JSON's plain values: numbers, strings, booleans, None, and lists and dicts of them."""
+    if isinstance(value, list):
+        return all(plain(v) for v in value)
+    if isinstance(value, dict):
+        return all(isinstance(k, str) and plain(v) for k, v in value.items())
+    return type(value) in (int, float, str, bool, type(None))
 
 
 @pytest.mark.parametrize(("text", "kind", "fields", "seq"), VALID)
 def test_valid_messages(text: str, kind: str, fields: dict, seq: int | None) -> None:
     m = parse(text)
     assert m == Message(kind, fields, seq)
-    for v in m.fields.values():
-        assert type(v) in (int, float, str, bool, type(None))
+    assert plain(m.fields)
 
 
 BAD = [
@@ -107,6 +121,30 @@ BAD = [
     ('{"type": "reset_camera", "seq": -1}', "integer in"),
     ('{"type": "reset_camera", "seq": "1"}', "integer"),
     ('{"type": "orbit", "dx": 1, "dy": 2, "type": "zoom"}', "more than once"),
+    ('{"type": "transfer", "points": [], "density_scale": 1}', "1 to 32 control points"),
+    ('{"type": "transfer", "points": {"s": 0}, "density_scale": 1}', "list of 1 to 32"),
+    ('{"type": "transfer", "points": [' + ", ".join(['{"s": 0, "opacity": 0, "albedo": [0, 0, 0]}'] * 33)
+     + '], "density_scale": 1}', "got 33 points"),
+    ('{"type": "transfer", "points": [{"s": 0.5, "opacity": 1, "albedo": [1, 1, 1]}, '
+     '{"s": 0.5, "opacity": 1, "albedo": [1, 1, 1]}], "density_scale": 1}', "increase strictly"),
+    ('{"type": "transfer", "points": [{"s": 0.5, "opacity": 1, "albedo": [1, 1, 1], "x": 1}], "density_scale": 1}',
+     "exactly s, opacity, albedo"),
+    ('{"type": "transfer", "points": [{"s": 0.5, "opacity": 1}], "density_scale": 1}', "exactly s, opacity, albedo"),
+    ('{"type": "transfer", "points": [7], "density_scale": 1}', "exactly s, opacity, albedo"),
+    ('{"type": "transfer", "points": [{"s": 1.5, "opacity": 1, "albedo": [1, 1, 1]}], "density_scale": 1}',
+     "must be in"),
+    ('{"type": "transfer", "points": [{"s": 0.5, "opacity": NaN, "albedo": [1, 1, 1]}], "density_scale": 1}', "NaN"),
+    ('{"type": "transfer", "points": [{"s": 0.5, "opacity": 1, "albedo": [1, 1]}], "density_scale": 1}',
+     "three numbers"),
+    ('{"type": "transfer", "points": [{"s": 0.5, "opacity": 1, "albedo": [1, 1, 2]}], "density_scale": 1}',
+     "must be in"),
+    ('{"type": "transfer", "points": [{"s": 0.5, "opacity": 1, "albedo": [1, 1, true]}], "density_scale": 1}',
+     "must be a number"),
+    ('{"type": "transfer", "points": [{"s": 0.5, "opacity": 1, "albedo": [1, 1, 1]}], "density_scale": 0}',
+     "must be in"),
+    ('{"type": "transfer", "points": [{"s": 0.5, "opacity": 1, "albedo": [1, 1, 1]}]}', "missing 'density_scale'"),
+    ('{"type": "retrain"}', "missing 'action'"),
+    ('{"type": "retrain", "action": "rm -rf"}', "must be one of"),
     ("[" * 3000 + "]" * 3000, "larger than"),
     ("[" * 2000 + "]" * 2000, "not JSON"),
     ('{"type": "orbit", "dx": 1, "dy": 2, "pad": "' + "x" * MAX_MESSAGE_BYTES + '"}', "larger than"),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import struct
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +15,7 @@ from conftest import tiny_scene_dict
 from photon_fields.runtime.scene.scene import Scene, scene_from_dict
 from photon_fields.runtime.viewer.launch import ViewerInputs
 from photon_fields.runtime.viewer.messages import Message, validate
+from photon_fields.runtime.viewer.retrain import RetrainSettings
 from photon_fields.runtime.viewer.session import ViewerSession
 
 SIZE = 24
@@ -50,3 +52,32 @@ def split_frame(data: bytes) -> tuple[dict[str, Any], bytes]:
     """A binary frame message -> (header, image bytes)."""
     n = struct.unpack(">I", data[:4])[0]
     return json.loads(data[4:4 + n]), data[4 + n:]
+
+
+# A stand-in for pfn-train: takes its arguments, writes its progress file, and fails or sleeps as told.
+STAND_IN = '''
+import sys, time
+from photon_fields.runtime.io.progress import ProgressFile
+args = sys.argv[1:]
+opt = lambda name: args[args.index(name) + 1]
+mode = opt("--mode")
+pf = ProgressFile(opt("--progress-file"), ("trace", "fit", "export"), min_interval=0)
+pf.update("trace", 1, 2)
+if mode == "fail":
+    print("error: --photons: too few photons for this scene", flush=True)
+    pf.finish("failed", "error: --photons: too few photons for this scene")
+    sys.exit(2)
+if mode == "crash":
+    print("Segmentation fault (pretend)", flush=True)
+    sys.exit(3)
+pf.update("fit", 5, 10)
+time.sleep(120)
+'''
+
+
+def stand_in_trainer(tmp_path: Path, mode: str, delay_s: float = 0.0) -> RetrainSettings:
+    """Retrain settings whose trainer is :data:`STAND_IN` in ``mode``: slow (reports trace, then fit at 50 %, then
+    sleeps), fail (a one-line error, exit 2) or crash (exit 3 with nothing in the progress file)."""
+    script = tmp_path / "trainer.py"
+    script.write_text(STAND_IN)
+    return RetrainSettings(command=(sys.executable, str(script)), extra=("--mode", mode), delay_s=delay_s)

@@ -1,0 +1,126 @@
+"""The field and photon map a viewer session renders L_i with, and the scene they were made for.
+
+A field (or map) answers L_i for the transfer function and lights it was trained (traced) for. The page edits
+both; :class:`FieldInUse` says what follows from an edit:
+
+- a single light's power: L_i is rescaled exactly (radiance is linear in a light's power), no retraining;
+- anything else (another transfer function, a moved light, a power edit among several lights): L_i is *stale*.
+  Frames say so, and the session's :class:`photon_fields.runtime.viewer.updater.FieldUpdater` retrains in the
+  background; :meth:`FieldInUse.from_job` loads the result, which the session swaps in.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from photon_fields.runtime.scene.scene import Scene
+from photon_fields.runtime.scene.transfer import TransferFunction
+from photon_fields.runtime.viewer.light_control import LightControl
+from photon_fields.runtime.viewer.messages import RENDERER_NAMES
+from photon_fields.runtime.viewer.retrain import RetrainJob
+from photon_fields.runtime.viewer.updater import FieldUpdater, same_transfer
+
+
+class FieldInUse:
+    """``estimator``: a photon field's estimator (the neural renderer) or None; ``pmap``: a photon map (the
+    photon-map renderer) or None; ``scene``: what both were made for (its transfer function and lights)."""
+
+    def __init__(self, scene: Scene, estimator: Any = None, pmap: Any = None) -> None:
+        self.estimator, self.pmap = estimator, pmap
+        self.tf: TransferFunction = scene.tf
+        self.lights = [LightControl.from_light(lt) for lt in scene.lights]
+
+    @classmethod
+    def from_job(cls, job: RetrainJob, threads: int | None = None) -> FieldInUse:
+        """The field and map a finished retrain wrote (each checked against the scene it was trained for; an
+        :class:`photon_fields.runtime.errors.InputError` if either does not load)."""
+        from photon_fields.runtime.field.field import PhotonField
+        from photon_fields.runtime.photons.photon_map import PhotonMap
+
+        scene = job.scene
+        field = PhotonField.load(job.bundle, threads=threads, precision="fp32",
+                                 expected_fingerprint=scene.fingerprint(), expected_parts=scene.fingerprint_parts())
+        pmap = PhotonMap.load(job.photon_map, expected_fingerprint=scene.fingerprint(),
+                              expected_parts=scene.fingerprint_parts())
+        return cls(scene, field.estimator(), pmap)
+
+    @property
+    def exists(self) -> bool:
+        return self.estimator is not None or self.pmap is not None
+
+    def has(self, renderer: str) -> bool:
+        """Whether ``renderer`` (a page name) has its input here; the path tracer needs none."""
+        return {"neural": self.estimator is not None, "pt": True, "photonmap": self.pmap is not None}[renderer]
+
+    @property
+    def available(self) -> list[str]:
+        return [name for name in RENDERER_NAMES if self.has(name)]
+
+    def render(self, scene: Scene, renderer: str, *, seed: int, n: int,
+               threads: int | None = None) -> dict[str, np.ndarray]:
+        """Frame ``n`` of a session's accumulation with ``renderer``: 1 sample per pixel; the neural renderer draws
+        samples ``first_sample = n`` of ``seed``, the others use seed ``seed + n``. ``threads``: numba workers
+        (None: as set)."""
+        from photon_fields.runtime.threads import numba_threads
+
+        with numba_threads(threads):
+            if renderer == "neural":
+                from photon_fields.runtime.renderers.neural import render_neural
+
+                result = render_neural(scene, self.estimator, spp=1, seed=seed, progress=False, first_sample=n)
+            elif renderer == "pt":
+                from photon_fields.runtime.renderers.path_tracer import render_path_traced
+
+                result = render_path_traced(scene, spp=1, seed=seed + n, progress=False)
+            else:
+                from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
+
+                # force: after an edit the map is stale, which the frame's warnings say (stale)
+                result = render_photon_mapped(scene, self.pmap, spp=1, seed=seed + n, progress=False, force=True)
+        return result.layers
+
+    def indirect_scale(self, lights: list[LightControl]) -> float | None:
+        """How L_i, made for the trained lights, follows the page's ``lights``: 1 without edits; with a single
+        light whose only edit is its power, the ratio of the powers (exact); None otherwise (stale)."""
+        def where(c: LightControl) -> tuple[Any, ...]:
+            return c.kind, c.azimuth, c.elevation, c.distance, tuple(np.asarray(c.color).tolist())
+
+        trained = self.lights
+        if [(where(a), a.power) for a in lights] == [(where(b), b.power) for b in trained]:
+            return 1.0
+        if len(lights) == 1 and len(trained) == 1 and where(lights[0]) == where(trained[0]) and trained[0].power > 0:
+            return lights[0].power / trained[0].power
+        return None
+
+    def stale(self, transfer: TransferFunction | None, lights: list[LightControl]) -> bool:
+        """Whether L_i is not the edited scene's: another transfer function, or a light edit
+        :meth:`indirect_scale` cannot follow."""
+        return not same_transfer(transfer, self.tf) or self.indirect_scale(lights) is None
+
+    def follow_light_power(self, layers: dict[str, np.ndarray], renderer: str,
+                           lights: list[LightControl]) -> dict[str, np.ndarray]:
+        """The field's or map's L_i rescaled to a single light's edited power (:meth:`indirect_scale`); L_d, from
+        next-event estimation with the edited lights, is already right."""
+        scale = self.indirect_scale(lights) if renderer in ("neural", "photonmap") else 1.0
+        if scale is None or scale == 1.0:
+            return layers
+        li = (layers["L_i"] * np.float32(scale)).astype(np.float32)
+        return {**layers, "L_i": li, "L": (layers["L_e"] + layers["L_d"]) + li}
+
+    def warnings(self, renderer: str, transfer: TransferFunction | None, lights: list[LightControl],
+                 updater: FieldUpdater) -> list[str]:
+        """What a frame of ``renderer`` tells the page about its L_i (nothing when it is right)."""
+        if renderer == "pt" or not self.stale(transfer, lights):
+            return []
+        what = "field was trained" if renderer == "neural" else "photon map was traced"
+        if not same_transfer(transfer, self.tf):
+            warning = (f"stale L_i: the {what} for another transfer function (L_d and the path tracer follow the "
+                       "edit at once)")
+        else:
+            warning = (f"stale L_i: the {what} for the scene's lights: L_i does not follow this light edit (L_d "
+                       "does; a single light's power alone would be followed exactly)")
+        if updater.busy:
+            return [warning + "; retraining in the background"]
+        return [f"{warning}; {'press retrain' if updater.available else updater.reason}"]
