@@ -201,6 +201,44 @@ def first_after_move(client: Client, moves: int, rest: float, pid: int) -> dict[
             "other_cores": load.other_cores, "viewer_cores": load.viewer_cores}
 
 
+def retrain_cycle(client: Client, scale: float, seconds: float, hz: float, pid: int) -> dict[str, Any]:
+    """A transfer-function edit (every opacity times ``scale``) as the page's editor sends it, then: dragging while
+    the background retrain runs (issue 15: >= 4 frames/s), and the edit cycle, from the edit to the ``done``
+    message of the swapped-in field, and the first frame after it (no longer stale)."""
+    while not client.texts.empty():
+        client.texts.get_nowait()
+    points = [{**p, "opacity": min(1.0, p["opacity"] * scale)} for p in STATE["transfer"]["points"]]
+    t_edit = time.perf_counter()
+    client.send({"type": "transfer", "points": points, "density_scale": STATE["transfer"]["density_scale"]})
+    statuses: list[dict[str, Any]] = []
+
+    def wait_status(states: set[str], timeout: float = 1800.0) -> dict[str, Any]:
+        end = time.perf_counter() + timeout
+        while True:
+            m = client.texts.get(timeout=max(0.01, end - time.perf_counter()))
+            if m.get("type") == "retrain":
+                statuses.append({**m, "t_s": round(time.perf_counter() - t_edit, 2)})
+                if m["state"] in states:
+                    return m
+
+    wait_status({"running"})
+    while True:  # the job has loaded torch and is tracing or fitting
+        m = wait_status({"running", "failed"})
+        if m["state"] == "failed" or m.get("stage") in ("trace", "fit"):
+            break
+    d = drag(client, seconds, hz, pid) if m["state"] == "running" else None
+    done = wait_status({"done", "failed", "cancelled", "unavailable"})
+    cycle = time.perf_counter() - t_edit
+    _, h = client.wait_frame(lambda h: not h.get("stale", False))
+    return {"drag_while_retraining": d, "state": done["state"], "message": done.get("message"),
+            "edit_cycle_s": round(cycle, 1), "server_cycle_s": done.get("cycle_s"),
+            "first_frame_after": {k: h.get(k) for k in ("renderer", "stale", "spp")},
+            "statuses": [{k: st.get(k) for k in ("state", "stage", "fraction", "t_s")} for st in statuses]}
+
+
+STATE: dict[str, Any] = {}
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--scene", default="vortex")
@@ -215,6 +253,10 @@ def main() -> int:
     p.add_argument("--moves", type=int, default=10)
     p.add_argument("--rest", type=float, default=0.6)
     p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--retrain", type=float, default=None, metavar="SCALE",
+                   help="last: a transfer-function edit (opacities times SCALE, e.g. 0.7) and its background retrain: "
+                        "frames/s dragging meanwhile and the edit-to-new-field time (needs the train extra)")
+    p.add_argument("--retrain-photons", default="1M")
     p.add_argument("--out", default=str(REPO / "bench" / "results" / "viewer.json"))
     args = p.parse_args()
     renderers = args.renderers.split(",") if args.renderers else (["neural"] if args.bundle else []) + ["pt"]
@@ -228,6 +270,7 @@ def main() -> int:
         view += ["--bundle", args.bundle]
     if args.threads:
         view += ["--threads", str(args.threads)]
+    view += ["--retrain-photons", args.retrain_photons]
     t_spawn = time.perf_counter()
     proc = subprocess.Popen(view, stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     results: dict[str, Any] = {}
@@ -238,6 +281,7 @@ def main() -> int:
         url = line.split()[1].replace("http://", "ws://") + "ws"
         t_address = time.perf_counter() - t_spawn
         client = Client(url)
+        STATE.update(client.texts.get(timeout=60))  # the page's controls, the transfer function among them
         t_first, _ = client.wait_frame(lambda h: True)
         startup = {"address_printed_s": round(t_address, 2), "first_frame_s": round(t_first - t_spawn, 2)}
         print(f"start-up: address after {startup['address_printed_s']} s, first frame after "
@@ -265,14 +309,23 @@ def main() -> int:
                   f"{d['server_ms_median']}; other cores {d['other_cores']})")
             print(f"{name:7s} first frame after a move: median {m['latency_ms_median']} ms, p90 "
                   f"{m['latency_ms_p90']} ms (other cores {m['other_cores']})")
+        if args.retrain is not None:
+            client.send({"type": "set", "control": "renderer", "value": renderers[0]})
+            r = retrain_cycle(client, args.retrain, args.drag_seconds, args.input_hz, proc.pid)
+            results["retrain"] = r
+            d = r["drag_while_retraining"] or {}
+            print(f"retrain after a transfer-function edit: {r['state']} ({r['message']}); edit to new field "
+                  f"{r['edit_cycle_s']} s; dragging meanwhile {d.get('frames_per_s')} frames/s (input->image median "
+                  f"{d.get('latency_ms_median')} ms); first frame after: {r['first_frame_after']}")
         client.close()
     finally:
         proc.terminate()
         proc.wait(30)
     config = {"scene": args.scene, "bundle": args.bundle, "size": args.size, "renderers": renderers,
               "drag_seconds": args.drag_seconds, "input_hz": args.input_hz, "moves": args.moves, "rest_s": args.rest,
-              "threads": args.threads, "drag_scales": scales}
-    phases = {f"{n}.{k}": v for n, r in results.items() for k, v in r.items()}
+              "threads": args.threads, "drag_scales": scales, "retrain": args.retrain,
+              "retrain_photons": args.retrain_photons}
+    phases = {f"{n}.{k}": v for n, r in results.items() if n != "retrain" for k, v in r.items()}
     write_report(Path(args.out), "viewer", {**finish_info(info, phases), "cpu_record": cpu_record()}, config,
                  startup=startup, results=results)
     return 0

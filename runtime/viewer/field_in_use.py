@@ -11,6 +11,7 @@ both; :class:`FieldInUse` says what follows from an edit:
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -27,8 +28,9 @@ class FieldInUse:
     """``estimator``: a photon field's estimator (the neural renderer) or None; ``pmap``: a photon map (the
     photon-map renderer) or None; ``scene``: what both were made for (its transfer function and lights)."""
 
-    def __init__(self, scene: Scene, estimator: Any = None, pmap: Any = None) -> None:
+    def __init__(self, scene: Scene, estimator: Any = None, pmap: Any = None, run_dir: Path | None = None) -> None:
         self.estimator, self.pmap = estimator, pmap
+        self.run_dir = run_dir  # the field's run folder, when it has one: retraining then fine-tunes it
         self.tf: TransferFunction = scene.tf
         self.lights = [LightControl.from_light(lt) for lt in scene.lights]
 
@@ -44,7 +46,16 @@ class FieldInUse:
                                  expected_fingerprint=scene.fingerprint(), expected_parts=scene.fingerprint_parts())
         pmap = PhotonMap.load(job.photon_map, expected_fingerprint=scene.fingerprint(),
                               expected_parts=scene.fingerprint_parts())
-        return cls(scene, field.estimator(), pmap)
+        return cls(scene, field.estimator(), pmap, job.run_dir)
+
+    @staticmethod
+    def run_folder_of(bundle: str | Path | None) -> Path | None:
+        """The run folder a bundle was exported into (``pfn-train all`` writes ``RUN/field.pfn`` beside the
+        checkpoint and the log ``update`` starts from), or None."""
+        if bundle is None:
+            return None
+        run = Path(bundle).resolve().parent
+        return run if (run / "checkpoint.pt").is_file() and (run / "log.json").is_file() else None
 
     @property
     def exists(self) -> bool:

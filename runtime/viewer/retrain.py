@@ -2,10 +2,11 @@
 
 After a transfer-function edit (or a light edit the field cannot follow exactly), the field's L_i is stale: it
 was trained for the scene before the edit. The viewer keeps rendering (L_d, the path tracer and the camera's
-first interactions use the edited scene at once) and starts a :class:`RetrainJob`: ``pfn-train all`` on the
-edited scene, run with this interpreter as ``python -m photon_fields.train.cli.train``, in a folder of its own
-under the viewer's output folder. The runtime never imports torch: training is another process, which is also
-what lets the page cancel it (a new edit) without waiting.
+first interactions use the edited scene at once) and starts a :class:`RetrainJob` on the edited scene, run with
+this interpreter as ``python -m photon_fields.train.cli.train``, in a folder of its own under the viewer's
+output folder: ``pfn-train update`` (a warm-started fine-tune, seconds) when the field in use comes with its
+run folder, else ``pfn-train all`` (a cold trace and fit). The runtime never imports torch: training is another
+process, which is also what lets the page cancel it (a new edit) without waiting.
 
 The job reports through ``pfn-train --progress-file`` (:mod:`photon_fields.runtime.io.progress`); the session
 polls it, shows it in the page, and swaps the new bundle in when the job is done.
@@ -50,6 +51,7 @@ class RetrainSettings:
     threads: the job's worker threads; the viewer renders with the other cores while it runs.
     delay_s: seconds an edit must rest before a job starts (a dragged control point sends many edits).
     auto: start a job after every edit that makes L_i stale (else only when the page asks).
+    budget_s: ``pfn-train update --budget`` of a warm-started job (None: update's default).
     extra: more ``pfn-train all`` options (tests: a tiny preset).
     command: the trainer program (None: :data:`TRAINER`; tests put a stand-in here).
     """
@@ -60,6 +62,7 @@ class RetrainSettings:
     threads: int = 1
     delay_s: float = 1.5
     auto: bool = True
+    budget_s: float | None = None
     extra: tuple[str, ...] = ()
     command: tuple[str, ...] | None = None
 
@@ -79,7 +82,7 @@ class RetrainJob:
     """One background training of ``scene`` in ``folder`` (module docstring), started at once."""
 
     def __init__(self, scene: Scene, folder: Path, settings: RetrainSettings, *, seed: int = 0,
-                 edited_at: float | None = None) -> None:
+                 edited_at: float | None = None, warm_from: Path | None = None) -> None:
         spec = scene.spec()
         if spec is None:
             raise InputError("retrain", "this scene's volume was built in memory and cannot be handed to the "
@@ -89,10 +92,16 @@ class RetrainJob:
         self.edited_at = self.started if edited_at is None else edited_at
         self.folder.mkdir(parents=True, exist_ok=False)
         atomic_write_text(self.scene_file, json.dumps(spec, indent=1) + "\n")
-        cmd = [*(settings.command or TRAINER), "all", str(self.scene_file), "--out", str(self.run_dir),
-               "--photons", settings.photons, "--preset", settings.preset, "--seed", str(int(seed)),
-               "--threads", str(settings.threads), "--quiet", "--progress-file", str(self.progress_file),
-               *(["--steps", str(settings.steps)] if settings.steps is not None else []), *settings.extra]
+        self.warm_from = warm_from
+        common = ["--out", str(self.run_dir), "--threads", str(settings.threads), "--quiet", "--progress-file",
+                  str(self.progress_file)]
+        if warm_from is not None:  # fine-tune the field in use: its run folder's weights, map seed, settings
+            cmd = [*(settings.command or TRAINER), "update", str(warm_from), "--scene", str(self.scene_file),
+                   *common, *(["--budget", str(settings.budget_s)] if settings.budget_s is not None else [])]
+        else:
+            cmd = [*(settings.command or TRAINER), "all", str(self.scene_file), *common, "--photons",
+                   settings.photons, "--preset", settings.preset, "--seed", str(int(seed)),
+                   *(["--steps", str(settings.steps)] if settings.steps is not None else []), *settings.extra]
         self.log = open(self.log_file, "wb")  # noqa: SIM115  (closed when the job ends)
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.process = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=self.log, stderr=subprocess.STDOUT,

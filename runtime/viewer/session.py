@@ -90,7 +90,7 @@ class ViewerSession:
                  denoise_frames: int = DEFAULT_DENOISE_FRAMES, info: dict[str, Any] | None = None,
                  drag_scale: float | str = 1.0, retrain: RetrainSettings | None = None) -> None:
         self.base_scene = scene
-        self.field = FieldInUse(scene, estimator, pmap)
+        self.field = FieldInUse(scene, estimator, pmap, FieldInUse.run_folder_of((info or {}).get("bundle")))
         self.out_dir = Path(out_dir)
         self.seed = int(seed)
         self.denoise_frames = int(denoise_frames)
@@ -185,7 +185,7 @@ class ViewerSession:
                 if f["action"] == "cancel":
                     self.updater.cancel()
                 else:
-                    self.updater.want(self.edited_scene(s), now=True)
+                    self.updater.want(self.edited_scene(s), now=True, warm_from=self.field.run_dir)
             else:  # validate() knows no other types; a new one must be handled here first
                 raise MessageError(f"message type {msg.type!r} is not handled")
             if msg.seq is not None:
@@ -193,7 +193,7 @@ class ViewerSession:
             # without a field or map nothing is stale: only the page's retrain button trains one
             if msg.type in ("transfer", "light") and self.updater.settings.auto and self.field.exists \
                     and self.field_stale(s):
-                self.updater.want(self.edited_scene(s))
+                self.updater.want(self.edited_scene(s), warm_from=self.field.run_dir)
             if restart:
                 self.generation += 1
             self.cut = self.cut or cut

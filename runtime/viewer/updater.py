@@ -52,6 +52,7 @@ class FieldUpdater:
         self.lock = threading.Lock()
         self.job: RetrainJob | None = None
         self._wanted: Scene | None = None
+        self._warm_from: Path | None = None
         self._wanted_at = 0.0
         self._edited_at: float | None = None  # the first edit since the field in use was made
         self._cancel = False
@@ -67,12 +68,13 @@ class FieldUpdater:
         """A job is training (the session then renders with the cores it leaves)."""
         return self.job is not None and self.job.process.poll() is None
 
-    def want(self, scene: Scene, now: bool = False) -> None:
+    def want(self, scene: Scene, now: bool = False, warm_from: Path | None = None) -> None:
         """A field for ``scene`` is wanted: after ``settings.delay_s`` without a newer wish, or at the next poll
-        when ``now``."""
+        when ``now``; fine-tuned from the run folder ``warm_from`` when given (else trained from scratch)."""
         with self.lock:
             t = time.monotonic()
             self._wanted, self._wanted_at, self._cancel = scene, t - (self.settings.delay_s if now else 0.0), False
+            self._warm_from = warm_from
             if self._edited_at is None:
                 self._edited_at = t
 
@@ -88,7 +90,7 @@ class FieldUpdater:
     def poll(self) -> tuple[dict[str, Any] | None, RetrainJob | None]:
         """(a status message for the page if there is news, the job that just finished successfully or None)."""
         with self.lock:
-            wanted, wanted_at, cancel = self._wanted, self._wanted_at, self._cancel
+            wanted, wanted_at, cancel, warm_from = self._wanted, self._wanted_at, self._cancel, self._warm_from
             start = wanted is not None and time.monotonic() - wanted_at >= self.settings.delay_s
             if start or cancel:
                 self._wanted = None if start else self._wanted
@@ -106,11 +108,12 @@ class FieldUpdater:
                 self.job.cancel()
             try:
                 self.job = RetrainJob(wanted, next_job_folder(self.out_dir), self.settings, seed=self.seed,
-                                      edited_at=self._edited_at)
+                                      edited_at=self._edited_at, warm_from=warm_from)
             except (InputError, OSError) as exc:
                 self.job = None
                 return self._emit(status_message("failed", message=f"cannot start retraining: {exc}")), None
-            return self._emit(status_message("running", folder=str(self.job.folder))), None
+            return self._emit(status_message("running", folder=str(self.job.folder),
+                                             warm_start=warm_from is not None)), None
         if self.job is None:
             return None, None
         state, progress, message = self.job.poll()

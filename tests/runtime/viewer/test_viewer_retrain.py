@@ -8,6 +8,7 @@ test runs the real trainer and is skipped where torch is not installed."""
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import Any
@@ -68,6 +69,30 @@ def test_a_job_starts_once_edits_rest_and_a_newer_edit_replaces_it(tmp_path: Pat
     finally:
         s.close()
     assert s.updater.job is None
+
+
+def test_a_field_with_its_run_folder_is_fine_tuned_and_one_without_is_trained_afresh(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    run.mkdir()
+    for name in ("checkpoint.pt", "log.json"):
+        (run / name).write_text("stand-in")
+    settings = stand_in_trainer(tmp_path, "slow")
+    for info, command in (({"bundle": str(run / "field.pfn")}, "update"), ({"bundle": None}, "all")):
+        s = make_session(tmp_path / f"out_{command}", retrain=settings, info=info)
+        try:
+            edit(s, 0.5)
+            status = poll_until(s, {"running"})[0]
+            assert status["warm_start"] is (command == "update")
+            argv_file = s.updater.job.folder / "argv.json"
+            while not argv_file.exists():
+                time.sleep(0.05)
+            argv = json.loads(argv_file.read_text())
+            assert argv[0] == command and str(s.updater.job.scene_file) in argv
+            if command == "update":
+                assert argv[1] == str(run.resolve())
+                assert argv[argv.index("--scene") + 1] == str(s.updater.job.scene_file)
+        finally:
+            s.close()
 
 
 def test_cancel_stops_the_job_and_closing_the_page_stops_it_too(tmp_path: Path) -> None:

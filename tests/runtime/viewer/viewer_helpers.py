@@ -56,11 +56,13 @@ def split_frame(data: bytes) -> tuple[dict[str, Any], bytes]:
 
 # A stand-in for pfn-train: takes its arguments, writes its progress file, and fails or sleeps as told.
 STAND_IN = '''
-import sys, time
+import json, sys, time
+from pathlib import Path
 from photon_fields.runtime.io.progress import ProgressFile
 args = sys.argv[1:]
 opt = lambda name: args[args.index(name) + 1]
-mode = opt("--mode")
+mode = opt("--mode") if "--mode" in args else "slow"
+Path(opt("--progress-file")).with_name("argv.json").write_text(json.dumps(args))
 pf = ProgressFile(opt("--progress-file"), ("trace", "fit", "export"), min_interval=0)
 pf.update("trace", 1, 2)
 if mode == "fail":
@@ -77,7 +79,9 @@ time.sleep(120)
 
 def stand_in_trainer(tmp_path: Path, mode: str, delay_s: float = 0.0) -> RetrainSettings:
     """Retrain settings whose trainer is :data:`STAND_IN` in ``mode``: slow (reports trace, then fit at 50 %, then
-    sleeps), fail (a one-line error, exit 2) or crash (exit 3 with nothing in the progress file)."""
+    sleeps), fail (a one-line error, exit 2) or crash (exit 3 with nothing in the progress file). It writes the
+    arguments it was given to ``argv.json`` beside its progress file (``pfn-train update`` takes no ``--mode``:
+    slow)."""
     script = tmp_path / "trainer.py"
     script.write_text(STAND_IN)
     return RetrainSettings(command=(sys.executable, str(script)), extra=("--mode", mode), delay_s=delay_s)
