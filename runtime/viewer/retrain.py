@@ -46,12 +46,14 @@ TRAINER = (sys.executable, "-m", "photon_fields.train.cli.train")
 class RetrainSettings:
     """How the viewer retrains.
 
-    photons: photon records of the new map (fewer than ``pfn-train``'s default: an interactive edit cycle).
+    photons: photon records of the new map (fewer than ``pfn-train``'s default: the retrace is part of an
+        interactive edit cycle; the same seed keeps the paths correlated with the earlier map's).
     preset: ``pfn-train --preset``; steps: ``--steps`` (None: the preset's).
     threads: the job's worker threads; the viewer renders with the other cores while it runs.
     delay_s: seconds an edit must rest before a job starts (a dragged control point sends many edits).
     auto: start a job after every edit that makes L_i stale (else only when the page asks).
-    budget_s: ``pfn-train update --budget`` of a warm-started job (None: update's default).
+    budget_s: ``pfn-train update --budget`` of a warm-started job, seconds for retrace and training on
+        ``threads`` cores (None: update's default).
     extra: more ``pfn-train all`` options (tests: a tiny preset).
     command: the trainer program (None: :data:`TRAINER`; tests put a stand-in here).
     """
@@ -62,7 +64,7 @@ class RetrainSettings:
     threads: int = 1
     delay_s: float = 1.5
     auto: bool = True
-    budget_s: float | None = None
+    budget_s: float | None = 30.0
     extra: tuple[str, ...] = ()
     command: tuple[str, ...] | None = None
 
@@ -97,7 +99,8 @@ class RetrainJob:
                   str(self.progress_file)]
         if warm_from is not None:  # fine-tune the field in use: its run folder's weights, map seed, settings
             cmd = [*(settings.command or TRAINER), "update", str(warm_from), "--scene", str(self.scene_file),
-                   *common, *(["--budget", str(settings.budget_s)] if settings.budget_s is not None else [])]
+                   *common, "--photons", settings.photons,
+                   *(["--budget", str(settings.budget_s)] if settings.budget_s is not None else [])]
         else:
             cmd = [*(settings.command or TRAINER), "all", str(self.scene_file), *common, "--photons",
                    settings.photons, "--preset", settings.preset, "--seed", str(int(seed)),
