@@ -360,6 +360,10 @@ def cmd_update(args: argparse.Namespace) -> int:
           f"(stopped: {log['stop']['reason']}), validation relative L1 {first:.3f} -> "
           f"{val.get('val_rel_l1', float('nan')):.3f}, {res.wall_s:.1f} s in all")
     _print_export(res.bundle)
+    if log["stop"]["reason"] == "budget" and log["stop"]["kept_step"] == 0:
+        print(f"note: the budget ran out before training improved the field (retrace {res.trace_s:.1f} s): "
+              f"{res.out / 'field.pfn'} is the earlier field; pass a larger --budget or fewer --photons",
+              file=sys.stderr)
     if progress is not None:
         progress.finish("done", f"bundle {res.bundle.path}")
     return 0
