@@ -52,6 +52,7 @@ EMITTERS = "tests/runtime/transport/test_emitters.py"
 TRACING = "tests/train/photons/test_photon_tracing.py"
 CAMERA = "tests/runtime/wavefront/test_camera_estimators.py"
 VSESSION = "tests/runtime/viewer/test_viewer_session.py"
+UPDATE = "tests/train/fit/test_update.py"
 
 
 @dataclass(frozen=True)
@@ -222,6 +223,40 @@ MUTANTS: tuple[Mutant, ...] = (
            "",
            (f"{CAMERA}::test_forced_and_delta_estimate_the_same_image[L_i-forced, roulette]",),
            "a low-weight collision that survives the roulette keeps its weight instead of the roulette's"),
+    # pfn-train update (issue 16): refusals, warm start, correlated retrace, stopping, reproducibility.
+    Mutant("update_other_volume", "train/fit/update.py",
+           'if scene.fingerprint_parts()["volume"] != record.parts["volume"]:', "if False:",
+           (f"{UPDATE}::test_refusals_are_one_line_and_leave_run_untouched",),
+           "an update from a run of another volume is not refused: a field is fine-tuned for a volume it never saw"),
+    Mutant("update_budget_unchecked", "train/fit/update.py", "or budget_s <= 0:", "or budget_s < -1e300:",
+           (f"{UPDATE}::test_refusals_are_one_line_and_leave_run_untouched",),
+           "a budget <= 0 is accepted (and silently exports the old field)"),
+    Mutant("update_nothing_visible", "train/fit/update.py", "if not float(np.max(m.majorant)) > 0.0:", "if False:",
+           (f"{UPDATE}::test_refusals_are_one_line_and_leave_run_untouched",),
+           "an edit that leaves nothing visible is not refused before the run folder is created"),
+    Mutant("update_into_run", "train/fit/update.py",
+           "if dest.exists() and src.exists() and dest.resolve() == src.resolve():", "if False:",
+           (f"{UPDATE}::test_out_equal_to_run_is_refused",),
+           "--out RUN --force overwrites the run the update reads from"),
+    Mutant("update_cold_start", "train/fit/update.py",
+           'model, _ = load_checkpoint(src / "checkpoint.pt", expected_fingerprint=record.fingerprint)',
+           'model, _ = load_checkpoint(src / "checkpoint.pt", expected_fingerprint=record.fingerprint)\n'
+           "    model = type(model)(model.cfg, seed=seed)",
+           (f"{UPDATE}::test_the_update_starts_from_runs_field",),
+           "the update trains a freshly initialized field instead of RUN's"),
+    Mutant("update_retrace_new_seed", "train/fit/update.py", "max_bounces=record.max_bounces, seed=seed,",
+           "max_bounces=record.max_bounces, seed=seed + 1,",
+           (f"{UPDATE}::test_retrace_is_correlated_with_runs_map",),
+           "the retrace uses other random streams than RUN's map: the new map is not correlated with the old"),
+    Mutant("update_ignores_plateau", "train/fit/fine_tune.py", "                        stopped = True\n",
+           "                        pass\n", (f"{UPDATE}::test_stops_on_a_plateau_and_at_the_budget",),
+           "the fine-tune runs to --max-steps although the validation error stopped improving"),
+    Mutant("update_ignores_budget", "train/fit/fine_tune.py", "if time.perf_counter() >= deadline:", "if False:",
+           (f"{UPDATE}::test_stops_on_a_plateau_and_at_the_budget",),
+           "the fine-tune ignores the time budget"),
+    Mutant("update_unseeded_sampler", "train/fit/fine_tune.py", "psi=settings.psi, seed=settings.seed,",
+           "psi=settings.psi, seed=time.perf_counter_ns(),", (f"{UPDATE}::test_same_seed_same_field",),
+           "the fine-tune's training batches do not follow the seed: two updates with one seed differ"),
     # The viewer (issue 15, step 1): session, messages, server.
     Mutant("viewer_same_samples", "runtime/viewer/field_in_use.py", "first_sample=n)", "first_sample=0)",
            (f"{VSESSION}::test_neural_accumulation_equals_one_render_with_all_samples",),

@@ -9,13 +9,16 @@ Examples::
     pfn-train fit vortex --map maps/vortex.npz --out runs/paper/ --preset paper
     pfn-train all blobs --photons 1M --out runs/blobs/                       # trace + fit + export
     pfn-train export runs/vortex/ --out fields/vortex.pfn                    # the bundle for pfn-render
+    pfn-train update runs/vortex/ --scene vortex_edited.json --out runs/vortex_edited/   # warm-started, <= 15 s
 
 ``fit`` writes ``checkpoint.pt``, ``log.json``, ``loss.png`` and ``domain.json`` (the world box, for the
 export) into the ``--out`` folder (see :mod:`photon_fields.train.fit.loop`). Options left out come from the preset
 (``--preset``: cpu, cpu-phases, paper, tiny). A map traced with the default phases (narrow bins) trains any g
 with the default preset; a map of a few phases needs ``--preset cpu-phases`` (or ``--g-sampling discrete``).
 ``export`` writes the runtime's bundle (:mod:`train.export.bundle`); ``all`` ends with it (``OUT/field.pfn``,
-replaced if present).
+replaced if present). ``update`` makes the run folder of an edited scene (transfer function or lights; same
+volume) from an earlier run's field in seconds: retrace with the same seed, warm-started training until the
+validation error stops improving or ``--budget`` runs out, export (:mod:`photon_fields.train.fit.update`).
 
 Bad input exits with status 2 and one line on stderr: ``error: <input>: <problem>``.
 """
@@ -77,7 +80,34 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--tables-dtype", choices=["float32", "float16"], default="float32",
                    help="hash-table precision (float16: half the size, L' within ~1e-3)")
     e.add_argument("--force", action="store_true", help="replace an existing bundle")
+    _add_update_parser(sub)
     return p
+
+
+def _add_update_parser(sub: argparse._SubParsersAction) -> None:
+    from photon_fields.train.fit.presets import UPDATE_BUDGET_S, UPDATE_MAX_STEPS
+
+    u = sub.add_parser("update", help="an edited scene's run folder from an earlier run's field: retrace, "
+                                      "warm-started training, export (seconds)",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    u.add_argument("run", help="run folder of pfn-train all (or fit, or update) of the same volume; only read")
+    u.add_argument("--scene", required=True, help="the edited scene (builtin name or scene JSON file): same volume, "
+                                                  "another transfer function or lights")
+    u.add_argument("--out", required=True, help="the new run folder (map.npz, checkpoint.pt, log.json, loss.png, "
+                                                "domain.json, field.pfn)")
+    u.add_argument("--budget", type=float, default=UPDATE_BUDGET_S,
+                   help="wall seconds for retrace + training (the export comes after)")
+    u.add_argument("--max-steps", type=int, default=UPDATE_MAX_STEPS, help="at most this many training steps")
+    u.add_argument("--photons", default=None, help="records in the new map (default: the earlier map's count)")
+    u.add_argument("--seed", type=int, default=None,
+                   help="random seed of the retrace and the training (default: the earlier map's, which makes the "
+                        "new map correlated with it)")
+    u.add_argument("--tables-dtype", choices=["float32", "float16"], default="float32",
+                   help="hash-table precision in the exported bundle")
+    u.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
+    u.add_argument("--quiet", action="store_true", help="no progress bar")
+    u.add_argument("--force", action="store_true", help="replace the results of an earlier run in --out")
+    _add_progress_option(u)
 
 
 def _add_trace_options(t: argparse.ArgumentParser) -> None:
@@ -297,10 +327,40 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_update(args: argparse.Namespace) -> int:
+    from photon_fields.runtime.scene.scene import load_scene
+    from photon_fields.train.fit.update import update_run
+
+    photons = parse_count(args.photons) if args.photons is not None else None
+    if args.seed is not None:
+        check_seed(args.seed)
+    _set_all_threads(args.threads)
+    scene = load_scene(args.scene)
+    progress = _progress(args, ("trace", "fit", "export"))
+    res = update_run(args.run, scene, args.out, budget_s=args.budget, max_steps=args.max_steps, seed=args.seed,
+                     photons=photons, force=args.force, scene_source=args.scene, tables_dtype=args.tables_dtype,
+                     progress=not args.quiet, on_progress=None if progress is None else progress.update)
+    log = res.fit.log
+    val = log["totals"]["final_validation"] or {}
+    first = log["validation"][0]["val_rel_l1"]
+    print(f"updated {args.run} -> {res.out}: traced in {res.trace_s:.1f} s, {log['stop']['steps']} steps "
+          f"(stopped: {log['stop']['reason']}), validation relative L1 {first:.3f} -> "
+          f"{val.get('val_rel_l1', float('nan')):.3f}, {res.wall_s:.1f} s in all")
+    _print_export(res.bundle)
+    if log["stop"]["reason"] == "budget" and log["stop"]["kept_step"] == 0:
+        print(f"note: the budget ran out before training improved the field (retrace {res.trace_s:.1f} s): "
+              f"{res.out / 'field.pfn'} is the earlier field; pass a larger --budget or fewer --photons",
+              file=sys.stderr)
+    if progress is not None:
+        progress.finish("done", f"bundle {res.bundle.path}")
+    return 0
+
+
 @guarded
 def _main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    command = {"trace": cmd_trace, "fit": cmd_fit, "all": cmd_all, "export": cmd_export}[args.command]
+    command = {"trace": cmd_trace, "fit": cmd_fit, "all": cmd_all, "export": cmd_export,
+               "update": cmd_update}[args.command]
     try:
         return command(args)
     except BaseException as exc:

@@ -158,6 +158,12 @@ def _run_domain(run_dir: Path, fingerprint: str, scene: Scene | None) -> tuple[l
     return bmin, bsize, record
 
 
+def read_run_domain(run_dir: str | Path, fingerprint: str) -> tuple[list[float], list[float], dict[str, Any]]:
+    """The world box and scene record (name, per-part fingerprints, spec) of ``RUN_DIR/domain.json``, which must
+    belong to the scene of ``fingerprint`` (what ``pfn-train update`` reads of an earlier run)."""
+    return _run_domain(Path(run_dir), fingerprint, None)
+
+
 # ----------------------------------------------------------------------------------------------------
 # The two payload files
 # ----------------------------------------------------------------------------------------------------
@@ -427,5 +433,5 @@ def _place(staging: Path, dest: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
-__all__ = ["export_bundle", "write_run_domain", "mlp_onnx", "mlp_weights", "write_tables_npz", "ExportResult",
-           "verification_inputs", "torch_encoded"]
+__all__ = ["export_bundle", "write_run_domain", "read_run_domain", "mlp_onnx", "mlp_weights", "write_tables_npz",
+           "ExportResult", "verification_inputs", "torch_encoded"]

@@ -59,7 +59,9 @@ from photon_fields.train.fit.targets import TargetBatch, TargetSampler, check_ph
 LOG_KEYS = ("scene", "scene_fingerprint", "photons", "phases", "settings", "field_config", "schedule",
             "schedule_boundaries", "averaged_from_step", "status", "threads", "parameters", "validation_points",
             "validation_targets_s",
-            "per_step", "validation", "totals")
+            "per_step", "validation", "totals", "warm_start_from", "stop")
+"""``warm_start_from`` and ``stop`` are written only by a warm-started update
+(:mod:`photon_fields.train.fit.fine_tune`): the run it started from and why it stopped."""
 
 
 class TrainingDivergedError(InputError):
@@ -97,7 +99,8 @@ def validate_field(model: TorchPhotonField, val: TargetBatch, chunk: int = 1 << 
 
 
 @contextlib.contextmanager
-def _deterministic_torch() -> Iterator[None]:
+def deterministic_torch() -> Iterator[None]:
+    """Run torch with deterministic algorithms only (restored on exit)."""
     # Every op of the field has a deterministic CPU kernel (the hash-grid scatter is deterministic by
     # construction); the flag makes torch refuse a nondeterministic one instead of silently using it.
     previous = torch.are_deterministic_algorithms_enabled()
@@ -188,7 +191,7 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
 
     bar = tqdm(total=total, desc="fitting", unit="step", disable=not progress, leave=False)
     try:
-        with _deterministic_torch():
+        with deterministic_torch():
             for step in range(total):
                 radius = schedule.radius_at(step, total)
                 lr = lr_at(step, total, settings.lr, settings.lr_decay_start, settings.lr_decay_every)

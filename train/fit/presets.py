@@ -102,6 +102,17 @@ PRESETS: dict[str, Preset] = {
 #: The preset whose settings are the defaults of FitSettings and pfn-train.
 DEFAULT_PRESET = "cpu"
 
+# Defaults of a warm-started update (``pfn-train update``, :mod:`photon_fields.train.fit.update`), for any preset;
+# the measurements behind them: docs/training.md ("Updates").
+#: Wall-clock budget, seconds (the goal: an updated field in <= 15 s on 2 cores).
+UPDATE_BUDGET_S = 15.0
+#: Step limit (a cold ``cpu`` fit takes 800).
+UPDATE_MAX_STEPS = 400
+#: The update's constant learning rate as a share of the preset's.
+UPDATE_LR_SHARE = 0.3
+#: Steps between two validations (and the parameter-averaging window) of an update.
+UPDATE_VAL_EVERY = 25
+
 
 def field_config_for(preset: Preset, phases: tuple[float, ...], psi: float = DEFAULT_PSI) -> FieldConfig:
     """The field configuration of ``preset`` for a map traced at ``phases``."""

@@ -7,11 +7,11 @@ the one source of them; :meth:`FitSettings.from_preset` starts from any other pr
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 from photon_fields.models_spec.encoding import DEFAULT_PSI
-from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.errors import InputError, check_keys
 from photon_fields.train.fit.loss import LOSSES
 from photon_fields.train.fit.presets import DEFAULT_PRESET, PRESETS
 from photon_fields.train.fit.schedule import KnnSchedule, default_schedule, naive_schedule
@@ -107,6 +107,26 @@ class FitSettings:
             return self.schedule
         staggered = default_schedule(photons)
         return staggered if self.schedule_kind == "staggered" else naive_schedule(staggered.radii_percent[-1])
+
+    @classmethod
+    def from_dict(cls, d: Any, what: str = "settings") -> FitSettings:
+        """The settings :meth:`to_dict` wrote (a run's ``log.json``), validated; unknown or missing keys, and
+        values of the wrong type or range, are one-line errors naming ``what``."""
+        if not isinstance(d, dict):
+            raise InputError(what, "must be an object")
+        names = tuple(f.name for f in fields(cls))
+        check_keys(d, names, what, required=names)
+        values = dict(d)
+        try:
+            values["schedule"] = None if d["schedule"] is None else KnnSchedule.from_dict(d["schedule"])
+            settings = cls(**values)
+        except TypeError as exc:
+            raise InputError(what, f"unusable ({exc})") from None
+        try:
+            settings.validate()
+        except InputError as err:
+            raise InputError(f"{what} {err.what}", err.problem) from None
+        return settings
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready settings (recorded in log.json; :func:`finished_run` compares them)."""

@@ -1,0 +1,201 @@
+"""``pfn-train update`` / :func:`update_run`: refuses what it cannot do (one line, exit 2, RUN untouched), starts
+from RUN's field, retraces with RUN's seed (correlated maps), is reproducible, stops on a plateau or the budget,
+and writes a run folder whose bundle is NEW's."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+
+from conftest import tiny_scene_dict  # noqa: E402
+
+from photon_fields.runtime.field.field import PhotonField  # noqa: E402
+from photon_fields.runtime.io.progress import read_progress  # noqa: E402
+from photon_fields.runtime.photons.photon_map import PhotonMap  # noqa: E402
+from photon_fields.runtime.scene.scene import load_scene  # noqa: E402
+from photon_fields.train.cli.train import _main as train_main  # noqa: E402
+from photon_fields.train.export.bundle import torch_encoded, verification_inputs  # noqa: E402
+from photon_fields.train.field.network import TorchPhotonField  # noqa: E402
+from photon_fields.train.fit.checkpoint import load_checkpoint  # noqa: E402
+from photon_fields.train.fit.update import update_run  # noqa: E402
+
+FIT = ["--preset", "tiny", "--steps", "20", "--batch", "256", "--k", "32", "--quiet"]
+
+
+def write_scene(folder: Path, name: str, **changes: object) -> Path:
+    d = tiny_scene_dict()
+    for key, value in changes.items():
+        d[key] = value
+    path = folder / f"{name}.json"
+    path.write_text(json.dumps(d))
+    return path
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """RUN (a tiny ``all`` of the 32^3 blobs scene) and edited scenes."""
+    root = tmp_path_factory.mktemp("update")
+    base = write_scene(root, "base")
+    run = root / "run"
+    assert train_main(["all", str(base), "--photons", "3k", *FIT, "--seed", "3", "--out", str(run)]) == 0
+    light = dict(tiny_scene_dict()["lights"][0])
+    zero_tf = {"points": [{"s": 0, "albedo": [1, 1, 1], "opacity": 0}, {"s": 1, "albedo": [1, 1, 1], "opacity": 0}]}
+    return {
+        "root": root, "base": base, "run": run,
+        "denser": write_scene(root, "denser", transfer_function={"preset": "cloud", "density_scale": 75}),
+        "brighter": write_scene(root, "brighter", lights=[{**light, "power": 6.0}]),
+        "shell": write_scene(root, "shell", volume={"builtin": "shell", "resolution": 32}),
+        "coarser": write_scene(root, "coarser", volume={"builtin": "blobs", "resolution": 24}),
+        "empty": write_scene(root, "empty", transfer_function=zero_tf),
+        "dark": write_scene(root, "dark", lights=[{**light, "power": 0.0}]),
+    }
+
+
+def digest(folder: Path) -> dict[str, str]:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def update_args(runs: dict[str, Path], scene: str, out: Path, *extra: str) -> list[str]:
+    return ["update", str(runs["run"]), "--scene", str(runs[scene]), "--out", str(out), "--quiet", *extra]
+
+
+@pytest.mark.parametrize(("scene", "extra", "named"), [
+    ("shell", (), "another volume"),
+    ("coarser", (), "another volume"),
+    ("denser", ("--budget", "0"), "--budget"),
+    ("denser", ("--budget", "-3"), "--budget"),
+    ("empty", (), "nothing visible"),
+    ("dark", (), "zero power"),
+])
+def test_refusals_are_one_line_and_leave_run_untouched(runs: dict[str, Path], tmp_path: Path, scene: str,
+                                                       extra: tuple[str, ...], named: str,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    before = digest(runs["run"])
+    out = tmp_path / "new"
+    assert train_main(update_args(runs, scene, out, *extra)) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and named in err[0], err
+    assert digest(runs["run"]) == before and not out.exists()
+
+
+def test_an_earlier_run_in_out_is_kept_without_force(runs: dict[str, Path], tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "new"
+    out.mkdir()
+    (out / "checkpoint.pt").write_bytes(b"earlier")
+    before = digest(runs["run"])
+    assert train_main(update_args(runs, "denser", out, "--max-steps", "1")) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "--force" in err[0], err
+    assert sorted(p.name for p in out.iterdir()) == ["checkpoint.pt"] and (out / "checkpoint.pt").read_bytes() == \
+        b"earlier"
+    assert digest(runs["run"]) == before
+    assert train_main(update_args(runs, "denser", out, "--max-steps", "1", "--force")) == 0
+    assert (out / "field.pfn" / "manifest.json").is_file()
+
+
+def test_out_equal_to_run_is_refused(runs: dict[str, Path], capsys: pytest.CaptureFixture[str]) -> None:
+    before = digest(runs["run"])
+    for extra in ((), ("--force",)):
+        assert train_main(update_args(runs, "denser", runs["run"], *extra)) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: --out") and "RUN" in err[0], err
+    assert digest(runs["run"]) == before
+
+
+def test_update_writes_new_scenes_run_and_bundle(runs: dict[str, Path], tmp_path: Path) -> None:
+    out = tmp_path / "new"
+    progress = tmp_path / "progress.json"
+    assert train_main(update_args(runs, "denser", out, "--max-steps", "30", "--progress-file", str(progress))) == 0
+    new = load_scene(runs["denser"])
+    old = load_scene(runs["base"])
+    assert new.fingerprint() != old.fingerprint()
+    field = PhotonField.load(out / "field.pfn")
+    manifest = json.loads((out / "field.pfn" / "manifest.json").read_text())
+    assert manifest["scene_fingerprint"] == new.fingerprint() == field.scene_fingerprint
+    assert PhotonMap.load(out / "map.npz", expected_fingerprint=new.fingerprint()).meta["seed"] == 3
+    log = json.loads((out / "log.json").read_text())
+    assert log["warm_start_from"]["run"] == str(runs["run"])
+    assert log["warm_start_from"]["scene_fingerprint"] == old.fingerprint()
+    assert log["stop"]["reason"] in ("plateau", "max_steps") and 1 <= log["stop"]["steps"] <= 30
+    assert log["validation"][0]["step"] == 0 and len(log["validation"]) >= 2
+    kept = log["totals"]["final_validation"]  # the bundle tells what the field is good for: its validation error
+    assert manifest["training"]["validation"]["val_rel_l1"] == kept["val_rel_l1"]
+    assert kept["val_rel_l1"] == min(v["val_rel_l1"] for v in log["validation"])
+    p = read_progress(progress)
+    assert p.status == "done" and p.stages == ("trace", "fit", "export")
+    assert {"checkpoint.pt", "log.json", "loss.png", "domain.json", "map.npz", "field.pfn"} <= \
+        {q.name for q in out.iterdir()}
+    # The updated run can be updated in turn (back to the base scene).
+    assert train_main(["update", str(out), "--scene", str(runs["base"]), "--out", str(tmp_path / "back"),
+                       "--max-steps", "2", "--quiet"]) == 0
+
+
+def inputs(bundle: Path) -> tuple[np.ndarray, ...]:
+    field = PhotonField.load(bundle)
+    bmin, bsize = np.asarray(field.bmin), np.asarray(field.bsize)
+    return (*verification_inputs(bmin, bsize, field.config.phases, n=512, seed=5), bmin, bsize)
+
+
+def outputs(bundle: Path) -> np.ndarray:
+    x, d, g, _, _ = inputs(bundle)
+    return PhotonField.load(bundle).query_encoded(x, d, g).astype(np.float64)
+
+
+def test_the_update_starts_from_runs_field(runs: dict[str, Path], tmp_path: Path) -> None:
+    old = outputs(runs["run"] / "field.pfn")
+    new = load_scene(runs["denser"])
+    res0 = update_run(runs["run"], new, tmp_path / "zero", max_steps=0, progress=False)
+    assert res0.fit.log["stop"]["steps"] == 0
+    assert np.array_equal(outputs(res0.bundle.path), old)  # no step: exactly RUN's field
+    model, _ = load_checkpoint(runs["run"] / "checkpoint.pt")
+    x, d, g, bmin, bsize = inputs(runs["run"] / "field.pfn")
+    cold = torch_encoded(TorchPhotonField(model.cfg, seed=res0.fit.log["settings"]["seed"]), x, d, g, bmin, bsize)
+    assert np.abs(cold - old).mean() > 0.1  # a fresh initialization would not pass
+    first = res0.fit.log["validation"][0]
+    assert first["step"] == 0 and res0.fit.log["totals"]["final_validation"] == first
+
+
+def test_same_seed_same_field(runs: dict[str, Path], tmp_path: Path) -> None:
+    new = load_scene(runs["denser"])
+    a = update_run(runs["run"], new, tmp_path / "a", max_steps=4, progress=False)
+    b = update_run(runs["run"], new, tmp_path / "b", max_steps=4, progress=False)
+    for name in ("field.onnx", "tables.npz"):
+        assert (a.bundle.path / name).read_bytes() == (b.bundle.path / name).read_bytes()
+    c = update_run(runs["run"], new, tmp_path / "c", max_steps=4, seed=11, progress=False)
+    assert (c.bundle.path / "tables.npz").read_bytes() != (a.bundle.path / "tables.npz").read_bytes()
+
+
+def test_retrace_is_correlated_with_runs_map(runs: dict[str, Path], tmp_path: Path) -> None:
+    """Same seed: a light twice as bright sends every photon along the same path with twice the power."""
+    res = update_run(runs["run"], load_scene(runs["brighter"]), tmp_path / "bright", max_steps=0, progress=False)
+    old = PhotonMap.load(runs["run"] / "map.npz")
+    new = PhotonMap.load(res.out / "map.npz")
+    assert len(new) >= len(old) and new.phases == old.phases
+    for ph in range(len(old.phases)):  # a phase's records in path order: identical streams, identical vertices
+        a, b = old.subset(ph), new.subset(ph)
+        n = min(len(a), len(b))
+        assert n > 0 and np.array_equal(a.position[:n], b.position[:n])
+        assert np.array_equal(a.direction[:n], b.direction[:n])
+        ratio = b.power[:n] / a.power[:n]  # 2 x (old paths / new paths of the phase: powers are per path emitted)
+        np.testing.assert_allclose(ratio, ratio[0, 0], rtol=1e-5)
+        assert 1.0 < ratio[0, 0] <= 2.0
+
+
+def test_stops_on_a_plateau_and_at_the_budget(runs: dict[str, Path], tmp_path: Path) -> None:
+    new = load_scene(runs["denser"])
+    # No validation can be 99 % better than the one before: the rule stops at the first validation after step 0.
+    plateau = update_run(runs["run"], new, tmp_path / "p", max_steps=200, min_improvement=0.99, patience=1,
+                         progress=False)
+    assert plateau.fit.log["stop"]["reason"] == "plateau" and plateau.fit.log["stop"]["steps"] == 25
+    # A budget the retrace alone exceeds: no step, RUN's field exported as NEW's.
+    budget = update_run(runs["run"], new, tmp_path / "b", budget_s=1e-3, max_steps=200, progress=False)
+    assert budget.fit.log["stop"]["reason"] == "budget" and budget.fit.log["stop"]["steps"] == 0
+    assert (budget.out / "field.pfn" / "manifest.json").is_file()
