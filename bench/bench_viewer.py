@@ -24,6 +24,12 @@ processes than the bench and the viewer; another busy process on the machine hal
 
     .venv/bin/python bench/bench_viewer.py --bundle /tmp/viewer_run/field.pfn            # ~1 min
     .venv/bin/python bench/bench_viewer.py --renderers pt --drag-seconds 4              # no bundle
+    .venv/bin/python bench/bench_viewer.py --bundle RUN/field.pfn --renderers neural --drag-scales 1,auto --retrain 0.7
+
+``--retrain SCALE`` (last): a transfer-function edit (every opacity times SCALE) as the page's editor sends it;
+frames/s while dragging (at the last of ``--drag-scales``) during the background retrain, and the time from the
+edit to the swapped-in field (issue 15: >= 4 frames/s at 512x512 while a retrain runs). A bundle inside its run
+folder (``pfn-train all``'s ``RUN/field.pfn``) is fine-tuned with ``pfn-train update``, else trained afresh.
 
 Output: a table on stdout and JSON (default ``bench/results/viewer.json``) with ``cpu_record()``.
 """
@@ -311,8 +317,9 @@ def main() -> int:
                   f"{m['latency_ms_p90']} ms (other cores {m['other_cores']})")
         if args.retrain is not None:
             client.send({"type": "set", "control": "renderer", "value": renderers[0]})
+            client.send({"type": "set", "control": "drag_scale", "value": scales[-1]})  # the last one measured
             r = retrain_cycle(client, args.retrain, args.drag_seconds, args.input_hz, proc.pid)
-            results["retrain"] = r
+            results["retrain"] = {**r, "drag_scale": scales[-1]}
             d = r["drag_while_retraining"] or {}
             print(f"retrain after a transfer-function edit: {r['state']} ({r['message']}); edit to new field "
                   f"{r['edit_cycle_s']} s; dragging meanwhile {d.get('frames_per_s')} frames/s (input->image median "
