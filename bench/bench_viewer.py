@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import queue
 import random
@@ -245,6 +246,46 @@ def retrain_cycle(client: Client, scale: float, seconds: float, hz: float, pid: 
 STATE: dict[str, Any] = {}
 
 
+def rss_mb(pid: int) -> float | None:
+    """Resident memory of process ``pid`` in MB, from /proc (None elsewhere)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        return None
+    return None
+
+
+def soak(client: Client, seconds: float, pid: int) -> dict[str, Any]:
+    """A long session (issue 15: memory stays bounded over 10 minutes): cycles of a 2 s drag at 30 Hz, a zoom, a
+    g change, a layer change, an exposure change and a rest of 3 s, for ``seconds``; the viewer's resident memory
+    sampled every cycle. Reported: first, largest and last RSS, and the growth over the second half (a leak grows
+    steadily; caches settle in the first minutes)."""
+    t0, samples, cycle = time.perf_counter(), [], 0
+    while time.perf_counter() - t0 < seconds:
+        end = time.perf_counter() + 2.0
+        while time.perf_counter() < end:
+            client.send({"type": "orbit", "dx": 1.5, "dy": 0.2 * math.sin(cycle)})
+            time.sleep(1 / 30)
+        client.send({"type": "zoom", "factor": 0.97 if cycle % 2 else 1.03})
+        client.send({"type": "set", "control": "g", "value": round(0.5 * math.sin(cycle / 3), 2)})
+        client.send({"type": "set", "control": "layer", "value": ("L", "L_i", "L_d")[cycle % 3]})
+        client.send({"type": "set", "control": "exposure", "value": 0.1 * (cycle % 5)})
+        time.sleep(3.0)
+        client.drain()
+        while not client.texts.empty():
+            client.texts.get_nowait()
+        samples.append((round(time.perf_counter() - t0, 1), rss_mb(pid)))
+        cycle += 1
+    rss = [m for _, m in samples if m is not None]
+    half = [m for t, m in samples if m is not None and t >= seconds / 2]
+    return {"seconds": seconds, "cycles": cycle, "rss_mb_first": rss[0] if rss else None,
+            "rss_mb_max": max(rss, default=None), "rss_mb_last": rss[-1] if rss else None,
+            "rss_mb_growth_second_half": round(half[-1] - half[0], 1) if len(half) > 1 else None,
+            "samples": samples}
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--scene", default="vortex")
@@ -263,6 +304,8 @@ def main() -> int:
                    help="last: a transfer-function edit (opacities times SCALE, e.g. 0.7) and its background retrain: "
                         "frames/s dragging meanwhile and the edit-to-new-field time (needs the train extra)")
     p.add_argument("--retrain-photons", default="1M")
+    p.add_argument("--soak", type=float, default=None, metavar="SECONDS",
+                   help="last: a long session of drags, zooms and control changes; the viewer's memory over it")
     p.add_argument("--out", default=str(REPO / "bench" / "results" / "viewer.json"))
     args = p.parse_args()
     renderers = args.renderers.split(",") if args.renderers else (["neural"] if args.bundle else []) + ["pt"]
@@ -324,6 +367,12 @@ def main() -> int:
             print(f"retrain after a transfer-function edit: {r['state']} ({r['message']}); edit to new field "
                   f"{r['edit_cycle_s']} s; dragging meanwhile {d.get('frames_per_s')} frames/s (input->image median "
                   f"{d.get('latency_ms_median')} ms); first frame after: {r['first_frame_after']}")
+        if args.soak is not None:
+            r = soak(client, args.soak, proc.pid)
+            results["soak"] = r
+            print(f"soak: {r['cycles']} cycles in {r['seconds']:.0f} s; viewer RSS first {r['rss_mb_first']:.0f} MB, "
+                  f"max {r['rss_mb_max']:.0f} MB, last {r['rss_mb_last']:.0f} MB, growth over the second half "
+                  f"{r['rss_mb_growth_second_half']} MB")
         client.close()
     finally:
         proc.terminate()
@@ -331,8 +380,8 @@ def main() -> int:
     config = {"scene": args.scene, "bundle": args.bundle, "size": args.size, "renderers": renderers,
               "drag_seconds": args.drag_seconds, "input_hz": args.input_hz, "moves": args.moves, "rest_s": args.rest,
               "threads": args.threads, "drag_scales": scales, "retrain": args.retrain,
-              "retrain_photons": args.retrain_photons}
-    phases = {f"{n}.{k}": v for n, r in results.items() if n != "retrain" for k, v in r.items()}
+              "retrain_photons": args.retrain_photons, "soak_s": args.soak}
+    phases = {f"{n}.{k}": v for n, r in results.items() if n not in ("retrain", "soak") for k, v in r.items()}
     write_report(Path(args.out), "viewer", {**finish_info(info, phases), "cpu_record": cpu_record()}, config,
                  startup=startup, results=results)
     return 0
