@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -64,6 +65,18 @@ def tiny_scene_dict(name: str = "blobs") -> dict:
                         "power": 3.0}],
             "camera": {"eye": [1.25, 0.75, 1.45], "target": [0, 0, 0], "up": [0, 1, 0], "fov": 38,
                        "width": 32, "height": 32}}
+
+
+#: pfn-train fit options of a run that takes seconds (the CLI tests' runs).
+TINY_FIT = ["--preset", "tiny", "--steps", "3", "--batch", "256", "--k", "32", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def tiny_scene_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """:func:`tiny_scene_dict` written as a scene file (one per test module)."""
+    path = tmp_path_factory.mktemp("scene") / "blobs32.json"
+    path.write_text(json.dumps(tiny_scene_dict()))
+    return path
 
 
 # ----------------------------------------------------------------------------------------------------------

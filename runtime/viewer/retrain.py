@@ -107,8 +107,12 @@ class RetrainJob:
                    *(["--steps", str(settings.steps)] if settings.steps is not None else []), *settings.extra]
         self.log = open(self.log_file, "wb")  # noqa: SIM115  (closed when the job ends)
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        self.process = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=self.log, stderr=subprocess.STDOUT,
-                                        env=env, start_new_session=True)
+        try:
+            self.process = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=self.log,
+                                            stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        except OSError:
+            self.log.close()
+            raise
         self.ended: float | None = None
         self.cancelled = False
 

@@ -413,7 +413,7 @@ class ViewerSession:
             status = {**status, "renderers": list(self.available), "renderer": self.state.renderer,
                       "bundle": str(finished.bundle)}
             self.info["bundle"], self.info["map"] = str(finished.bundle), str(finished.photon_map)
-        return self.updater._emit(status)
+        return self.updater.emit(status)
 
     def close(self) -> None:
         """The page went away: stop its background job."""

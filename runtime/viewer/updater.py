@@ -100,10 +100,10 @@ class FieldUpdater:
             self.job = None
             with self.lock:
                 self._edited_at = None
-            return self._emit(status_message("cancelled", message="retraining cancelled")), None
+            return self.emit(status_message("cancelled", message="retraining cancelled")), None
         if start:
             if self.reason is not None:
-                return self._emit(status_message("unavailable", message=self.reason)), None
+                return self.emit(status_message("unavailable", message=self.reason)), None
             if self.job is not None:
                 self.job.cancel()
             try:
@@ -111,8 +111,8 @@ class FieldUpdater:
                                       edited_at=self._edited_at, warm_from=warm_from)
             except (InputError, OSError) as exc:
                 self.job = None
-                return self._emit(status_message("failed", message=f"cannot start retraining: {exc}")), None
-            return self._emit(status_message("running", folder=str(self.job.folder),
+                return self.emit(status_message("failed", message=f"cannot start retraining: {exc}")), None
+            return self.emit(status_message("running", folder=str(self.job.folder),
                                              warm_start=warm_from is not None)), None
         if self.job is None:
             return None, None
@@ -121,20 +121,20 @@ class FieldUpdater:
             last = self._last_status or {}
             news = progress is not None and (progress.stage != last.get("stage")
                                              or time.monotonic() - self._last_sent >= STATUS_INTERVAL)
-            return (self._emit(status_message("running", progress, folder=str(self.job.folder))) if news
+            return (self.emit(status_message("running", progress, folder=str(self.job.folder))) if news
                     else None), None
         job, self.job = self.job, None
         if state == "done":
             with self.lock:
                 self._edited_at = None
             cycle = (job.ended or time.monotonic()) - job.edited_at
-            return self._emit(status_message("done", progress, f"new field in {cycle:.0f} s", cycle_s=round(cycle, 1),
+            return self.emit(status_message("done", progress, f"new field in {cycle:.0f} s", cycle_s=round(cycle, 1),
                                              folder=str(job.folder))), job
-        return self._emit(status_message(state, progress, message, folder=str(job.folder))), None
+        return self.emit(status_message(state, progress, message, folder=str(job.folder))), None
 
     def failed(self, message: str) -> dict[str, Any]:
         """A finished job whose field could not be loaded: the page is told, the current field stays."""
-        return self._emit(status_message("failed", message=message))
+        return self.emit(status_message("failed", message=message))
 
     def close(self) -> None:
         """Stop a running job (the page went away)."""
@@ -142,6 +142,7 @@ class FieldUpdater:
             self.job.cancel()
             self.job = None
 
-    def _emit(self, status: dict[str, Any]) -> dict[str, Any]:
+    def emit(self, status: dict[str, Any]) -> dict[str, Any]:
+        """Record ``status`` as the last one sent to the page (what :meth:`status` returns) and return it."""
         self._last_status, self._last_sent = status, time.monotonic()
         return status

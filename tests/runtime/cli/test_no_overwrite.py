@@ -4,28 +4,25 @@ and leaves the earlier bytes untouched."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pytest
 
 pytest.importorskip("torch")
 
-from conftest import tiny_scene_dict  # noqa: E402
+from conftest import TINY_FIT  # noqa: E402
 
 from photon_fields.runtime.cli.render import _main as render_main  # noqa: E402
 from photon_fields.train.cli.demo import _main as demo_main  # noqa: E402
 from photon_fields.train.cli.train import _main as train_main  # noqa: E402
 from photon_fields.train.eval.report import _main as eval_main  # noqa: E402
 
-FIT = ["--preset", "tiny", "--steps", "3", "--batch", "256", "--k", "32", "--quiet"]
+FIT = TINY_FIT
 
 
 @pytest.fixture(scope="module")
-def scene_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("scene") / "blobs32.json"
-    path.write_text(json.dumps(tiny_scene_dict()))
-    return path
+def scene_file(tiny_scene_file: Path) -> Path:
+    return tiny_scene_file
 
 
 def refused(capsys: pytest.CaptureFixture[str], *names: str) -> str:
