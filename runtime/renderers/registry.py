@@ -114,6 +114,10 @@ CAMERA_OPTION = Option("--camera-estimator", "camera", "camera estimator: forced
                        "whole ray, weighted by its collision probability; less noise in thin media) or delta (delta "
                        "tracking, the path tracer's first bounce)", str, "forced", one_of(("forced", "delta")))
 
+#: One real bounce before the first-interaction renderers' L_i estimate (runtime.wavefront.final_gather).
+GATHER_OPTION = Option("--final-gather", "final_gather", "one real bounce (phase sampling, tracking, NEE) before "
+                       "the L_i estimate: less of its bias, more noise, about twice the time per sample")
+
 RENDERERS: dict[str, Renderer] = {r.name: r for r in (
     Renderer("pt", "volumetric path tracer (reference)",
              "photon_fields.runtime.renderers.path_tracer:render_path_traced",
@@ -128,9 +132,9 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
              "photon_fields.runtime.renderers.photon_mapped:render_photon_mapped",
              (Option("--k", "k", "photons per estimate (K)", int, 1024, int_in(2, 1 << 16)),
               Option("--radius", "radius", "max search radius, in units of the volume box's longest side", float,
-                     0.05, float_in(0, 2, "box units", open_low=True)), CAMERA_OPTION),
+                     0.05, float_in(0, 2, "box units", open_low=True)), CAMERA_OPTION, GATHER_OPTION),
              input="map"),
     Renderer("field", "the neural renderer (Alg. 2): first interactions + NEE + the photon field's L_i "
-             "(needs --bundle)", "photon_fields.runtime.renderers.neural:render_neural", (CAMERA_OPTION,),
+             "(needs --bundle)", "photon_fields.runtime.renderers.neural:render_neural", (CAMERA_OPTION, GATHER_OPTION),
              input="bundle"),
 )}

@@ -248,6 +248,27 @@ def resampled_collision(m: Medium, ox: float, oy: float, oz: float, dx: float, d
     return _track(m, ox, oy, oz, dx, dy, dz, tmin, tmax, state, _RESAMPLE)
 
 
+@njit(cache=True, inline="always")
+def camera_collision(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmin: float,
+                     tmax: float, state: np.uint64, forced: bool,
+                     w_min: float) -> tuple[float, float, float, np.uint64]:
+    """The first-interaction renderers' collision along a ray (their camera estimators): (t, W, T, state).
+
+    ``forced`` False: delta tracking, W = 1, T = 1 if the ray escapes else 0 (an unbiased estimate of the
+    transmittance). ``forced`` True: :func:`resampled_collision`, with Russian roulette on a small weight: a
+    collision of weight W < ``w_min`` is kept with probability W / ``w_min`` and then weighted ``w_min``, which
+    bounds the work per collision. t is inf when no collision is kept."""
+    if not forced:
+        t, state = delta_track(m, ox, oy, oz, dx, dy, dz, tmin, tmax, state)
+        return t, 1.0, 0.0 if math.isfinite(t) else 1.0, state
+    t, w, tr, state = resampled_collision(m, ox, oy, oz, dx, dy, dz, tmin, tmax, state)
+    if math.isfinite(t) and w < w_min:
+        state, u = next_float(state)
+        t = t if u * w_min < w else math.inf
+        w = w_min
+    return t, w, tr, state
+
+
 @njit(cache=True, parallel=True)
 def _track_batch(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray, states: np.ndarray,
                  mode: int) -> np.ndarray:

@@ -58,8 +58,7 @@ from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.direct_light import direct_light_batch
 from photon_fields.runtime.transport.medium import Medium, albedo_at
-from photon_fields.runtime.transport.rng import next_float
-from photon_fields.runtime.transport.tracking import delta_track, resampled_collision
+from photon_fields.runtime.transport.tracking import camera_collision
 from photon_fields.runtime.wavefront.batches import (
     DEFAULT_BATCH,
     RenderResult,
@@ -68,6 +67,7 @@ from photon_fields.runtime.wavefront.batches import (
     finish,
 )
 from photon_fields.runtime.wavefront.film import Film
+from photon_fields.runtime.wavefront.final_gather import gather_indirect
 from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box
 
 
@@ -146,21 +146,11 @@ def _first_interactions(m: Medium, eye: np.ndarray, origin: np.ndarray, du: np.n
                 status[i] = MISSED_BOX
                 continue
             inside += 1
-            w = 1.0
-            if forced:
-                t, w, transmit[i], s = resampled_collision(m, ox, oy, oz, dx, dy, dz, 0.0, tmax, s)
-                if math.isfinite(t) and w < w_min:
-                    s, u = next_float(s)
-                    t = t if u * w_min < w else math.inf
-                    w = w_min
-            else:
-                t, s = delta_track(m, ox, oy, oz, dx, dy, dz, 0.0, tmax, s)
+            t, w, transmit[i], s = camera_collision(m, ox, oy, oz, dx, dy, dz, 0.0, tmax, s, forced, w_min)
             if not math.isfinite(t):
                 status[i] = ESCAPED
                 continue
             status[i] = INTERACTED
-            if not forced:
-                transmit[i] = 0.0
             ox += t * dx
             oy += t * dy
             oz += t * dz
@@ -237,8 +227,11 @@ def compact_first_interactions(scratch: FirstInteractions, counts: np.ndarray) -
 def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, *, spp: int = 1, seed: int = 0,
                              batch_size: int = DEFAULT_BATCH, progress: bool = True, desc: str = "rendering",
                              direct: bool = True, film: Film | None = None, first_sample: int = 0,
-                             camera: str = DEFAULT_CAMERA_ESTIMATOR) -> RenderResult:
+                             camera: str = DEFAULT_CAMERA_ESTIMATOR, final_gather: bool = False) -> RenderResult:
     """Render ``spp`` samples per pixel (stages in the module docstring) with the ``camera`` estimator.
+
+    ``final_gather``: stage 3 takes one real bounce from x and asks the estimator there
+    (:mod:`photon_fields.runtime.wavefront.final_gather`): less of the estimator's bias, more noise and time.
 
     ``estimator`` None skips stage 4 (L_i = 0) and ``direct`` False stage 5 (L_d = 0): the benchmarks time
     L_d and L_i alone this way. ``film`` accumulates into an existing film (its sample count grows by
@@ -279,7 +272,11 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
             throughput = fi.albedo * fi.weight if forced else fi.albedo
             if estimator is not None:
                 with timer("estimate_indirect"):
-                    q = estimator(fi.x, fi.d, scene.g)
+                    if final_gather:
+                        q = gather_indirect(m, (kind, vec, rgb), scene.g, fi.x, fi.d, fi.rng, estimator, forced,
+                                            FORCED_MIN_WEIGHT, timer)
+                    else:
+                        q = estimator(fi.x, fi.d, scene.g)
                 with timer("compose"):
                     film.splat("L_i", fi.pixel, q, distinct, weight=throughput)
             if direct:

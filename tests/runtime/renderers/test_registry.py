@@ -52,10 +52,11 @@ def test_options_reach_only_their_renderer_and_are_all_checked() -> None:
     args = parser.parse_args(["--method", "pt", "--max-depth", "3", "--no-nee", "--step", "2"])
     assert renderer_options(args, "pt") == {"max_depth": 3, "nee": False}
     assert renderer_options(args, "raymarch") == {"step": 2.0}
-    assert renderer_options(args, "field") == {"camera": "forced"}  # shared with photonmap: one flag
-    delta = parser.parse_args(["--method", "field", "--camera-estimator", "delta"])
-    assert renderer_options(delta, "field") == {"camera": "delta"}
+    assert renderer_options(args, "field") == {"camera": "forced", "final_gather": False}  # shared with photonmap
+    delta = parser.parse_args(["--method", "field", "--camera-estimator", "delta", "--final-gather"])
+    assert renderer_options(delta, "field") == {"camera": "delta", "final_gather": True}
     assert renderer_options(delta, "photonmap")["camera"] == "delta"
+    assert renderer_options(delta, "photonmap")["final_gather"]
     bad = parser.parse_args(["--method", "pt", "--k", "0"])
     with pytest.raises(InputError, match="--k"):
         renderer_options(bad, "pt")
