@@ -195,11 +195,13 @@ def test_view_larger_than_the_cap_renders_scaled_down_and_restarts(tmp_path: Pat
     s.apply(msg("view", width=98, height=49))  # fits to 32x16 again: the accumulation goes on
     h2 = s.next_frame().header
     assert (h2["width"], h2["height"], h2["spp"], h2["view_size"]) == (32, 16, 2, [98, 49])
-    s.apply(msg("orbit", dx=3.0, dy=0.0))
-    assert s.next_frame().header["moving"]  # the view message left no cut behind: a move is still a move
-    s.apply(msg("view", width=20, height=24))  # within the cap: taken as is
+    s.apply(msg("view", width=100, height=50))  # 32x16 again, and a drag before the next frame: still a move,
+    s.apply(msg("orbit", dx=3.0, dy=0.0))  # not a cut (a page sends view messages while a person drags)
     h3 = s.next_frame().header
-    assert (h3["width"], h3["height"], h3["spp"]) == (20, 24, 1)
+    assert (h3["width"], h3["height"], h3["spp"], h3["moving"], h3["view_size"]) == (32, 16, 1, True, [100, 50])
+    s.apply(msg("view", width=20, height=24))  # within the cap: taken as is
+    h4 = s.next_frame().header
+    assert (h4["width"], h4["height"], h4["spp"]) == (20, 24, 1)
 
 
 def test_screenshot_records_the_size_it_was_taken_at(tmp_path: Path) -> None:
