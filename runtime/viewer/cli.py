@@ -33,11 +33,14 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=int, default=0, help="port (default 0: any free port)")
     p.add_argument("--out", default="pfn_view_out", help="folder screenshots are written to (the only one)")
-    p.add_argument("--size", default="512x512", help="frame size WIDTHxHEIGHT")
+    p.add_argument("--size", default="512x512",
+                   help="the largest frame WIDTHxHEIGHT (default 512x512): frames take the size of the page's view "
+                        "in device pixels, scaled down to at most WIDTH*HEIGHT pixels keeping the view's aspect "
+                        "ratio (the page scales them up); before the page reports its size, WIDTHxHEIGHT itself")
     p.add_argument("--seed", type=int, default=0, help="random seed: the same inputs give the same frames")
     p.add_argument("--max-spp", type=int, default=1024, help="stop refining a resting view at this many samples")
     p.add_argument("--drag-scale", type=_drag_scale, default="auto",
-                   help="render moving frames at this fraction of --size, in [0.25, 1], or auto: the size that "
+                   help="render moving frames at this fraction of the frame size, in [0.25, 1], or auto: the size that "
                         "keeps ~8 frames/s while moving (resting frames: always full size)")
     p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     p.add_argument("--retrain-photons", default="1M",

@@ -33,7 +33,7 @@ class ViewerInputs:
     pmap: Any
     out_dir: Path
     seed: int
-    width: int
+    width: int  # width x height: the largest frame (pfn-view --size), the size before a page sends its own
     height: int
     renderer: str | None
     info: dict[str, Any]

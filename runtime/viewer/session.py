@@ -29,6 +29,10 @@ where a full-size frame is too slow; the page's selector and ``pfn-view --drag-s
 the fraction from :data:`DRAG_LEVELS` after every moving frame (:func:`next_drag_level`) so that moving frames
 keep :data:`DRAG_FPS` frames per second (the level a drag ends with is where the next one starts).
 
+Frame size: :attr:`ViewerSession.max_size` (``pfn-view --size``) until the page sends its view box's size (``view``);
+then that size, scaled down to ``max_size``'s pixel count (:func:`photon_fields.runtime.viewer.frame_size.fit_view`).
+Frame headers carry the frame's size and the view it is for (``view_size``): the page scales it to the box.
+
 Exposure: measured automatically (:func:`photon_fields.runtime.io.images.auto_exposure_stops`) on the first
 frame after a cut, and then kept while the camera moves so brightness does not flicker; the page's exposure
 control adds stops to it, and ``"auto"`` measures it again.
@@ -56,8 +60,9 @@ from photon_fields.runtime.viewer.camera import OrbitView
 from photon_fields.runtime.viewer.drag_levels import DRAG_LEVELS, next_drag_level
 from photon_fields.runtime.viewer.encode import encode, tonemap
 from photon_fields.runtime.viewer.field_in_use import FieldInUse
+from photon_fields.runtime.viewer.frame_size import fit_view
 from photon_fields.runtime.viewer.light_control import LightControl
-from photon_fields.runtime.viewer.messages import MIN_SIDE, Message, MessageError
+from photon_fields.runtime.viewer.messages import MAX_PIXELS, MAX_SIDE, MIN_SIDE, Message, MessageError
 from photon_fields.runtime.viewer.retrain import RetrainSettings
 from photon_fields.runtime.viewer.transfer_edit import transfer_from_message, transfer_message, volume_histogram
 from photon_fields.runtime.viewer.updater import FieldUpdater
@@ -82,7 +87,9 @@ _FIELD_CONTROLS: dict[str, tuple[bool, bool, bool, bool]] = {
 class ViewerSession:
     """The render state of one page (module docstring). ``estimator``: a photon field's estimator (enables the
     neural renderer), ``pmap``: a photon map (the photon-map renderer); the path tracer is always there.
-    ``out_dir``: the only folder screenshots are written to."""
+    ``out_dir``: the only folder screenshots are written to. ``width`` x ``height`` (default: the scene camera's)
+    is the largest frame (``pfn-view --size``): frames are rendered at it until the page sends its view's size,
+    then at that size scaled down to its pixel count (:func:`photon_fields.runtime.viewer.frame_size.fit_view`)."""
 
     def __init__(self, scene: Scene, *, estimator: Any = None, pmap: Any = None, out_dir: Path,
                  seed: int = 0, width: int | None = None, height: int | None = None,
@@ -105,6 +112,7 @@ class ViewerSession:
                                width=width or cam.width, height=height or cam.height,
                                drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale),
                                transfer=scene.tf)
+        self.max_size = (self.state.width, self.state.height)  # the largest frame (pfn-view --size)
         self.updater = FieldUpdater(self.out_dir, retrain or RetrainSettings(), seed=self.seed)
         self.drag_level = 0  # drag_scale "auto": the index in DRAG_LEVELS of the next moving frame
         self.lock = threading.Lock()
@@ -166,9 +174,11 @@ class ViewerSession:
             elif msg.type == "reset_camera":
                 s.view = OrbitView.from_camera(self.base_scene.camera)
             elif msg.type == "view":
-                if (f["width"], f["height"]) == (s.width, s.height):
-                    restart = False
-                s.width, s.height, cut = f["width"], f["height"], True
+                size = fit_view((f["width"], f["height"]), self.max_size)
+                restart = cut = size != (s.width, s.height)
+                redisplay = s.view_size != (f["width"], f["height"])  # the page learns which view a frame is for
+                s.width, s.height = size
+                s.view_size = (f["width"], f["height"])
             elif msg.type == "light":
                 self._apply_light(s, f)
                 cut = True
@@ -387,7 +397,8 @@ class ViewerSession:
         header = {"type": "frame", "frame": self.frames, "seq": seq, "generation": generation, "spp": n,
                   "stale": s.renderer != "pt" and self.field_stale(s),
                   "renderer": s.renderer, "layer": s.layer, "g": s.g, "width": size[0], "height": size[1],
-                  "format": s.format, "exposure": stops, "denoised": denoised, "moving": moved_only,
+                  "view_size": list(s.view_size) if s.view_size else None, "format": s.format, "exposure": stops,
+                  "denoised": denoised, "moving": moved_only,
                   "rendered": render, "warnings": warnings, **{k: round(v, 2) for k, v in timings.items()}}
         self._last_header = header
         return Frame(data, header)
@@ -449,7 +460,9 @@ class ViewerSession:
             return {"type": "state", "scene": self.base_scene.name, "renderers": self.available,
                     "renderer": s.renderer, "layer": s.layer, "g": s.g, "exposure_offset": s.exposure_offset,
                     "format": s.format, "denoise": s.denoise, "max_spp": s.max_spp, "width": s.width,
-                    "height": s.height, "drag_scale": s.drag_scale, "lights": [lt.to_dict() for lt in s.lights],
+                    "height": s.height, "max_size": list(self.max_size),
+                    "view_limits": {"min_side": MIN_SIDE, "max_side": MAX_SIDE, "max_pixels": MAX_PIXELS},
+                    "drag_scale": s.drag_scale, "lights": [lt.to_dict() for lt in s.lights],
                     "out_dir": str(self.out_dir), "transfer": transfer_message(s.transfer or self.base_scene.tf),
                     "histogram": self.histogram(),
                     "retrain": {"available": self.updater.available, "why": self.updater.reason,

@@ -27,6 +27,9 @@ class ViewState:
     max_spp: int = DEFAULT_MAX_SPP
     width: int = 512
     height: int = 512
+    """The frame's size (full size; reduced moving frames are a fraction of it)."""
+    view_size: tuple[int, int] | None = None
+    """The size of the page's view box in device pixels, as its last ``view`` message said (None: not yet)."""
     drag_scale: float | str = 1.0
     """Moving frames are rendered at this fraction of the size (1: full size); resting frames always full."""
     transfer: TransferFunction | None = None

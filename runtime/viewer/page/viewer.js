@@ -18,6 +18,16 @@ let lastRetrain = null;         // the last retrain status message
 const sentAt = new Map();       // seq -> time sent (input-to-image latency)
 let lastLatency = null;
 const times = [];               // arrival times of the last frames (frame rate)
+let shown = null;               // {bitmap, header} of the frame on screen, drawn again when the canvas is resized
+let sentView = null;            // [width, height] of the last view message
+let viewTimer = null;
+// The view's size: the canvas fills the box the panel leaves, and frames are asked for at that box's size in device
+// pixels (CSS pixels x devicePixelRatio, the ratio capped: beyond 2 the frames would cost 2.25x and more for detail
+// few can see). The server renders at most --size's pixel count and says in each frame's header what it rendered;
+// the page scales every frame to the canvas. Resizes are debounced so a window drag sends one message, not sixty.
+const MAX_DPR = 2;
+const VIEW_DEBOUNCE_MS = 200;
+let viewLimits = {min_side: 16, max_side: 2048, max_pixels: 1920 * 1080};  // the server's, from its state message
 
 function send(msg) {
   if (!ws || ws.readyState !== WebSocket.OPEN) return;
@@ -42,7 +52,11 @@ function connect() {
   const proto = location.protocol === "https:" ? "wss:" : "ws:";
   ws = new WebSocket(`${proto}//${location.host}/ws`);
   ws.binaryType = "arraybuffer";
-  ws.onopen = () => { $("status").textContent = "connected, waiting for the first frame..."; };
+  ws.onopen = () => {
+    $("status").textContent = "connected, waiting for the first frame...";
+    sentView = null;
+    fitCanvas(); sendView();  // the first view message at once, not after the debounce
+  };
   ws.onclose = () => { $("status").textContent = "disconnected (reload the page to reconnect)"; };
   ws.onmessage = (ev) => {
     if (typeof ev.data === "string") { onText(JSON.parse(ev.data)); return; }
@@ -54,10 +68,9 @@ function connect() {
     createImageBitmap(blob).then((bitmap) => {
       if (number < framesDrawn) { bitmap.close(); return; }  // a newer frame is on screen already
       framesDrawn = number;
-      // Frames rendered at a reduced size while moving are scaled up to the canvas (the view's full size).
-      ctx.imageSmoothingEnabled = true;
-      ctx.drawImage(bitmap, 0, 0, canvas.width, canvas.height);
-      bitmap.close();
+      if (shown) shown.bitmap.close();
+      shown = {bitmap: bitmap, header: header};
+      drawShown();
       const now = performance.now();
       if (header.seq !== null && sentAt.has(header.seq)) { lastLatency = now - sentAt.get(header.seq); sentAt.delete(header.seq); }
       times.push(now); while (times.length > 10) times.shift();
@@ -68,11 +81,70 @@ function connect() {
   };
 }
 
+// --- the view's size ---------------------------------------------------------------------------
+function measureView() {
+  // The canvas's box in device pixels, within the view message's bounds (keeping its aspect ratio); null while the
+  // box has no area (a hidden page).
+  const r = canvas.getBoundingClientRect();
+  const dpr = Math.min(window.devicePixelRatio || 1, MAX_DPR);
+  const w = r.width * dpr, h = r.height * dpr;
+  if (!(w >= 1 && h >= 1)) return null;
+  const L = viewLimits;
+  const s = Math.min(1, L.max_side / w, L.max_side / h, Math.sqrt(L.max_pixels / (w * h)));
+  let size = [Math.round(w * s), Math.round(h * s)];
+  if (Math.max(...size) > L.max_side || size[0] * size[1] > L.max_pixels) size = [Math.floor(w * s), Math.floor(h * s)];
+  return [Math.max(L.min_side, size[0]), Math.max(L.min_side, size[1])];
+}
+
+function fitCanvas() {
+  // The canvas's pixels follow its box at once (the last frame is drawn again: resizing clears a canvas); the server
+  // hears of the new size once the box has stopped changing.
+  const size = measureView();
+  if (size && (canvas.width !== size[0] || canvas.height !== size[1])) {
+    canvas.width = size[0]; canvas.height = size[1];
+    drawShown();
+  }
+  clearTimeout(viewTimer);
+  viewTimer = setTimeout(sendView, VIEW_DEBOUNCE_MS);
+}
+
+function sendView() {
+  const size = measureView();
+  if (!size || !ws || ws.readyState !== WebSocket.OPEN) return;
+  if (sentView && sentView[0] === size[0] && sentView[1] === size[1]) return;  // only a real change restarts
+  sentView = size;
+  send({type: "view", width: size[0], height: size[1]});
+}
+
+function drawShown() {
+  // A frame of the canvas's view (full size, capped or a reduced moving frame) is scaled over the whole canvas; a
+  // frame for another view (before the first view message, or in flight during a resize) keeps its own aspect ratio,
+  // centred, rather than being stretched.
+  if (!shown) return;
+  const {bitmap, header} = shown;
+  const W = canvas.width, H = canvas.height;
+  const v = header.view_size;
+  ctx.imageSmoothingEnabled = true;
+  if (v && v[0] === W && v[1] === H) { ctx.drawImage(bitmap, 0, 0, W, H); return; }
+  const k = Math.min(W / bitmap.width, H / bitmap.height);
+  const w = bitmap.width * k, h = bitmap.height * k;
+  ctx.fillStyle = "#000"; ctx.fillRect(0, 0, W, H);
+  ctx.drawImage(bitmap, (W - w) / 2, (H - h) / 2, w, h);
+}
+
+function watchPixelRatio() {
+  // devicePixelRatio changes (browser zoom, another screen) without the box changing size in every case.
+  matchMedia(`(resolution: ${window.devicePixelRatio}dppx)`).addEventListener("change", () => {
+    fitCanvas(); watchPixelRatio();
+  }, {once: true});
+}
+
 function showStatus(h) {
   const fps = times.length > 1 ? (times.length - 1) * 1000 / (times[times.length - 1] - times[0]) : 0;
   $("status").textContent =
     `${h.renderer} ${h.layer} g=${h.g.toFixed(2)}\n` +
-    `${h.width}x${h.height}  spp ${h.spp}${h.denoised ? " (denoised)" : ""}\n` +
+    `${h.width}x${h.height}` + (h.view_size && (h.view_size[0] !== h.width || h.view_size[1] !== h.height) ?
+      ` of ${h.view_size[0]}x${h.view_size[1]}` : "") + `  spp ${h.spp}${h.denoised ? " (denoised)" : ""}\n` +
     `frame ${h.total_ms.toFixed(0)} ms  render ${(h.render_ms || 0).toFixed(0)} ms\n` +
     `${fps.toFixed(1)} frames/s` + (lastLatency !== null ? `  input->image ${lastLatency.toFixed(0)} ms` : "");
   $("message").textContent = h.warnings.length ? h.warnings.join("; ") : $("message").textContent;
@@ -111,7 +183,8 @@ function buildControls(s) {
   if (s.retrain.status) onRetrain(s.retrain.status);
   $("layer").value = s.layer;
   $("g").value = s.g; $("g_value").textContent = Number(s.g).toFixed(2);
-  canvas.width = s.width; canvas.height = s.height;
+  if (s.view_limits) viewLimits = s.view_limits;
+  fitCanvas();
   $("drag_scale").value = String(s.drag_scale);
   $("lights").innerHTML = "";
   s.lights.forEach((lt, i) => {
@@ -184,6 +257,10 @@ $("retrain_cancel").addEventListener("click", () => send({type: "retrain", actio
 
 // For tests and the curious: frames shown, the last frame's header, the last input's number, the retraining.
 window.pfnView = {frames: () => framesShown, header: () => lastFrame, lastSeq: () => seq, send: send,
-                  retrain: () => lastRetrain, tf: tfEditor};
+                  retrain: () => lastRetrain, tf: tfEditor, view: () => sentView};
+new ResizeObserver(fitCanvas).observe($("stage"));
+window.addEventListener("resize", fitCanvas);
+watchPixelRatio();
+fitCanvas();
 connect();
 requestAnimationFrame(flushInput);

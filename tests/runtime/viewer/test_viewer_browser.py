@@ -1,7 +1,11 @@
 """The viewer in a real browser: headless Chromium from Debian's ``chromium`` and ``chromium-driver`` packages
 (never a downloaded browser), driven by selenium. Loads the page, waits for a frame, drags to orbit and checks
 the image changes, moves the g slider on the L_i layer and checks the image changes, takes a screenshot with
-the button and checks the files. Skipped, saying why, where Chromium or its driver is not installed.
+the button and checks the files, resizes the window and checks the frames follow the view's size and aspect.
+Skipped, saying why, where Chromium or its driver is not installed.
+
+The server runs with ``--size 64x64``: the page's view (hundreds of pixels) is scaled down to 4096 pixels, so the
+frames stay as small and fast as they were before the page asked for its own size.
 
 Frames converge at a small ``max_spp`` so that the image at rest is fixed: any difference is then the input's.
 """
@@ -101,12 +105,34 @@ def pixels(driver: Any) -> np.ndarray:
     return np.asarray(Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGB"), dtype=float)
 
 
+def view_box(driver: Any) -> tuple[int, int]:
+    """The canvas's box in device pixels (the page's devicePixelRatio, capped at 2 as the page does)."""
+    w, h, dpr = driver.execute_script("const r = document.getElementById('view').getBoundingClientRect();"
+                                      "return [r.width, r.height, window.devicePixelRatio];")
+    return round(w * min(dpr, 2.0)), round(h * min(dpr, 2.0))
+
+
+def frame_for_the_box(driver: Any) -> tuple[dict, tuple[int, int]]:
+    """Wait for a settled frame rendered for the canvas's current box; check it is within the cap (64x64's pixels),
+    has the box's aspect ratio within one frame pixel and does not waste the cap, and that the canvas's pixels
+    are the box's. Returns the frame's header and the box."""
+    box = view_box(driver)
+    h = settled(driver, view_size=list(box))
+    w_f, h_f = h["width"], h["height"]
+    assert w_f * h_f <= SIZE * SIZE and min(w_f, h_f) >= 16, (h, box)
+    assert abs(w_f - h_f * box[0] / box[1]) <= 1.0 or abs(h_f - w_f * box[1] / box[0]) <= 1.0, (h, box)
+    assert w_f * h_f >= 0.85 * SIZE * SIZE, (h, box)  # every box here is larger than the cap
+    assert driver.execute_script("const c = document.getElementById('view'); return [c.width, c.height];") \
+        == list(box)
+    return h, box
+
+
 def test_page_shows_a_frame_and_dragging_orbits(page: tuple[Any, ViewerServer]) -> None:
     driver, _ = page
     wait_for(lambda: driver.execute_script("return window.pfnView && window.pfnView.frames();"), "a first frame")
-    settled(driver)
+    _, box = frame_for_the_box(driver)
     before = pixels(driver)
-    assert before.shape == (SIZE, SIZE, 3) and before.mean() > 1.0  # a real image, not a black canvas
+    assert before.shape == (box[1], box[0], 3) and before.mean() > 1.0  # a real image, not a black canvas
     time.sleep(0.3)
     assert np.array_equal(pixels(driver), before)  # at rest the image stays put
     canvas = driver.find_element(By.ID, "view")
@@ -134,7 +160,11 @@ def test_g_slider_changes_the_indirect_layer(page: tuple[Any, ViewerServer]) -> 
     h = settled(driver, layer="L_i", g=g)
     after = pixels(driver)
     assert h["g"] == pytest.approx(g)
-    assert np.abs(after - before).mean() > 2.0, np.abs(after - before).mean()
+    # Over the pixels that show the volume: how much of the canvas is black background depends on the window's
+    # aspect ratio (the frames take the view's), not on g.
+    volume = (before.sum(axis=2) > 0) | (after.sum(axis=2) > 0)
+    assert volume.mean() > 0.2
+    assert np.abs(after - before)[volume].mean() > 2.0, np.abs(after - before)[volume].mean()
 
 
 def test_frames_are_drawn_in_arrival_order_when_decoding_finishes_out_of_order(
@@ -163,7 +193,7 @@ def test_frames_are_drawn_in_arrival_order_when_decoding_finishes_out_of_order(
 
 def test_screenshot_button_writes_png_exr_json(page: tuple[Any, ViewerServer]) -> None:
     driver, srv = page
-    settled(driver)
+    h = settled(driver)
     driver.find_element(By.ID, "screenshot").click()
     text = wait_for(lambda: "saved" in driver.find_element(By.ID, "message").text
                     and driver.find_element(By.ID, "message").text, "the screenshot message")
@@ -174,7 +204,59 @@ def test_screenshot_button_writes_png_exr_json(page: tuple[Any, ViewerServer]) -
     report = json.loads((out / [n for n in names if n.endswith(".json")][0]).read_text())
     assert report["spp"] >= 1 and report["renderer"] == "neural"
     png = Image.open(out / [n for n in names if n.endswith(".png")][0])
-    assert png.size == (SIZE, SIZE)
+    assert png.size == (h["width"], h["height"])  # the frame's size (the view's, scaled down to the cap)
+    assert (report["camera"]["width"], report["camera"]["height"]) == png.size
+
+
+def test_frames_follow_the_window_size(page: tuple[Any, ViewerServer]) -> None:
+    """The view fills what the panel leaves of the window, in a large, a wide, a tall and a narrow window (the
+    panel below the view there); each size's frames are rendered for the new box, with its aspect ratio, within
+    the cap. A resize that changes nothing sends nothing, a burst of resizes sends one or two view messages, and
+    the device pixel ratio counts (capped at 2)."""
+    driver, _ = page
+    start = driver.get_window_size()
+    seen = []
+    try:
+        for width, height in [(1300, 800), (1400, 420), (700, 950), (520, 760)]:
+            driver.set_window_size(width, height)
+            h, box = frame_for_the_box(driver)
+            inner = driver.execute_script("return [window.innerWidth, window.innerHeight];")
+            areas = driver.execute_script("""return ['view', 'panel'].map((id) => {
+                const r = document.getElementById(id).getBoundingClientRect(); return r.width * r.height; });""")
+            assert sum(areas) == pytest.approx(inner[0] * inner[1], rel=0.01), (areas, inner)  # no gap, no overlap
+            seen.append((box, (h["width"], h["height"])))
+        assert len({b for b, _ in seen}) == 4 and len({f for _, f in seen}) == 4, seen
+        assert seen[1][1][0] > 2 * seen[1][1][1] and seen[2][1][1] > seen[2][1][0], seen  # wide, then tall
+
+        driver.execute_script("""window.__views = [];
+            const send = WebSocket.prototype.send;
+            WebSocket.prototype.__send = send;
+            WebSocket.prototype.send = function (text) {
+              if (JSON.parse(text).type === 'view') window.__views.push(text);
+              return send.call(this, text);
+            };""")
+        driver.execute_script("window.dispatchEvent(new Event('resize'));")
+        time.sleep(0.6)
+        assert driver.execute_script("return window.__views.length;") == 0  # the size did not change
+        driver.execute_async_script("""const done = arguments[0]; const panel = document.getElementById('panel');
+            let k = 0; const step = () => { panel.style.flexBasis = (40 + 4 * k) + '%';
+              if (++k < 10) setTimeout(step, 20); else setTimeout(done, 600); }; step();""")
+        assert 1 <= driver.execute_script("return window.__views.length;") <= 2  # debounced: not one per step
+        frame_for_the_box(driver)
+
+        driver.execute_cdp_cmd("Emulation.setDeviceMetricsOverride",
+                               {"width": 0, "height": 0, "deviceScaleFactor": 3, "mobile": False})
+        css = driver.execute_script("const r = document.getElementById('view').getBoundingClientRect();"
+                                    "return [r.width, r.height, window.devicePixelRatio];")
+        assert css[2] == 3
+        h, box = frame_for_the_box(driver)
+        assert box == (round(css[0] * 2), round(css[1] * 2)) and h["view_size"] == list(box)
+    finally:
+        driver.execute_cdp_cmd("Emulation.clearDeviceMetricsOverride", {})
+        driver.execute_script("document.getElementById('panel').style.flexBasis = '';"
+                              "if (WebSocket.prototype.__send) WebSocket.prototype.send = WebSocket.prototype.__send;")
+        driver.set_window_size(start["width"], start["height"])
+    frame_for_the_box(driver)
 
 
 def test_editing_the_transfer_function_marks_l_i_stale_and_shows_the_retraining(

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 from viewer_helpers import AnalyticField, make_session, msg, tiny_scene
 
 from photon_fields.runtime.io.images import read_exr
@@ -175,6 +176,45 @@ def test_view_resize_renders_at_the_new_size(tmp_path: Path) -> None:
     h = s.next_frame().header
     assert (h["width"], h["height"], h["spp"]) == (32, 16, 1)
     assert accumulated(s, "L").shape == (16, 32, 3)
+
+
+def test_view_larger_than_the_cap_renders_scaled_down_and_restarts(tmp_path: Path) -> None:
+    """The session's size (24x24, pfn-view --size) is the largest frame: before any view message frames are at it;
+    a 96x48 view (8x its pixels) renders 32x16 frames (its aspect, at most 576 pixels) with a 32x16 camera, and
+    restarts the accumulation; a view that fits to the same size neither restarts nor counts as a cut."""
+    s = make_session(tmp_path, max_spp=64)
+    hs = frames(s, 3)
+    assert [(h["width"], h["height"], h["spp"], h["view_size"]) for h in hs] == [(24, 24, n, None) for n in (1, 2, 3)]
+    s.apply(msg("view", width=96, height=48, seq=7))
+    h = s.next_frame().header
+    assert (h["width"], h["height"], h["spp"], h["view_size"], h["seq"]) == (32, 16, 1, [96, 48], 7)
+    assert h["generation"] > hs[-1]["generation"]
+    scene = tiny_scene().with_overrides(camera=s.state.view.camera(32, 16))
+    ref = render_neural(scene, AnalyticField(), spp=1, seed=5, progress=False).layers["L"]
+    np.testing.assert_allclose(accumulated(s, "L"), ref, rtol=2e-5, atol=1e-7)  # not a stretched 24x24 render
+    s.apply(msg("view", width=98, height=49))  # fits to 32x16 again: the accumulation goes on
+    h2 = s.next_frame().header
+    assert (h2["width"], h2["height"], h2["spp"], h2["view_size"]) == (32, 16, 2, [98, 49])
+    s.apply(msg("view", width=100, height=50))  # 32x16 again, and a drag before the next frame: still a move,
+    s.apply(msg("orbit", dx=3.0, dy=0.0))  # not a cut (a page sends view messages while a person drags)
+    h3 = s.next_frame().header
+    assert (h3["width"], h3["height"], h3["spp"], h3["moving"], h3["view_size"]) == (32, 16, 1, True, [100, 50])
+    s.apply(msg("view", width=20, height=24))  # within the cap: taken as is
+    h4 = s.next_frame().header
+    assert (h4["width"], h4["height"], h4["spp"]) == (20, 24, 1)
+
+
+def test_screenshot_records_the_size_it_was_taken_at(tmp_path: Path) -> None:
+    out = tmp_path / "shots"
+    s = make_session(out)
+    s.apply(msg("view", width=200, height=100))  # 32x16 under the 24x24 cap
+    frames(s, 2)
+    s.screenshot("wide")
+    report = json.loads((out / "wide.json").read_text())
+    assert (report["camera"]["width"], report["camera"]["height"]) == (32, 16)
+    layers, _ = read_exr(out / "wide.exr")
+    assert layers["L"].shape[:2] == (16, 32)
+    assert Image.open(out / "wide.png").size == (32, 16)
 
 
 def test_same_seed_same_frames(tmp_path: Path) -> None:
