@@ -15,7 +15,8 @@ Per image: ``mean`` = mean(L_i) / mean(reference L_i) (the bias a scientist sees
 ``rel_l2`` and ``ssim`` against the reference (detail). Summaries per configuration: the worst mean
 error over scenes, in G and outside G, and the ratio of the mean rel. L2 outside G to inside G.
 
-``--converged`` adds, per scene and configuration, the neural renderer's full L (two renders at
+``--converged`` adds, per scene and configuration, the neural renderer's full L, plain and with the final gather
+(``final_gather=True``: one real bounce before the field), (two renders at
 ``--converged-neural-spp``, default 256, with different seeds: their mean, its noise, and the error left without
 the noise of either image; the photon map's L likewise when the scene's g is in G) against the mean of two
 independent path-traced L at ``--converged-spp`` (default 2048 each; half their difference is the reference's own
@@ -252,7 +253,10 @@ def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], con
                                          "noise_rel_l2": relative_l2(halves[0], halves[1]) / 2.0}}
     estimator = TorchFieldEstimator(model, scene.medium())
     renders = {"neural": lambda seed: render_first_interaction(view, estimator, spp=args.converged_neural_spp,
-                                                               seed=seed, progress=False).layers["L"]}
+                                                               seed=seed, progress=False).layers["L"],
+               "neural_final_gather": lambda seed: render_first_interaction(
+                   view, estimator, spp=args.converged_neural_spp, seed=seed, progress=False,
+                   final_gather=True).layers["L"]}
     if map_answers(pmap, config, scene.g):
         renders["photon_map"] = lambda seed: render_photon_mapped(
             view, pmap, k=settings["k"], radius=final_radius(settings), spp=args.converged_neural_spp, seed=seed,
@@ -331,7 +335,7 @@ def main(argv: list[str] | None = None) -> None:
                 print("  converged L: " + ", ".join(
                     f"{k} {c[k]['rel_l2']:.3f} (noise {c[k]['noise_rel_l2']:.3f}, "
                     f"without noise {c[k]['bias_rel_l2']:.3f})"
-                    for k in ("neural", "photon_map") if k in c))
+                    for k in ("neural", "neural_final_gather", "photon_map") if k in c))
                 print("  converged L rel L2: " + ", ".join(
                     f"{k} {v['rel_l2']:.3f}" + (f" (+OIDN {v['oidn']['rel_l2']:.3f})" if "oidn" in v else "")
                     for k, v in c.items() if k.startswith("pt_"))

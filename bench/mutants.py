@@ -52,6 +52,8 @@ EMITTERS = "tests/runtime/transport/test_emitters.py"
 TRACING = "tests/train/photons/test_photon_tracing.py"
 CAMERA = "tests/runtime/wavefront/test_camera_estimators.py"
 VSESSION = "tests/runtime/viewer/test_viewer_session.py"
+GATHER = "tests/runtime/wavefront/test_final_gather.py"
+VGATHER = "tests/runtime/viewer/test_viewer_gather.py"
 UPDATE = "tests/train/fit/test_update.py"
 
 
@@ -219,7 +221,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "weight=np.broadcast_to(transmit[seen][None, :], (3, seen.shape[0])))", ")",
            (f"{CAMERA}::test_forced_and_delta_estimate_the_same_image[L_e-forced]",),
            "the environment behind the volume is seen at full strength by every ray with a transmittance estimate"),
-    Mutant("forced_roulette_unweighted", "runtime/wavefront/first_interaction.py", "                    w = w_min\n",
+    Mutant("forced_roulette_unweighted", "runtime/transport/tracking.py", "        w = w_min\n",
            "",
            (f"{CAMERA}::test_forced_and_delta_estimate_the_same_image[L_i-forced, roulette]",),
            "a low-weight collision that survives the roulette keeps its weight instead of the roulette's"),
@@ -258,7 +260,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "psi=settings.psi, seed=time.perf_counter_ns(),", (f"{UPDATE}::test_same_seed_same_field",),
            "the fine-tune's training batches do not follow the seed: two updates with one seed differ"),
     # The viewer (issue 15, step 1): session, messages, server.
-    Mutant("viewer_same_samples", "runtime/viewer/field_in_use.py", "first_sample=n)", "first_sample=0)",
+    Mutant("viewer_same_samples", "runtime/viewer/field_in_use.py", "first_sample=n,", "first_sample=0,",
            (f"{VSESSION}::test_neural_accumulation_equals_one_render_with_all_samples",),
            "every progressive neural frame draws the same samples: the view never converges"),
     Mutant("viewer_transfer_not_stale", "runtime/viewer/field_in_use.py",
@@ -296,6 +298,19 @@ MUTANTS: tuple[Mutant, ...] = (
            "                pass\n",
            ("tests/runtime/viewer/test_viewer_server.py::test_closing_an_idle_page_ends_its_render_thread",),
            "a closed page's render thread lives on"),
+    # The final gather (one real bounce before the field).
+    Mutant("gather_environment_halved", "runtime/wavefront/final_gather.py", "x2, w, states, False)",
+           "x2, w, states, True)", (f"{GATHER}::test_gather_of_nothing_is_the_path_tracers_second_bounce",),
+           "NEE at the bounce gives the environment only its MIS share, though no phase-sampled escape follows"),
+    Mutant("gather_without_albedo", "runtime/wavefront/final_gather.py", "= wt * ar, wt * ag, wt * ab",
+           "= wt, wt, wt", (f"{GATHER}::test_gather_of_nothing_is_the_path_tracers_second_bounce",),
+           "the bounce's collision is not weighted by its albedo"),
+    Mutant("gather_backwards", "runtime/wavefront/final_gather.py", "sample_hg(g, d[0, i]", "sample_hg(-g, d[0, i]",
+           (f"{GATHER}::test_bounce_directions_follow_the_phase_function",),
+           "the bounce samples the phase function the wrong way round"),
+    Mutant("viewer_gather_while_moving", "runtime/viewer/session.py", "render and not moved_only and self.gathers",
+           "render and self.gathers", (f"{VGATHER}::test_moving_frames_never_gather_and_never_means_never",),
+           "moving frames, which must be fast, take the final gather too"),
 )
 
 

@@ -9,6 +9,7 @@ screenshots). Bad input is refused in one ``error:`` line with exit status 2, be
 
 from __future__ import annotations
 
+import argparse
 import logging
 import os
 import re
@@ -20,6 +21,7 @@ from collections.abc import Sequence
 from photon_fields.runtime.cli.common import OneLineArgumentParser, check_seed, guarded, parse_count
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.threads import set_threads
+from photon_fields.runtime.viewer.view_state import DEFAULT_GATHER_AFTER
 
 
 def build_parser() -> OneLineArgumentParser:
@@ -39,6 +41,10 @@ def build_parser() -> OneLineArgumentParser:
                         "ratio (the page scales them up); before the page reports its size, WIDTHxHEIGHT itself")
     p.add_argument("--seed", type=int, default=0, help="random seed: the same inputs give the same frames")
     p.add_argument("--max-spp", type=int, default=1024, help="stop refining a resting view at this many samples")
+    p.add_argument("--final-gather-after", type=_gather_after, default=DEFAULT_GATHER_AFTER, metavar="SPP",
+                   help=f"once a resting view has SPP samples (default {DEFAULT_GATHER_AFTER}), the neural renderer's "
+                        "further samples take one real bounce before the field: slower and noisier per sample, less "
+                        "biased once converged; 0: from the first resting sample, never: not at all")
     p.add_argument("--drag-scale", type=_drag_scale, default="auto",
                    help="render moving frames at this fraction of the frame size, in [0.25, 1], or auto: the size that "
                         "keeps ~8 frames/s while moving (resting frames: always full size)")
@@ -52,6 +58,15 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--no-browser", action="store_true", help="only print the address")
     p.add_argument("--quiet", action="store_true", help="log warnings only")
     return p
+
+
+def _gather_after(text: str) -> int | None:
+    """``--final-gather-after``: a sample count, or ``never``."""
+    if text == "never":
+        return None
+    if not text.isdigit() or int(text) > 1 << 16:
+        raise argparse.ArgumentTypeError(f"expected a sample count in [0, {1 << 16}] or never, got {text!r}")
+    return int(text)
 
 
 def _drag_scale(text: str) -> float | str:
@@ -83,7 +98,8 @@ def _main(argv: Sequence[str] | None = None) -> int:
                               auto=not args.no_auto_retrain)
     server = start(args.scene, bundle=args.bundle, map=args.map, out=args.out, size=size, host=args.host,
                    port=args.port, seed=args.seed, threads=args.threads, force=args.force, renderer=args.renderer,
-                   max_spp=args.max_spp, drag_scale=args.drag_scale, retrain=retrain)
+                   max_spp=args.max_spp, drag_scale=args.drag_scale, retrain=retrain,
+                   gather_after=args.final_gather_after)
     if not is_loopback(args.host):
         print(f"warning: listening on {args.host}: anyone who can reach it can drive renders and write screenshots "
               f"into {args.out}", file=sys.stderr)

@@ -69,28 +69,37 @@ class FieldInUse:
     def available(self) -> list[str]:
         return [name for name in RENDERER_NAMES if self.has(name)]
 
-    def render(self, scene: Scene, renderer: str, *, seed: int, n: int,
-               threads: int | None = None) -> dict[str, np.ndarray]:
+    def render(self, scene: Scene, renderer: str, *, seed: int, n: int, lights: list[LightControl],
+               threads: int | None = None, final_gather: bool = False) -> dict[str, np.ndarray]:
         """Frame ``n`` of a session's accumulation with ``renderer``: 1 sample per pixel; the neural renderer draws
-        samples ``first_sample = n`` of ``seed``, the others use seed ``seed + n``. ``threads``: numba workers
-        (None: as set)."""
+        samples ``first_sample = n`` of ``seed``, the others use seed ``seed + n``. L_i follows the page's
+        ``lights`` where it can (:meth:`indirect_scale`; L_d, from NEE with the edited lights, is right anyway).
+        ``threads``: numba workers (None: as set). ``final_gather``: the neural renderer takes one real bounce
+        before the field (:mod:`photon_fields.runtime.wavefront.final_gather`); its NEE at the bounce already sees
+        the edited lights, so the field's part alone is rescaled, inside the estimator."""
         from photon_fields.runtime.threads import numba_threads
 
+        scale = self.indirect_scale(lights)
+        scale = 1.0 if scale is None else scale
         with numba_threads(threads):
             if renderer == "neural":
                 from photon_fields.runtime.renderers.neural import render_neural
 
-                result = render_neural(scene, self.estimator, spp=1, seed=seed, progress=False, first_sample=n)
-            elif renderer == "pt":
+                est = self.estimator if scale == 1.0 else _Scaled(self.estimator, scale)
+                return render_neural(scene, est, spp=1, seed=seed, progress=False, first_sample=n,
+                                     final_gather=final_gather).layers
+            if renderer == "pt":
                 from photon_fields.runtime.renderers.path_tracer import render_path_traced
 
-                result = render_path_traced(scene, spp=1, seed=seed + n, progress=False)
-            else:
-                from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
+                return render_path_traced(scene, spp=1, seed=seed + n, progress=False).layers
+            from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 
-                # force: after an edit the map is stale, which the frame's warnings say (stale)
-                result = render_photon_mapped(scene, self.pmap, spp=1, seed=seed + n, progress=False, force=True)
-        return result.layers
+            # force: after an edit the map is stale, which the frame's warnings say (stale)
+            layers = render_photon_mapped(scene, self.pmap, spp=1, seed=seed + n, progress=False, force=True).layers
+        if scale == 1.0:
+            return layers
+        li = (layers["L_i"] * np.float32(scale)).astype(np.float32)
+        return {**layers, "L_i": li, "L": (layers["L_e"] + layers["L_d"]) + li}
 
     def indirect_scale(self, lights: list[LightControl]) -> float | None:
         """How L_i, made for the trained lights, follows the page's ``lights``: 1 without edits; with a single
@@ -110,16 +119,6 @@ class FieldInUse:
         :meth:`indirect_scale` cannot follow."""
         return not same_transfer(transfer, self.tf) or self.indirect_scale(lights) is None
 
-    def follow_light_power(self, layers: dict[str, np.ndarray], renderer: str,
-                           lights: list[LightControl]) -> dict[str, np.ndarray]:
-        """The field's or map's L_i rescaled to a single light's edited power (:meth:`indirect_scale`); L_d, from
-        next-event estimation with the edited lights, is already right."""
-        scale = self.indirect_scale(lights) if renderer in ("neural", "photonmap") else 1.0
-        if scale is None or scale == 1.0:
-            return layers
-        li = (layers["L_i"] * np.float32(scale)).astype(np.float32)
-        return {**layers, "L_i": li, "L": (layers["L_e"] + layers["L_d"]) + li}
-
     def warnings(self, renderer: str, transfer: TransferFunction | None, lights: list[LightControl],
                  updater: FieldUpdater) -> list[str]:
         """What a frame of ``renderer`` tells the page about its L_i (nothing when it is right)."""
@@ -135,3 +134,13 @@ class FieldInUse:
         if updater.busy:
             return [warning + "; retraining in the background"]
         return [f"{warning}; {'press retrain' if updater.available else updater.reason}"]
+
+
+class _Scaled:
+    """An indirect-light estimator's output times ``scale`` (a single light's power edit, :meth:`FieldInUse.render`)."""
+
+    def __init__(self, inner: Any, scale: float) -> None:
+        self.inner, self.scale = inner, float(scale)
+
+    def __call__(self, x: np.ndarray, d: np.ndarray, g: float) -> np.ndarray:
+        return self.scale * self.inner(x, d, g)

@@ -20,6 +20,7 @@ from typing import Any
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.viewer.messages import MAX_PIXELS, MAX_SIDE, MIN_SIDE
 from photon_fields.runtime.viewer.retrain import RetrainSettings
+from photon_fields.runtime.viewer.view_state import DEFAULT_GATHER_AFTER
 
 log = logging.getLogger("photon_fields.viewer")
 
@@ -137,7 +138,7 @@ class ViewerServer:
 
     def __init__(self, inputs: ViewerInputs, *, host: str = "127.0.0.1", port: int = 0, warm: bool = True,
                  max_spp: int | None = None, drag_scale: float | str = "auto",
-                 retrain: RetrainSettings | None = None) -> None:
+                 retrain: RetrainSettings | None = None, gather_after: int | None = DEFAULT_GATHER_AFTER) -> None:
         import uvicorn
 
         from photon_fields.runtime.viewer.server import MAX_FRAME_BYTES, create_app
@@ -167,7 +168,8 @@ class ViewerServer:
                                     out_dir=inputs.out_dir, seed=inputs.seed, width=inputs.width,
                                     height=inputs.height, renderer=inputs.renderer,
                                     max_spp=max_spp or DEFAULT_MAX_SPP, info=inputs.info, drag_scale=drag_scale,
-                                    retrain=retrain)
+                                    retrain=retrain,
+                                    gather_after=gather_after)
             session.field_threads = inputs.threads
             return session
 
@@ -199,7 +201,8 @@ def start(scene: str | None = None, *, bundle: str | None = None, map: str | Non
           out: str | Path = "pfn_view_out", size: tuple[int, int] | None = None, host: str = "127.0.0.1",
           port: int = 0, seed: int = 0, threads: int | None = None, force: bool = False,
           renderer: str | None = None, warm: bool = True, max_spp: int | None = None,
-          drag_scale: float | str = "auto", retrain: RetrainSettings | None = None) -> ViewerServer:
+          drag_scale: float | str = "auto", retrain: RetrainSettings | None = None,
+          gather_after: int | None = DEFAULT_GATHER_AFTER) -> ViewerServer:
     """Load the inputs and serve the viewer (module docstring); returns the running :class:`ViewerServer`."""
     if drag_scale != "auto" and (isinstance(drag_scale, bool) or not isinstance(drag_scale, (int, float))
                                  or not 0.25 <= drag_scale <= 1.0):
@@ -207,4 +210,5 @@ def start(scene: str | None = None, *, bundle: str | None = None, map: str | Non
     inputs = load_inputs(scene, bundle=bundle, map_path=map, out_dir=out, size=size, seed=seed, threads=threads,
                          force=force, renderer=renderer)
     return ViewerServer(inputs, host=host, port=port, warm=warm, max_spp=max_spp,
-                        drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale), retrain=retrain)
+                        drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale), retrain=retrain,
+                        gather_after=gather_after)

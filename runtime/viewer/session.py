@@ -33,6 +33,10 @@ Frame size: :attr:`ViewerSession.max_size` (``pfn-view --size``) until the page 
 then that size, scaled down to ``max_size``'s pixel count (:func:`photon_fields.runtime.viewer.frame_size.fit_view`).
 Frame headers carry the frame's size and the view it is for (``view_size``): the page scales it to the box.
 
+Final gather at rest: from sample :attr:`ViewerSession.gather_after` of a resting view on, neural frames take one
+real bounce before the field (:mod:`photon_fields.runtime.wavefront.final_gather`): noisier, slower, less biased
+samples, worth it once many have averaged (``bench_final_gather.py``); headers count them (``gathered``).
+
 Exposure: measured automatically (:func:`photon_fields.runtime.io.images.auto_exposure_stops`) on the first
 frame after a cut, and then kept while the camera moves so brightness does not flicker; the page's exposure
 control adds stops to it, and ``"auto"`` measures it again.
@@ -60,13 +64,14 @@ from photon_fields.runtime.viewer.camera import OrbitView
 from photon_fields.runtime.viewer.drag_levels import DRAG_LEVELS, next_drag_level
 from photon_fields.runtime.viewer.encode import encode, tonemap
 from photon_fields.runtime.viewer.field_in_use import FieldInUse
+from photon_fields.runtime.viewer.frame_denoisers import FrameDenoisers
 from photon_fields.runtime.viewer.frame_size import fit_view
 from photon_fields.runtime.viewer.light_control import LightControl
 from photon_fields.runtime.viewer.messages import MAX_PIXELS, MAX_SIDE, MIN_SIDE, Message, MessageError
 from photon_fields.runtime.viewer.retrain import RetrainSettings
 from photon_fields.runtime.viewer.transfer_edit import transfer_from_message, transfer_message, volume_histogram
 from photon_fields.runtime.viewer.updater import FieldUpdater
-from photon_fields.runtime.viewer.view_state import DEFAULT_MAX_SPP, Frame, ViewState
+from photon_fields.runtime.viewer.view_state import DEFAULT_GATHER_AFTER, DEFAULT_MAX_SPP, Frame, ViewState
 
 #: Renders of all sessions of a process take turns: two pages rendering at once would each get half the cores
 #: and both miss their frame rate; one at a time keeps each frame as fast as the machine allows.
@@ -95,12 +100,14 @@ class ViewerSession:
                  seed: int = 0, width: int | None = None, height: int | None = None,
                  renderer: str | None = None, max_spp: int = DEFAULT_MAX_SPP,
                  denoise_frames: int = DEFAULT_DENOISE_FRAMES, info: dict[str, Any] | None = None,
-                 drag_scale: float | str = 1.0, retrain: RetrainSettings | None = None) -> None:
+                 drag_scale: float | str = 1.0, retrain: RetrainSettings | None = None,
+                 gather_after: int | None = DEFAULT_GATHER_AFTER) -> None:
         self.base_scene = scene
         self.field = FieldInUse(scene, estimator, pmap, FieldInUse.run_folder_of((info or {}).get("bundle")))
         self.out_dir = Path(out_dir)
         self.seed = int(seed)
         self.denoise_frames = int(denoise_frames)
+        self.gather_after = None if gather_after is None else int(gather_after)
         self.info = dict(info or {})
         if renderer is None:
             renderer = "neural" if estimator is not None else "pt"
@@ -131,11 +138,10 @@ class ViewerSession:
         self._acc: dict[str, np.ndarray] = {}
         self._acc_generation = -1
         self._samples = 0
+        self._gathered = 0  # samples of the accumulation that took the final gather
         self._acc_size: tuple[int, int] = (0, 0)  # (width, height) of the accumulation
         self._auto_stops: float | None = None
-        self._denoisers: dict[tuple[int, int], Any] = {}  # by frame size (full, and reduced while moving)
-        self._depth: Any = None  # the denoisers' shared DepthEstimator (the medium does not change)
-        self._last_size: tuple[int, int] = (0, 0)
+        self._denoisers = FrameDenoisers()
         self._last_header: dict[str, Any] = {}
         self._shot_lock = threading.Lock()
         self._histogram: list[float] | None = None
@@ -303,7 +309,7 @@ class ViewerSession:
             if scene.tf is self.scene.tf and "medium" in self.scene._cache:  # the medium ignores the lights
                 scene._cache["medium"] = self.scene._cache["medium"]
             else:  # a new transfer function: a new medium, and the depth it gives the denoisers
-                self._depth, self._denoisers = None, {}
+                self._denoisers.forget_medium()
             self.scene, self._scene_lights_version = scene, self._lights_version
         return self.scene.with_overrides(g=s.g, camera=s.view.camera(width, height))
 
@@ -323,7 +329,7 @@ class ViewerSession:
             self.cut = self.redisplay = self.reexpose = False
             if generation != self._acc_generation:
                 moved_only = not cut
-                self._acc, self._samples, self._acc_generation = {}, 0, generation
+                self._acc, self._samples, self._gathered, self._acc_generation = {}, 0, 0, generation
             else:
                 moved_only = False
             size = full
@@ -331,34 +337,20 @@ class ViewerSession:
             if moved_only and scale < 1.0:
                 size = (max(MIN_SIDE, round(s.width * scale)), max(MIN_SIDE, round(s.height * scale)))
             if render and self._acc_size != size:  # a reduced moving frame before: rest starts a full-size one
-                self._acc, self._samples = {}, 0
+                self._acc, self._samples, self._gathered = {}, 0, 0
             self._acc_size = size
             scene = self._scene_for(s, *size)
         timings: dict[str, float] = {}
         warnings = self.field.warnings(s.renderer, s.transfer, s.lights, self.updater)
-        if cut:
-            for d in self._denoisers.values():
-                d.reset()
-        denoiser = self._denoisers.get(size)
-        if denoiser is None:
-            from photon_fields.runtime.denoise.depth import DepthEstimator
-            from photon_fields.runtime.denoise.wrls import WRLSDenoiser
-
-            if self._depth is None:  # one for every frame size: building it takes tens of ms
-                self._depth = DepthEstimator(scene.medium())
-            denoiser = WRLSDenoiser(*size, depth_estimator=self._depth)
-            self._denoisers = {k: v for k, v in self._denoisers.items() if k in (full, size)} | {size: denoiser}
-        elif size != self._last_size:
-            denoiser.reset()  # its history is from before the last change of frame size: stale
-        self._last_size = size
+        denoiser = self._denoisers.for_frame(scene, size, full, cut)
         if reexpose:
             self._auto_stops = None
         refining = render and self._samples > 0
+        gather = render and not moved_only and self.gathers(s.renderer, self._samples)
         if render:
             t = time.perf_counter()
             with RENDER_LOCK:
-                layers = self._render(scene, s.renderer, self._samples)
-            layers = self.field.follow_light_power(layers, s.renderer, s.lights)
+                layers = self._render(scene, s, self._samples, gather)
             timings["render_ms"] = (time.perf_counter() - t) * 1e3
             with self.lock:
                 if self._acc_generation == generation:
@@ -367,13 +359,14 @@ class ViewerSession:
                     for k in ACCUMULATED_LAYERS:
                         self._acc[k] += layers[k]
                     self._samples += 1
+                    self._gathered += int(gather)
         with self.lock:
             if refining and self.generation != generation:
                 self.dropped += 1
                 return None
             samples = max(self._samples, 1)
             mean = (self._acc[s.layer] / samples).astype(np.float32) if self._acc else None
-            n = self._samples
+            n, gathered = self._samples, self._gathered
         if mean is None:  # nothing rendered yet for this state (only possible on a redisplay race): black
             mean = np.zeros((size[1], size[0], 3), np.float32)
         shown, denoised = mean, False
@@ -398,7 +391,7 @@ class ViewerSession:
                   "stale": s.renderer != "pt" and self.field_stale(s),
                   "renderer": s.renderer, "layer": s.layer, "g": s.g, "width": size[0], "height": size[1],
                   "view_size": list(s.view_size) if s.view_size else None, "format": s.format, "exposure": stops,
-                  "denoised": denoised, "moving": moved_only,
+                  "denoised": denoised, "moving": moved_only, "gathered": gathered,
                   "rendered": render, "warnings": warnings, **{k: round(v, 2) for k, v in timings.items()}}
         self._last_header = header
         return Frame(data, header)
@@ -438,17 +431,19 @@ class ViewerSession:
             self._samples = max(self._samples, self.state.max_spp)
             self.redisplay = False
 
-    def _render(self, scene: Scene, renderer: str, n: int) -> dict[str, np.ndarray]:
-        """Frame ``n`` of the accumulation (module docstring for the seeds); while a background job trains, with
-        the cores it leaves."""
+    def _render(self, scene: Scene, s: ViewState, n: int, gather: bool) -> dict[str, np.ndarray]:
+        """Frame ``n`` of the accumulation of state ``s`` (module docstring for the seeds), with the final gather
+        or not; while a background job trains, with the cores it leaves."""
         from photon_fields.runtime.threads import max_threads
 
         threads = max(1, max_threads() - self.updater.settings.threads) if self.updater.busy else None
-        return self.field.render(scene, renderer, seed=self.seed, n=n, threads=threads)
+        return self.field.render(scene, s.renderer, seed=self.seed, n=n, lights=s.lights, threads=threads,
+                                 final_gather=gather)
 
-    def indirect_scale(self, s: ViewState) -> float | None:
-        """How L_i follows the page's light edits (:meth:`FieldInUse.indirect_scale`)."""
-        return self.field.indirect_scale(s.lights)
+    def gathers(self, renderer: str, n: int) -> bool:
+        """Whether resting frame ``n`` of an accumulation with ``renderer`` takes the final gather (moving frames
+        never do)."""
+        return renderer == "neural" and self.gather_after is not None and n >= self.gather_after
 
     # ------------------------------------------------------------------------------------------------
     # state for the page, screenshots (either thread)
@@ -483,7 +478,7 @@ class ViewerSession:
             with self.lock:
                 if not self._acc:
                     raise MessageError("screenshot: no frame has been rendered yet")
-                samples = self._samples
+                samples, gathered = self._samples, self._gathered
                 layers = {k: (v / samples).astype(np.float32) for k, v in self._acc.items()}
                 s = replace(self.state)
                 header = dict(self._last_header)
@@ -494,6 +489,7 @@ class ViewerSession:
                       "camera": cam.to_dict(), "lights": [lt.light().to_dict() for lt in s.lights],
                       "transfer_function": (s.transfer or self.base_scene.tf).to_dict(),
                       "stale_indirect": s.renderer != "pt" and self.field_stale(s),
+                      "final_gather_samples": gathered,
                       "frame_timings_ms": {k: v for k, v in header.items() if k.endswith("_ms")}, **self.info}
             return screenshot.write(self.out_dir, stem, layers, report, png_layer=s.layer,
                                     exposure=header.get("exposure"))

@@ -139,7 +139,7 @@ def test_single_light_power_rescales_the_indirect_layer_exactly(tmp_path: Path) 
     np.testing.assert_allclose(accumulated(s, "L"), accumulated(s, "L_e") + accumulated(s, "L_d")
                                + accumulated(s, "L_i"), rtol=1e-5, atol=1e-7)
     s.apply(msg("light", index=0, azimuth=s.state.lights[0].azimuth + 30.0))
-    assert s.indirect_scale(s.state) is None
+    assert s.field.indirect_scale(s.state.lights) is None
     assert "does not follow" in s.next_frame().header["warnings"][0]
 
 
@@ -276,9 +276,9 @@ def test_stale_refinement_frames_are_dropped_but_first_frames_never(tmp_path: Pa
     s = make_session(tmp_path)
     real = s._render
 
-    def render_while_input_arrives(scene, renderer, n):  # noqa: ANN001, ANN202
+    def render_while_input_arrives(scene, state, n, gather):  # noqa: ANN001, ANN202
         s.apply(msg("orbit", dx=1.0, dy=0.0))  # input arriving during every render
-        return real(scene, renderer, n)
+        return real(scene, state, n, gather)
 
     assert s.next_frame() is not None  # first frame of the scene camera
     s.apply(msg("orbit", dx=1.0, dy=0.0))

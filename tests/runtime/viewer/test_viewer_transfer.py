@@ -66,16 +66,16 @@ def test_an_edit_marks_the_fields_indirect_light_stale_until_undone(tmp_path: Pa
 def test_the_depth_the_denoiser_uses_follows_the_edited_medium(tmp_path: Path) -> None:
     s = make_session(tmp_path, retrain=MANUAL)
     s.next_frame()
-    depth = s._depth
+    depth = s._denoisers.depth
     assert depth is not None
     s.apply(msg("orbit", dx=3.0, dy=0.0))
     s.next_frame()
-    assert s._depth is depth  # a camera move keeps it
+    assert s._denoisers.depth is depth  # a camera move keeps it
     s.apply(msg("transfer", **edited(s, opacity_scale=0.5)))
     s.next_frame()
-    assert s._depth is not None and s._depth is not depth
+    assert s._denoisers.depth is not None and s._denoisers.depth is not depth
     fresh = DepthEstimator(s.scene.medium())  # the edited medium's coarse extinction, not the old one's
-    np.testing.assert_array_equal(s._depth.grid, fresh.grid)
+    np.testing.assert_array_equal(s._denoisers.depth.grid, fresh.grid)
     assert not np.array_equal(depth.grid, fresh.grid)
 
 
