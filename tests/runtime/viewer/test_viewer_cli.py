@@ -38,6 +38,8 @@ def one_error_line(stderr: str) -> str:
     (["blobs", "--bogus"], "command line"),
     (["blobs", "--retrain-photons", "lots"], "--retrain-photons"),
     (["blobs", "--retrain-photons", "0"], "--retrain-photons"),
+    (["blobs", "--final-gather-after", "-3"], "--final-gather-after"),
+    (["blobs", "--final-gather-after", "soon"], "--final-gather-after"),
 ])
 def test_bad_input_is_one_line_and_status_2(argv: list[str], needle: str, tmp_path: Path,
                                             capsys: pytest.CaptureFixture[str]) -> None:
@@ -67,3 +69,13 @@ def test_out_must_be_a_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str]
 def test_loopback_hosts() -> None:
     assert all(is_loopback(h) for h in ("127.0.0.1", "127.1.2.3", "::1", "localhost"))
     assert not any(is_loopback(h) for h in ("0.0.0.0", "192.168.1.5", "::", "example.org"))
+
+
+def test_final_gather_after_takes_a_count_or_never() -> None:
+    from photon_fields.runtime.viewer.cli import build_parser
+    from photon_fields.runtime.viewer.view_state import DEFAULT_GATHER_AFTER
+
+    parse = build_parser().parse_args
+    assert parse(["blobs"]).final_gather_after == DEFAULT_GATHER_AFTER
+    assert parse(["blobs", "--final-gather-after", "never"]).final_gather_after is None
+    assert parse(["blobs", "--final-gather-after", "0"]).final_gather_after == 0
