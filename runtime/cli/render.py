@@ -168,7 +168,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from photon_fields.runtime.eval.machine import cpu_record
 
     report = {"scene": scene.name, "method": args.method, "spp": spp, "seed": args.seed, "g": scene.g,
-              "size": [scene.camera.width, scene.camera.height], "wall_s": wall,
+              "size": [scene.camera.width, scene.camera.height], "options": options, "wall_s": wall,
               "timings_ms": result.timings_ms, "stats": result.stats, "scene_description": scene.to_dict(),
               "scene_from": scene_from, "warnings": warnings, "cpu": cpu_record()}
     if field is not None:

@@ -93,6 +93,7 @@ def test_render_writes_exr_png_and_json(warm: Path, capsys: pytest.CaptureFixtur
     assert report["scene"] == "blobs" and report["method"] == "pt"
     assert report["spp"] == 1 and report["seed"] == 3 and report["size"] == [16, 16]
     assert report["g"] == BUILTIN_SCENES["blobs"]["g"]
+    assert report["options"] == {"max_depth": 16, "nee": True}  # the renderer's settings, to reproduce it
     assert report["wall_s"] > 0
     timings = report["timings_ms"]
     assert isinstance(timings, dict) and timings

@@ -253,6 +253,22 @@ def test_render_without_scene_uses_the_scene_the_bundle_records(base: Scene, bun
     assert scene_for_bundle(bundle)[0].fingerprint() == base.fingerprint()
 
 
+def test_final_gather_reaches_the_field_renderer_and_its_report(bundle: Path, tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    from photon_fields.runtime.io.images import read_exr
+
+    images = {}
+    for flags in ([], ["--final-gather"]):
+        out = tmp_path / f"r{len(flags)}.exr"
+        code, err, report = _render(["--method", "field", "--bundle", str(bundle), *RENDER, *flags, "--out",
+                                     str(out)], capsys)
+        assert code == 0 and err == [], err
+        assert report["options"] == {"camera": "forced", "final_gather": bool(flags)}
+        images[bool(flags)] = read_exr(out)[0]
+    np.testing.assert_array_equal(images[False]["L_d"], images[True]["L_d"])
+    assert not np.array_equal(images[False]["L_i"], images[True]["L_i"])
+
+
 def test_render_without_scene_of_an_old_bundle_says_which_scene_was_used(bundle: Path, tmp_path: Path,
                                                                          capsys: pytest.CaptureFixture[str]) -> None:
     old = as_version_1(bundle, tmp_path / "old.pfn")
