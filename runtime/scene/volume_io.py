@@ -1,8 +1,8 @@
 """Volume files on disk -> :class:`photon_fields.runtime.scene.volume.Volume`: the format dispatch.
 
-:func:`load_volume` picks a reader from the file suffix and always returns a normalized volume built
-by :func:`photon_fields.runtime.scene.volume.make_volume` (float32 in [0, 1], indexed ``[x, y, z]``). The
-readers live in :mod:`photon_fields.runtime.scene.readers`, one module per format.
+:func:`load_volume` picks a reader from the file suffix and always
+returns a normalized volume built by :func:`photon_fields.runtime.scene.volume.make_volume` (float32 in [0, 1],
+indexed ``[x, y, z]``). The readers live in :mod:`photon_fields.runtime.scene.readers`, one module per format.
 
 .. list-table:: Parameters of :func:`load_volume`
    :header-rows: 1
@@ -14,7 +14,8 @@ readers live in :mod:`photon_fields.runtime.scene.readers`, one module per forma
    * - ``path``
      - str | PathLike
      - The file. Suffix decides the format: ``.npy``; ``.raw`` / ``.bin`` / ``.dat`` (headerless raw);
-       ``.nrrd`` / ``.nhdr`` (pynrrd); ``.nii`` / ``.nii.gz`` (nibabel). Case-insensitive.
+       ``.nrrd`` / ``.nhdr`` (pynrrd); ``.nii`` / ``.nii.gz`` (nibabel); ``.vti`` (VTK XML ImageData).
+       Case-insensitive.
    * - ``dims``
      - (int, int, int)
      - Raw only: grid size ``(nx, ny, nz)``. Default: from the sidecar JSON (required from one or the other).
@@ -30,7 +31,7 @@ readers live in :mod:`photon_fields.runtime.scene.readers`, one module per forma
      - (float, float, float)
      - Voxel size along x, y, z (any unit; only ratios matter). Overrides what the file says. Default:
        NRRD ``spacings`` or norms of ``space directions``; NIfTI ``get_zooms()[:3]``; raw sidecar;
-       otherwise ``(1, 1, 1)``.
+       ``.vti`` ``Spacing``; otherwise ``(1, 1, 1)``.
    * - ``window``
      - (float, float)
      - Raw values mapped to 0 and 1 (outside values clip). Default: raw sidecar ``window``, else the
@@ -39,6 +40,10 @@ readers live in :mod:`photon_fields.runtime.scene.readers`, one module per forma
      - str
      - ``.npy`` only: index order of the stored array, ``"xyz"`` (default) or ``"zyx"`` (transposed on
        load).
+   * - ``array``
+     - str
+     - ``.vti`` only: name of the data array to read. Default: PointData's ``Scalars`` array, else its
+       first array, else the same in CellData.
    * - ``name``
      - str
      - Volume name. Default: the file name without its format suffix.
@@ -48,17 +53,19 @@ Conventions:
 - **Orientation.** The result is indexed ``[x, y, z]``. ``.npy`` arrays are taken as ``[x, y, z]``
   unless ``axes="zyx"``. Raw files are stored x-fastest (the usual ``nx ny nz`` dump: C order of shape
   ``(nz, ny, nx)``), read with that shape and transposed. NRRD is read with ``index_order='F'`` (first
-  NRRD axis = x); NIfTI arrays are ``[i, j, k]`` = ``[x, y, z]``. Only voxel *sizes* are taken from
-  the headers: direction cosines, flips and origins are ignored (the volume sits in a centred box).
+  NRRD axis = x); NIfTI arrays are ``[i, j, k]`` = ``[x, y, z]``; ``.vti`` points are x fastest (a
+  Fortran-order reshape). Only voxel *sizes* are taken
+  from the headers: direction cosines, flips and origins are ignored (the volume sits in a centred box).
 - **Raw sidecar.** ``<file>.json`` (e.g. ``head.raw.json``), else ``<stem>.json`` (``head.json``, unless
   that is a scene file, i.e. has a ``volume`` entry),
   a JSON object with keys ``dims``, ``dtype``, ``endian``, ``spacing`` and optionally ``window`` and
   ``layout`` (which, if present, must be the one layout read: :data:`RAW_LAYOUT`); any other key is
   refused, naming the sidecar and the key. Keyword arguments override the sidecar. The file size must be exactly
   ``nx * ny * nz * itemsize``.
-- **Memory.** Raw and ``.npy`` files (and uncompressed NIfTI, via nibabel) are memory-mapped; the
-  normalization in :func:`make_volume` streams through them in chunks, so the only full-size
-  allocation is the float32 result. ``.npy`` files are loaded with ``allow_pickle=False``.
+- **Memory.** Raw and ``.npy`` files, uncompressed NIfTI (via nibabel), appended raw uncompressed ``.vti``
+  data are memory-mapped; the normalization in :func:`make_volume`
+  streams through them in chunks, so the only full-size allocation is the float32 result. ``.npy`` files are
+  loaded with ``allow_pickle=False``.
 - **Errors.** Every problem is a :class:`photon_fields.runtime.errors.InputError` whose ``what`` is the file path (the
   sidecar path for a bad sidecar) and whose problem is one line: missing file, unreadable or corrupt
   file, wrong dims/dtype for a raw file, unknown dtype name, non-3-D data, NaN/inf voxels, ...
@@ -91,9 +98,9 @@ from photon_fields.runtime.scene.volume import Volume, make_volume
 
 __all__ = ["RAW_DTYPES", "RAW_LAYOUT", "SIDECAR_KEYS", "load_volume", "save_volume_raw", "find_sidecar"]
 
-_FORMATS = {".npy": "npy", ".nrrd": "nrrd", ".nhdr": "nrrd", ".nii": "nifti", ".nii.gz": "nifti"}
+_FORMATS = {".npy": "npy", ".nrrd": "nrrd", ".nhdr": "nrrd", ".nii": "nifti", ".nii.gz": "nifti", ".vti": "vti"}
 _FORMATS.update({s: "raw" for s in RAW_SUFFIXES})
-_LABELS = {"npy": ".npy", "raw": "raw", "nrrd": "NRRD", "nifti": "NIfTI"}
+_LABELS = {"npy": ".npy", "raw": "raw", "nrrd": "NRRD", "nifti": "NIfTI", "vti": ".vti"}
 
 
 def _format_suffix(path: Path) -> str:
@@ -133,6 +140,7 @@ def load_volume(
     spacing: Sequence[float] | None = None,
     window: Sequence[float] | None = None,
     axes: str = "xyz",
+    array: str | None = None,
     name: str | None = None,
 ) -> Volume:
     """Read a scalar volume file and return it normalized (see the module docstring for parameters).
@@ -151,6 +159,10 @@ def load_volume(
         given = [k for k, v in (("dims", dims), ("dtype", dtype), ("endian", endian)) if v is not None]
         if given:
             raise InputError(what, f"{', '.join(given)} only apply to raw files; this is a {suffix}")
+    if array is not None and kind != "vti":
+        raise InputError(what, f"array only applies to .vti files; this is a {suffix}")
+    if array is not None and not isinstance(array, str):
+        raise InputError(what, f"array must be the name of a data array (a string), got {fmt(array)}")
     sp = parse_spacing(spacing, what) if spacing is not None else None
     win = parse_window(window, what) if window is not None else None
     vol_name = name if name is not None else _default_name(p)
@@ -164,10 +176,14 @@ def load_volume(
             from photon_fields.runtime.scene.readers.nrrd_file import read_nrrd
 
             arr, file_sp, file_win = read_nrrd(p, what, sp is not None)
-        else:
+        elif kind == "nifti":
             from photon_fields.runtime.scene.readers.nifti_file import read_nifti
 
             arr, file_sp, file_win = read_nifti(p, what, sp is not None)
+        else:
+            from photon_fields.runtime.scene.readers.vti_file import read_vti
+
+            arr, file_sp, file_win = read_vti(p, what, array, sp is not None)
     except InputError:
         raise
     except MemoryError:
