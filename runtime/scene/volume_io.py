@@ -1,6 +1,6 @@
 """Volume files on disk -> :class:`photon_fields.runtime.scene.volume.Volume`: the format dispatch.
 
-:func:`load_volume` picks a reader from the file suffix and always
+:func:`load_volume` picks a reader from the file suffix (or, for a folder, the TIFF slice reader) and always
 returns a normalized volume built by :func:`photon_fields.runtime.scene.volume.make_volume` (float32 in [0, 1],
 indexed ``[x, y, z]``). The readers live in :mod:`photon_fields.runtime.scene.readers`, one module per format.
 
@@ -14,8 +14,9 @@ indexed ``[x, y, z]``). The readers live in :mod:`photon_fields.runtime.scene.re
    * - ``path``
      - str | PathLike
      - The file. Suffix decides the format: ``.npy``; ``.raw`` / ``.bin`` / ``.dat`` (headerless raw);
-       ``.nrrd`` / ``.nhdr`` (pynrrd); ``.nii`` / ``.nii.gz`` (nibabel); ``.vti`` (VTK XML ImageData).
-       Case-insensitive.
+       ``.nrrd`` / ``.nhdr`` (pynrrd); ``.nii`` / ``.nii.gz`` (nibabel); ``.vti`` (VTK XML ImageData);
+       ``.tif`` / ``.tiff`` (a multi-page TIFF, needs the ``formats`` extra). Case-insensitive. A folder is
+       read as a stack of 2-D TIFF slices (also the ``formats`` extra).
    * - ``dims``
      - (int, int, int)
      - Raw only: grid size ``(nx, ny, nz)``. Default: from the sidecar JSON (required from one or the other).
@@ -31,7 +32,7 @@ indexed ``[x, y, z]``). The readers live in :mod:`photon_fields.runtime.scene.re
      - (float, float, float)
      - Voxel size along x, y, z (any unit; only ratios matter). Overrides what the file says. Default:
        NRRD ``spacings`` or norms of ``space directions``; NIfTI ``get_zooms()[:3]``; raw sidecar;
-       ``.vti`` ``Spacing``; otherwise ``(1, 1, 1)``.
+       ``.vti`` ``Spacing``; TIFF OME or ImageJ metadata; otherwise ``(1, 1, 1)``.
    * - ``window``
      - (float, float)
      - Raw values mapped to 0 and 1 (outside values clip). Default: raw sidecar ``window``, else the
@@ -46,7 +47,7 @@ indexed ``[x, y, z]``). The readers live in :mod:`photon_fields.runtime.scene.re
        first array, else the same in CellData.
    * - ``name``
      - str
-     - Volume name. Default: the file name without its format suffix.
+     - Volume name. Default: the file (or folder) name without its format suffix.
 
 Conventions:
 
@@ -54,7 +55,7 @@ Conventions:
   unless ``axes="zyx"``. Raw files are stored x-fastest (the usual ``nx ny nz`` dump: C order of shape
   ``(nz, ny, nx)``), read with that shape and transposed. NRRD is read with ``index_order='F'`` (first
   NRRD axis = x); NIfTI arrays are ``[i, j, k]`` = ``[x, y, z]``; ``.vti`` points are x fastest (a
-  Fortran-order reshape). Only voxel *sizes* are taken
+  Fortran-order reshape); TIFF pages (or slices) are z, rows y, columns x. Only voxel *sizes* are taken
   from the headers: direction cosines, flips and origins are ignored (the volume sits in a centred box).
 - **Raw sidecar.** ``<file>.json`` (e.g. ``head.raw.json``), else ``<stem>.json`` (``head.json``, unless
   that is a scene file, i.e. has a ``volume`` entry),
@@ -63,13 +64,13 @@ Conventions:
   refused, naming the sidecar and the key. Keyword arguments override the sidecar. The file size must be exactly
   ``nx * ny * nz * itemsize``.
 - **Memory.** Raw and ``.npy`` files, uncompressed NIfTI (via nibabel), appended raw uncompressed ``.vti``
-  data are memory-mapped; the normalization in :func:`make_volume`
+  data and uncompressed contiguous TIFF files are memory-mapped; the normalization in :func:`make_volume`
   streams through them in chunks, so the only full-size allocation is the float32 result. ``.npy`` files are
   loaded with ``allow_pickle=False``.
 - **Errors.** Every problem is a :class:`photon_fields.runtime.errors.InputError` whose ``what`` is the file path (the
   sidecar path for a bad sidecar) and whose problem is one line: missing file, unreadable or corrupt
   file, wrong dims/dtype for a raw file, unknown dtype name, non-3-D data, NaN/inf voxels, ...
-  Exceptions from numpy/pynrrd/nibabel are converted; no traceback reaches the user.
+  Exceptions from numpy/pynrrd/nibabel/tifffile are converted; no traceback reaches the user.
 
 :func:`save_volume_raw` writes a raw file plus its ``<file>.json`` sidecar (each atomically), the
 inverse of the raw reader.
@@ -98,9 +99,11 @@ from photon_fields.runtime.scene.volume import Volume, make_volume
 
 __all__ = ["RAW_DTYPES", "RAW_LAYOUT", "SIDECAR_KEYS", "load_volume", "save_volume_raw", "find_sidecar"]
 
-_FORMATS = {".npy": "npy", ".nrrd": "nrrd", ".nhdr": "nrrd", ".nii": "nifti", ".nii.gz": "nifti", ".vti": "vti"}
+_FORMATS = {".npy": "npy", ".nrrd": "nrrd", ".nhdr": "nrrd", ".nii": "nifti", ".nii.gz": "nifti", ".vti": "vti",
+            ".tif": "tiff", ".tiff": "tiff"}
 _FORMATS.update({s: "raw" for s in RAW_SUFFIXES})
-_LABELS = {"npy": ".npy", "raw": "raw", "nrrd": "NRRD", "nifti": "NIfTI", "vti": ".vti"}
+_LABELS = {"npy": ".npy", "raw": "raw", "nrrd": "NRRD", "nifti": "NIfTI", "vti": ".vti", "tiff": "TIFF",
+           "tiff_folder": "TIFF"}
 
 
 def _format_suffix(path: Path) -> str:
@@ -115,9 +118,11 @@ def _default_name(path: Path) -> str:
 
 
 def _kind(p: Path, what: str) -> str:
-    """The reader for ``p``, by its suffix."""
+    """The reader for ``p``: a folder is a stack of TIFF slices, a file goes by its suffix."""
     if not p.exists():
         raise InputError(what, "file not found")
+    if p.is_dir():
+        return "tiff_folder"
     if not p.is_file():
         raise InputError(what, "is not a regular file")
     suffix = _format_suffix(p)
@@ -126,7 +131,8 @@ def _kind(p: Path, what: str) -> str:
         known = ", ".join(sorted(_FORMATS))
         raise InputError(
             what,
-            f"unknown volume file type {repr(suffix) if suffix else '(no suffix)'}; expected one of {known}",
+            f"unknown volume file type {repr(suffix) if suffix else '(no suffix)'}; expected one of {known} "
+            "(or a folder of TIFF slices)",
         )
     return kind
 
@@ -143,14 +149,15 @@ def load_volume(
     array: str | None = None,
     name: str | None = None,
 ) -> Volume:
-    """Read a scalar volume file and return it normalized (see the module docstring for parameters).
+    """Read a scalar volume file (or a folder of TIFF slices) and return it normalized (see the module
+    docstring for parameters).
 
     Raises :class:`InputError` (one line, naming the file) for every problem with the file or arguments.
     """
     p = Path(path)
     what = str(p)
     kind = _kind(p, what)
-    suffix = f"{_format_suffix(p)} file"
+    suffix = "folder" if kind == "tiff_folder" else f"{_format_suffix(p)} file"
     if axes not in ("xyz", "zyx"):
         raise InputError(what, f"axes must be 'xyz' or 'zyx', got {fmt(axes)}")
     if axes != "xyz" and kind != "npy":
@@ -180,10 +187,15 @@ def load_volume(
             from photon_fields.runtime.scene.readers.nifti_file import read_nifti
 
             arr, file_sp, file_win = read_nifti(p, what, sp is not None)
-        else:
+        elif kind == "vti":
             from photon_fields.runtime.scene.readers.vti_file import read_vti
 
             arr, file_sp, file_win = read_vti(p, what, array, sp is not None)
+        else:
+            from photon_fields.runtime.scene.readers.tiff_stack import read_tiff_file, read_tiff_folder
+
+            reader = read_tiff_folder if kind == "tiff_folder" else read_tiff_file
+            arr, file_sp, file_win = reader(p, what)
     except InputError:
         raise
     except MemoryError:
