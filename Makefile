@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml Makefile
 	# torch is pinned exactly: the CPU wheel is cached on these machines; a range would pull CUDA wheels.
 	$(PY) -m pip install --quiet "torch==2.13.0"
 	# oidn: the tests exercise the optional denoiser too (the runtime imports and renders without it).
-	$(PY) -m pip install --quiet -e ".[train,test,oidn,view,browser-test]"
+	$(PY) -m pip install --quiet -e ".[train,test,oidn,view,browser-test,formats]"
 	# The viewer's browser test drives Debian's chromium (never a downloaded browser); skipped where absent.
 	@if [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; then \
 	  if command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \

@@ -222,6 +222,43 @@ CASES += [
 ]
 
 
+# Issue 17: the .vti and TIFF readers' refusals reach the command line as one line naming the file.
+_VTI = ('<?xml version="1.0"?>\n<VTKFile type="{kind}" version="1.0" byte_order="LittleEndian">\n'
+        '<{kind} WholeExtent="0 1 0 1 0 1" Spacing="1 1 1"><Piece Extent="0 1 0 1 0 1"><PointData>\n'
+        '<DataArray type="Float32" Name="f" NumberOfComponents="{nc}" format="ascii">{values}</DataArray>\n'
+        '</PointData></Piece></{kind}>\n</VTKFile>\n')
+
+
+def vti_scene(d: Path, kind: str = "ImageData", nc: int = 1, n: int = 8, cut: int = 0) -> str:
+    text = _VTI.format(kind=kind, nc=nc, values=" ".join(str(i) for i in range(n * nc)))
+    (d / "vol.vti").write_text(text[:len(text) - cut])
+    return scene_file(d, volume={"path": "vol.vti"})
+
+
+def tiff_folder_scene(d: Path, shapes: list[tuple[int, int]]) -> str:
+    import tifffile
+
+    (d / "slices").mkdir()
+    for i, shape in enumerate(shapes):
+        tifffile.imwrite(d / "slices" / f"s{i}.tif", np.zeros(shape, np.uint8))
+    return scene_file(d, volume={"path": "slices"})
+
+
+CASES += [
+    (R, lambda a, d, o: ["--scene", vti_scene(d, cut=30), *SIZE, "--out", str(o / "r.exr")],
+     "vol.vti: not valid VTK XML"),
+    (R, lambda a, d, o: ["--scene", vti_scene(d, n=7), *SIZE, "--out", str(o / "r.exr")],
+     "vol.vti: array 'f': data shorter than the extent"),
+    (R, lambda a, d, o: ["--scene", vti_scene(d, kind="RectilinearGrid"), *SIZE, "--out", str(o / "r.exr")],
+     "vol.vti: VTK dataset type 'RectilinearGrid' is not read"),
+    (R, lambda a, d, o: ["--scene", vti_scene(d, nc=3), *SIZE, "--out", str(o / "r.exr")],
+     "vol.vti: array 'f' has 3 components"),
+    (R, lambda a, d, o: ["--scene", tiff_folder_scene(d, [(4, 4), (4, 4), (4, 5)]), *SIZE, "--out",
+                         str(o / "r.exr")], "slices: slice s2.tif is 5x4 uint8 but s0.tif is 4x4 uint8"),
+    (R, lambda a, d, o: ["--scene", tiff_folder_scene(d, []), *SIZE, "--out", str(o / "r.exr")],
+     "slices: folder has no .tif/.tiff slices"),
+]
+
 
 def old_bundle(a: dict[str, Path], d: Path) -> Path:
     """The assets' bundle as a version 1 exporter wrote it: no ``scene`` entry (the manifest is not hashed)."""

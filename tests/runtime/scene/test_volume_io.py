@@ -461,7 +461,7 @@ def test_nifti_4d_multi_volume_rejected(tmp_path: Path) -> None:
     _expect_error(path, "3-D")
 
 
-@pytest.mark.parametrize("name", ["vol.xyz", "vol.gz", "volume", "vol.tiff"])
+@pytest.mark.parametrize("name", ["vol.xyz", "vol.gz", "volume", "vol.vtk"])
 def test_unknown_suffix(tmp_path: Path, name: str) -> None:
     path = tmp_path / name
     path.write_bytes(b"\0" * 16)
