@@ -174,7 +174,7 @@ class ViewerSession:
             if msg.type == "orbit":
                 s.view = s.view.orbit(f["dx"], f["dy"])
             elif msg.type == "pan":
-                s.view = s.view.pan(f["dx"], f["dy"])
+                s.view = s.view.pan(f["dx"], f["dy"], s.width / s.height)
             elif msg.type == "zoom":
                 s.view = s.view.zoom(f["factor"])
             elif msg.type == "reset_camera":
