@@ -99,6 +99,27 @@ def _sign(d: float) -> int:
 
 
 @njit(cache=True, inline="always")
+def empty_run(m: Medium, x: float, y: float, z: float, dx: float, dy: float, dz: float) -> float:
+    """How far the ray from (x, y, z) along d stays in empty space: the distance to where it leaves the cube of
+    empty macrocells cornered at the point's macrocell towards the ray's octant (``Medium.leap``), 0 if that
+    macrocell is not empty. sigma_t is exactly 0 there (the majorant bounds the trilinear stencil), so a
+    quadrature along the ray may skip its samples in [0, empty_run) without changing its sum."""
+    cx, cy, cz = m.majorant.shape
+    bx, by, bz = m.bmin[0], m.bmin[1], m.bmin[2]
+    ix = _cell_index(x, bx, cx / m.bsize[0], cx)
+    iy = _cell_index(y, by, cy / m.bsize[1], cy)
+    iz = _cell_index(z, bz, cz / m.bsize[2], cz)
+    sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
+    r = int(m.leap[(sx >= 0) + 2 * (sy >= 0) + 4 * (sz >= 0), ix, iy, iz])
+    if r == 0:
+        return 0.0
+    ex = _cube_exit(x, 1.0 / dx if sx != 0 else math.inf, bx, m.bsize[0] / cx, ix, sx, r)
+    ey = _cube_exit(y, 1.0 / dy if sy != 0 else math.inf, by, m.bsize[1] / cy, iy, sy, r)
+    ez = _cube_exit(z, 1.0 / dz if sz != 0 else math.inf, bz, m.bsize[2] / cz, iz, sz, r)
+    return max(0.0, min(ex, ey, ez))
+
+
+@njit(cache=True, inline="always")
 def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmin: float,
            tmax: float, state: np.uint64, mode: int) -> tuple[float, float, float, np.uint64]:
     """Shared walk, returning (t, W, T, state).
