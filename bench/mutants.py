@@ -311,6 +311,10 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("viewer_gather_while_moving", "runtime/viewer/session.py", "render and not moved_only and self.gathers",
            "render and self.gathers", (f"{VGATHER}::test_moving_frames_never_gather_and_never_means_never",),
            "moving frames, which must be fast, take the final gather too"),
+    Mutant("marcher_skips_too_far", "runtime/transport/tracking.py", "    return max(0.0, min(ex, ey, ez))\n",
+           "    return max(0.0, min(ex, ey, ez)) * 1.5\n",
+           ("tests/runtime/renderers/test_ray_marcher.py::test_skipping_empty_space_changes_no_pixel",),
+           "the ray marcher skips past the end of an empty region and misses the medium behind it"),
 )
 
 
