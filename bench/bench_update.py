@@ -1,18 +1,21 @@
 """Updates: a warm-started ``pfn-train update`` against a cold ``pfn-train all`` after an edit (issue 16).
 
 For each scene (default: vortex) a base run is made as ``pfn-train all`` makes it (default preset, ``--photons``,
-``--seed``; kept in ``--work`` and reused). Then for each edit (:data:`EDITS`: one feature's opacity x0.5, the
+``--seed``; kept in ``--work`` and reused; or ``--bases DIR`` names existing run folders ``DIR/<scene>``, only
+read). Then for each edit (:data:`EDITS`: one feature's opacity x0.5, the
 density scale x1.5, an albedo colour change, the first light moved by 10 / 45 / 90 degrees about the vertical
 axis) the edited scene is trained twice, each timed end to end (trace, training, export):
 
 - ``update``: :func:`photon_fields.train.fit.update.update_run` from the base run (``--budget``,
-  ``--max-steps``; retrace with the base map's seed, warm start, early stop);
+  ``--max-steps``, ``--update-photons``, each by default the CLI's; retrace with the base map's seed, warm start,
+  early stop); its time split by stage (``UpdateResult.time_split``) and the load average around it are recorded;
 - ``cold``: trace + fit + export with the default preset from scratch (what ``pfn-train all`` does).
 
 Both fields' L_i is scored as :mod:`bench_fidelity` scores it (its ``compare``: image mean ratio, relative L2,
 SSIM) at the scene's g and camera, against the photon map's L_i of the edited scene (the map both were trained
 on: the update's retrace and the cold trace use the same seed, so it is the same map; rendered with the kernel in
-g and the final radius, as the field's targets) and, with ``--ref-spp`` > 0, against the path tracer's. The
+g and the cold fit's final radius, as the cold field's targets; the update retraces the same paths' first
+records when it keeps fewer photons) and, with ``--ref-spp`` > 0, against the path tracer's. The
 goal: the update in <= 15 s on 2 cores with an error <= 1.2x the cold field's.
 
 Output: a table on stdout and JSON (default ``bench/results/update.json``) with the machine record.
@@ -33,7 +36,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
 from bench_fidelity import compare, reference_li  # noqa: E402
-from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
+from common import finish_info, load_average, machine_info, parse_scenes, write_report  # noqa: E402
 
 from photon_fields.models_spec import DEFAULT_PHOTONS, PHASE_WINDOW  # noqa: E402
 from photon_fields.runtime.photons.photon_map import PhotonMap  # noqa: E402
@@ -135,6 +138,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--photons", type=int, default=DEFAULT_PHOTONS, help="photons of the base and cold maps")
     ap.add_argument("--budget", type=float, default=UPDATE_BUDGET_S, help="the update's --budget, seconds")
     ap.add_argument("--max-steps", type=int, default=UPDATE_MAX_STEPS, help="the update's --max-steps")
+    ap.add_argument("--update-photons", type=int, default=None,
+                    help="the update's --photons (default: the CLI's, the base map's count capped at UPDATE_PHOTONS)")
+    ap.add_argument("--bases", type=Path, default=None,
+                    help="folder of finished base runs <scene>/ (default preset, --seed, --photons), only read")
     ap.add_argument("--size", type=int, default=64, help="L_i image size")
     ap.add_argument("--spp", type=int, default=16, help="field and photon-map samples per pixel")
     ap.add_argument("--ref-spp", type=int, default=0, help="path-traced reference L_i spp (0: photon map only)")
@@ -148,37 +155,52 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(f"unknown edit(s) {unknown}; available: {', '.join(EDITS)}")
     info = machine_info()
     results: dict[str, Any] = {}
-    print(f"{'scene/edit':<18} {'update s':>8} {'steps':>5} {'stop':>9} {'cold s':>7} {'upd/map L2':>10} "
-          f"{'cold/map L2':>11} {'ratio':>6}" + ("  upd/PT L2 cold/PT L2" if args.ref_spp else ""), flush=True)
+    print(f"{'scene/edit':<18} {'update s':>8} {'retrace':>7} {'setup':>5} {'steps':>5} {'stop':>9} {'load':>4} "
+          f"{'cold s':>7} {'upd/map L2':>10} {'cold/map L2':>11} {'ratio':>6}"
+          + ("  upd/PT L2 cold/PT L2" if args.ref_spp else ""), flush=True)
     for name in parse_scenes(args.scenes):
         scene = builtin_scene(name)
         base = args.work / name / "base"
-        cold_run(scene, base, args.photons, args.seed, reuse=True)
+        if args.bases is not None:
+            base = args.bases / name
+            log = finished_run(base, FitSettings.from_preset("cpu", seed=args.seed))
+            if log is None or not (base / "map.npz").is_file() or abs(log["photons"] / args.photons - 1) > 0.01:
+                raise SystemExit(f"{base}: not a finished base run (default preset, seed {args.seed}, "
+                                 f"{args.photons} photons, map.npz)")
+        else:
+            cold_run(scene, base, args.photons, args.seed, reuse=True)
         for edit in args.edits:
             new = edited(scene, edit)
             folder = args.work / name / edit
+            load_before = load_average()
             t0 = time.perf_counter()
             res = update_run(base, new, folder / "update", budget_s=args.budget, max_steps=args.max_steps,
-                             force=True, progress=False)
+                             photons=args.update_photons, force=True, progress=False)
             update_s = time.perf_counter() - t0
+            load_after = load_average()
             pmap, cold = cold_run(new, folder / "cold", args.photons, args.seed, reuse=not args.fresh)
             view = new.with_overrides(width=args.size, height=args.size)
-            settings = res.fit.log["settings"]
-            radius = FitSettings.from_dict(settings).resolve_schedule(len(pmap)).final_radius
-            ref_map = render_photon_mapped(view, pmap, k=settings["k"], radius=radius, spp=args.spp, seed=7,
+            cold_settings = FitSettings.from_preset("cpu", seed=args.seed)
+            radius = cold_settings.resolve_schedule(len(pmap)).final_radius
+            ref_map = render_photon_mapped(view, pmap, k=cold_settings.k, radius=radius, spp=args.spp, seed=7,
                                            progress=False, g_window=PHASE_WINDOW).layers["L_i"]
             upd_li = field_li(new, res.out, args.size, args.spp)
             cold_li = field_li(new, folder / "cold", args.size, args.spp)
             stop = res.fit.log["stop"]
             entry: dict[str, Any] = {
                 "update": {"wall_s": update_s, "trace_s": res.trace_s, "export_s": res.bundle.seconds,
+                           "photons": res.fit.log["photons"], "time_split": res.time_split,
+                           "load_before": load_before, "load_after": load_after,
                            "steps": stop["steps"], "stop": stop["reason"], "kept_step": stop["kept_step"],
                            "validation": res.fit.log["validation"], "vs_map": compare(upd_li, ref_map)},
                 "cold": {**cold, "vs_map": compare(cold_li, ref_map)},
             }
             entry["ratio_vs_map"] = entry["update"]["vs_map"]["rel_l2"] / entry["cold"]["vs_map"]["rel_l2"]
-            line = (f"{name + '/' + edit:<18} {update_s:8.1f} {stop['steps']:5d} {stop['reason']:>9} "
-                    f"{cold['wall_s']:7.1f} {entry['update']['vs_map']['rel_l2']:10.3f} "
+            split = res.time_split
+            load = max(x[0] for x in (load_before, load_after) if x) if load_before else float("nan")
+            line = (f"{name + '/' + edit:<18} {update_s:8.1f} {split['trace_s']:7.1f} {split['setup_s']:5.1f} "
+                    f"{stop['steps']:5d} {stop['reason']:>9} {load:4.1f} {cold['wall_s']:7.1f} "
+                    f"{entry['update']['vs_map']['rel_l2']:10.3f} "
                     f"{entry['cold']['vs_map']['rel_l2']:11.3f} {entry['ratio_vs_map']:6.2f}")
             if args.ref_spp:
                 ref = reference_li(new, new.g, args.size, args.ref_spp, args.work)

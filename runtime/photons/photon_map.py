@@ -106,17 +106,7 @@ class PhotonMap:
             raise InputError(what, f"not a readable photon map (.npz): {exc}") from None
         if "meta" not in arrays:
             raise InputError(what, "not a photon map: no 'meta' entry")
-        try:
-            meta = json.loads(arrays.pop("meta").tobytes().decode())
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(what, f"corrupt photon map metadata ({exc})") from None
-        if not isinstance(meta, dict) or meta.get("format") != PHOTON_MAP_FORMAT:
-            found = meta.get("format") if isinstance(meta, dict) else None
-            raise InputError(what, f"not a photon map (format {found!r}, expected {PHOTON_MAP_FORMAT!r})")
-        if meta.get("version") != PHOTON_MAP_VERSION:
-            raise InputError(what, f"photon map version {meta.get('version')!r} is not supported "
-                             f"(this build reads version {PHOTON_MAP_VERSION}); re-trace it")
-        check_keys(meta, PHOTON_MAP_META_KEYS, f"{what} metadata", required=PHOTON_MAP_META_REQUIRED)
+        meta = _parse_meta(arrays.pop("meta"), what)
         extra = sorted(set(arrays) - set(PHOTON_MAP_ARRAYS))
         if extra:
             raise InputError(what, f"unknown array{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))}; a "
@@ -134,13 +124,7 @@ class PhotonMap:
                 n = a.shape[0]
             elif a.shape[0] != n:
                 raise InputError(what, f"'{name}' has {a.shape[0]} rows, expected {n}")
-        try:
-            phases = tuple(float(g) for g in meta["phases"])
-        except (TypeError, ValueError):
-            raise InputError(f"{what} metadata", f"'phases' must be a list of numbers, got {meta['phases']!r}"
-                             ) from None
-        if not phases:
-            raise InputError(what, "photon map metadata lists no phases")
+        phases, fp, emitted = _check_meta_values(meta, what)
         if n and int(arrays["phase"].max()) >= len(phases):
             raise InputError(what, "phase index out of range of the phase set")
         if "stored" in meta and meta["stored"] != n:
@@ -148,14 +132,6 @@ class PhotonMap:
         for name in ("position", "direction", "power"):
             if not np.all(np.isfinite(arrays[name])):
                 raise InputError(what, f"'{name}' contains non-finite values")
-        fp = meta["scene_fingerprint"]
-        if not isinstance(fp, str) or not _SHA256.match(fp):
-            raise InputError(f"{what} metadata", f"'scene_fingerprint' must be a sha256 hex string, got {fp!r}")
-        if "scene_parts" in meta:
-            _check_parts(meta["scene_parts"], f"{what} metadata scene_parts")
-        emitted = meta["emitted"]
-        if isinstance(emitted, bool) or not isinstance(emitted, int) or emitted <= 0:
-            raise InputError(what, f"photon map metadata has no positive 'emitted' count (got {emitted!r})")
         pmap = cls(arrays["position"], arrays["direction"], arrays["power"], arrays["phase"], phases, fp, emitted,
                    meta, p)
         if expected_fingerprint is not None and fp != expected_fingerprint:
@@ -169,6 +145,117 @@ class PhotonMap:
         name = self.meta.get("scene_name")
         named = f" ({name!r})" if isinstance(name, str) and name else ""
         return f"another scene{named}: {mismatch_detail(expected_parts, self.scene_parts)}"
+
+
+@dataclass(frozen=True)
+class PhotonMapHeader:
+    """What a photon map file says about itself without its photons (:func:`read_header`): the checked
+    metadata, the record count and the file. ``pfn-train update`` needs the earlier map's seed, phases, max
+    bounces and size, not its 5M records (~185 MB, ~2 s to load and check)."""
+
+    path: Path
+    meta: dict[str, Any]
+    phases: tuple[float, ...]
+    scene_fingerprint: str
+    emitted: int
+    count: int
+
+    @property
+    def scene_parts(self) -> dict[str, str] | None:
+        parts = self.meta.get("scene_parts")
+        return dict(parts) if isinstance(parts, dict) else None
+
+
+def read_header(path: str | Path, expected_fingerprint: str | None = None) -> PhotonMapHeader:
+    """The metadata and record count of the photon map at ``path``, read from the ``meta`` entry and the
+    arrays' ``.npy`` headers only (no photon is read). The checks :meth:`PhotonMap.load` makes on the metadata
+    and the arrays' names, dtypes and shapes are made here too (the per-photon ones, finite values and phase
+    indices in range, need the photons and are left to the load); one-line errors naming the file."""
+    p = Path(path)
+    what = str(p)
+    if not p.is_file():
+        raise InputError(what, "photon map file not found")
+    shapes: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
+    try:
+        with zipfile.ZipFile(p) as z:
+            names = {n[:-4] if n.endswith(".npy") else n: n for n in z.namelist()}
+            if "meta" not in names:
+                raise InputError(what, "not a photon map: no 'meta' entry")
+            with z.open(names["meta"]) as f:
+                raw = np.lib.format.read_array(f, allow_pickle=False)
+            for name in names.keys() - {"meta"}:
+                with z.open(names[name]) as f:
+                    version = np.lib.format.read_magic(f)
+                    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
+                        np.lib.format.read_array_header_2_0
+                    shape, _, dtype = read(f)
+                shapes[name] = (tuple(shape), np.dtype(dtype))
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise InputError(what, f"not a readable photon map (.npz): {exc}") from None
+    meta = _parse_meta(raw, what)
+    extra = sorted(set(shapes) - set(PHOTON_MAP_ARRAYS))
+    if extra:
+        raise InputError(what, f"unknown array{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))}; a "
+                         f"photon map holds {', '.join(map(repr, [*PHOTON_MAP_ARRAYS, 'meta']))}")
+    n = None
+    for name, (dtype, width) in PHOTON_MAP_ARRAYS.items():
+        if name not in shapes:
+            raise InputError(what, f"photon map lacks the '{name}' array")
+        shape, found = shapes[name]
+        if found != np.dtype(dtype) or len(shape) != (2 if width else 1) or (width and shape[1] != width):
+            expected = f"(n, {width})" if width else "(n,)"
+            raise InputError(what, f"'{name}' has dtype {found} shape {shape}, expected {dtype} {expected}")
+        if n is None:
+            n = shape[0]
+        elif shape[0] != n:
+            raise InputError(what, f"'{name}' has {shape[0]} rows, expected {n}")
+    phases, fp, emitted = _check_meta_values(meta, what)
+    if "stored" in meta and meta["stored"] != n:
+        raise InputError(f"{what} metadata", f"'stored' is {meta['stored']!r} but the arrays hold {n} photons")
+    if expected_fingerprint is not None and fp != expected_fingerprint:
+        name = meta.get("scene_name")
+        named = f" ({name!r})" if isinstance(name, str) and name else ""
+        parts = meta.get("scene_parts")
+        raise InputError(what, f"photon map was traced for another scene{named}: "
+                         f"{mismatch_detail(None, parts if isinstance(parts, dict) else None)}; re-trace it for "
+                         "this scene")
+    return PhotonMapHeader(p, meta, phases, fp, emitted, int(n or 0))
+
+
+def _parse_meta(raw: np.ndarray, what: str) -> dict[str, Any]:
+    """The ``meta`` entry's JSON, checked for format, version and keys (one-line errors naming ``what``)."""
+    try:
+        meta = json.loads(np.asarray(raw).tobytes().decode())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(what, f"corrupt photon map metadata ({exc})") from None
+    if not isinstance(meta, dict) or meta.get("format") != PHOTON_MAP_FORMAT:
+        found = meta.get("format") if isinstance(meta, dict) else None
+        raise InputError(what, f"not a photon map (format {found!r}, expected {PHOTON_MAP_FORMAT!r})")
+    if meta.get("version") != PHOTON_MAP_VERSION:
+        raise InputError(what, f"photon map version {meta.get('version')!r} is not supported "
+                         f"(this build reads version {PHOTON_MAP_VERSION}); re-trace it")
+    check_keys(meta, PHOTON_MAP_META_KEYS, f"{what} metadata", required=PHOTON_MAP_META_REQUIRED)
+    return meta
+
+
+def _check_meta_values(meta: dict[str, Any], what: str) -> tuple[tuple[float, ...], str, int]:
+    """Phases, scene fingerprint and emitted count of checked metadata (and its scene parts, if any)."""
+    try:
+        phases = tuple(float(g) for g in meta["phases"])
+    except (TypeError, ValueError):
+        raise InputError(f"{what} metadata", f"'phases' must be a list of numbers, got {meta['phases']!r}"
+                         ) from None
+    if not phases:
+        raise InputError(what, "photon map metadata lists no phases")
+    fp = meta["scene_fingerprint"]
+    if not isinstance(fp, str) or not _SHA256.match(fp):
+        raise InputError(f"{what} metadata", f"'scene_fingerprint' must be a sha256 hex string, got {fp!r}")
+    if "scene_parts" in meta:
+        _check_parts(meta["scene_parts"], f"{what} metadata scene_parts")
+    emitted = meta["emitted"]
+    if isinstance(emitted, bool) or not isinstance(emitted, int) or emitted <= 0:
+        raise InputError(what, f"photon map metadata has no positive 'emitted' count (got {emitted!r})")
+    return phases, fp, emitted
 
 
 def _check_parts(parts: Any, what: str) -> None:

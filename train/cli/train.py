@@ -85,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_update_parser(sub: argparse._SubParsersAction) -> None:
-    from photon_fields.train.fit.presets import UPDATE_BUDGET_S, UPDATE_MAX_STEPS
+    from photon_fields.train.fit.presets import UPDATE_BUDGET_S, UPDATE_MAX_STEPS, UPDATE_PHOTONS
 
     u = sub.add_parser("update", help="an edited scene's run folder from an earlier run's field: retrace, "
                                       "warm-started training, export (seconds)",
@@ -98,7 +98,8 @@ def _add_update_parser(sub: argparse._SubParsersAction) -> None:
     u.add_argument("--budget", type=float, default=UPDATE_BUDGET_S,
                    help="wall seconds for retrace + training (the export comes after)")
     u.add_argument("--max-steps", type=int, default=UPDATE_MAX_STEPS, help="at most this many training steps")
-    u.add_argument("--photons", default=None, help="records in the new map (default: the earlier map's count)")
+    u.add_argument("--photons", default=None, help="records in the new map (default: the earlier map's count, at most "
+                                                   f"{UPDATE_PHOTONS // 1_000_000}M)")
     u.add_argument("--seed", type=int, default=None,
                    help="random seed of the retrace and the training (default: the earlier map's, which makes the "
                         "new map correlated with it)")
@@ -347,6 +348,7 @@ def cmd_update(args: argparse.Namespace) -> int:
           f"(stopped: {log['stop']['reason']}), validation relative L1 {first:.3f} -> "
           f"{val.get('val_rel_l1', float('nan')):.3f}, {res.wall_s:.1f} s in all")
     _print_export(res.bundle)
+    print(f"time: {update_time_line(res.time_split)}")
     if log["stop"]["reason"] == "budget" and log["stop"]["kept_step"] == 0:
         print(f"note: the budget ran out before training improved the field (retrace {res.trace_s:.1f} s): "
               f"{res.out / 'field.pfn'} is the earlier field; pass a larger --budget or fewer --photons",
@@ -354,6 +356,17 @@ def cmd_update(args: argparse.Namespace) -> int:
     if progress is not None:
         progress.finish("done", f"bundle {res.bundle.path}")
     return 0
+
+
+def update_time_line(t: dict[str, float]) -> str:
+    """Where an update's wall time went (:attr:`photon_fields.train.fit.update.UpdateResult.time_split`), in one
+    line: what used the budget when it runs out."""
+    steps = t["targets_s"] + t["train_s"]
+    return (f"read RUN {t['read_run_s']:.1f} s, retrace {t['trace_s']:.1f} s, save map {t['save_map_s']:.1f} s, "
+            f"search structures {t['index_build_s']:.1f} s, validation targets {t['validation_targets_s']:.1f} s, "
+            f"steps {steps:.1f} s (targets {t['targets_s']:.1f} s), validations {t['validate_s']:.1f} s, log and plot "
+            f"{t['outputs_s']:.1f} s, export {t['export_s']:.1f} s; {t['wall_s']:.1f} s in all (budget "
+            f"{t['budget_s']:g} s to the end of training)")
 
 
 @guarded

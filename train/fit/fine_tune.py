@@ -22,7 +22,9 @@ many steps run, which ``log.json`` records with the reason the run stopped).
 
 Outputs as :func:`photon_fields.train.fit.loop.fit`'s (``checkpoint.pt``, ``log.json``, ``loss.png``), the log
 with two more keys: ``warm_start_from`` (what the caller says the field came from) and ``stop`` (reason, steps,
-limits, the rule's parameters).
+limits, the rule's parameters) and ``update_time``: where the update's wall time went, by stage (the caller's
+stages before the fine-tune, e.g. the retrace, then the index build, the validation targets, the training steps
+and the validations), so that a budget that runs out says what used it.
 """
 
 from __future__ import annotations
@@ -66,12 +68,14 @@ STOP_REASONS = ("plateau", "max_steps", "budget")
 
 def fine_tune(model: TorchPhotonField, scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSettings, *,
               max_steps: int, deadline: float, stop: PlateauStop, warm_start_from: dict[str, Any],
-              progress: bool = True, on_progress: Callable[[int, int], None] | None = None) -> FitResult:
+              progress: bool = True, on_progress: Callable[[int, int], None] | None = None,
+              spent: dict[str, float] | None = None) -> FitResult:
     """Continue training ``model`` on ``pmap`` (traced for ``scene``) with ``settings`` (its ``lr``, ``batch``,
     ``k``, ``sampling``, ``g_sampling``, ``loss``, ``seed``, ``val_points`` and ``val_every``; ``steps`` is not
     used) for at most ``max_steps`` steps (0: validate and save the field as it is) and until ``deadline``
     (a :func:`time.perf_counter` value); see the module docstring. Writes checkpoint, log and plot to ``out_dir``
-    (which must exist). ``on_progress(done, max_steps)`` is called after every step."""
+    (which must exist). ``on_progress(done, max_steps)`` is called after every step. ``spent``: seconds the
+    caller spent on the same budget before the call, by stage (recorded first in the log's ``update_time``)."""
     settings.validate()
     if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 0:
         raise InputError("--max-steps", f"must be an integer >= 0, got {max_steps!r}")
@@ -91,6 +95,7 @@ def fine_tune(model: TorchPhotonField, scene: Scene, pmap: PhotonMap, out_dir: s
     val = sampler.validation_set(settings.val_points, radius)
     val_every = settings.val_every or 25
     setup_s = time.perf_counter() - t_start
+    validate_s = [0.0]
 
     per: dict[str, list[float]] = {k: [] for k in ("step", "loss", "radius", "lr", "wall_s", "targets_s", "step_s",
                                                     "found_mean")}
@@ -120,15 +125,26 @@ def fine_tune(model: TorchPhotonField, scene: Scene, pmap: PhotonMap, out_dir: s
                 "final_loss": per["loss"][-1] if per["loss"] else None,
                 "final_validation": kept_validation or None}
 
+    def time_split(done: int) -> dict[str, float]:
+        """Seconds by stage: the caller's (``spent``), then this fine-tune's; ``fine_tune_s`` is their sum's
+        last part (setup, steps, validations and bookkeeping)."""
+        targets_s, steps_s = float(np.sum(per["targets_s"])), float(np.sum(per["step_s"]))
+        return {**(spent or {}), "index_build_s": sampler.build_seconds, "validation_targets_s": val.seconds,
+                "setup_s": setup_s, "targets_s": targets_s, "train_s": steps_s, "validate_s": validate_s[0],
+                "fine_tune_s": time.perf_counter() - t_start}
+
     def write_outputs(done: int, status: str) -> None:
         log["status"] = status
         log["totals"] = summary(done)
+        log["update_time"] = time_split(done)
         atomic_write_text(log_path, json.dumps(log, indent=1) + "\n")
         plot_loss(log, png)
 
     def check(done: int) -> bool:
         """Validate the field after ``done`` steps; keep it if it is the best so far; True: stop (plateau)."""
+        t = time.perf_counter()
         entry = {"step": done, **validate_field(model, val, loss_name=settings.loss)}
+        validate_s[0] += time.perf_counter() - t
         log["validation"].append(entry)
         plateau = stop.add(entry["val_rel_l1"])
         if stop.lowest_is_last or not kept:

@@ -59,9 +59,9 @@ from photon_fields.train.fit.targets import TargetBatch, TargetSampler, check_ph
 LOG_KEYS = ("scene", "scene_fingerprint", "photons", "phases", "settings", "field_config", "schedule",
             "schedule_boundaries", "averaged_from_step", "status", "threads", "parameters", "validation_points",
             "validation_targets_s",
-            "per_step", "validation", "totals", "warm_start_from", "stop")
-"""``warm_start_from`` and ``stop`` are written only by a warm-started update
-(:mod:`photon_fields.train.fit.fine_tune`): the run it started from and why it stopped."""
+            "per_step", "validation", "totals", "warm_start_from", "stop", "update_time")
+"""``warm_start_from``, ``stop`` and ``update_time`` are written only by a warm-started update
+(:mod:`photon_fields.train.fit.fine_tune`): the run it started from, why it stopped and where its time went."""
 
 
 class TrainingDivergedError(InputError):

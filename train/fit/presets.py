@@ -106,6 +106,10 @@ DEFAULT_PRESET = "cpu"
 # the measurements behind them: docs/training.md ("Updates").
 #: Wall-clock budget, seconds (the goal: an updated field in <= 15 s on 2 cores).
 UPDATE_BUDGET_S = 15.0
+#: Photon records of the retraced map, at most (an earlier map with fewer keeps its count). The retrace, the map's
+#: search structures and the validation targets scale with it: 5M (``pfn-train all``'s default) took 16-18 s to
+#: retrace alone, more than the budget.
+UPDATE_PHOTONS = 1_000_000
 #: Step limit (a cold ``cpu`` fit takes 800).
 UPDATE_MAX_STEPS = 400
 #: The update's constant learning rate as a share of the preset's.

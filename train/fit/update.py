@@ -4,13 +4,16 @@ A transfer-function or light edit changes the light in the volume but not the vo
 field is a good start for the new one. :func:`update_run`:
 
 1. reads RUN (:func:`read_run`): its checkpoint, ``log.json`` (settings and preset), ``domain.json`` (world
-   box, per-part scene fingerprints) and, if present, ``map.npz`` (photon count, phases, max bounces and seed
-   of the map the field was trained on);
+   box, per-part scene fingerprints) and, if present, ``map.npz``'s metadata (photon count, phases, max bounces
+   and seed of the map the field was trained on; :func:`photon_fields.runtime.photons.photon_map.read_header`
+   reads them without the photons, which took ~2 s for a 5M map);
 2. refuses, before writing anything, an update it cannot do well (:func:`check_update`): another volume (the
    ``volume`` part of the fingerprint or the world box differs), a NEW that leaves nothing visible (zero
    opacity everywhere, no light power reaching the volume), a budget <= 0, NEWRUN equal to RUN or holding an
    earlier run (without ``force``);
-3. retraces the photon map for NEW with RUN's map settings and seed (Alg. 1,
+3. retraces the photon map for NEW with RUN's map settings and seed, with at most
+   :data:`photon_fields.train.fit.presets.UPDATE_PHOTONS` records (the retrace, the map's search structures and
+   the validation targets all scale with the count; docs/training.md "Updates" has the measurements) (Alg. 1,
    :func:`photon_fields.train.photons.tracing.trace_photons`): path i uses random stream i of the seed, so
    every path of the new map starts like the old map's path i and departs from it only where the edit
    changes what it meets: the new map is correlated with the old one, and the field is asked to learn the
@@ -23,7 +26,8 @@ field is a good start for the new one. :func:`update_run`:
    NEWRUN can itself be updated.
 
 RUN is only read. The budget counts the wall time from the call to the end of training (retrace included);
-the export comes after it.
+the export comes after it. NEWRUN's ``log.json`` splits the time by stage (``update_time``: reading RUN, the
+retrace, saving the map, then the fine-tune's stages).
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ import numpy as np
 
 from photon_fields.runtime.cli.common import refuse_to_replace
 from photon_fields.runtime.errors import InputError, check_keys
-from photon_fields.runtime.photons.photon_map import PhotonMap
+from photon_fields.runtime.photons.photon_map import read_header
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.train.export.bundle import ExportResult, export_bundle, read_run_domain, write_run_domain
 from photon_fields.train.fit.checkpoint import load_checkpoint
@@ -52,6 +56,7 @@ from photon_fields.train.fit.presets import (
     UPDATE_BUDGET_S,
     UPDATE_LR_SHARE,
     UPDATE_MAX_STEPS,
+    UPDATE_PHOTONS,
     UPDATE_VAL_EVERY,
 )
 from photon_fields.train.fit.schedule import naive_schedule
@@ -114,11 +119,11 @@ def read_run(run: str | Path) -> RunRecord:
     max_bounces, map_seed = DEFAULT_MAX_BOUNCES, settings.seed
     parts = record.get("parts")
     if (path / "map.npz").is_file():
-        pmap = PhotonMap.load(path / "map.npz", expected_fingerprint=fingerprint)
-        photons, phases = len(pmap), tuple(pmap.phases)
-        max_bounces = int(pmap.meta.get("max_bounces", DEFAULT_MAX_BOUNCES))
-        map_seed = int(pmap.meta.get("seed", map_seed))
-        parts = parts or pmap.scene_parts()
+        header = read_header(path / "map.npz", expected_fingerprint=fingerprint)
+        photons, phases = header.count, header.phases
+        max_bounces = int(header.meta.get("max_bounces", DEFAULT_MAX_BOUNCES))
+        map_seed = int(header.meta.get("seed", map_seed))
+        parts = parts or header.scene_parts
     steps = int((log.get("totals") or {}).get("steps_done", settings.steps))
     return RunRecord(path, record.get("name"), settings, fingerprint, parts, tuple(bmin), tuple(bsize), photons,
                      phases, max_bounces, map_seed, steps)
@@ -170,6 +175,10 @@ class UpdateResult:
     bundle: ExportResult
     trace_s: float
     wall_s: float
+    time_split: dict[str, float]
+    """Seconds by stage: ``log.json``'s ``update_time`` (``read_run_s``: RUN's files and checks; ``trace_s``;
+    ``save_map_s``: ``map.npz`` and ``domain.json``; the fine-tune's stages to ``fine_tune_s``), then
+    ``outputs_s`` (the loss plot and the last log write), ``export_s`` and ``wall_s`` (the call, end to end)."""
 
 
 def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: float = UPDATE_BUDGET_S,
@@ -179,7 +188,8 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
                progress: bool = True,
                on_progress: Callable[[str, int, int], None] | None = None) -> UpdateResult:
     """Update RUN's field to ``scene`` into the run folder ``out`` (module docstring). ``seed`` (default: RUN's
-    map's) seeds the retrace and the fine-tune; ``photons`` (default: RUN's map's count) the new map's size.
+    map's) seeds the retrace and the fine-tune; ``photons`` (default: RUN's map's count, at most
+    :data:`photon_fields.train.fit.presets.UPDATE_PHOTONS`) the new map's size.
     ``on_progress(stage, done, total)``: stages ``trace``, ``fit``, ``export``. Bad input: one-line
     :class:`InputError`, raised before anything is written."""
     t0 = time.perf_counter()
@@ -191,7 +201,7 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
     record = read_run(src)
     check_update(record, scene)
     seed = record.map_seed if seed is None else int(seed)
-    photons = record.photons if photons is None else int(photons)
+    photons = min(record.photons, UPDATE_PHOTONS) if photons is None else int(photons)
     settings = update_settings(record.settings, photons, seed)
     if dest.exists() and not dest.is_dir():
         raise InputError("--out", f"{str(dest)!r} is a file; --out names a run folder")
@@ -201,21 +211,31 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
         dest.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError("--out", f"cannot create the folder {str(dest)!r}: {exc.strerror or exc}") from None
+    read_s = time.perf_counter() - t0
 
     def stage(name: str) -> Callable[[int, int], None] | None:
         return None if on_progress is None else (lambda done, total: on_progress(name, done, total))
 
+    t1 = time.perf_counter()
     pmap = trace_photons(scene, photons, phases=record.phases, max_bounces=record.max_bounces, seed=seed,
                          progress=progress, on_progress=stage("trace"))
+    t2 = time.perf_counter()
     pmap.save(dest / "map.npz")
     trace_s = time.perf_counter() - t0
     write_run_domain(dest, scene, scene_source)
+    t_fit = time.perf_counter()
+    spent = {"budget_s": float(budget_s), "read_run_s": read_s, "trace_s": t2 - t1, "save_map_s": t_fit - t2}
     warm = {"run": str(src), "scene": record.scene_name, "scene_fingerprint": record.fingerprint,
             "steps": record.steps, "map_seed": record.map_seed}
     result = fine_tune(model, scene, pmap, dest, settings, max_steps=max_steps, deadline=t0 + float(budget_s),
                        stop=PlateauStop(min_improvement, patience), warm_start_from=warm, progress=progress,
-                       on_progress=stage("fit"))
+                       on_progress=stage("fit"), spent=spent)
+    t3 = time.perf_counter()
     if on_progress is not None:
         on_progress("export", 0, 1)
     bundle = export_bundle(dest, dest / "field.pfn", tables_dtype=tables_dtype, force=True)
-    return UpdateResult(dest, result, bundle, trace_s, time.perf_counter() - t0)
+    wall = time.perf_counter() - t0
+    logged = result.log["update_time"]  # up to the log's writing; then the plot, and the export
+    split = {**logged, "outputs_s": t3 - t_fit - logged["fine_tune_s"], "export_s": time.perf_counter() - t3,
+             "wall_s": wall}
+    return UpdateResult(dest, result, bundle, trace_s, wall, split)

@@ -22,8 +22,9 @@ from photon_fields.runtime.scene.scene import load_scene  # noqa: E402
 from photon_fields.train.cli.train import _main as train_main  # noqa: E402
 from photon_fields.train.export.bundle import torch_encoded, verification_inputs  # noqa: E402
 from photon_fields.train.field.network import TorchPhotonField  # noqa: E402
+from photon_fields.train.fit import update as update_module  # noqa: E402
 from photon_fields.train.fit.checkpoint import load_checkpoint  # noqa: E402
-from photon_fields.train.fit.update import update_run  # noqa: E402
+from photon_fields.train.fit.update import read_run, update_run  # noqa: E402
 
 FIT = ["--preset", "tiny", "--steps", "20", "--batch", "256", "--k", "32", "--quiet"]
 
@@ -199,3 +200,50 @@ def test_stops_on_a_plateau_and_at_the_budget(runs: dict[str, Path], tmp_path: P
     budget = update_run(runs["run"], new, tmp_path / "b", budget_s=1e-3, max_steps=200, progress=False)
     assert budget.fit.log["stop"]["reason"] == "budget" and budget.fit.log["stop"]["steps"] == 0
     assert (budget.out / "field.pfn" / "manifest.json").is_file()
+
+
+def test_run_is_read_without_its_photons(runs: dict[str, Path], tmp_path: Path,
+                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """RUN's map is read for its metadata only (a full load of a 5M map took ~2 s of the 15 s budget)."""
+    def no_load(*args: object, **kwargs: object) -> None:
+        raise AssertionError("PhotonMap.load called")
+
+    monkeypatch.setattr(PhotonMap, "load", no_load)
+    record = read_run(runs["run"])
+    assert record.map_seed == 3 and record.photons >= 3000 and record.max_bounces == 16
+    res = update_run(runs["run"], load_scene(runs["denser"]), tmp_path / "new", max_steps=1, progress=False)
+    assert res.fit.log["stop"]["steps"] == 1
+
+
+def test_default_photons_are_capped(runs: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without --photons the retrace keeps RUN's map size up to UPDATE_PHOTONS records (tiny here: 2000)."""
+    old = read_run(runs["run"]).photons
+    monkeypatch.setattr(update_module, "UPDATE_PHOTONS", 2000)
+    new = load_scene(runs["denser"])
+    capped = update_run(runs["run"], new, tmp_path / "capped", max_steps=0, progress=False)
+    assert 2000 <= capped.fit.log["photons"] < old
+    asked = update_run(runs["run"], new, tmp_path / "asked", max_steps=0, photons=old, progress=False)
+    assert asked.fit.log["photons"] >= old  # an explicit count wins over the cap
+    monkeypatch.setattr(update_module, "UPDATE_PHOTONS", 10 * old)
+    kept = update_run(runs["run"], new, tmp_path / "kept", max_steps=0, progress=False)
+    assert old <= kept.fit.log["photons"] < 2 * old  # a smaller earlier map keeps its count
+
+
+def test_the_time_split_accounts_for_the_wall_time(runs: dict[str, Path], tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """log.json's ``update_time`` (and the CLI's ``time:`` line) say where the budget went: the stages before
+    training and the fine-tune's together take the wall time to the end of training, none counted twice."""
+    out = tmp_path / "new"
+    assert train_main(update_args(runs, "denser", out, "--max-steps", "30", "--budget", "300")) == 0
+    line = [s for s in capsys.readouterr().out.splitlines() if s.startswith("time: ")]
+    assert len(line) == 1 and "retrace" in line[0] and "validation targets" in line[0]
+    t = json.loads((out / "log.json").read_text())["update_time"]
+    assert t["budget_s"] == 300.0 and all(v >= 0 for v in t.values())
+    inner = t["setup_s"] + t["targets_s"] + t["train_s"] + t["validate_s"]
+    assert t["index_build_s"] + t["validation_targets_s"] <= t["setup_s"] and inner <= t["fine_tune_s"]
+    assert inner >= 0.5 * t["fine_tune_s"]  # the named stages are most of the fine-tune
+    res = update_run(runs["run"], load_scene(runs["denser"]), tmp_path / "again", max_steps=30, budget_s=300,
+                     progress=False)
+    s = res.time_split
+    parts = s["read_run_s"] + s["trace_s"] + s["save_map_s"] + s["fine_tune_s"] + s["outputs_s"] + s["export_s"]
+    assert 0.95 * s["wall_s"] <= parts <= s["wall_s"] + 1e-3
