@@ -157,9 +157,13 @@ class TransferFunction:
         return _relabelled(what, lambda: cls(np.array(s), np.array(alb), np.array(opa), ds,
                                              str(d.get("name", "custom"))))
 
-    def save(self, path: str | Path) -> None:
+    def save(self, path: str | Path, *, force: bool = False) -> None:
+        """Write the points form (:meth:`to_dict`) as a TF file a scene can name (``"transfer_function":
+        "tf.json"``), atomically; an existing file is replaced only with ``force``."""
         from photon_fields.runtime.io.atomic import atomic_path
 
+        if Path(path).exists() and not force:
+            raise InputError(str(path), "exists; pass force=True to replace it")
         with atomic_path(path) as tmp:
             Path(tmp).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
 
