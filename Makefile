@@ -32,7 +32,7 @@ demo: $(STAMP)
 	@echo "demo outputs: $(DEMO_OUT)/ (comparison.png, summary.txt, neural.exr/.png, run/field.pfn, run/loss.png)"
 
 test: $(STAMP)
-	$(PY) -m ruff check runtime train models_spec tests bench
+	$(PY) -m ruff check api runtime train models_spec tests bench
 	$(PY) -m pytest -q
 
 bench: $(STAMP)

@@ -12,7 +12,7 @@ import sys
 import pytest
 from conftest import REPO
 
-FOLDERS = {"photon_fields.runtime": "runtime", "photon_fields.train": "train",
+FOLDERS = {"photon_fields": "api", "photon_fields.runtime": "runtime", "photon_fields.train": "train",
            "photon_fields.models_spec": "models_spec"}
 
 
@@ -41,12 +41,13 @@ def _imports(path: os.PathLike) -> set[str]:
 
 def test_imports_point_one_way() -> None:
     """runtime -> models_spec; train -> runtime, models_spec; models_spec -> itself. The runtime never
-    imports torch or train, and nothing imports the old top-level names."""
+    imports torch or train (nor does api/, the package photon_fields itself), and nothing imports the old
+    top-level names."""
     for top in FOLDERS.values():
         for path in (REPO / top).rglob("*.py"):
             for name in _imports(path):
                 assert not re.match(r"(runtime|train|models_spec)(\.|$)", name), (path, name)
-                if top == "runtime":
+                if top in ("runtime", "api"):
                     assert not name.startswith(("photon_fields.train", "torch")), (path, name)
                 if top == "models_spec":
                     assert not name.startswith(("photon_fields.runtime", "photon_fields.train", "torch")), (path, name)

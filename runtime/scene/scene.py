@@ -13,6 +13,7 @@ or load a JSON scene file with :func:`load_scene` (relative paths resolve agains
       "volume": {"path": "engine.raw", "dims": [256, 256, 128], "dtype": "uint8",
                  "spacing": [1, 1, 1], "window": [0, 255]},      # or {"builtin": "vortex", "resolution": 96}
       "transfer_function": {"preset": "grey_ramp", "density_scale": 40},   # or {"points": [...]} or "tf.json"
+                                                     # or {"preset": "auto"} (from the volume's histogram)
       "lights": [{"type": "directional", "direction": [-1, -1, -0.5], "color": [1, 1, 1], "power": 3}],
       "camera": {"eye": [1.2, 0.7, 1.5], "target": [0, 0, 0], "up": [0, 1, 0], "fov": 40,
                  "width": 512, "height": 512},
@@ -236,10 +237,12 @@ def scene_from_dict(d: Any, base_dir: Path | None = None, what: str = "scene") -
     name = str(d.get("name", Path(what).stem))
     volume, volume_source = _volume_from_dict(d["volume"], base_dir, f"{what} volume")
     tf_spec = d["transfer_function"]
+    # Resolved here, where the volume is known: {"preset": "auto"} becomes concrete points, and the scene's
+    # fingerprint and spec() are those of the concrete function.
     if isinstance(tf_spec, str):
-        tf = TransferFunction.load(_resolve(tf_spec, base_dir))
+        tf = TransferFunction.load(_resolve(tf_spec, base_dir), volume=volume)
     else:
-        tf = TransferFunction.from_dict(tf_spec, what=f"{what} transfer_function")
+        tf = TransferFunction.from_dict(tf_spec, what=f"{what} transfer_function", volume=volume)
     if not isinstance(d["lights"], list):
         raise InputError(f"{what} lights", "must be a list of light objects")
     lights = tuple(light_from_dict(x, f"{what} lights[{i}]") for i, x in enumerate(d["lights"]))

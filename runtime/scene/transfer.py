@@ -25,13 +25,18 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from photon_fields.runtime.errors import InputError, check_keys
 
+if TYPE_CHECKING:
+    from photon_fields.runtime.scene.volume import Volume
+
 LUT_SIZE = 1024
+#: The preset name resolved from the volume's histogram (:mod:`photon_fields.runtime.scene.auto_transfer`).
+AUTO = "auto"
 #: Keys of the two JSON forms of a transfer function and of one control point (anything else is refused).
 _PRESET_KEYS = ("preset", "density_scale")
 _POINTS_KEYS = ("points", "density_scale", "name")
@@ -100,17 +105,25 @@ class TransferFunction:
         }
 
     @classmethod
-    def from_dict(cls, d: Any, what: str = "transfer function") -> TransferFunction:
+    def from_dict(cls, d: Any, what: str = "transfer function", volume: Volume | None = None) -> TransferFunction:
         """A transfer function from its JSON form: ``{"preset": NAME}`` (optionally with ``density_scale``)
         or ``{"points": [{"s", "albedo", "opacity"}, ...], "density_scale": ..., "name": ...}``. Unknown
         keys are refused, at the top level and in every point (``what points[2]``), so that a typo such as
-        ``"densty_scale"`` cannot silently render with the default."""
+        ``"densty_scale"`` cannot silently render with the default.
+
+        ``{"preset": "auto"}`` is keyed to ``volume``'s histogram
+        (:mod:`photon_fields.runtime.scene.auto_transfer`) and is resolved here, to concrete points: without a
+        volume it is refused. The points form is also what the viewer's editor sends (its ``transfer``
+        message, :func:`photon_fields.runtime.viewer.transfer_edit.transfer_message`), so an edited function
+        saved with :meth:`save` is a file a scene can name."""
         if not isinstance(d, dict):
             raise InputError(what, "must be a JSON object")
         if "preset" in d and "points" in d:
             raise InputError(what, "give either 'preset' or 'points', not both")
         if "preset" in d:
             check_keys(d, _PRESET_KEYS, what)
+            if d["preset"] == AUTO:
+                return _auto(d, what, volume)
             tf = preset(str(d["preset"]), what=what)
             if "density_scale" in d:
                 ds = _number(d, "density_scale", what)
@@ -144,14 +157,19 @@ class TransferFunction:
         return _relabelled(what, lambda: cls(np.array(s), np.array(alb), np.array(opa), ds,
                                              str(d.get("name", "custom"))))
 
-    def save(self, path: str | Path) -> None:
+    def save(self, path: str | Path, *, force: bool = False) -> None:
+        """Write the points form (:meth:`to_dict`) as a TF file a scene can name (``"transfer_function":
+        "tf.json"``), atomically; an existing file is replaced only with ``force``."""
         from photon_fields.runtime.io.atomic import atomic_path
 
+        if Path(path).exists() and not force:
+            raise InputError(str(path), "exists; pass force=True to replace it")
         with atomic_path(path) as tmp:
             Path(tmp).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
 
     @classmethod
-    def load(cls, path: str | Path) -> TransferFunction:
+    def load(cls, path: str | Path, volume: Volume | None = None) -> TransferFunction:
+        """A transfer-function file (the JSON of :meth:`from_dict`; ``volume`` resolves ``{"preset": "auto"}``)."""
         p = Path(path)
         if not p.is_file():
             raise InputError(str(p), "file not found")
@@ -159,7 +177,18 @@ class TransferFunction:
             d = json.loads(p.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise InputError(str(p), f"not valid JSON ({exc})") from None
-        return cls.from_dict(d, what=str(p))
+        return cls.from_dict(d, what=str(p), volume=volume)
+
+
+def _auto(d: dict, what: str, volume: Volume | None) -> TransferFunction:
+    """``{"preset": "auto"}`` resolved for ``volume``."""
+    if volume is None:
+        raise InputError(what, "preset 'auto' is keyed to a volume's histogram and needs the volume: use it in a "
+                               "scene (or photon_fields.render), where the volume is known")
+    from photon_fields.runtime.scene.auto_transfer import auto_transfer_function
+
+    ds = _number(d, "density_scale", what) if "density_scale" in d else None
+    return _relabelled(what, lambda: auto_transfer_function(volume, ds))
 
 
 def _relabelled(what: str, build: Any) -> TransferFunction:
@@ -213,6 +242,10 @@ PRESETS: dict[str, TransferFunction] = {
 
 
 def preset(name: str, what: str = "transfer function") -> TransferFunction:
+    """The built-in preset ``name`` (``auto`` is not one: it needs a volume, see :meth:`TransferFunction.from_dict`)."""
+    if name == AUTO:
+        raise InputError(what, "preset 'auto' needs the volume: resolve it with TransferFunction.from_dict("
+                               "{'preset': 'auto'}, volume=...)")
     if name not in PRESETS:
-        raise InputError(what, f"unknown preset '{name}' (available: {', '.join(sorted(PRESETS))})")
+        raise InputError(what, f"unknown preset '{name}' (available: {', '.join(sorted(PRESETS))}, {AUTO})")
     return PRESETS[name]

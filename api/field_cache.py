@@ -1,0 +1,121 @@
+"""Photon fields (and photon maps) trained on first use and kept in a cache folder, keyed by the scene.
+
+``photon_fields.render(..., method="field")`` needs a field trained for the scene's light distribution: its
+volume, transfer function and lights, which :meth:`photon_fields.runtime.scene.scene.Scene.fingerprint` hashes
+(camera and g do not count: one field serves every view and any g). The first call trains one with the trainer
+itself, run as ``python -m photon_fields.train.cli.train all`` in a child process (as the viewer's retraining
+does: the runtime never imports torch), and later calls with the same scene and training settings load it.
+``method="photonmap"`` does the same with ``pfn-train trace`` and a photon map.
+
+Cache folder: ``cache`` if given, else ``$PFN_CACHE``, else ``~/.cache/photon-fields``. Entry
+``fields/<key>/`` (``<key>``: a hash of the scene fingerprint, the kind and the training settings) holds
+``scene.json`` (the scene file handed to the trainer), ``volume.npy`` (an in-memory volume, normalized, read back
+with window [0, 1] so that its fingerprint is unchanged), ``train.log`` and the trainer's outputs (``run/field.pfn``
+or ``map.npz``) and, last, ``complete`` (written when the trainer succeeded): an entry without it (an
+interrupted or failed training) is trained again. Two processes training the same entry at once are not guarded against.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from photon_fields.runtime.errors import InputError, check_keys
+from photon_fields.runtime.io.atomic import atomic_write_text
+from photon_fields.runtime.scene.scene import Scene
+
+#: The trainer, as this interpreter runs it.
+TRAINER = (sys.executable, "-m", "photon_fields.train.cli.train")
+#: Training settings (``training=``): a preset name, or these keys, each a ``pfn-train all`` option.
+TRAINING_KEYS = ("preset", "photons", "steps", "batch", "k", "threads")
+DEFAULT_TRAINING = {"preset": "cpu", "photons": "4M"}
+#: Photon-map settings of ``method="photonmap"`` (``pfn-train trace`` options).
+TRACE_KEYS = ("photons", "threads")
+
+
+def cache_root(cache: str | os.PathLike[str] | None = None) -> Path:
+    """The cache folder (module docstring)."""
+    if cache is not None:
+        return Path(cache).expanduser()
+    env = os.environ.get("PFN_CACHE")
+    return Path(env).expanduser() if env else Path.home() / ".cache" / "photon-fields"
+
+
+def training_settings(training: str | dict[str, Any] | None, kind: str) -> dict[str, Any]:
+    """``training=`` checked: a preset name or a dict of :data:`TRAINING_KEYS` (:data:`TRACE_KEYS` for a
+    photon map), merged over the defaults."""
+    keys = TRAINING_KEYS if kind == "field" else TRACE_KEYS
+    if training is None:
+        given: dict[str, Any] = {}
+    elif isinstance(training, str):
+        given = {"preset": training}
+    elif isinstance(training, dict):
+        given = dict(training)
+    else:
+        raise InputError("training", f"must be a preset name or a dict of {', '.join(keys)}, got {training!r}")
+    if kind != "field":
+        given.pop("preset", None)
+    check_keys(given, keys, "training")
+    defaults = {k: v for k, v in DEFAULT_TRAINING.items() if k in keys}
+    return {**defaults, **given}
+
+
+def cached_input(scene: Scene, kind: str, settings: dict[str, Any], seed: int, cache: Path) -> Path:
+    """The bundle (``kind="field"``) or photon map (``"photonmap"``) for ``scene``: from the cache, else made
+    now by the trainer (module docstring)."""
+    what = f"method '{kind}'"
+    key = hashlib.sha256(json.dumps({"scene": scene.fingerprint(), "kind": kind, "seed": int(seed),
+                                     "settings": settings}, sort_keys=True).encode()).hexdigest()[:24]
+    entry = cache / "fields" / key
+    target = entry / ("run/field.pfn" if kind == "field" else "map.npz")
+    if (entry / "complete").exists() and target.exists():
+        return target
+    if importlib.util.find_spec("torch") is None or importlib.util.find_spec("photon_fields.train") is None:
+        raise InputError(what, "trains on first use, which needs the train extra (torch): "
+                               "pip install 'photon-fields[train]'")
+    try:
+        entry.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(str(cache), f"cannot create the cache folder: {exc.strerror or exc}") from None
+    scene_file = _write_scene(scene, entry)
+    flags = [f"--{k}={v}" for k, v in settings.items()]
+    if kind == "field":
+        cmd = [*TRAINER, "all", str(scene_file), "--out", str(entry / "run"), "--seed", str(int(seed)), "--quiet",
+               "--force", *flags]
+    else:
+        cmd = [*TRAINER, "trace", str(scene_file), "--out", str(target), "--seed", str(int(seed)), "--quiet",
+               "--force", *flags]
+    log = entry / "train.log"
+    with open(log, "wb") as out:
+        code = subprocess.run(cmd, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
+                              env={**os.environ, "PYTHONUNBUFFERED": "1"}).returncode
+    if code != 0 or not target.exists():
+        lines = [ln for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
+        last = lines[-1] if lines else f"the trainer exited with status {code}"
+        raise InputError(what, f"training failed: {last} (log: {log})")
+    atomic_write_text(entry / "complete", " ".join(cmd) + "\n")
+    return target
+
+
+def _write_scene(scene: Scene, entry: Path) -> Path:
+    """The scene as a file the trainer reads; an in-memory volume is saved beside it first."""
+    spec = scene.spec()
+    if spec is None:
+        npy = entry / "volume.npy"
+        with open(npy, "wb") as f:  # the entry is this call's own (a complete one returned above)
+            np.save(f, np.ascontiguousarray(scene.volume.data, dtype=np.float32))
+        spec = {"name": scene.name, "volume": {"path": str(npy.absolute()), "window": [0.0, 1.0],
+                                               "spacing": list(scene.volume.spacing)},
+                "transfer_function": scene.tf.to_dict(), "lights": [lt.to_dict() for lt in scene.lights],
+                "camera": scene.camera.to_dict(), "phase": {"g": scene.g}}
+    path = entry / "scene.json"
+    atomic_write_text(path, json.dumps(spec, indent=1) + "\n")
+    return path

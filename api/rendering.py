@@ -1,0 +1,161 @@
+"""``photon_fields.render``: a volume in, an :class:`photon_fields.image.Image` out, with no scene file.
+
+It builds a :class:`photon_fields.runtime.scene.scene.Scene` from its arguments (the volume, a transfer function
+resolved against it, a named light rig, a camera framing the volume) and renders it with a renderer of
+:data:`photon_fields.runtime.renderers.registry.RENDERERS`, loading what that renderer needs: ``field`` a photon
+field and ``photonmap`` a photon map, each trained (traced) on first use and cached
+(:mod:`photon_fields.field_cache`). Every bad argument is one :class:`InputError` line naming it.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+from photon_fields.image import Image
+from photon_fields.runtime.errors import InputError
+
+#: (width, height) of an image when no size is given.
+DEFAULT_SIZE = (256, 256)
+
+
+def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studio", method: str = "pt",
+           spp: int = 16, size: tuple[int, int] = DEFAULT_SIZE, g: float = 0.0, seed: int = 0,
+           spacing: Any = None, camera: Any = None, training: str | dict[str, Any] | None = None,
+           cache: str | os.PathLike[str] | None = None, threads: int | None = None, progress: bool = False,
+           **options: Any) -> Image:
+    """Render ``volume`` with global illumination.
+
+    volume: a numpy array indexed ``[x, y, z]``, a volume file (anything ``load_volume`` reads), a
+        ``pyvista.ImageData`` or a :class:`Volume`. ``spacing`` overrides its voxel size (x, y, z).
+    transfer_function: ``"auto"`` (from the volume's histogram), a preset name, a TF ``.json`` file (the
+        viewer's editor format, :meth:`TransferFunction.save`), a dict in that format, or a TransferFunction.
+    lights: a rig name (:data:`photon_fields.runtime.scene.rigs.LIGHT_RIGS`: studio, sun, sky) or a list of
+        light dicts in the scene-file form.
+    method: a renderer's name (pt, raymarch, photonmap, field); ``options`` are its own settings by keyword
+        (e.g. ``max_depth=4`` for pt). ``field`` trains a photon field on first use (needs the ``train``
+        extra), ``photonmap`` traces a photon map, both cached in ``cache`` (default ``$PFN_CACHE`` or
+        ``~/.cache/photon-fields``); ``training`` is a trainer preset name (default ``cpu``) or a dict of
+        ``preset``, ``photons``, ``steps``, ``batch``, ``k``, ``threads``.
+    spp, seed: samples per pixel and the random seed (the same seed renders the same image).
+    size: (width, height); camera: a camera dict (scene-file form) instead of the framing default.
+    g: the phase function's anisotropy in (-1, 1).
+    """
+    from photon_fields.runtime.cli.common import check_seed
+    from photon_fields.runtime.renderers.registry import RENDERERS, int_in
+    from photon_fields.runtime.scene.camera import Camera
+    from photon_fields.runtime.scene.rigs import framing_camera
+    from photon_fields.runtime.scene.scene import Scene
+    from photon_fields.runtime.threads import numba_threads
+    from photon_fields.runtime.transport.phase import check_g
+    from photon_fields.volumes import as_volume
+
+    if method not in RENDERERS:
+        raise InputError("method", f"unknown method {method!r} (available: {', '.join(RENDERERS)})")
+    renderer = RENDERERS[method]
+    known = {opt.keyword: opt for opt in renderer.options}
+    unknown = [k for k in options if k not in known]
+    if unknown:
+        raise InputError(unknown[0], f"not an option of method {method!r} (its options: "
+                                     f"{', '.join(known) or 'none'})")
+    options = {k: _option(known[k], k, v) for k, v in options.items()}
+    spp = int_in(1, 1 << 16)("spp", spp)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise InputError("seed", f"must be an integer, got {seed!r}")
+    check_seed(seed, "seed")
+    width, height = _size(size)
+    check_g(g, "g")
+    settings = None
+    if renderer.input is not None:
+        from photon_fields.field_cache import cache_root, training_settings
+
+        settings = training_settings(training, method)
+        root = cache_root(cache)
+    elif training is not None:
+        raise InputError("training", f"method {method!r} trains nothing (only field and photonmap do)")
+    vol, source = as_volume(volume, spacing)
+    tf = _transfer_function(transfer_function, vol)
+    cam = (Camera.from_dict(camera, "camera").with_resolution(width, height) if camera is not None
+           else framing_camera(vol, width, height))
+    scene = Scene(vol, tf, _lights(lights), cam, g, vol.name, source)
+    inputs: dict[str, Any] = {}
+    if settings is not None:
+        from photon_fields.field_cache import cached_input
+
+        path = cached_input(scene, method, settings, seed, root)
+        inputs = _load_input(renderer.input, path, scene, threads)
+    with numba_threads(threads, "threads"):
+        result = renderer.render_function()(scene, spp=spp, seed=seed, progress=progress, **inputs, **options)
+    info = {"method": method, "spp": spp, "seed": seed, "g": scene.g, "size": [width, height],
+            "options": options, "scene_fingerprint": scene.fingerprint(), "transfer_function": tf.to_dict(),
+            "lights": [lt.to_dict() for lt in scene.lights], "camera": cam.to_dict(),
+            "timings_ms": result.timings_ms}
+    return Image({k: result.layers[k] for k in result.layers}, info)
+
+
+def _option(option: Any, keyword: str, value: Any) -> Any:
+    """A renderer option checked as the command line checks it (a switch's keyword takes a bool as it is)."""
+    from photon_fields.runtime.renderers.registry import negate
+
+    if option.check is negate or option.type is None:
+        if not isinstance(value, bool):
+            raise InputError(keyword, f"must be True or False, got {value!r}")
+        return value
+    return option.check(keyword, value) if option.check is not None else value
+
+
+def _size(size: Any) -> tuple[int, int]:
+    try:
+        w, h = size
+    except (TypeError, ValueError):
+        raise InputError("size", f"must be (width, height), got {size!r}") from None
+    for v in (w, h):
+        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 16384:
+            raise InputError("size", f"width and height must be integers in [1, 16384], got {size!r}")
+    return w, h
+
+
+def _transfer_function(tf: Any, volume: Any) -> Any:
+    from photon_fields.runtime.scene.transfer import AUTO, PRESETS, TransferFunction
+
+    if isinstance(tf, TransferFunction):
+        return tf
+    if isinstance(tf, dict):
+        return TransferFunction.from_dict(tf, "transfer_function", volume=volume)
+    if isinstance(tf, (str, os.PathLike)):
+        if str(tf) == AUTO or str(tf) in PRESETS:
+            return TransferFunction.from_dict({"preset": str(tf)}, "transfer_function", volume=volume)
+        if str(tf).endswith(".json") or Path(tf).exists():
+            return TransferFunction.load(Path(tf).expanduser(), volume=volume)
+        raise InputError("transfer_function", f"unknown preset {str(tf)!r} and not a .json file (presets: "
+                                              f"{AUTO}, {', '.join(PRESETS)})")
+    raise InputError("transfer_function", f"expected a preset name, a .json file, a dict or a TransferFunction, "
+                                          f"got {type(tf).__name__}")
+
+
+def _lights(lights: Any) -> tuple[Any, ...]:
+    from photon_fields.runtime.scene.lights import light_from_dict
+    from photon_fields.runtime.scene.rigs import light_rig
+
+    if isinstance(lights, str):
+        return light_rig(lights)
+    if isinstance(lights, (list, tuple)) and lights:
+        return tuple(x if not isinstance(x, dict) else light_from_dict(x, f"lights[{i}]")
+                     for i, x in enumerate(lights))
+    raise InputError("lights", f"expected a rig name or a non-empty list of lights, got {lights!r}")
+
+
+def _load_input(kind: str, path: Path, scene: Any, threads: int | None) -> dict[str, Any]:
+    if kind == "bundle":
+        from photon_fields.runtime.field.field import PhotonField
+
+        field = PhotonField.load(path, threads=threads, expected_fingerprint=scene.fingerprint(),
+                                 expected_parts=scene.fingerprint_parts())
+        return {"estimator": field.estimator()}
+    from photon_fields.runtime.photons.estimate import check_map_matches_scene
+    from photon_fields.runtime.photons.photon_map import PhotonMap
+
+    pmap = PhotonMap.load(path)
+    check_map_matches_scene(pmap, scene, False)
+    return {"pmap": pmap, "force": False}
