@@ -435,6 +435,8 @@ CASES += [
     (V, lambda a, d, o: [str(a["scene"]), "--drag-scale", "0.1", *VIEW, "--out", str(o / "shots")], "--drag-scale"),
     (V, lambda a, d, o: [str(a["scene"]), "--retrain-photons", "1.5", *VIEW, "--out", str(o / "shots")],
      "--retrain-photons"),
+    (V, lambda a, d, o: [str(a["scene"]), "--final-gather-after", "later", *VIEW, "--out", str(o / "shots")],
+     "--final-gather-after"),
 ]
 
 MAINS = {R: render_main, T: train_main, D: demo_main, E: eval_main, V: view_main}
