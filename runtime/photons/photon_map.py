@@ -107,23 +107,7 @@ class PhotonMap:
         if "meta" not in arrays:
             raise InputError(what, "not a photon map: no 'meta' entry")
         meta = _parse_meta(arrays.pop("meta"), what)
-        extra = sorted(set(arrays) - set(PHOTON_MAP_ARRAYS))
-        if extra:
-            raise InputError(what, f"unknown array{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))}; a "
-                             f"photon map holds {', '.join(map(repr, [*PHOTON_MAP_ARRAYS, 'meta']))}")
-        n = None
-        for name, (dtype, width) in PHOTON_MAP_ARRAYS.items():
-            if name not in arrays:
-                raise InputError(what, f"photon map lacks the '{name}' array")
-            a = arrays[name]
-            shape_ok = a.ndim == (2 if width else 1) and (not width or a.shape[1] == width)
-            if a.dtype != np.dtype(dtype) or not shape_ok:
-                expected = f"(n, {width})" if width else "(n,)"
-                raise InputError(what, f"'{name}' has dtype {a.dtype} shape {a.shape}, expected {dtype} {expected}")
-            if n is None:
-                n = a.shape[0]
-            elif a.shape[0] != n:
-                raise InputError(what, f"'{name}' has {a.shape[0]} rows, expected {n}")
+        n = _check_arrays({k: (a.shape, a.dtype) for k, a in arrays.items()}, what)
         phases, fp, emitted = _check_meta_values(meta, what)
         if n and int(arrays["phase"].max()) >= len(phases):
             raise InputError(what, "phase index out of range of the phase set")
@@ -193,22 +177,7 @@ def read_header(path: str | Path, expected_fingerprint: str | None = None) -> Ph
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise InputError(what, f"not a readable photon map (.npz): {exc}") from None
     meta = _parse_meta(raw, what)
-    extra = sorted(set(shapes) - set(PHOTON_MAP_ARRAYS))
-    if extra:
-        raise InputError(what, f"unknown array{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))}; a "
-                         f"photon map holds {', '.join(map(repr, [*PHOTON_MAP_ARRAYS, 'meta']))}")
-    n = None
-    for name, (dtype, width) in PHOTON_MAP_ARRAYS.items():
-        if name not in shapes:
-            raise InputError(what, f"photon map lacks the '{name}' array")
-        shape, found = shapes[name]
-        if found != np.dtype(dtype) or len(shape) != (2 if width else 1) or (width and shape[1] != width):
-            expected = f"(n, {width})" if width else "(n,)"
-            raise InputError(what, f"'{name}' has dtype {found} shape {shape}, expected {dtype} {expected}")
-        if n is None:
-            n = shape[0]
-        elif shape[0] != n:
-            raise InputError(what, f"'{name}' has {shape[0]} rows, expected {n}")
+    n = _check_arrays(shapes, what)
     phases, fp, emitted = _check_meta_values(meta, what)
     if "stored" in meta and meta["stored"] != n:
         raise InputError(f"{what} metadata", f"'stored' is {meta['stored']!r} but the arrays hold {n} photons")
@@ -220,6 +189,29 @@ def read_header(path: str | Path, expected_fingerprint: str | None = None) -> Ph
                          f"{mismatch_detail(None, parts if isinstance(parts, dict) else None)}; re-trace it for "
                          "this scene")
     return PhotonMapHeader(p, meta, phases, fp, emitted, int(n or 0))
+
+
+def _check_arrays(shapes: dict[str, tuple[tuple[int, ...], np.dtype]], what: str) -> int | None:
+    """The arrays of a map (name -> (shape, dtype), ``meta`` left out): exactly :data:`PHOTON_MAP_ARRAYS`, each of
+    its dtype and width, all with one row count, which is returned (None without arrays). One-line errors naming
+    ``what``; shared by :meth:`PhotonMap.load` and :func:`read_header`, which reads only the ``.npy`` headers."""
+    extra = sorted(set(shapes) - set(PHOTON_MAP_ARRAYS))
+    if extra:
+        raise InputError(what, f"unknown array{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))}; a "
+                         f"photon map holds {', '.join(map(repr, [*PHOTON_MAP_ARRAYS, 'meta']))}")
+    n = None
+    for name, (dtype, width) in PHOTON_MAP_ARRAYS.items():
+        if name not in shapes:
+            raise InputError(what, f"photon map lacks the '{name}' array")
+        shape, found = tuple(shapes[name][0]), np.dtype(shapes[name][1])
+        if found != np.dtype(dtype) or len(shape) != (2 if width else 1) or (width and shape[1] != width):
+            expected = f"(n, {width})" if width else "(n,)"
+            raise InputError(what, f"'{name}' has dtype {found} shape {shape}, expected {dtype} {expected}")
+        if n is None:
+            n = shape[0]
+        elif shape[0] != n:
+            raise InputError(what, f"'{name}' has {shape[0]} rows, expected {n}")
+    return n
 
 
 def _parse_meta(raw: np.ndarray, what: str) -> dict[str, Any]:
