@@ -28,7 +28,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
-from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
+from common import finish_info, machine_info, median_ms, parse_scenes, write_report  # noqa: E402
 
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
 from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
@@ -44,16 +44,6 @@ def config(value: str) -> tuple[int, bool]:
     if not cell.isdigit() or int(cell) < 1 or mode not in ("step", "leap"):
         raise argparse.ArgumentTypeError(f"expected MACROCELL:step or MACROCELL:leap, got {value!r}")
     return int(cell), mode == "leap"
-
-
-def median_ms(fn: Callable[[int], Any], repeats: int, clock: Callable[[], float]) -> float:
-    fn(0)
-    times = []
-    for r in range(repeats):
-        t0 = clock()
-        fn(r + 1)
-        times.append(clock() - t0)
-    return float(np.median(times)) * 1e3
 
 
 def measure(scene: Scene, repeats: int) -> dict[str, float]:

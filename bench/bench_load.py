@@ -32,8 +32,7 @@ from typing import Any
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numba  # noqa: E402
-import numpy as np  # noqa: E402
-from common import finish_info, machine_info, write_report  # noqa: E402
+from common import finish_info, machine_info, median_ms, write_report  # noqa: E402
 
 from photon_fields.runtime.renderers.neural import render_neural  # noqa: E402
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
@@ -58,16 +57,6 @@ def renderers(scene: Scene) -> dict[str, Callable[[int], Any]]:
         "neural L_d 1 spp": lambda seed: render_neural(scene, None, spp=1, seed=seed, progress=False),
         "ray marcher": lambda seed: render_ray_marched(scene, progress=False),
     }
-
-
-def median_ms(fn: Callable[[int], Any], repeats: int) -> float:
-    fn(0)
-    times = []
-    for r in range(repeats):
-        t0 = time.perf_counter()
-        fn(r + 1)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)) * 1e3
 
 
 def start_competitor(name: str) -> subprocess.Popen | None:

@@ -25,25 +25,13 @@ from typing import Any
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numba  # noqa: E402
-import numpy as np  # noqa: E402
-from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
+from common import finish_info, machine_info, median_ms, parse_scenes, write_report  # noqa: E402
 
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
 from photon_fields.runtime.renderers.ray_marcher import render_ray_marched  # noqa: E402
 from photon_fields.runtime.scene.scene import builtin_scene  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "ray_marcher.json"
-
-
-def median_ms(fn: Callable[[int], Any], repeats: int, clock: Callable[[], float] = time.perf_counter) -> float:
-    """Median time of ``fn(seed)`` over ``repeats`` calls after one warm-up call."""
-    fn(0)
-    times = []
-    for r in range(repeats):
-        t0 = clock()
-        fn(r + 1)
-        times.append(clock() - t0)
-    return float(np.median(times)) * 1e3
 
 
 def one_thread_cpu_ms(fn: Callable[[int], Any], repeats: int) -> float:
@@ -107,7 +95,6 @@ def main(argv: list[str] | None = None) -> None:
               f"{row['speedup_cpu1']:12.1f}x {row['path_tracer_ms']:12.0f} {neural}", flush=True)
     write_report(args.out, "ray_marcher", finish_info(info, {}), {"size": args.size, "resolution": args.resolution,
                                                                   "repeats": args.repeats}, results=results)
-    print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":

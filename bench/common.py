@@ -12,6 +12,7 @@ import json
 import os
 import platform
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -81,3 +82,14 @@ def write_report(path: Path, bench: str, info: dict[str, Any], config: dict[str,
     path.write_text(json.dumps(doc, indent=2) + "\n")
     print(f"\nwrote {path}")
 
+
+def median_ms(fn: Callable[[int], Any], repeats: int, clock: Callable[[], float] = time.perf_counter) -> float:
+    """Median time in ms of ``fn(seed)`` for seeds 1 .. ``repeats``, after one warm-up call ``fn(0)``, on
+    ``clock`` (``time.process_time`` for CPU time)."""
+    fn(0)
+    times = []
+    for r in range(repeats):
+        t0 = clock()
+        fn(r + 1)
+        times.append(clock() - t0)
+    return float(np.median(times)) * 1e3
