@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 import pytest
+from volume_helpers import expected_norm, one_line_error
 
 import photon_fields.runtime.scene.volume_io as vio
-from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.scene.readers.tiff_stack import MISSING_TIFFFILE, natural_key
 from photon_fields.runtime.scene.volume_io import load_volume
 
@@ -31,20 +31,6 @@ def pattern(dtype: Any = np.uint16) -> np.ndarray:
 def as_stack(data: np.ndarray) -> np.ndarray:
     """[x, y, z] -> [z, y, x]: page z, row y, column x (how the test files are written)."""
     return np.ascontiguousarray(data.transpose(2, 1, 0))
-
-
-def expected_norm(raw: np.ndarray) -> np.ndarray:
-    d = np.asarray(raw, dtype=np.float64)
-    return ((d - d.min()) * (1.0 / (d.max() - d.min()))).astype(np.float32)
-
-
-def one_line_error(path: Path, match: str, **kwargs: Any) -> str:
-    with pytest.raises(InputError) as ei:
-        load_volume(path, **kwargs)
-    msg = str(ei.value)
-    assert "\n" not in msg and path.name in msg, msg
-    assert match.lower() in msg.lower(), msg
-    return msg
 
 
 # ----------------------------------------------------------------------------------------------------------

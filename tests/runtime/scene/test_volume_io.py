@@ -12,6 +12,7 @@ import nibabel
 import nrrd
 import numpy as np
 import pytest
+from volume_helpers import expected_norm
 
 import photon_fields.runtime.scene.volume_io as vio
 from photon_fields.runtime.errors import InputError
@@ -25,13 +26,6 @@ def pattern(dtype: Any = np.float32) -> np.ndarray:
     """Asymmetric test grid indexed [x, y, z]: value = x + 10*y + 100*z (0 .. 457)."""
     x, y, z = np.meshgrid(np.arange(NX), np.arange(NY), np.arange(NZ), indexing="ij")
     return (x + 10 * y + 100 * z).astype(dtype)
-
-
-def expected_norm(raw: np.ndarray, window: tuple[float, float] | None = None) -> np.ndarray:
-    """Independent reference for the normalization: (v - lo) / (hi - lo) clipped, as float32."""
-    d = np.asarray(raw, dtype=np.float64)
-    lo, hi = (float(d.min()), float(d.max())) if window is None else window
-    return np.clip((d - lo) * (1.0 / (hi - lo)), 0.0, 1.0).astype(np.float32)
 
 
 def check_volume(vol: Volume, raw: np.ndarray, spacing: tuple[float, float, float]) -> None:

@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 import pytest
+from volume_helpers import expected_norm, one_line_error
 
 import photon_fields.runtime.scene.volume_io as vio
-from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.scene.readers.vti_file import read_vti_image
 from photon_fields.runtime.scene.volume import Volume
 from photon_fields.runtime.scene.volume_io import load_volume
@@ -33,11 +33,6 @@ def pattern(dtype: Any = np.float32, shape: tuple[int, int, int] = (NX, NY, NZ))
     """Indexed [x, y, z]: value = x + 10 y + 100 z (0 .. 864 for 5x7x9)."""
     x, y, z = np.meshgrid(*(np.arange(n) for n in shape), indexing="ij")
     return (x + 10 * y + 100 * z).astype(dtype)
-
-
-def expected_norm(raw: np.ndarray) -> np.ndarray:
-    d = np.asarray(raw, dtype=np.float64)
-    return ((d - d.min()) * (1.0 / (d.max() - d.min()))).astype(np.float32)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -114,15 +109,6 @@ def write_vti(path: Path, arrays: dict[str, np.ndarray] | np.ndarray, *, fmt: st
 def appended_start(raw: bytes | bytearray) -> int:
     """Offset of the appended data: after the ``_`` that follows the <AppendedData> tag."""
     return raw.index(b"_", raw.index(b"<AppendedData")) + 1
-
-
-def one_line_error(path: Path, match: str, **kwargs: Any) -> str:
-    with pytest.raises(InputError) as ei:
-        load_volume(path, **kwargs)
-    msg = str(ei.value)
-    assert "\n" not in msg and path.name in msg, msg
-    assert match.lower() in msg.lower(), msg
-    return msg
 
 
 # ----------------------------------------------------------------------------------------------------------
