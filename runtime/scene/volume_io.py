@@ -139,9 +139,10 @@ def _kind(p: Path, what: str) -> str:
     if not p.exists():
         raise InputError(what, "file not found")
     if p.is_dir():
+        from photon_fields.runtime.scene.readers.dicom_series import is_dicom_folder
         from photon_fields.runtime.scene.readers.zarr_store import is_zarr_folder
 
-        return "zarr" if is_zarr_folder(p) else "tiff_folder"
+        return "zarr" if is_zarr_folder(p) else "dicom" if is_dicom_folder(p) else "tiff_folder"
     if not p.is_file():
         raise InputError(what, "is not a regular file")
     suffix = _format_suffix(p)
@@ -225,6 +226,10 @@ def load_volume(
             from photon_fields.runtime.scene.readers.zarr_store import read_zarr
 
             arr, file_sp, file_win = read_zarr(p, what, level, sp is not None)
+        elif kind == "dicom":
+            from photon_fields.runtime.scene.readers.dicom_series import read_dicom_folder
+
+            arr, file_sp, file_win = read_dicom_folder(p, what, series, sp is not None)
         else:
             from photon_fields.runtime.scene.readers.tiff_stack import read_tiff_file, read_tiff_folder
 
