@@ -201,6 +201,9 @@ def test_option_and_folder_kind_errors(tmp_path: Path) -> None:
     folder = write_series(tmp_path / "ct", pattern())
     one_line_error(folder, "level only applies to Zarr / OME-Zarr stores; this is a DICOM folder", level=1)
     one_line_error(folder, "series must be a SeriesInstanceUID or SeriesNumber", series=[1])
+    (tmp_path / "study").mkdir()
+    folder.rename(tmp_path / "study" / "ct")  # the series one level down
+    one_line_error(tmp_path / "study", "nor DICOM files, nor Zarr metadata; subfolders are not searched")
 
 
 def test_missing_pydicom_names_the_extra(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
