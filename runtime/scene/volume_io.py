@@ -171,7 +171,7 @@ def load_volume(
     series: str | int | None = None,
     name: str | None = None,
 ) -> Volume:
-    """Read a scalar volume file (or a folder of TIFF slices) and return it normalized (see the module
+    """Read a scalar volume file (or folder: Zarr, DICOM series, TIFF slices) and return it normalized (see the module
     docstring for parameters).
 
     Raises :class:`InputError` (one line, naming the file) for every problem with the file or arguments.
