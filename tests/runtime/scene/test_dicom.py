@@ -120,6 +120,19 @@ def test_rescale_per_file(tmp_path: Path) -> None:
                                expected_norm(real, (-1000.0, 1000.0)), atol=1e-6)
 
 
+def test_stored_type_kept_unless_rescaled(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Identity rescale: the stored uint16 reaches the normalization (no float copy); otherwise float32."""
+    import photon_fields.runtime.scene.volume_io as vio
+
+    seen: list[np.ndarray] = []
+    real = vio.make_volume
+    monkeypatch.setattr(vio, "make_volume", lambda raw, *a, **k: seen.append(raw) or real(raw, *a, **k))
+    load_volume(write_series(tmp_path / "plain", pattern()))
+    load_volume(write_series(tmp_path / "ct", pattern(), slope=1.0, intercept=-1024.0))
+    assert seen[0].dtype == np.uint16 and seen[1].dtype == np.float32
+    np.testing.assert_array_equal(seen[1], pattern().astype(np.float32) - 1024.0)
+
+
 def test_series_option_and_scene_entry(tmp_path: Path) -> None:
     from photon_fields.runtime.scene.scene import load_scene
 

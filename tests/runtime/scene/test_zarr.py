@@ -152,6 +152,20 @@ def test_ome_axes_by_name(tmp_path: Path) -> None:
     assert vol.spacing == pytest.approx((0.1, 0.2, 0.3))
 
 
+@pytest.mark.parametrize("version", ["0.2", "0.3"])
+def test_ome_before_0_4(tmp_path: Path, version: str) -> None:
+    """0.1 / 0.2 had no axes (always t, c, z, y, x); 0.3 lists bare names. Both read [z, y, x] arrays alike."""
+    group = zarr.open_group(tmp_path / "old.zarr", mode="w", zarr_format=2)
+    write_array(group.store_path / "0", zyx(pattern())[None, None], 2)
+    ms: dict[str, Any] = {"version": version, "datasets": [{"path": "0"}]}
+    if version == "0.3":
+        ms["axes"] = ["t", "c", "z", "y", "x"]
+    group.attrs.update({"multiscales": [ms]})
+    vol = load_volume(tmp_path / "old.zarr")
+    np.testing.assert_array_equal(vol.data, expected_norm(pattern()))
+    assert vol.spacing == (1.0, 1.0, 1.0)  # no coordinateTransformations before 0.4
+
+
 def test_other_levels_are_not_read(tmp_path: Path) -> None:
     """Level 1 loads with level 0's chunks destroyed (it is never decoded); level 0 then fails in one line."""
     path = write_ome(tmp_path / "lazy.zarr", pattern(), 3)
