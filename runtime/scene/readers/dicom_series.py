@@ -136,7 +136,7 @@ def read_dicom_folder(folder: Path, what: str, series: str | int | None, spacing
     headers = _one_series(headers, what, series)
     if len(headers) < 2:
         raise InputError(what, f"the series has one slice ({headers[0][0].name}); a volume needs at least two")
-    slices = [_slice(f, ds, what) for f, ds in headers]
+    slices = [_checked_slice(f, ds, what) for f, ds in headers]
     ordered, step = _order(slices, what)
     spacing = None
     if not spacing_given:
@@ -196,6 +196,16 @@ def _one_series(headers: list[tuple[Path, Any]], what: str, series: str | int | 
         problem = "matches several series" if chosen else "is not in the folder"
         raise InputError(what, f"series {fmt(series)} {problem}; the folder holds: {listing}")
     return chosen[0]
+
+
+def _checked_slice(file: Path, ds: Any, what: str) -> _Slice:
+    """:func:`_slice`, with a malformed header value (e.g. a non-numeric ``Rows``) named by its file."""
+    try:
+        return _slice(file, ds, what)
+    except InputError:
+        raise
+    except (TypeError, ValueError) as err:
+        raise InputError(what, f"file {file.name} has a malformed header value: {type(err).__name__}: {err}") from None
 
 
 def _slice(file: Path, ds: Any, what: str) -> _Slice:

@@ -208,6 +208,18 @@ def test_corrupt_truncated_and_pixel_less_files(tmp_path: Path) -> None:
     one_line_error(folder, "file IM5.dcm has no ImagePositionPatient")
 
 
+@pytest.mark.filterwarnings("ignore::UserWarning")  # pydicom warns about the invalid IS value it reads
+def test_malformed_header_value(tmp_path: Path) -> None:
+    from pydicom.dataelem import RawDataElement
+    from pydicom.tag import Tag
+
+    folder = write_series(tmp_path / "ct", pattern())
+    ds = pydicom.dcmread(folder / "IM2.dcm")
+    ds[0x00280008] = RawDataElement(Tag(0x00280008), "IS", 4, b"abc ", 0, False, True)  # NumberOfFrames "abc"
+    ds.save_as(folder / "IM2.dcm")
+    one_line_error(folder, "file IM2.dcm has a malformed header value: ValueError")
+
+
 def test_option_and_folder_kind_errors(tmp_path: Path) -> None:
     np.save(tmp_path / "v.npy", pattern())
     one_line_error(tmp_path / "v.npy", "series only applies to DICOM folders; this is a .npy file", series="1")
