@@ -282,7 +282,8 @@ def _volume_from_dict(v: Any, base_dir: Path, what: str) -> tuple[Volume, dict[s
         raise InputError(what, "needs 'path' (a volume file) or 'builtin' (a procedural volume name)")
     from photon_fields.runtime.scene.volume_io import load_volume
 
-    options = ("dims", "dtype", "endian", "spacing", "window", "axes", "array")  # load_volume's reader options
+    # load_volume's reader options
+    options = ("dims", "dtype", "endian", "spacing", "window", "axes", "array", "level", "series")
     check_keys(v, ("path", *options), what)
     kwargs = {k: v[k] for k in options if k in v}
     path = _resolve(str(v["path"]), base_dir)

@@ -128,7 +128,8 @@ def read_tiff_folder(folder: Path, what: str) -> ReadResult:
     tifffile = _tifffile(what)
     files = slice_files(folder)
     if not files:
-        raise InputError(what, "folder has no .tif/.tiff slices")
+        raise InputError(what, "folder has no .tif/.tiff slices (nor DICOM files, nor Zarr metadata; subfolders "
+                         "are not searched: give the folder of the series itself)")
     if len(files) == 1:
         raise InputError(what, f"folder has one slice ({files[0].name}); a volume needs at least two")
     out: np.ndarray | None = None

@@ -260,6 +260,82 @@ CASES += [
 ]
 
 
+# Issue 17: the Zarr / OME-Zarr and DICOM readers' refusals reach the command line as one line naming the input.
+def zarr_scene(d: Path, kind: str, **entry: object) -> str:
+    """A Zarr store written by zarr: ``empty`` (a group without arrays), ``ome`` (a one-level OME-Zarr image
+    whose c axis has ``channels`` entries), ``cut`` (an array with a truncated chunk)."""
+    import zarr
+
+    path = d / "vol.zarr"
+    if kind == "cut":
+        arr = zarr.create_array(path, shape=(4, 4, 4), dtype="u2", chunks=(4, 4, 4), zarr_format=2)
+        arr[...] = np.arange(64).reshape(4, 4, 4)
+        (path / "0.0.0").write_bytes((path / "0.0.0").read_bytes()[:5])
+    else:
+        group = zarr.open_group(path, mode="w")
+        if kind == "ome":
+            channels = int(entry.pop("channels", 1))  # type: ignore[call-overload]
+            arr = group.create_array("0", shape=(channels, 4, 4, 4), dtype="u2")
+            arr[...] = 1
+            axes = [{"name": n, "type": "channel" if n == "c" else "space"} for n in "czyx"]
+            group.attrs.update({"ome": {"version": "0.5", "multiscales": [{"axes": axes, "datasets": [
+                {"path": "0", "coordinateTransformations": [{"type": "scale", "scale": [1, 1, 1, 1]}]}]}]}})
+    return scene_file(d, volume={"path": "vol.zarr", **entry})
+
+
+def dicom_scene(d: Path, kind: str) -> str:
+    """A folder of 4 x 4 CT slices written by pydicom: ``mixed`` (two series), ``corrupt`` (one file is not
+    DICOM), ``cut`` (one file's pixel data truncated), ``gap`` (the third of four slices missing)."""
+    from pydicom.dataset import Dataset, FileMetaDataset
+    from pydicom.uid import CTImageStorage, ExplicitVRLittleEndian, generate_uid
+
+    folder = d / "ct"
+    folder.mkdir()
+    for k in range(4):
+        meta = FileMetaDataset()
+        meta.MediaStorageSOPClassUID, meta.MediaStorageSOPInstanceUID = CTImageStorage, generate_uid()
+        meta.TransferSyntaxUID = ExplicitVRLittleEndian
+        ds = Dataset()
+        ds.file_meta, ds.SOPClassUID, ds.SOPInstanceUID = meta, CTImageStorage, meta.MediaStorageSOPInstanceUID
+        ds.SeriesInstanceUID = "1.2.3.5" if kind == "mixed" and k == 3 else "1.2.3.4"
+        ds.Rows = ds.Columns = 4
+        ds.SamplesPerPixel, ds.PhotometricInterpretation = 1, "MONOCHROME2"
+        ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 16, 15, 0
+        ds.ImagePositionPatient, ds.ImageOrientationPatient = [0, 0, 2 * k], [1, 0, 0, 0, 1, 0]
+        ds.PixelSpacing = [1, 1]
+        ds.PixelData = np.full(16, k, "<u2").tobytes()
+        ds.save_as(folder / f"IM{k}.dcm", enforce_file_format=True)
+    if kind == "corrupt":
+        (folder / "IM1.dcm").write_bytes(b"not DICOM")
+    elif kind == "cut":
+        (folder / "IM1.dcm").write_bytes((folder / "IM1.dcm").read_bytes()[:-10])
+    elif kind == "gap":
+        (folder / "IM2.dcm").unlink()
+    return scene_file(d, volume={"path": "ct"})
+
+
+CASES += [
+    (R, lambda a, d, o: ["--scene", zarr_scene(d, "empty"), *SIZE, "--out", str(o / "r.exr")],
+     "vol.zarr: Zarr group without arrays and without OME-Zarr multiscales metadata"),
+    (R, lambda a, d, o: ["--scene", zarr_scene(d, "ome", level=1), *SIZE, "--out", str(o / "r.exr")],
+     "vol.zarr: level 1 does not exist: this OME-Zarr image has 1 resolution level"),
+    (R, lambda a, d, o: ["--scene", zarr_scene(d, "ome", level="0"), *SIZE, "--out", str(o / "r.exr")],
+     "vol.zarr: level must be a resolution level number"),
+    (R, lambda a, d, o: ["--scene", zarr_scene(d, "ome", channels=2), *SIZE, "--out", str(o / "r.exr")],
+     "vol.zarr: OME-Zarr level 0 (array '0') has 2 channels"),
+    (R, lambda a, d, o: ["--scene", zarr_scene(d, "cut"), *SIZE, "--out", str(o / "r.exr")],
+     "vol.zarr: Zarr array: cannot decode its chunks"),
+    (R, lambda a, d, o: ["--scene", dicom_scene(d, "mixed"), *SIZE, "--out", str(o / "r.exr")],
+     "ct: folder holds 2 DICOM series: 1.2.3.4 (3 files); 1.2.3.5 (1 file)"),
+    (R, lambda a, d, o: ["--scene", dicom_scene(d, "corrupt"), *SIZE, "--out", str(o / "r.exr")],
+     "ct: cannot read DICOM file IM1.dcm"),
+    (R, lambda a, d, o: ["--scene", dicom_scene(d, "cut"), *SIZE, "--out", str(o / "r.exr")],
+     "ct: cannot decode the pixels of DICOM file IM1.dcm"),
+    (R, lambda a, d, o: ["--scene", dicom_scene(d, "gap"), *SIZE, "--out", str(o / "r.exr")],
+     "ct: slice positions are not evenly spaced"),
+]
+
+
 def old_bundle(a: dict[str, Path], d: Path) -> Path:
     """The assets' bundle as a version 1 exporter wrote it: no ``scene`` entry (the manifest is not hashed)."""
     b = copy_bundle(a, d)
