@@ -31,9 +31,11 @@ demo: $(STAMP)
 	$(VENV)/bin/pfn-demo --scene vortex --out $(DEMO_OUT) --force
 	@echo "demo outputs: $(DEMO_OUT)/ (comparison.png, summary.txt, neural.exr/.png, run/field.pfn, run/loss.png)"
 
+# Two pytest workers (pytest-xdist), one file each at a time: the suite is bound by numba's cold compiles, which
+# are single-threaded, so two workers use both cores of a CI machine where one pytest left one idle.
 test: $(STAMP)
 	$(PY) -m ruff check api runtime train models_spec tests bench
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadfile
 
 bench: $(STAMP)
 	$(PY) bench/bench_tracking.py

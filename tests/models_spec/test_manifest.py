@@ -147,7 +147,7 @@ BAD = [
 ]
 
 
-@pytest.mark.parametrize("path, value, expect", BAD, ids=lambda v: str(v)[:30])
+@pytest.mark.parametrize("path, value, expect", BAD, ids=lambda v: "<deleted>" if v is _DELETE else str(v)[:30])
 def test_validator_names_the_first_problem_in_one_line(path: str, value: object, expect: str) -> None:
     doc = copy.deepcopy(good_manifest())
     if path == "extra":
