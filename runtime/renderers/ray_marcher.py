@@ -36,7 +36,7 @@ from photon_fields.runtime.transport.emitters import delta_light_direction
 from photon_fields.runtime.transport.medium import Medium, albedo_at, extinction_at, intersect_box
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
-from photon_fields.runtime.transport.tracking import empty_run
+from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run
 from photon_fields.runtime.wavefront.batches import (
     RenderResult,
     StageTimer,
@@ -78,14 +78,12 @@ def march_transmittance(m: Medium, px: float, py: float, pz: float, lx: float, l
     return math.exp(-tau)
 
 
-@njit(cache=True, parallel=True)
-def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, o: np.ndarray, d: np.ndarray,
-           tmax: np.ndarray, states: np.ndarray, h: float, h_shadow: float,
-           skip: bool) -> tuple[np.ndarray, np.ndarray]:
-    n = o.shape[1]
-    ld = np.zeros((3, n))
-    trans = np.ones(n)
-    for i in prange(n):
+@njit(cache=True)
+def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, o: np.ndarray, d: np.ndarray,
+                 tmax: np.ndarray, states: np.ndarray, h: float, h_shadow: float, skip: bool, ld: np.ndarray,
+                 trans: np.ndarray, lo: int, hi: int) -> None:
+    """Rays lo..hi-1 of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why)."""
+    for i in range(lo, hi):
         states[i], jitter = next_float(states[i])
         dx, dy, dz = d[0, i], d[1, i], d[2, i]
         T = 1.0
@@ -123,6 +121,18 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
             t_prev = t_next
             t = t_next + h
         trans[i] = T if T > _T_MIN else 0.0
+
+
+@njit(cache=True, parallel=True)
+def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, o: np.ndarray, d: np.ndarray,
+           tmax: np.ndarray, states: np.ndarray, h: float, h_shadow: float,
+           skip: bool) -> tuple[np.ndarray, np.ndarray]:
+    n = o.shape[1]
+    ld = np.zeros((3, n))
+    trans = np.ones(n)
+    for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
+        _march_items(m, kind, vec, rgb, g, o, d, tmax, states, h, h_shadow, skip, ld, trans, task * TASK_ITEMS,
+                     min(n, (task + 1) * TASK_ITEMS))
     return ld, trans
 
 

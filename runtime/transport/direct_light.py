@@ -25,7 +25,7 @@ from numba import njit, prange
 from photon_fields.runtime.transport.emitters import sample_light_direction
 from photon_fields.runtime.transport.medium import Medium, intersect_box
 from photon_fields.runtime.transport.phase import hg_eval
-from photon_fields.runtime.transport.tracking import ratio_track
+from photon_fields.runtime.transport.tracking import TASK_ITEMS, ratio_track
 
 
 @njit(cache=True, inline="always")
@@ -65,6 +65,15 @@ def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
     return r, gr, b, state
 
 
+@njit(cache=True)
+def _direct_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, o: np.ndarray,
+                        d: np.ndarray, states: np.ndarray, env_mis: bool, out: np.ndarray, lo: int, hi: int) -> None:
+    """:func:`direct_light_batch` for items lo..hi-1 (one task; ``TASK_ITEMS`` in tracking.py says why)."""
+    for i in range(lo, hi):
+        out[0, i], out[1, i], out[2, i], states[i] = direct_light(
+            m, kind, vec, rgb, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
+
+
 @njit(cache=True, parallel=True)
 def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, o: np.ndarray,
                        d: np.ndarray, states: np.ndarray, env_mis: bool = True) -> np.ndarray:
@@ -73,7 +82,7 @@ def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.nda
     environment by phase sampling (the first-interaction renderers)."""
     n = o.shape[1]
     out = np.empty((3, n))
-    for i in prange(n):
-        out[0, i], out[1, i], out[2, i], states[i] = direct_light(
-            m, kind, vec, rgb, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
+    for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
+        _direct_light_items(m, kind, vec, rgb, g, o, d, states, env_mis, out, task * TASK_ITEMS,
+                            min(n, (task + 1) * TASK_ITEMS))
     return out

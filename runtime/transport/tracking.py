@@ -49,6 +49,10 @@ from photon_fields.runtime.transport.medium import Medium, extinction_at, inters
 from photon_fields.runtime.transport.rng import next_float
 
 RR_THRESHOLD = 0.05
+#: Items per task of the parallel kernels whose per-item work inlines a tracking walk: ``prange`` runs over tasks
+#: and each task calls a serial kernel over its items. numba's parfor passes then see a loop body of one call,
+#: not the inlined walk, which cuts those kernels' compile time several-fold; the call costs nothing per item.
+TASK_ITEMS = 256
 _DELTA, _RATIO, _RESAMPLE = 0, 1, 2
 
 
@@ -279,10 +283,10 @@ def camera_collision(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: 
     transmittance). ``forced`` True: :func:`resampled_collision`, with Russian roulette on a small weight: a
     collision of weight W < ``w_min`` is kept with probability W / ``w_min`` and then weighted ``w_min``, which
     bounds the work per collision. t is inf when no collision is kept."""
+    # One inlined walk for both modes (the mode is a runtime value): two would double the caller's compile time.
+    t, w, tr, state = _track(m, ox, oy, oz, dx, dy, dz, tmin, tmax, state, _RESAMPLE if forced else _DELTA)
     if not forced:
-        t, state = delta_track(m, ox, oy, oz, dx, dy, dz, tmin, tmax, state)
         return t, 1.0, 0.0 if math.isfinite(t) else 1.0, state
-    t, w, tr, state = resampled_collision(m, ox, oy, oz, dx, dy, dz, tmin, tmax, state)
     if math.isfinite(t) and w < w_min:
         state, u = next_float(state)
         t = t if u * w_min < w else math.inf
@@ -290,15 +294,22 @@ def camera_collision(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: 
     return t, w, tr, state
 
 
+@njit(cache=True)
+def _track_items(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray, states: np.ndarray,
+                 mode: int, out: np.ndarray, lo: int, hi: int) -> None:
+    for i in range(lo, hi):
+        t, _, tr, states[i] = _track(m, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], tmin[i], tmax[i],
+                                     states[i], mode)
+        out[i] = t if mode == _DELTA else tr
+
+
 @njit(cache=True, parallel=True)
 def _track_batch(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray, states: np.ndarray,
                  mode: int) -> np.ndarray:
     n = o.shape[1]
     out = np.empty(n)
-    for i in prange(n):
-        t, _, tr, states[i] = _track(m, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], tmin[i], tmax[i],
-                                     states[i], mode)
-        out[i] = t if mode == _DELTA else tr
+    for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
+        _track_items(m, o, d, tmin, tmax, states, mode, out, task * TASK_ITEMS, min(n, (task + 1) * TASK_ITEMS))
     return out
 
 

@@ -40,22 +40,19 @@ from photon_fields.runtime.transport.direct_light import direct_light_batch
 from photon_fields.runtime.transport.medium import Medium, albedo_at, intersect_box
 from photon_fields.runtime.transport.phase import sample_hg
 from photon_fields.runtime.transport.rng import mix64, next_float
-from photon_fields.runtime.transport.tracking import camera_collision
+from photon_fields.runtime.transport.tracking import TASK_ITEMS, camera_collision
 from photon_fields.runtime.wavefront.batches import StageTimer
 
 #: Mixed into an item's random state to start its bounce's own stream.
 GATHER_STREAM = np.uint64(0x5A17_F1E1_D6A7_4E55)
 
 
-@njit(cache=True, parallel=True)
-def _bounce(m: Medium, g: float, x: np.ndarray, d: np.ndarray, rng: np.ndarray, forced: bool, w_min: float,
-            x2: np.ndarray, w: np.ndarray, weight: np.ndarray, states: np.ndarray) -> np.ndarray:
-    """Per item: a direction w ~ p_g(d, .) and the next collision x2 along it (the camera estimator's way).
-    Writes w (every item), and for the items that collide x2 and ``weight`` = W a(x2) (3 channels); ``states``
-    gets each item's stream state; returns whether it collided."""
-    n = x.shape[1]
-    hit = np.zeros(n, np.bool_)
-    for i in prange(n):
+@njit(cache=True)
+def _bounce_items(m: Medium, g: float, x: np.ndarray, d: np.ndarray, rng: np.ndarray, forced: bool, w_min: float,
+                  x2: np.ndarray, w: np.ndarray, weight: np.ndarray, states: np.ndarray, hit: np.ndarray,
+                  lo: int, hi: int) -> None:
+    """:func:`_bounce` for items lo..hi-1 (one task; ``TASK_ITEMS`` in tracking.py says why)."""
+    for i in range(lo, hi):
         s = mix64(rng[i] ^ GATHER_STREAM)
         s, u1 = next_float(s)
         s, u2 = next_float(s)
@@ -72,6 +69,19 @@ def _bounce(m: Medium, g: float, x: np.ndarray, d: np.ndarray, rng: np.ndarray, 
         x2[0, i], x2[1, i], x2[2, i] = qx, qy, qz
         ar, ag, ab = albedo_at(m, qx, qy, qz)
         weight[0, i], weight[1, i], weight[2, i] = wt * ar, wt * ag, wt * ab
+
+
+@njit(cache=True, parallel=True)
+def _bounce(m: Medium, g: float, x: np.ndarray, d: np.ndarray, rng: np.ndarray, forced: bool, w_min: float,
+            x2: np.ndarray, w: np.ndarray, weight: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """Per item: a direction w ~ p_g(d, .) and the next collision x2 along it (the camera estimator's way).
+    Writes w (every item), and for the items that collide x2 and ``weight`` = W a(x2) (3 channels); ``states``
+    gets each item's stream state; returns whether it collided."""
+    n = x.shape[1]
+    hit = np.zeros(n, np.bool_)
+    for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
+        _bounce_items(m, g, x, d, rng, forced, w_min, x2, w, weight, states, hit, task * TASK_ITEMS,
+                      min(n, (task + 1) * TASK_ITEMS))
     return hit
 
 

@@ -118,6 +118,43 @@ class FirstInteractions:
                    np.empty(n, np.uint64), np.empty(n))
 
 
+@njit(cache=True)
+def _first_interactions_block(m: Medium, eye: np.ndarray, origin: np.ndarray, du: np.ndarray, dv: np.ndarray,
+                              width: int, n_pixels: int, start: int, count: int, s0: np.uint64, block: int, b: int,
+                              forced: bool, w_min: float, pixel: np.ndarray, x: np.ndarray, d: np.ndarray,
+                              albedo: np.ndarray, rng: np.ndarray, weight: np.ndarray, status: np.ndarray,
+                              transmit: np.ndarray, counts: np.ndarray) -> None:
+    """Task ``b`` of :func:`_first_interactions`, serially (``TASK_ITEMS`` in tracking.py says why the parallel
+    kernel only calls this)."""
+    k = b * block
+    inside = 0
+    for i in range(b * block, min(count, (b + 1) * block)):
+        dx, dy, dz, p, s = camera_ray(origin, du, dv, width, n_pixels, start + i, s0)
+        hit, ox, oy, oz, tmax = clip_to_box(m, eye[0], eye[1], eye[2], dx, dy, dz)
+        transmit[i] = 1.0
+        if not hit:
+            status[i] = MISSED_BOX
+            continue
+        inside += 1
+        t, w, transmit[i], s = camera_collision(m, ox, oy, oz, dx, dy, dz, 0.0, tmax, s, forced, w_min)
+        if not math.isfinite(t):
+            status[i] = ESCAPED
+            continue
+        status[i] = INTERACTED
+        ox += t * dx
+        oy += t * dy
+        oz += t * dz
+        pixel[k] = p
+        x[0, k], x[1, k], x[2, k] = ox, oy, oz
+        d[0, k], d[1, k], d[2, k] = dx, dy, dz
+        albedo[0, k], albedo[1, k], albedo[2, k] = albedo_at(m, ox, oy, oz)
+        rng[k] = s
+        weight[k] = w
+        k += 1
+    counts[b, 0] = k - b * block
+    counts[b, 1] = inside
+
+
 @njit(cache=True, parallel=True)
 def _first_interactions(m: Medium, eye: np.ndarray, origin: np.ndarray, du: np.ndarray, dv: np.ndarray, width: int,
                         n_pixels: int, start: int, count: int, seed: int, block: int, forced: bool, w_min: float,
@@ -136,33 +173,8 @@ def _first_interactions(m: Medium, eye: np.ndarray, origin: np.ndarray, du: np.n
     counts = np.zeros((nblocks, 2), np.int64)
     s0 = np.uint64(seed)
     for b in prange(nblocks):
-        k = b * block
-        inside = 0
-        for i in range(b * block, min(count, (b + 1) * block)):
-            dx, dy, dz, p, s = camera_ray(origin, du, dv, width, n_pixels, start + i, s0)
-            hit, ox, oy, oz, tmax = clip_to_box(m, eye[0], eye[1], eye[2], dx, dy, dz)
-            transmit[i] = 1.0
-            if not hit:
-                status[i] = MISSED_BOX
-                continue
-            inside += 1
-            t, w, transmit[i], s = camera_collision(m, ox, oy, oz, dx, dy, dz, 0.0, tmax, s, forced, w_min)
-            if not math.isfinite(t):
-                status[i] = ESCAPED
-                continue
-            status[i] = INTERACTED
-            ox += t * dx
-            oy += t * dy
-            oz += t * dz
-            pixel[k] = p
-            x[0, k], x[1, k], x[2, k] = ox, oy, oz
-            d[0, k], d[1, k], d[2, k] = dx, dy, dz
-            albedo[0, k], albedo[1, k], albedo[2, k] = albedo_at(m, ox, oy, oz)
-            rng[k] = s
-            weight[k] = w
-            k += 1
-        counts[b, 0] = k - b * block
-        counts[b, 1] = inside
+        _first_interactions_block(m, eye, origin, du, dv, width, n_pixels, start, count, s0, block, b, forced, w_min,
+                                  pixel, x, d, albedo, rng, weight, status, transmit, counts)
     return counts
 
 

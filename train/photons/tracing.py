@@ -56,7 +56,7 @@ from photon_fields.runtime.transport.emitters import emission_fluxes, emit_photo
 from photon_fields.runtime.transport.medium import Medium, albedo_at, intersect_box
 from photon_fields.runtime.transport.phase import check_g, sample_hg
 from photon_fields.runtime.transport.rng import next_float, stream_state
-from photon_fields.runtime.transport.tracking import delta_track
+from photon_fields.runtime.transport.tracking import TASK_ITEMS, delta_track
 
 CHUNK = 1 << 15  # photon paths per kernel call; fixed so results do not depend on anything else
 #: Give up when the stored/emitted ratio says the target would need more than this many paths.
@@ -71,18 +71,17 @@ def light_fluxes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return emission_fluxes(scene.medium(), kind, vec, rgb)
 
 
-@njit(cache=True, parallel=True)
-def _trace_chunk(m: Medium, kind: np.ndarray, vec: np.ndarray, power: np.ndarray, cos_max: np.ndarray,
-                 light_cdf: np.ndarray, phases: np.ndarray, active: np.ndarray, seed: int, first: int, n: int,
+@njit(cache=True)
+def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, power: np.ndarray, cos_max: np.ndarray,
+                 light_cdf: np.ndarray, phases: np.ndarray, active: np.ndarray, seed: int, first: int, lo: int, hi: int,
                  max_bounces: int,
                  out_pos: np.ndarray, out_dir: np.ndarray, out_pow: np.ndarray, out_phase: np.ndarray,
                  out_count: np.ndarray) -> None:
-    """Trace photon paths first .. first + n - 1; path i scatters with phase active[i % len(active)],
-    writes its records to slots [i * (max_bounces - 1), ...) and their number to out_count[i]."""
+    """Paths lo..hi-1 of :func:`_trace_chunk`, serially (``TASK_ITEMS`` in the tracking module says why)."""
     cx, cy, cz = m.bmin[0] + 0.5 * m.bsize[0], m.bmin[1] + 0.5 * m.bsize[1], m.bmin[2] + 0.5 * m.bsize[2]
     radius = 0.5 * math.sqrt(m.bsize[0] ** 2 + m.bsize[1] ** 2 + m.bsize[2] ** 2)
     slots = max_bounces - 1
-    for i in prange(n):
+    for i in range(lo, hi):
         st = stream_state(np.uint64(seed), np.uint64(first + i))
         st, u = next_float(st)
         li = 0
@@ -127,6 +126,19 @@ def _trace_chunk(m: Medium, kind: np.ndarray, vec: np.ndarray, power: np.ndarray
                 _, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
                 tmax = max(t1, 0.0)
         out_count[i] = count
+
+
+@njit(cache=True, parallel=True)
+def _trace_chunk(m: Medium, kind: np.ndarray, vec: np.ndarray, power: np.ndarray, cos_max: np.ndarray,
+                 light_cdf: np.ndarray, phases: np.ndarray, active: np.ndarray, seed: int, first: int, n: int,
+                 max_bounces: int,
+                 out_pos: np.ndarray, out_dir: np.ndarray, out_pow: np.ndarray, out_phase: np.ndarray,
+                 out_count: np.ndarray) -> None:
+    """Trace photon paths first .. first + n - 1; path i scatters with phase active[i % len(active)],
+    writes its records to slots [i * (max_bounces - 1), ...) and their number to out_count[i]."""
+    for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
+        _trace_paths(m, kind, vec, power, cos_max, light_cdf, phases, active, seed, first, task * TASK_ITEMS,
+                     min(n, (task + 1) * TASK_ITEMS), max_bounces, out_pos, out_dir, out_pow, out_phase, out_count)
 
 
 def _check_progress(scene: Scene, stored: np.ndarray, emitted: np.ndarray, quota: int) -> None:
