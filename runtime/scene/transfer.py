@@ -45,7 +45,8 @@ AUTO = "auto"
 #: The preset name built from the labels present in a label volume
 #: (:func:`photon_fields.runtime.scene.labels.labels_transfer`).
 LABELS = "labels"
-#: Keys of the two JSON forms of a transfer function and of one control point (anything else is refused).
+#: Keys of the preset and points forms of a transfer function and of one control point (anything else is refused;
+#: the labels form checks its own keys, photon_fields.runtime.scene.labels).
 _PRESET_KEYS = ("preset", "density_scale")
 _LABELS_PRESET_KEYS = ("preset", "density_scale", "visible")
 _POINTS_KEYS = ("points", "density_scale", "name")
