@@ -31,6 +31,10 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
         ``pyvista.ImageData`` or a :class:`Volume`. ``spacing`` overrides its voxel size (x, y, z).
     transfer_function: ``"auto"`` (from the volume's histogram), a preset name, a TF ``.json`` file (the
         viewer's editor format, :meth:`TransferFunction.save`), a dict in that format, or a TransferFunction.
+        For a label (segmentation) volume: ``"labels"`` (each label present its own colour, 0 transparent), a
+        dict ``{"labels": {"3": {"albedo": [r, g, b], "opacity": o}, ...}}`` or ``{"preset": "labels",
+        "visible": [3, 7]}``, or a :class:`photon_fields.runtime.scene.labels.LabelTransfer`
+        (:func:`photon_fields.runtime.scene.labels.labels_transfer` builds one).
     lights: a rig name (:data:`photon_fields.runtime.scene.rigs.LIGHT_RIGS`: studio, sun, sky) or a list of
         light dicts in the scene-file form.
     method: a renderer's name (pt, raymarch, photonmap, field); ``options`` are its own settings by keyword
@@ -117,19 +121,23 @@ def _size(size: Any) -> tuple[int, int]:
 
 
 def _transfer_function(tf: Any, volume: Any) -> Any:
-    from photon_fields.runtime.scene.transfer import AUTO, PRESETS, TransferFunction
+    from photon_fields.runtime.scene.labels import LabelTransfer
+    from photon_fields.runtime.scene.transfer import AUTO, LABELS, PRESETS, TransferFunction
 
+    if isinstance(tf, LabelTransfer):
+        tf.check(volume, "transfer_function")
+        return tf
     if isinstance(tf, TransferFunction):
         return tf
     if isinstance(tf, dict):
         return TransferFunction.from_dict(tf, "transfer_function", volume=volume)
     if isinstance(tf, (str, os.PathLike)):
-        if str(tf) == AUTO or str(tf) in PRESETS:
+        if str(tf) in (AUTO, LABELS) or str(tf) in PRESETS:
             return TransferFunction.from_dict({"preset": str(tf)}, "transfer_function", volume=volume)
         if str(tf).endswith(".json") or Path(tf).exists():
             return TransferFunction.load(Path(tf).expanduser(), volume=volume)
         raise InputError("transfer_function", f"unknown preset {str(tf)!r} and not a .json file (presets: "
-                                              f"{AUTO}, {', '.join(PRESETS)})")
+                                              f"{AUTO}, {LABELS}, {', '.join(PRESETS)})")
     raise InputError("transfer_function", f"expected a preset name, a .json file, a dict or a TransferFunction, "
                                           f"got {type(tf).__name__}")
 

@@ -55,6 +55,7 @@ VSESSION = "tests/runtime/viewer/test_viewer_session.py"
 GATHER = "tests/runtime/wavefront/test_final_gather.py"
 VGATHER = "tests/runtime/viewer/test_viewer_gather.py"
 UPDATE = "tests/train/fit/test_update.py"
+LABELS_MEDIUM = "tests/runtime/transport/test_labels_medium.py"
 
 
 @dataclass(frozen=True)
@@ -315,6 +316,24 @@ MUTANTS: tuple[Mutant, ...] = (
            "    return max(0.0, min(ex, ey, ez)) * 1.5\n",
            ("tests/runtime/renderers/test_ray_marcher.py::test_skipping_empty_space_changes_no_pixel",),
            "the ray marcher skips past the end of an empty region and misses the medium behind it"),
+    # Label volumes (runtime/scene/labels.py, the categorical medium).
+    Mutant("labels_interpolated", "runtime/transport/medium.py", "    if m.categorical:  # vx <= nx - 1",
+           "    if False:  # vx <= nx - 1",
+           (f"{LABELS_MEDIUM}::test_no_false_colour_across_a_label_border",
+            f"{LABELS_MEDIUM}::test_extinction_at_voxel_centres_is_the_labels",
+            "tests/runtime/renderers/test_label_render.py::test_path_traced_labels_show_only_label_colours"),
+           "label indices interpolated trilinearly before the table lookup: blends of two labels' colours"),
+    Mutant("labels_majorant_nearest_only", "runtime/transport/medium.py",
+           "                hi = 0.0\n                for i in range(x0, x1):",
+           "                hi = 0.0\n                x0 = max(x0, int(math.ceil(a * nx / cx)))\n"
+           "                for i in range(x0, x1):",
+           (f"{LABELS_MEDIUM}::test_majorant_bounds_extinction_and_empty_space_stays_empty",),
+           "the categorical majorant leaves out the voxels whose nearest-neighbour cell starts before the macrocell"),
+    Mutant("labels_fingerprint_without_window", "runtime/scene/scene.py",
+           "return self.volume.label_fingerprint() if isinstance", "return self.volume.fingerprint() if isinstance",
+           ("tests/runtime/scene/test_labels.py::"
+            "test_fingerprint_tells_label_volumes_with_the_same_normalized_grid_apart",),
+           "label scenes fingerprinted by the normalized grid alone: {0, 1, 2} and {0, 2, 4} share photon maps"),
 )
 
 

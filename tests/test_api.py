@@ -185,3 +185,15 @@ def test_info_is_json(tmp_path: Path) -> None:
                     transfer_function="grey_ramp", lights="sky", step=1.0)
     assert json.loads(json.dumps(img.info))["options"] == {"step": 1.0}
     assert [lt["type"] for lt in img.info["lights"]] == ["directional", "environment"]
+
+
+def test_label_volume_with_the_labels_preset(tmp_path: Path) -> None:
+    """``transfer_function="labels"``: an integer array renders with each label its own colour (the info records
+    the concrete label function); a label function on a scalar volume is one line."""
+    a = np.zeros((8, 8, 8), dtype=np.uint8)
+    a[2:4, 2:6, 2:6], a[4:6, 2:6, 2:6] = 3, 7
+    img = pf.render(a, transfer_function="labels", method="raymarch", spp=1, size=(8, 8))
+    assert set(img.info["transfer_function"]["labels"]) == {"0", "3", "7"}
+    assert img.L.max() > 0
+    with pytest.raises(pf.InputError, match="^transfer_function: volume 'volume' is not a label volume"):
+        pf.render(np.random.default_rng(0).random((6, 6, 6)), transfer_function="labels", spp=1, size=(4, 4))

@@ -38,7 +38,7 @@ from numba import njit, prange
 from photon_fields.runtime.denoise.reprojection import EYE, HEIGHT, WIDTH, pack_view, pixel_direction
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.scene.camera import Camera
-from photon_fields.runtime.transport.medium import Medium, leap_distances
+from photon_fields.runtime.transport.medium import Medium, leap_distances, voxel_extinction
 
 DEFAULT_BLOCK = 2  # voxels per coarse cell edge
 DEFAULT_MIN_OPACITY = 1e-3  # collision probability below which a pixel sees the background at infinity
@@ -50,9 +50,8 @@ _TAU_OPAQUE = 12.0  # exp(-12) = 6e-6: the rest of the ray cannot move the media
 def coarse_extinction(m: Medium, block: int = DEFAULT_BLOCK) -> np.ndarray:
     """Mean extinction over ``block``^3 voxel blocks (the grid is padded at the far ends by repeating the border
     voxels), from the transfer function's extinction table at the voxel values: ``sigma_t`` at each voxel centre,
-    where trilinear interpolation returns the voxel's own value."""
-    lut = m.ext_lut
-    sigma = np.interp(m.density.astype(np.float64), np.linspace(0.0, 1.0, lut.shape[0]), lut)
+    where trilinear (or, in a categorical medium, nearest) lookup returns the voxel's own value."""
+    sigma = voxel_extinction(m)
     n = np.array(sigma.shape)
     cells = -(-n // block)
     pad = [(0, int(c * block - s)) for c, s in zip(cells, n, strict=True)]

@@ -14,6 +14,8 @@ or load a JSON scene file with :func:`load_scene` (relative paths resolve agains
                  "spacing": [1, 1, 1], "window": [0, 255]},      # or {"builtin": "vortex", "resolution": 96}
       "transfer_function": {"preset": "grey_ramp", "density_scale": 40},   # or {"points": [...]} or "tf.json"
                                                      # or {"preset": "auto"} (from the volume's histogram)
+                                                     # or, for a label volume, {"labels": {"3": {...}}} or
+                                                     # {"preset": "labels", "visible": [3, 7]}
       "lights": [{"type": "directional", "direction": [-1, -1, -0.5], "color": [1, 1, 1], "power": 3}],
       "camera": {"eye": [1.2, 0.7, 1.5], "target": [0, 0, 0], "up": [0, 1, 0], "fov": 40,
                  "width": 512, "height": 512},
@@ -37,6 +39,7 @@ import numpy as np
 from photon_fields.models_spec import fingerprint_parts, scene_fingerprint
 from photon_fields.runtime.errors import InputError, check_keys
 from photon_fields.runtime.scene.camera import Camera
+from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.lights import (
     ENVIRONMENT,
     DirectionalLight,
@@ -57,7 +60,7 @@ _SCENE_KEYS = {"name", "volume", "transfer_function", "lights", "camera", "phase
 @dataclass(frozen=True, eq=False)
 class Scene:
     volume: Volume
-    tf: TransferFunction
+    tf: TransferFunction | LabelTransfer
     lights: tuple[Light, ...]
     camera: Camera
     g: float = 0.0
@@ -75,12 +78,19 @@ class Scene:
             raise InputError(f"scene '{self.name}' lights", "all lights have zero power")
         object.__setattr__(self, "lights", lights)
         object.__setattr__(self, "g", check_g(self.g, f"scene '{self.name}' phase g"))
+        if isinstance(self.tf, LabelTransfer):  # refused here, in one line, not when the medium is first built
+            self.tf.check(self.volume, f"scene '{self.name}' transfer_function")
+
+    def _volume_fingerprint(self) -> str:
+        """The volume's part of the fingerprint: with a label transfer function, whose keys are raw labels, it
+        also covers the raw window (:meth:`Volume.label_fingerprint`)."""
+        return self.volume.label_fingerprint() if isinstance(self.tf, LabelTransfer) else self.volume.fingerprint()
 
     def fingerprint(self) -> str:
         """Identifies the light distribution: volume data, transfer function and lights (not camera, not g)."""
         if "fingerprint" not in self._cache:
             self._cache["fingerprint"] = scene_fingerprint(
-                self.volume.fingerprint(), self.tf.to_dict(), [light.to_dict() for light in self.lights])
+                self._volume_fingerprint(), self.tf.to_dict(), [light.to_dict() for light in self.lights])
         return self._cache["fingerprint"]
 
     def fingerprint_parts(self) -> dict[str, str]:
@@ -88,7 +98,7 @@ class Scene:
         photon maps and bundles, so that a mismatch can name what differs."""
         if "fingerprint_parts" not in self._cache:
             self._cache["fingerprint_parts"] = fingerprint_parts(
-                self.volume.fingerprint(), self.tf.to_dict(), [light.to_dict() for light in self.lights])
+                self._volume_fingerprint(), self.tf.to_dict(), [light.to_dict() for light in self.lights])
         return dict(self._cache["fingerprint_parts"])
 
     def medium(self) -> Medium:

@@ -18,6 +18,11 @@ The mapping is piecewise linear between control points and constant beyond the f
 ``LUT_SIZE`` entries (:meth:`TransferFunction.lut`); the table is linearly interpolated, so the maximum
 of the table over an index range bounds the extinction over the corresponding scalar range, which is
 what the majorant grid relies on (:mod:`photon_fields.runtime.transport.medium`).
+
+Label (segmentation) volumes use the categorical form instead, ``{"labels": {"3": {"albedo", "opacity"}}}``
+or ``{"preset": "labels"}``: :meth:`TransferFunction.from_dict` and :meth:`TransferFunction.load` return a
+:class:`photon_fields.runtime.scene.labels.LabelTransfer` for them (see that module for why labels are never
+interpolated).
 """
 
 from __future__ import annotations
@@ -37,8 +42,13 @@ if TYPE_CHECKING:
 LUT_SIZE = 1024
 #: The preset name resolved from the volume's histogram (:mod:`photon_fields.runtime.scene.auto_transfer`).
 AUTO = "auto"
-#: Keys of the two JSON forms of a transfer function and of one control point (anything else is refused).
+#: The preset name built from the labels present in a label volume
+#: (:func:`photon_fields.runtime.scene.labels.labels_transfer`).
+LABELS = "labels"
+#: Keys of the preset and points forms of a transfer function and of one control point (anything else is refused;
+#: the labels form checks its own keys, photon_fields.runtime.scene.labels).
 _PRESET_KEYS = ("preset", "density_scale")
+_LABELS_PRESET_KEYS = ("preset", "density_scale", "visible")
 _POINTS_KEYS = ("points", "density_scale", "name")
 _POINT_KEYS = ("s", "albedo", "opacity")
 
@@ -105,9 +115,11 @@ class TransferFunction:
         }
 
     @classmethod
-    def from_dict(cls, d: Any, what: str = "transfer function", volume: Volume | None = None) -> TransferFunction:
+    def from_dict(cls, d: Any, what: str = "transfer function", volume: Volume | None = None) -> Any:
         """A transfer function from its JSON form: ``{"preset": NAME}`` (optionally with ``density_scale``)
-        or ``{"points": [{"s", "albedo", "opacity"}, ...], "density_scale": ..., "name": ...}``. Unknown
+        or ``{"points": [{"s", "albedo", "opacity"}, ...], "density_scale": ..., "name": ...}``, or, for a
+        label volume, a :class:`photon_fields.runtime.scene.labels.LabelTransfer` from ``{"labels": {...}}`` or
+        ``{"preset": "labels", "visible": [...]}`` (resolved against ``volume``). Unknown
         keys are refused, at the top level and in every point (``what points[2]``), so that a typo such as
         ``"densty_scale"`` cannot silently render with the default.
 
@@ -118,8 +130,15 @@ class TransferFunction:
         saved with :meth:`save` is a file a scene can name."""
         if not isinstance(d, dict):
             raise InputError(what, "must be a JSON object")
-        if "preset" in d and "points" in d:
-            raise InputError(what, "give either 'preset' or 'points', not both")
+        given = [k for k in ("preset", "points", "labels") if k in d]
+        if len(given) > 1:
+            raise InputError(what, f"give one of 'preset', 'points' or 'labels', not {' and '.join(map(repr, given))}")
+        if "labels" in d:
+            from photon_fields.runtime.scene.labels import LabelTransfer
+
+            return LabelTransfer.from_dict(d, what, volume)
+        if d.get("preset") == LABELS:
+            return _labels_preset(d, what, volume)
         if "preset" in d:
             check_keys(d, _PRESET_KEYS, what)
             if d["preset"] == AUTO:
@@ -168,8 +187,9 @@ class TransferFunction:
             Path(tmp).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
 
     @classmethod
-    def load(cls, path: str | Path, volume: Volume | None = None) -> TransferFunction:
-        """A transfer-function file (the JSON of :meth:`from_dict`; ``volume`` resolves ``{"preset": "auto"}``)."""
+    def load(cls, path: str | Path, volume: Volume | None = None) -> Any:
+        """A transfer-function file (the JSON of :meth:`from_dict`; ``volume`` resolves ``{"preset": "auto"}``
+        and ``{"preset": "labels"}`` and checks a labels form against the volume's labels)."""
         p = Path(path)
         if not p.is_file():
             raise InputError(str(p), "file not found")
@@ -189,6 +209,18 @@ def _auto(d: dict, what: str, volume: Volume | None) -> TransferFunction:
 
     ds = _number(d, "density_scale", what) if "density_scale" in d else None
     return _relabelled(what, lambda: auto_transfer_function(volume, ds))
+
+
+def _labels_preset(d: dict, what: str, volume: Volume | None) -> Any:
+    """``{"preset": "labels"}`` (with optional ``visible`` and ``density_scale``) resolved for ``volume``."""
+    check_keys(d, _LABELS_PRESET_KEYS, what)
+    if volume is None:
+        raise InputError(what, "preset 'labels' is built from the labels present in a volume and needs the volume: "
+                               "use it in a scene (or photon_fields.render), where the volume is known")
+    from photon_fields.runtime.scene.labels import DEFAULT_LABEL_DENSITY, labels_transfer
+
+    ds = _number(d, "density_scale", what) if "density_scale" in d else DEFAULT_LABEL_DENSITY
+    return labels_transfer(volume, d.get("visible"), density_scale=ds, what=what)
 
 
 def _relabelled(what: str, build: Any) -> TransferFunction:
@@ -243,9 +275,10 @@ PRESETS: dict[str, TransferFunction] = {
 
 def preset(name: str, what: str = "transfer function") -> TransferFunction:
     """The built-in preset ``name`` (``auto`` is not one: it needs a volume, see :meth:`TransferFunction.from_dict`)."""
-    if name == AUTO:
-        raise InputError(what, "preset 'auto' needs the volume: resolve it with TransferFunction.from_dict("
-                               "{'preset': 'auto'}, volume=...)")
+    if name in (AUTO, LABELS):
+        raise InputError(what, f"preset '{name}' needs the volume: resolve it with TransferFunction.from_dict("
+                               f"{{'preset': '{name}'}}, volume=...)")
     if name not in PRESETS:
-        raise InputError(what, f"unknown preset '{name}' (available: {', '.join(sorted(PRESETS))}, {AUTO})")
+        raise InputError(what, f"unknown preset '{name}' (available: {', '.join(sorted(PRESETS))}, {AUTO}, "
+                               f"{LABELS})")
     return PRESETS[name]

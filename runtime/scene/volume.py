@@ -9,6 +9,13 @@ Conventions (shared by every renderer and by training):
   longest side is 1. Aspect ratio and anisotropic spacing are respected; the physical unit drops out,
   so a transfer function's density scale (extinction per unit length) means the same thing for every
   volume: "per longest box side".
+- ``Volume.window`` records the raw values mapped to 0 and 1 and ``Volume.value_range`` the raw data's own
+  min/max (both None for a volume built without :func:`make_volume`). They cost nothing and make the raw
+  values recoverable, ``raw = lo + data * (hi - lo)``, which is what a label volume's categorical transfer
+  function needs (:mod:`photon_fields.runtime.scene.labels`): the renderers keep one normalized grid, and label
+  identity is recovered exactly (to well under half a label for value ranges below 2^20) when a label
+  transfer function is bound to the volume. They are not part of :meth:`Volume.fingerprint` (that would change
+  every existing volume's fingerprint); :meth:`Volume.label_fingerprint` adds them for label scenes.
 """
 
 from __future__ import annotations
@@ -28,7 +35,13 @@ class Volume:
     data: np.ndarray
     spacing: tuple[float, float, float] = (1.0, 1.0, 1.0)
     name: str = "volume"
+    #: Raw values mapped to 0 and 1 by the normalization (module docstring); None if unknown.
+    window: tuple[float, float] | None = None
+    #: Raw data min and max (before clipping to the window); None if unknown.
+    value_range: tuple[float, float] | None = None
     _fingerprint: list = field(default_factory=list, repr=False)  # lazily computed cache
+    #: Lazily computed label grid (photon_fields.runtime.scene.labels.volume_labels), reused across media.
+    _labels: list = field(default_factory=list, repr=False)
 
     @property
     def dims(self) -> tuple[int, int, int]:
@@ -65,6 +78,14 @@ class Volume:
             self._fingerprint.append(h.hexdigest())
         return self._fingerprint[0]
 
+    def label_fingerprint(self) -> str:
+        """:meth:`fingerprint` extended by the raw window: two label volumes with the same normalized grid but
+        different raw labels (e.g. labels {0, 1, 2} and {0, 2, 4}) are different media under one label
+        transfer function, whose keys are raw labels."""
+        h = hashlib.sha256(self.fingerprint().encode())
+        h.update(np.asarray(self.window if self.window is not None else (np.nan, np.nan), np.float64).tobytes())
+        return h.hexdigest()
+
 
 def normalize_window(
     raw: np.ndarray, window: tuple[float, float] | None = None, what: str = "volume", chunk_voxels: int = 1 << 24
@@ -74,6 +95,15 @@ def normalize_window(
     Works chunk by chunk along the first axis so that a memory-mapped input is streamed, not loaded
     twice. Raises :class:`InputError` on NaN/inf voxels or an empty/degenerate window.
     """
+    return normalize_with_window(raw, window, what, chunk_voxels)[0]
+
+
+def normalize_with_window(
+    raw: np.ndarray, window: tuple[float, float] | None = None, what: str = "volume", chunk_voxels: int = 1 << 24
+) -> tuple[np.ndarray, tuple[float, float], tuple[float, float]]:
+    """:func:`normalize_window`, also returning the window used (raw values mapped to 0 and 1) and the raw
+    data's min and max. A constant volume (mapped to 1) reports the window ``(v - 1, v)``, so that
+    ``lo + 1 * (hi - lo)`` still recovers its value ``v``."""
     if raw.ndim != 3:
         raise InputError(what, f"expected a 3-D scalar grid, got shape {tuple(raw.shape)}")
     if min(raw.shape) < 2:
@@ -94,7 +124,7 @@ def normalize_window(
     if window is None:
         lo, hi = lo_d, hi_d
         if hi <= lo:  # constant volume: map it to 1 so it is visible, not to 0/0
-            return np.ones(raw.shape, dtype=np.float32)
+            return np.ones(raw.shape, dtype=np.float32), (lo - 1.0, lo), (lo_d, hi_d)
     else:
         lo, hi = float(window[0]), float(window[1])
         if not (np.isfinite(lo) and np.isfinite(hi)) or hi <= lo:
@@ -104,7 +134,7 @@ def normalize_window(
     for s in range(0, raw.shape[0], step):
         block = np.asarray(raw[s : s + step], dtype=np.float64)
         out[s : s + step] = np.clip((block - lo) * scale, 0.0, 1.0)
-    return out
+    return out, (lo, hi), (lo_d, hi_d)
 
 
 def make_volume(
@@ -117,5 +147,7 @@ def make_volume(
     sp = tuple(float(s) for s in spacing)
     if len(sp) != 3 or not all(np.isfinite(s) and s > 0 for s in sp):
         raise InputError(f"{name} spacing", f"must be three positive numbers, got {list(spacing)}")
-    data = normalize_window(np.asarray(raw) if not isinstance(raw, np.memmap) else raw, window, what=name)
-    return Volume(data=np.ascontiguousarray(data), spacing=sp, name=name)  # type: ignore[arg-type]
+    data, win, value_range = normalize_with_window(np.asarray(raw) if not isinstance(raw, np.memmap) else raw,
+                                                   window, what=name)
+    return Volume(data=np.ascontiguousarray(data), spacing=sp, name=name, window=win,  # type: ignore[arg-type]
+                  value_range=value_range)

@@ -110,6 +110,8 @@ def scalar_numpy(m: Medium, p: np.ndarray) -> np.ndarray:
 
 def extinction_numpy(m: Medium, p: np.ndarray) -> np.ndarray:
     """sigma_t at points ``p`` (3, n): same conventions as :func:`runtime.transport.medium.extinction_at`."""
+    if m.categorical:  # the baseline mirrors the scalar kernels only (label media: bench/tests use numba's)
+        raise ValueError("the numpy tracking baseline does not handle categorical (label) media")
     p = np.asarray(p, dtype=np.float64)
     lut = m.ext_lut
     n = lut.shape[0]

@@ -55,6 +55,10 @@ def load_inputs(scene: str | None, *, bundle: str | None = None, map_path: str |
         sc, _ = scene_for_bundle(bundle, force=force)
     else:
         sc = load_scene(scene)
+    if getattr(sc.tf, "categorical", False):
+        # The page's editor edits control points on a scalar axis; labels have no such axis (yet).
+        raise InputError(scene or bundle, "has a label transfer function, which the viewer's editor cannot edit "
+                                          "yet: render it with pfn-render, or edit the labels JSON by hand")
     if size is not None:
         check_size(size)
         sc = sc.with_overrides(width=size[0], height=size[1])

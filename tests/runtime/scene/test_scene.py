@@ -785,7 +785,7 @@ def test_tf_file_typo_is_refused_not_defaulted(tmp_path: Path) -> None:
     path.write_text(json.dumps({"preset": "cloud", "points": INLINE_TF["points"]}))
     with pytest.raises(InputError) as info:
         TransferFunction.load(path)
-    assert_one_line(info.value, str(path), "either 'preset' or 'points'")
+    assert_one_line(info.value, str(path), "give one of 'preset', 'points' or 'labels', not 'preset' and 'points'")
 
 
 @pytest.mark.parametrize(("point", "needles"), [

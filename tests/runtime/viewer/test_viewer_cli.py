@@ -79,3 +79,18 @@ def test_final_gather_after_takes_a_count_or_never() -> None:
     assert parse(["blobs"]).final_gather_after == DEFAULT_GATHER_AFTER
     assert parse(["blobs", "--final-gather-after", "never"]).final_gather_after is None
     assert parse(["blobs", "--final-gather-after", "0"]).final_gather_after == 0
+
+
+def test_a_label_scene_is_refused_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The page's editor edits control points; a label scene is refused before anything is served."""
+    import json
+
+    import numpy as np
+
+    np.save(tmp_path / "seg.npy", np.arange(27, dtype=np.uint8).reshape(3, 3, 3) % 3)
+    scene = {"volume": {"path": "seg.npy"}, "transfer_function": {"preset": "labels"},
+             "lights": [{"type": "directional", "direction": [-1, -1, -0.5], "power": 3}],
+             "camera": {"eye": [1.2, 0.7, 1.5], "target": [0, 0, 0], "fov": 40, "width": 64, "height": 64}}
+    (tmp_path / "seg.json").write_text(json.dumps(scene))
+    assert _main([str(tmp_path / "seg.json"), "--no-browser", "--out", str(tmp_path / "out")]) == 2
+    assert "label transfer function, which the viewer's editor cannot edit" in one_error_line(capsys.readouterr().err)
