@@ -25,6 +25,7 @@ import numpy as np
 
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.io.atomic import atomic_write_text
+from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.camera import orbit_camera
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.wavefront.batches import RenderResult
@@ -65,7 +66,6 @@ def render_orbit(scene: Scene, render_frame: Callable[[Scene], RenderResult], ou
     draw fresh samples for every frame (a different seed per call): with one seed for all frames the noise of
     consecutive views is strongly correlated, and averaging it over time removes little. ``record``: more
     entries for the timings file (e.g. the method and seeds)."""
-    from tqdm import tqdm
 
     from photon_fields.runtime.io.images import auto_exposure_stops, tonemap_srgb, write_image_set, write_png
 
@@ -83,7 +83,7 @@ def render_orbit(scene: Scene, render_frame: Callable[[Scene], RenderResult], ou
                              f"{scene.camera.width}x{scene.camera.height}")
         denoiser.reset()
         depth_of = denoiser.depth_estimator or DepthEstimator(scene.medium())
-    for i in tqdm(range(frames), desc="orbit", unit="frame", disable=not progress, leave=False):
+    for i in progress_bar(range(frames), desc="orbit", unit="frame", enabled=progress):
         cam = orbit_camera(scene.camera, degrees * i / frames)
         t0 = time.perf_counter()
         result = render_frame(scene.with_overrides(camera=cam))

@@ -14,8 +14,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
-from tqdm import tqdm
 
+from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.emitters import environment_index
 from photon_fields.runtime.wavefront.film import Film
@@ -66,7 +66,7 @@ def primary_ray_batches(scene: Scene, film: Film, timer: StageTimer, *, spp: int
     env = environment_radiance(scene)
     n_pixels = cam.width * cam.height
     first, total = first_sample * n_pixels, n_pixels * spp
-    with tqdm(total=total, desc=desc, unit="spl", unit_scale=True, disable=not progress, leave=False) as bar:
+    with progress_bar(total=total, desc=desc, unit="spl", unit_scale=True, enabled=progress) as bar:
         for start in range(first, first + total, batch_size):
             work = np.arange(start, min(start + batch_size, first + total), dtype=np.int64)
             with timer("generate_camera_rays"):

@@ -55,6 +55,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.direct_light import direct_light_batch
 from photon_fields.runtime.transport.medium import Medium, albedo_at
@@ -250,7 +251,6 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
     ``spp``) and ``first_sample`` selects the samples' random streams: frames with consecutive
     ``first_sample`` equal one render with all their samples (:mod:`photon_fields.runtime.wavefront.batches`).
     """
-    from tqdm import tqdm
 
     m = scene.medium()
     kind, vec, rgb = scene.packed_lights()
@@ -267,7 +267,7 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
     scratch, status, transmit = FirstInteractions.empty(batch), np.empty(batch, np.uint8), np.empty(batch)
     distinct = batch <= n_pixels  # consecutive work items: no pixel twice in one batch (Film.splat)
     n_rays = n_samples = 0
-    with tqdm(total=total, desc=desc, unit="spl", unit_scale=True, disable=not progress, leave=False) as bar:
+    with progress_bar(total=total, desc=desc, unit="spl", unit_scale=True, enabled=progress) as bar:
         for start in range(first, first + total, batch):
             count = min(batch, first + total - start)
             with timer("sample_first_interactions"):

@@ -39,11 +39,11 @@ from typing import Any
 import numba
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.io.atomic import atomic_write_text
 from photon_fields.runtime.photons.photon_map import PhotonMap
+from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.train.field.network import TorchPhotonField
 from photon_fields.train.fit.averaging import ParameterAverage
@@ -157,7 +157,7 @@ def fine_tune(model: TorchPhotonField, scene: Scene, pmap: PhotonMap, out_dir: s
     done = 0
     reason = "max_steps"
     window = ParameterAverage(model)
-    bar = tqdm(total=max_steps, desc="updating", unit="step", disable=not progress, leave=False)
+    bar = progress_bar(total=max_steps, desc="updating", unit="step", enabled=progress)
     try:
         with deterministic_torch():
             stopped = check(0)

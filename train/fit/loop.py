@@ -38,12 +38,12 @@ from typing import Any
 import numba
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.io.atomic import atomic_write_text
 from photon_fields.runtime.photons.estimate import check_map_matches_scene
 from photon_fields.runtime.photons.photon_map import PhotonMap
+from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.train.field.network import TorchPhotonField, decode_radiance_torch
 from photon_fields.train.fit.averaging import ParameterAverage, averaging_start
@@ -189,7 +189,7 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
         atomic_write_text(log_path, json.dumps(log, indent=1) + "\n")
         plot_loss(log, png)
 
-    bar = tqdm(total=total, desc="fitting", unit="step", disable=not progress, leave=False)
+    bar = progress_bar(total=total, desc="fitting", unit="step", enabled=progress)
     try:
         with deterministic_torch():
             for step in range(total):

@@ -46,11 +46,11 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 from numba import njit, prange
-from tqdm import tqdm
 
 from photon_fields.models_spec import DEFAULT_MAP_PHASES
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.photon_map import PhotonMap
+from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.emitters import emission_fluxes, emit_photon
 from photon_fields.runtime.transport.medium import Medium, albedo_at, intersect_box
@@ -200,8 +200,8 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
     first_path = 0
     g_arr = np.asarray(gs, dtype=np.float64)
     t_start = time.perf_counter()
-    with tqdm(total=quota * len(gs), desc="tracing photons", unit="ph", unit_scale=True, disable=not progress,
-              leave=False) as bar:
+    with progress_bar(total=quota * len(gs), desc="tracing photons", unit="ph", unit_scale=True,
+                      enabled=progress) as bar:
         while np.any(stored < quota):
             active = np.flatnonzero(stored < quota).astype(np.int64)
             _trace_chunk(m, kind, vec, power, cos_max, light_cdf, g_arr, active, int(seed), first_path, CHUNK,

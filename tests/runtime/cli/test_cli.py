@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -441,8 +442,8 @@ def _console_script() -> str:
     return found
 
 
-def _run(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "PYTHONWARNINGS": "ignore"}
+def _run(args: list[str], cwd: Path, **env_vars: str) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "PYTHONWARNINGS": "ignore", **env_vars}
     return subprocess.run(
         [_console_script(), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300, check=False
     )
@@ -456,6 +457,18 @@ def test_console_script_success(tmp_path: Path, warm: Path) -> None:
     a, _ = read_exr(warm)
     b, _ = read_exr(tmp_path / "sub" / "r.exr")
     assert all(np.array_equal(a[n], b[n]) for n in LAYERS)
+
+
+def test_progress_in_a_log_is_plain_lines(tmp_path: Path) -> None:
+    """stderr is a pipe here, as in a log file or CI: progress comes as plain lines (one per update with
+    PFN_PROGRESS_SECONDS=0), never tqdm's carriage-return redraws."""
+    args = ["--scene", "blobs", "--size", "16x16", "--spp", "2", "--batch-size", "128", "--out", "r.exr"]
+    proc = _run(args, tmp_path, PFN_PROGRESS_SECONDS="0")
+    assert proc.returncode == 0, proc.stderr
+    assert "\r" not in proc.stderr
+    lines = proc.stderr.splitlines()
+    assert any(re.fullmatch(r"path tracing: \d+% \([\d.]+k?/512 spl\), [\d.]+ s, ~[\d.]+ s left", ln) for ln in lines)
+    assert any(re.fullmatch(r"path tracing: done, 512 spl in [\d.]+ s", ln) for ln in lines)
 
 
 def test_console_script_bad_input(tmp_path: Path) -> None:
