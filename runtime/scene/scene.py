@@ -12,7 +12,7 @@ or load a JSON scene file with :func:`load_scene` (relative paths resolve agains
       "name": "engine",
       "volume": {"path": "engine.raw", "dims": [256, 256, 128], "dtype": "uint8",
                  "spacing": [1, 1, 1], "window": [0, 255]},      # or {"builtin": "vortex", "resolution": 96}
-      "transfer_function": {"preset": "grey_ramp", "density_scale": 40},   # or {"points": [...]} or "tf.json"
+      "transfer_function": {"preset": "grey_ramp", "density_scale": 40},   # or {"points": [...]}, "tf.json", "auto"
                                                      # or {"preset": "auto"} (from the volume's histogram)
                                                      # or, for a label volume, {"labels": {"3": {...}}} or
                                                      # {"preset": "labels", "visible": [3, 7]}
@@ -249,7 +249,10 @@ def scene_from_dict(d: Any, base_dir: Path | None = None, what: str = "scene") -
     tf_spec = d["transfer_function"]
     # Resolved here, where the volume is known: {"preset": "auto"} becomes concrete points, and the scene's
     # fingerprint and spec() are those of the concrete function.
-    if isinstance(tf_spec, str):
+    if isinstance(tf_spec, str) and not _resolve(tf_spec, base_dir).exists() and Path(tf_spec).suffix == "":
+        # a bare name that is no file: a preset ("auto", "labels", "grey_ramp", ...), as in the Python API
+        tf = TransferFunction.from_dict({"preset": tf_spec}, what=f"{what} transfer_function", volume=volume)
+    elif isinstance(tf_spec, str):
         tf = TransferFunction.load(_resolve(tf_spec, base_dir), volume=volume)
     else:
         tf = TransferFunction.from_dict(tf_spec, what=f"{what} transfer_function", volume=volume)

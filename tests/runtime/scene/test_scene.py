@@ -541,6 +541,11 @@ def test_load_scene_preset_and_tf_file(scene_dir: Path, monkeypatch: pytest.Monk
     # the scene name defaults to the file's stem
     s4 = load_scene(write_scene(scene_dir, "my_scene.json", name=None, phase=None))
     assert s4.name == "my_scene" and s4.g == 0.0
+    # a bare name that is no file is a preset, as in the Python API ("auto" resolved from the histogram)
+    s5 = load_scene(write_scene(scene_dir, "d.json", transfer_function="cloud"))
+    assert s5.tf.name == "cloud"
+    s6 = load_scene(write_scene(scene_dir, "e.json", transfer_function="auto"))
+    _same_tf(s6.tf, TransferFunction.from_dict({"preset": "auto"}, volume=s6.volume))
 
 
 def test_load_scene_builtin_volume(tmp_path: Path) -> None:
@@ -626,6 +631,7 @@ def test_scene_error_invalid_json(tmp_path: Path) -> None:
         ({"transfer_function": {**INLINE_TF, "density_scale": -1}}, ["transfer_function", "density_scale"]),
         ({"transfer_function": {"preset": "smoke"}}, ["transfer_function", "smoke"]),
         ({"transfer_function": "no_such_tf.json"}, ["no_such_tf.json", "not found"]),
+        ({"transfer_function": "smoke"}, ["transfer_function", "unknown preset 'smoke'"]),
         ({"volume": {"path": "data/missing.npy"}}, ["missing.npy", "not found"]),
         ({"volume": {"path": "data/vol.npy", "dims": [1, 2, 3]}}, ["vol.npy", "dims"]),
         ({"volume": {"path": "data/vol.npy", "scale": 2}}, ["volume", "scale"]),
