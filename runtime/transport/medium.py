@@ -140,13 +140,7 @@ def majorant_grid(density: np.ndarray, ext_lut: np.ndarray, macrocell: int) -> n
     lut_n = ext_lut.shape[0]
     lo = np.floor(smin * (lut_n - 1)).astype(np.int64)
     hi = np.ceil(smax * (lut_n - 1)).astype(np.int64)
-    table = _range_max_table(ext_lut)
-    width = hi - lo
-    narrow = width < table.shape[1]
-    out = np.empty(smin.shape)
-    out[narrow] = table[lo[narrow], width[narrow]]
-    for idx in zip(*np.nonzero(~narrow), strict=True):  # wide scalar ranges are rare: plain slices
-        out[idx] = ext_lut[lo[idx] : hi[idx] + 1].max()
+    out = range_max(_sparse_max_table(ext_lut), lo, hi)
     return out * _MAJORANT_SAFETY
 
 
@@ -210,17 +204,24 @@ def _voxel_span(cell: int, cells: int, n: int) -> tuple[int, int]:
     return max(lo, 0), min(hi, n - 1) + 1
 
 
-def _range_max_table(lut: np.ndarray, width: int = 64) -> np.ndarray:
-    """table[i, w] = max(lut[i : i + w + 1]) for w < width (fast path for narrow scalar ranges)."""
+def _sparse_max_table(lut: np.ndarray) -> np.ndarray:
+    """Sparse table of ``lut``: row k holds max(lut[i : i + 2^k]) at i (rows padded with lut's last entry),
+    so that the max over any index range is the max of two entries (:func:`range_max`)."""
     n = lut.shape[0]
-    table = np.empty((n, width))
-    running = lut.copy()
-    table[:, 0] = running
-    for w in range(1, width):
-        shifted = np.concatenate([lut[w:], np.full(w, lut[-1])])
-        running = np.maximum(running, shifted)
-        table[:, w] = running
-    return table
+    rows = [np.asarray(lut, dtype=np.float64)]
+    span = 1
+    while 2 * span <= n:
+        prev = rows[-1]
+        rows.append(np.maximum(prev, np.concatenate([prev[span:], np.full(span, prev[-1])])))
+        span *= 2
+    return np.stack(rows)
+
+
+def range_max(table: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """max(lut[lo : hi + 1]) elementwise for index arrays lo <= hi, from :func:`_sparse_max_table`: the two
+    power-of-two windows that cover [lo, hi] (the classic O(1) range-maximum query; exact, since max is)."""
+    k = np.floor(np.log2(hi - lo + 1)).astype(np.int64)
+    return np.maximum(table[k, lo], table[k, hi - (1 << k) + 1])
 
 
 # --- kernels' view of the medium -------------------------------------------------------------------

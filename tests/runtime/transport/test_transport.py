@@ -9,7 +9,7 @@ import pytest
 from conftest import constant_tf, smooth_field
 
 from photon_fields.runtime.scene.volume import make_volume
-from photon_fields.runtime.transport.medium import build_medium, extinction_batch
+from photon_fields.runtime.transport.medium import _sparse_max_table, build_medium, extinction_batch, range_max
 from photon_fields.runtime.transport.rng import stream_states
 from photon_fields.runtime.transport.tracking import delta_track_batch, ratio_track_batch
 
@@ -105,6 +105,18 @@ def test_majorant_bounds_extinction() -> None:
     assert np.all(sigma <= bound)
     # ... and the bound is useful: no cell is more than a TF-peak away from its true max.
     assert m.majorant.max() <= 40.0 * (1 + 1e-5)
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 1024, 1000])
+def test_range_max_is_the_max_over_every_index_range(n: int) -> None:
+    """The majorant's range-maximum query (a sparse table) equals a plain max over lut[lo : hi + 1] for random
+    ranges, single entries and the whole table included, on table sizes that are and are not powers of two."""
+    rng = np.random.default_rng(n)
+    lut = rng.random(n) * 10.0
+    lo = np.concatenate([rng.integers(0, n, 3000), [0, n - 1, 0]])
+    hi = np.concatenate([np.minimum(n - 1, lo[:3000] + rng.integers(0, n, 3000)), [n - 1, n - 1, 0]])
+    expected = np.array([lut[a : b + 1].max() for a, b in zip(lo, hi, strict=True)])
+    np.testing.assert_array_equal(range_max(_sparse_max_table(lut), lo, hi), expected)
 
 
 def test_escape_probability_independent_of_macrocell_size(smooth_volume) -> None:  # noqa: ANN001
