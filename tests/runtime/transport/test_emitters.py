@@ -32,12 +32,14 @@ from photon_fields.runtime.transport.emitters import (
     environment_index,
     sample_light_direction,
 )
+from photon_fields.runtime.transport.environment_map import NO_ENV_MAP
 from photon_fields.runtime.transport.medium import Medium, build_medium
 from photon_fields.runtime.transport.rng import next_float, stream_states, uniform_batch
 
 N = 240_000
 P_MIN = 1e-3
-UNKNOWN = 3  # no light kind has this number
+UNKNOWN = 99  # no light kind has this number
+ONES = np.ones(3)  # a light's rgb: the samples' values are per unit rgb
 
 
 @pytest.fixture(scope="module")
@@ -56,8 +58,8 @@ def _emit_batch(kind: int, vec: np.ndarray, cos_max: float, c: np.ndarray, radiu
     o = np.empty((u.shape[0], 3))
     w = np.empty((u.shape[0], 3))
     for i in range(u.shape[0]):
-        o[i, 0], o[i, 1], o[i, 2], w[i, 0], w[i, 1], w[i, 2] = emit_photon(
-            kind, vec, cos_max, c[0], c[1], c[2], radius, u[i, 0], u[i, 1], u[i, 2], u[i, 3])
+        o[i, 0], o[i, 1], o[i, 2], w[i, 0], w[i, 1], w[i, 2], _, _, _ = emit_photon(
+            kind, vec, NO_ENV_MAP, cos_max, c[0], c[1], c[2], radius, u[i, 0], u[i, 1], u[i, 2], u[i, 3])
     return o, w
 
 
@@ -66,8 +68,8 @@ def _environment_nee_batch(states: np.ndarray) -> np.ndarray:
     out = np.empty((states.shape[0], 5))
     vec = np.zeros(3)
     for i in range(states.shape[0]):
-        out[i, 0], out[i, 1], out[i, 2], out[i, 3], out[i, 4], _, states[i] = sample_light_direction(
-            ENVIRONMENT, vec, 0.1, 0.2, 0.3, states[i])
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3], _, _, out[i, 4], _, states[i] = sample_light_direction(
+            ENVIRONMENT, vec, ONES, NO_ENV_MAP, 0.1, 0.2, 0.3, states[i])
     return out
 
 
@@ -204,14 +206,14 @@ def test_delta_light_samples_point_at_the_light() -> None:
     p = np.array([0.1, -0.2, 0.3])
     pos = np.array([0.9, 0.6, 0.2])
     state = np.uint64(12345)
-    lx, ly, lz, value, pdf, dist, st = sample_light_direction(POINT, pos, *p, state)
+    lx, ly, lz, value, _, _, pdf, dist, st = sample_light_direction(POINT, pos, ONES, NO_ENV_MAP, *p, state)
     r = float(np.linalg.norm(pos - p))
     np.testing.assert_allclose([lx, ly, lz], (pos - p) / r, rtol=1e-14)
     assert value == pytest.approx(1.0 / r**2, rel=1e-14) and dist == pytest.approx(r, rel=1e-14)
     assert math.isinf(pdf) and st == state
-    assert sample_light_direction(POINT, p, *p, state)[3] == 0.0  # on the light: no contribution
+    assert sample_light_direction(POINT, p, ONES, NO_ENV_MAP, *p, state)[3] == 0.0  # on the light: no contribution
     d = np.array([0.0, -0.6, -0.8])
-    lx, ly, lz, value, pdf, dist, st = sample_light_direction(DIRECTIONAL, d, *p, state)
+    lx, ly, lz, value, _, _, pdf, dist, st = sample_light_direction(DIRECTIONAL, d, ONES, NO_ENV_MAP, *p, state)
     assert [lx, ly, lz] == (-d).tolist() and value == 1.0 and math.isinf(pdf) and math.isinf(dist)
     assert st == state
     assert delta_light_direction(ENVIRONMENT, d, *p)[3] == 0.0  # not a delta light: the ray marcher skips it
@@ -248,11 +250,11 @@ def test_unknown_light_kind_is_refused_by_every_branch(medium: Medium) -> None:
     with pytest.raises(ValueError, match="unknown light kind"):
         emission_fluxes(medium, np.array([POINT, UNKNOWN]), np.stack([v, v]), np.ones((2, 3)))
     with pytest.raises(ValueError, match="unknown light kind"):
-        emit_photon(UNKNOWN, v, -1.0, 0.0, 0.0, 0.0, 1.0, 0.1, 0.2, 0.3, 0.4)
+        emit_photon(UNKNOWN, v, NO_ENV_MAP, -1.0, 0.0, 0.0, 0.0, 1.0, 0.1, 0.2, 0.3, 0.4)
     with pytest.raises(ValueError, match="unknown light kind"):
         delta_light_direction(UNKNOWN, v, 0.0, 0.0, 0.0)
     with pytest.raises(ValueError, match="unknown light kind"):
-        sample_light_direction(UNKNOWN, v, 0.0, 0.0, 0.0, np.uint64(1))
+        sample_light_direction(UNKNOWN, v, ONES, NO_ENV_MAP, 0.0, 0.0, 0.0, np.uint64(1))
     with pytest.raises(ValueError, match="unknown light kind"):
-        direct_light_batch(medium, np.array([UNKNOWN]), v[None], np.ones((1, 3)), 0.0, np.zeros((3, 4)),
+        direct_light_batch(medium, np.array([UNKNOWN]), v[None], np.ones((1, 3)), NO_ENV_MAP, 0.0, np.zeros((3, 4)),
                            np.ones((3, 4)), np.arange(4, dtype=np.uint64))

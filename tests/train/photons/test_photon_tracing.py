@@ -16,6 +16,7 @@ from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.scene.lights import DirectionalLight, PointLight
 from photon_fields.runtime.scene.scene import Scene, builtin_scene
 from photon_fields.runtime.scene.volume import make_volume
+from photon_fields.runtime.transport.environment_map import NO_ENV_MAP
 from photon_fields.train.photons.tracing import CHUNK, _trace_chunk, light_fluxes, trace_photons
 
 
@@ -78,8 +79,8 @@ def test_directions_follow_hg_at_scattering(g_index: int) -> None:
     cnt = np.empty(CHUNK, np.int64)
     cos = []
     for chunk in range(3):
-        _trace_chunk(m, kind, vec, flux, cos_max, np.array([1.0]), phases, np.array([g_index]), 9, chunk * CHUNK,
-                     CHUNK, max_b, pos, dirs, pw, ph, cnt)
+        _trace_chunk(m, kind, vec, scene.packed_environment_map(), flux, cos_max, np.array([1.0]), phases,
+                     np.array([g_index]), 9, chunk * CHUNK, CHUNK, max_b, pos, dirs, pw, ph, cnt)
         both = np.flatnonzero(cnt == 2)
         d1 = dirs[both * slots].astype(np.float64)
         d2 = dirs[both * slots + 1].astype(np.float64)
@@ -102,7 +103,7 @@ def test_tracing_kernel_refuses_an_unknown_light_kind() -> None:
     slots = max_b - 1
     out = [np.empty((n * slots, 3), np.float32) for _ in range(3)]
     with pytest.raises((ValueError, SystemError)) as info:
-        _trace_chunk(scene.medium(), np.array([3]), np.zeros((1, 3)), np.ones((1, 3)), np.array([-1.0]),
+        _trace_chunk(scene.medium(), np.array([99]), np.zeros((1, 3)), NO_ENV_MAP, np.ones((1, 3)), np.array([-1.0]),
                      np.array([1.0]), np.array([0.0]), np.array([0]), 1, 0, n, max_b, *out,
                      np.empty(n * slots, np.uint8), np.empty(n, np.int64))
     assert "unknown light kind" in str(info.value) + repr(info.value.__cause__)
