@@ -41,6 +41,7 @@ from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.scene.volume import make_volume
 from photon_fields.train.photons.tracing import trace_photons
 
+
 def sky_image(h: int = 16) -> np.ndarray:
     """A 2:1 sky: bright zenith fading to a dim ground, a warm glow: strongly directional but smooth."""
     v = (np.arange(h) + 0.5) / h

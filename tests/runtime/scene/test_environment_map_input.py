@@ -148,3 +148,16 @@ def test_two_maps_are_refused_and_constant_environments_merge_into_the_map() -> 
     np.testing.assert_allclose(s.packed_environment_map().radiance, 2.0 * img + [0.1, 0.2, 0.3], rtol=1e-6)
     with pytest.raises(InputError, match="unknown light type"):
         light_from_dict({"type": "envmap", "path": "x.exr"})
+
+
+def test_the_viewers_light_control_keeps_a_map_a_map() -> None:
+    """The viewer edits an environment map's power like a constant environment's, without losing its image."""
+    from photon_fields.runtime.viewer.light_control import LightControl
+
+    m = EnvironmentMap("sky", [1.0, 0.5, 0.25], 2.0, [30.0, 0.0, 0.0], sky())
+    control = LightControl.from_light(m)
+    assert control.kind == "environment"
+    control.power = 3.0
+    back = control.light()
+    assert isinstance(back, EnvironmentMap) and back.power == 3.0 and back.rotation == m.rotation
+    assert back.sha256 == m.sha256 and back.color.tolist() == m.color.tolist()
