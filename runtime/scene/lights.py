@@ -43,6 +43,7 @@ path tracer's ``add_escaped_radiance``): both go through
 
 from __future__ import annotations
 
+import copy
 import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -180,8 +181,11 @@ class EnvironmentMap:
         return self._sha256  # type: ignore[attr-defined]
 
     def rotated(self, yaw: float, pitch: float = 0.0, roll: float = 0.0) -> EnvironmentMap:
-        """The same map with another rotation (degrees), sharing the image."""
-        return EnvironmentMap(self.path, self.color, self.power, (yaw, pitch, roll), self.image)
+        """The same map with another rotation (degrees), sharing the image: nothing is validated or hashed again,
+        and a scene with it reuses the sampling tables (``Scene.packed_environment_map``)."""
+        new = copy.copy(self)
+        object.__setattr__(new, "rotation", _rotation([yaw, pitch, roll], "environment map rotation"))
+        return new
 
     def radiance(self) -> np.ndarray:
         """The emitted radiance table (H, W, 3) float64: image * color * power."""

@@ -51,7 +51,7 @@ from photon_fields.runtime.scene.lights import (
 )
 from photon_fields.runtime.scene.transfer import TransferFunction, preset
 from photon_fields.runtime.scene.volume import Volume, make_volume
-from photon_fields.runtime.transport.environment_map import NO_ENV_MAP, EnvMap, build_env_map, rotation_matrix
+from photon_fields.runtime.transport.environment_map import NO_ENV_MAP, EnvMap, cached_env_map, rotation_matrix
 from photon_fields.runtime.transport.medium import Medium, build_medium
 from photon_fields.runtime.transport.phase import check_g
 
@@ -131,10 +131,12 @@ class Scene:
             if not maps:
                 self._cache["env_map"] = NO_ENV_MAP
             else:
+                m = maps[0]
                 constant = sum((lt.color * lt.power for lt in self.lights if isinstance(lt, EnvironmentLight)),
                                np.zeros(3))
-                self._cache["env_map"] = build_env_map(maps[0].radiance() + constant,
-                                                       rotation_matrix(*maps[0].rotation))
+                key = f"{m.sha256} {m.image.shape} {m.color.tolist()} {m.power!r} {constant.tolist()}"
+                self._cache["env_map"] = cached_env_map(key, lambda: m.radiance() + constant,
+                                                        rotation_matrix(*m.rotation))
         return self._cache["env_map"]
 
     def with_overrides(self, *, g: float | None = None, camera: Camera | None = None,

@@ -53,6 +53,7 @@ from __future__ import annotations
 import hashlib
 import math
 from collections import OrderedDict
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -62,7 +63,7 @@ from numba import njit
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 #: Jacobian of the lat-long map: dw = JACOBIAN sin(theta) du dv.
 JACOBIAN = 2.0 * math.pi * math.pi
-#: Distributions kept by :func:`build_env_map` (keyed by the radiance's hash): rotating a map rebuilds nothing.
+#: Radiance tables kept by :func:`cached_env_map` (by key): rotating a map rebuilds nothing.
 _CACHE_SIZE = 8
 
 
@@ -96,7 +97,7 @@ def sphere_integral(radiance: np.ndarray) -> np.ndarray:
     return np.einsum("ijc,i->c", radiance.astype(np.float64), solid)
 
 
-_distributions: OrderedDict[str, tuple[np.ndarray, ...]] = OrderedDict()
+_tables: OrderedDict[str, tuple[np.ndarray, ...]] = OrderedDict()
 
 
 def _distribution(radiance: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -120,23 +121,31 @@ def _distribution(radiance: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return row_cdf, col_cdf, pdf_uv, sphere_integral(radiance)
 
 
-def build_env_map(radiance: np.ndarray, to_world: np.ndarray | None = None) -> EnvMap:
-    """The :class:`EnvMap` of a lat-long ``radiance`` (H, W, 3), finite and >= 0, rotated by ``to_world``
-    (default: identity). The tables depend on the radiance only and are cached by its hash, so maps that differ
-    only in their rotation share them."""
-    radiance = np.ascontiguousarray(radiance, dtype=np.float64)
-    if radiance.ndim != 3 or radiance.shape[2] != 3 or radiance.shape[0] < 1 or radiance.shape[1] < 1:
-        raise ValueError(f"radiance must be (H, W, 3), got {radiance.shape}")
-    key = hashlib.sha256(radiance.tobytes()).hexdigest() + str(radiance.shape)
-    if key in _distributions:
-        _distributions.move_to_end(key)
+def cached_env_map(key: str, make_radiance: Callable[[], np.ndarray], to_world: np.ndarray | None = None) -> EnvMap:
+    """The :class:`EnvMap` of the lat-long radiance (H, W, 3) (finite, >= 0) that ``make_radiance`` returns,
+    rotated by ``to_world`` (default: identity). Radiance and tables are kept under ``key`` (it must identify
+    the radiance: the scene uses the image's hash, color, power and merged constants), so a map that differs only
+    in its rotation costs a dictionary lookup: ``make_radiance`` is not even called."""
+    if key in _tables:
+        _tables.move_to_end(key)
     else:
-        _distributions[key] = _distribution(radiance)
-        while len(_distributions) > _CACHE_SIZE:
-            _distributions.popitem(last=False)
-    row_cdf, col_cdf, pdf_uv, integral = _distributions[key]
+        radiance = np.ascontiguousarray(make_radiance(), dtype=np.float64)
+        if radiance.ndim != 3 or radiance.shape[2] != 3 or radiance.shape[0] < 1 or radiance.shape[1] < 1:
+            raise ValueError(f"radiance must be (H, W, 3), got {radiance.shape}")
+        radiance.setflags(write=False)
+        _tables[key] = (radiance, *_distribution(radiance))
+        while len(_tables) > _CACHE_SIZE:
+            _tables.popitem(last=False)
+    radiance, row_cdf, col_cdf, pdf_uv, integral = _tables[key]
     r = np.eye(3) if to_world is None else np.ascontiguousarray(to_world, dtype=np.float64)
     return EnvMap(radiance, row_cdf, col_cdf, pdf_uv, r, integral)
+
+
+def build_env_map(radiance: np.ndarray, to_world: np.ndarray | None = None) -> EnvMap:
+    """:func:`cached_env_map` keyed by the hash of ``radiance`` itself."""
+    radiance = np.ascontiguousarray(radiance, dtype=np.float64)
+    return cached_env_map(hashlib.sha256(radiance.tobytes()).hexdigest() + str(radiance.shape), lambda: radiance,
+                          to_world)
 
 
 #: The placeholder the kernels get when a scene has no environment map (never read: no light has its kind).
