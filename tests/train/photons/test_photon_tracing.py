@@ -13,7 +13,7 @@ from scipy import stats
 from photon_fields.models_spec import PAPER_PHASES
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.photon_map import PhotonMap
-from photon_fields.runtime.scene.lights import DirectionalLight, PointLight
+from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentMap, PointLight
 from photon_fields.runtime.scene.scene import Scene, builtin_scene
 from photon_fields.runtime.scene.volume import make_volume
 from photon_fields.runtime.transport.environment_map import NO_ENV_MAP
@@ -199,3 +199,23 @@ def test_lights_that_never_reach_the_volume_are_reported() -> None:
     scene = Scene(vol, black, (DirectionalLight([0, -1, 0], [1, 1, 1], 1.0),), small_camera())
     with pytest.raises(InputError, match="scatters twice"):
         trace_photons(scene, 1000, progress=False)
+
+
+def test_environment_map_photons_keep_the_colour_of_their_direction() -> None:
+    """Under a map whose upper half is pure red and lower half pure blue, in a white (albedo 1, so no roulette)
+    medium, every photon record carries the colour of the half its photon came from (exactly one of R and B),
+    and both halves are represented: the tracer applies emit_photon's per-channel power scale L / (p int L). With
+    the scale dropped every photon would carry the map's average colour."""
+    h = 8
+    img = np.zeros((h, 2 * h, 3), np.float32)
+    img[: h // 2, :, 0] = 1.0
+    img[h // 2:, :, 2] = 2.0
+    vol = make_volume(np.ones((8, 8, 8)), window=(0.0, 1.0))
+    scene = Scene(vol, constant_tf(4.0, 1.0), (EnvironmentMap("halves", image=img, rotation=[0.0, 30.0, 0.0]),),
+                  small_camera(), 0.0, "halves")
+    pmap = trace_photons(scene, 20_000, phases=(0.0,), max_bounces=4, seed=2, progress=False)
+    pw = pmap.power
+    assert np.all(pw[:, 1] == 0.0)
+    red, blue = pw[:, 0] > 0, pw[:, 2] > 0
+    assert not np.any(red & blue) and np.all(red | blue)
+    assert 0.2 < red.mean() < 0.8
