@@ -11,9 +11,10 @@
 - the integral int L dw is exact (4 pi L for a constant map).
 
 Planted bugs these kill (bench/mutants.py): ``env_pdf_without_sin_theta`` (the lookup's Jacobian 2 pi^2 without
-sin theta), ``env_weights_without_sin_theta`` (the tables weighted by luminance alone: still self-consistent,
-so only the luminance-x-solid-angle test sees it), ``env_sample_v_from_column`` (the row's continuous offset
-taken from the column's random number).
+sin theta), ``env_sample_pdf_without_sin_theta`` (the same in the sample's pdf), ``env_weights_without_sin_theta``
+(the tables weighted by luminance alone: still self-consistent, so only the luminance-x-solid-angle test sees
+it), ``env_row_offset_from_column_number`` (the row's continuous offset taken from the column's random number),
+``env_rotation_not_inverted`` (the lookup rotating by R instead of R^T).
 """
 
 from __future__ import annotations
