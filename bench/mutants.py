@@ -56,6 +56,8 @@ GATHER = "tests/runtime/wavefront/test_final_gather.py"
 VGATHER = "tests/runtime/viewer/test_viewer_gather.py"
 UPDATE = "tests/train/fit/test_update.py"
 LABELS_MEDIUM = "tests/runtime/transport/test_labels_medium.py"
+ENVMAP = "tests/runtime/transport/test_environment_map.py"
+ENVRENDER = "tests/runtime/renderers/test_environment_map_render.py"
 
 
 @dataclass(frozen=True)
@@ -312,6 +314,59 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("viewer_gather_while_moving", "runtime/viewer/session.py", "render and not moved_only and self.gathers",
            "render and self.gathers", (f"{VGATHER}::test_moving_frames_never_gather_and_never_means_never",),
            "moving frames, which must be fast, take the final gather too"),
+    # Environment maps (issue 18's first block).
+    Mutant("env_weights_without_sin_theta", "runtime/transport/environment_map.py",
+           "f = (radiance @ LUMINANCE) * sin_theta[:, None]", "f = (radiance @ LUMINANCE) * np.ones(h)[:, None]",
+           (f"{ENVMAP}::test_density_follows_luminance_times_solid_angle",),
+           "the sampling tables weighted by luminance alone, without sin(theta): still a valid, self-consistent "
+           "density, but not proportional to the radiance in solid angle (poles oversampled)"),
+    Mutant("env_pdf_without_sin_theta", "runtime/transport/environment_map.py",
+           "pdf = env.pdf_uv[i, j] / (2.0 * math.pi * math.pi * st) if st > 0.0 else 0.0",
+           "pdf = env.pdf_uv[i, j] / (2.0 * math.pi * math.pi) if st > 0.0 else 0.0",
+           (f"{ENVMAP}::test_pdf_integrates_to_one_over_the_sphere",
+            f"{ENVMAP}::test_sampler_matches_its_own_pdf_chi_square",
+            f"{ENVRENDER}::test_nee_with_mis_and_phase_sampling_agree_under_a_map"),
+           "the lookup's pdf forgets the sin(theta) of the Jacobian 2 pi^2 sin(theta) (the MIS weight of escapes)"),
+    Mutant("env_sample_pdf_without_sin_theta", "runtime/transport/environment_map.py",
+           "pdf = env.pdf_uv[i, j] / (2.0 * math.pi * math.pi * st)\n    return dx",
+           "pdf = env.pdf_uv[i, j] / (2.0 * math.pi * math.pi)\n    return dx",
+           (f"{ENVMAP}::test_sample_reports_the_lookups_radiance_and_pdf",
+            f"{ENVRENDER}::test_constant_map_matches_the_constant_environment_in_the_path_tracer",
+            f"{ENVRENDER}::test_furnace_under_a_constant_map"),
+           "the NEE sample's pdf forgets sin(theta): NEE under a map is biased"),
+    Mutant("env_row_offset_from_column_number", "runtime/transport/environment_map.py",
+           "v = (i + ((u1 - env.row_cdf[i]) / du if du > 0.0 else 0.5)) / h",
+           "v = (i + (u2 if du > 0.0 else 0.5)) / h",
+           (f"{ENVMAP}::test_sampler_matches_its_own_pdf_chi_square",),
+           "the position inside the sampled row taken from the column's random number (correlated)"),
+    Mutant("env_rotation_not_inverted", "runtime/transport/environment_map.py",
+           "x = r[0, 0] * dx + r[1, 0] * dy + r[2, 0] * dz\n    y = r[0, 1] * dx + r[1, 1] * dy + r[2, 1] * dz\n"
+           "    z = r[0, 2] * dx + r[1, 2] * dy + r[2, 2] * dz",
+           "x = r[0, 0] * dx + r[0, 1] * dy + r[0, 2] * dz\n    y = r[1, 0] * dx + r[1, 1] * dy + r[1, 2] * dz\n"
+           "    z = r[2, 0] * dx + r[2, 1] * dy + r[2, 2] * dz",
+           (f"{ENVMAP}::test_sampler_matches_its_own_pdf_chi_square",
+            f"{ENVMAP}::test_yaw_90_equals_the_image_rolled_by_three_quarters",
+            f"{ENVRENDER}::test_bright_patch_lights_like_a_directional_light[90.0]"),
+           "the lookup rotates world directions by R instead of R^T: sampling and lookup disagree for a rotated map"),
+    Mutant("env_mis_uses_the_constant_pdf", "runtime/renderers/path_tracer.py",
+           "w = _mis_weights(pdf, pdf_light) if nee", "w = _mis_weights(pdf, 0 * pdf_light + 1 / (4 * np.pi)) if nee",
+           (f"{ENVRENDER}::test_nee_with_mis_and_phase_sampling_agree_under_a_map",),
+           "an escape under a map is MIS-weighted with the constant environment's pdf 1 / (4 pi), not the map's"),
+    Mutant("env_photon_power_unscaled", "train/photons/tracing.py",
+           "br, bg, bb = power[li, 0] * sr, power[li, 1] * sg, power[li, 2] * sb",
+           "br, bg, bb = power[li, 0], power[li, 1], power[li, 2]",
+           (f"{TRACING}::test_environment_map_photons_keep_the_colour_of_their_direction",),
+           "map photons, importance-sampled by direction, all carry the same power (no L / (p int L) scale)"),
+    Mutant("env_photon_travels_towards_the_light", "runtime/transport/emitters.py",
+           "dx, dy, dz = -wx, -wy, -wz", "dx, dy, dz = wx, wy, wz",
+           (f"{EMITTERS}::test_environment_map_photons_carry_the_maps_radiance_by_direction",
+            f"{LIGHTS}[environment_map]"),
+           "map photons travel towards the direction their light comes from instead of away from it"),
+    Mutant("env_camera_rays_regenerated_wrongly", "runtime/wavefront/first_interaction.py",
+           "env.radiance(_camera_directions(origin, du, dv, cam.width, n_pixels, work, int(seed)))",
+           "env.radiance(_camera_directions(origin, du, dv, cam.width, n_pixels, work, int(seed) + 1))",
+           (f"{ENVRENDER}::test_first_interaction_renderers_see_the_map_along_each_camera_ray[delta]",),
+           "the first-interaction renderers look the map up along other camera rays than the ones that missed"),
     Mutant("marcher_skips_too_far", "runtime/transport/tracking.py", "    return max(0.0, min(ex, ey, ez))\n",
            "    return max(0.0, min(ex, ey, ez)) * 1.5\n",
            ("tests/runtime/renderers/test_ray_marcher.py::test_skipping_empty_space_changes_no_pixel",),

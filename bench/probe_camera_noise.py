@@ -79,6 +79,7 @@ def l_d(scene: Scene, seed: int, frame: int, shadow_rays: int, walks: int) -> np
     W averaged over that many walks."""
     m = scene.medium()
     kind, vec, rgb = scene.packed_lights()
+    env = scene.packed_environment_map()
     cam = scene.camera
     origin, du, dv = cam.image_plane()
     n = cam.width * cam.height
@@ -91,7 +92,7 @@ def l_d(scene: Scene, seed: int, frame: int, shadow_rays: int, walks: int) -> np
     nee = np.zeros((3, idx.size))
     for k in range(shadow_rays):
         states = rng[idx] ^ np.uint64((_GOLDEN * (k + 1)) & 0xFFFFFFFFFFFFFFFF) if k else rng[idx].copy()
-        nee += direct_light_batch(m, kind, vec, rgb, scene.g, xs, ds, states, False)
+        nee += direct_light_batch(m, kind, vec, rgb, env, scene.g, xs, ds, states, False)
     img = np.zeros((3, n))
     img[:, idx] = nee / shadow_rays * albedo[:, idx] * (w_mean[idx] if walks > 1 else w_own[idx])
     return img

@@ -47,6 +47,7 @@ from photon_fields.runtime.io.atomic import atomic_path
 __all__ = [
     "aces_fitted",
     "read_exr",
+    "read_exr_planes",
     "srgb_oetf",
     "tonemap_srgb",
     "auto_exposure_stops",
@@ -184,13 +185,10 @@ def _regroup(planes: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], str 
     return layers, None
 
 
-def read_exr(path: PathLike) -> tuple[dict[str, np.ndarray], dict[str, str]]:
-    """Read an EXR written by :func:`write_exr` (or another tool): ``(layers, metadata)``.
-
-    Layers are float32 arrays regrouped as described in :func:`_regroup`; metadata holds every string
-    attribute of the header (other than the standard ones). Only the first part of a multi-part file
-    is read. A missing, unreadable or corrupt file raises :class:`InputError`.
-    """
+def read_exr_planes(path: PathLike) -> tuple[dict[str, np.ndarray], dict[str, object]]:
+    """The 2-D channel planes of an EXR's first part as stored (float16, float32 or uint32) and its header:
+    ``(planes, header)``. A missing, unreadable or corrupt file raises :class:`InputError`. :func:`read_exr`
+    regroups them; the environment-map reader (:mod:`photon_fields.runtime.io.hdr_images`) checks their types."""
     p = Path(path)
     what = str(p)
     if not p.exists():
@@ -214,7 +212,19 @@ def read_exr(path: PathLike) -> tuple[dict[str, np.ndarray], dict[str, str]]:
             planes = {name: np.array(ch.pixels, copy=True) for name, ch in exr.channels().items()}
     except (RuntimeError, ValueError, IndexError, OSError) as exc:
         raise InputError(what, "corrupt or truncated OpenEXR file (cannot decode its pixel data)") from exc
-    planes = {k: v.astype(np.float32, copy=False) for k, v in planes.items() if v.ndim == 2}
+    return {k: v for k, v in planes.items() if v.ndim == 2}, header
+
+
+def read_exr(path: PathLike) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """Read an EXR written by :func:`write_exr` (or another tool): ``(layers, metadata)``.
+
+    Layers are float32 arrays regrouped as described in :func:`_regroup`; metadata holds every string
+    attribute of the header (other than the standard ones). Only the first part of a multi-part file
+    is read. A missing, unreadable or corrupt file raises :class:`InputError`.
+    """
+    what = str(Path(path))
+    planes, header = read_exr_planes(path)
+    planes = {k: v.astype(np.float32, copy=False) for k, v in planes.items()}
     layers, clash = _regroup(planes)
     if clash is not None:
         raise InputError(what, f"channel {clash!r} clashes with a layer of the same name")

@@ -50,18 +50,19 @@ from numba import njit, prange
 
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.direct_light import direct_light_batch, mis_weight_phase
-from photon_fields.runtime.transport.emitters import ENVIRONMENT_PDF
+from photon_fields.runtime.transport.environment_map import EnvMap
 from photon_fields.runtime.transport.medium import Medium, albedo_at, intersect_box
 from photon_fields.runtime.transport.phase import sample_hg
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.tracking import delta_track_batch
 from photon_fields.runtime.wavefront.batches import (
     DEFAULT_BATCH,
+    Environment,
     RenderResult,
     StageTimer,
-    environment_radiance,
     finish,
     primary_ray_batches,
+    scene_environment,
 )
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.rays import RayBatch
@@ -74,24 +75,25 @@ def sample_free_flights(m: Medium, rays: RayBatch) -> np.ndarray:
     return delta_track_batch(m, rays.o, rays.d, np.zeros(len(rays)), rays.tmax, rays.rng)
 
 
-def add_escaped_radiance(film: Film, rays: RayBatch, escaped: np.ndarray, env_rgb: np.ndarray | None,
+def add_escaped_radiance(film: Film, rays: RayBatch, escaped: np.ndarray, env: Environment | None,
                          nee: bool) -> None:
-    """Escaping rays pick up the environment, MIS-weighted against NEE for rays that scattered."""
-    if env_rgb is None or not np.any(escaped):
+    """Escaping rays pick up the environment along their direction, MIS-weighted against NEE for rays that
+    scattered (the NEE pdf of the escape direction: 1 / (4 pi) for the constant environment, the map's p_w)."""
+    if env is None or not np.any(escaped):
         return
     pdf = rays.pdf[escaped]
     depth = rays.depth[escaped]
+    radiance, pdf_light = env.radiance_and_pdf(rays.d[:, escaped])
     # Camera rays (depth 0) carry pdf = inf, so their weight is 1 as it must be: NEE cannot reach them.
-    # ENVIRONMENT_PDF: the pdf of the environment's own NEE samples (runtime.transport.emitters).
-    w = _mis_weights(pdf, ENVIRONMENT_PDF) if nee else np.ones(pdf.shape[0])
-    film.splat_by_depth(depth, rays.pixel[escaped], rays.beta[:, escaped] * env_rgb[:, None] * w)
+    w = _mis_weights(pdf, pdf_light) if nee else np.ones(pdf.shape[0])
+    film.splat_by_depth(depth, rays.pixel[escaped], rays.beta[:, escaped] * radiance * w)
 
 
 @njit(cache=True)
-def _mis_weights(pdf: np.ndarray, pdf_light: float) -> np.ndarray:
+def _mis_weights(pdf: np.ndarray, pdf_light: np.ndarray) -> np.ndarray:
     w = np.empty(pdf.shape[0])
     for i in range(pdf.shape[0]):
-        w[i] = mis_weight_phase(pdf[i], pdf_light)
+        w[i] = mis_weight_phase(pdf[i], pdf_light[i])
     return w
 
 
@@ -114,13 +116,13 @@ def scatter_at_interactions(m: Medium, rays: RayBatch, t: np.ndarray) -> None:
     _scatter(m, rays.o, rays.d, t, rays.beta, rays.depth)
 
 
-def add_direct_light(film: Film, m: Medium, lights: tuple[np.ndarray, np.ndarray, np.ndarray], g: float,
+def add_direct_light(film: Film, m: Medium, lights: tuple[np.ndarray, np.ndarray, np.ndarray, EnvMap], g: float,
                      rays: RayBatch, last_vertex: bool = False) -> np.ndarray:
     """NEE at every vertex; contributions go to L_d or L_i by vertex count. Returns the radiance (3, n).
     At a path's last vertex (``last_vertex``) no phase-sampled escape follows, so the environment's NEE
-    sample takes the full weight instead of its MIS share."""
-    kind, vec, rgb = lights
-    li = direct_light_batch(m, kind, vec, rgb, g, rays.o, rays.d, rays.rng, not last_vertex)
+    sample takes the full weight instead of its MIS share. ``lights``: the packed lights and the environment map."""
+    kind, vec, rgb, env = lights
+    li = direct_light_batch(m, kind, vec, rgb, env, g, rays.o, rays.d, rays.rng, not last_vertex)
     film.splat_by_depth(rays.depth, rays.pixel, rays.beta * li)
     return li
 
@@ -178,8 +180,8 @@ def trace_paths(film: Film, scene: Scene, m: Medium, rays: RayBatch, *, max_dept
     """Run the bounce loop of one batch of clipped camera rays to completion. All rays of a batch
     advance in lockstep, so after bounce ``b`` every live ray has ``b + 1`` scattering vertices. Flight
     ``max_depth`` (0-based) only happens without NEE and only counts escapes (see the module docstring)."""
-    lights = scene.packed_lights()
-    env_rgb = environment_radiance(scene)
+    lights = (*scene.packed_lights(), scene.packed_environment_map())
+    env = scene_environment(scene)
     for bounce in range(max_depth + 1):
         if len(rays) == 0:
             return
@@ -187,7 +189,7 @@ def trace_paths(film: Film, scene: Scene, m: Medium, rays: RayBatch, *, max_dept
             t = sample_free_flights(m, rays)
         escaped = np.isinf(t)
         with timer("add_escaped_radiance"):
-            add_escaped_radiance(film, rays, escaped, env_rgb, nee)
+            add_escaped_radiance(film, rays, escaped, env, nee)
         if bounce == max_depth:  # the escape-only flight after the last vertex (pure phase sampling)
             return
         with timer("compact"):

@@ -40,9 +40,9 @@ from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run
 from photon_fields.runtime.wavefront.batches import (
     RenderResult,
     StageTimer,
-    environment_radiance,
     finish,
     primary_ray_batches,
+    scene_environment,
 )
 from photon_fields.runtime.wavefront.film import Film
 
@@ -144,7 +144,7 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 0.5, shadow_
     False: every sample looked up, the reference the tests and ``bench_ray_marcher.py`` compare with)."""
     m = scene.medium()
     kind, vec, rgb = scene.packed_lights()
-    env = environment_radiance(scene)
+    env = scene_environment(scene)
     h = step * scene.volume.voxel_size
     hs = shadow_step * scene.volume.voxel_size
     film = Film(scene.camera.width, scene.camera.height)
@@ -156,5 +156,5 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 0.5, shadow_
             ld, trans = _march(m, kind, vec, rgb, scene.g, rays.o, rays.d, rays.tmax, rays.rng, h, hs, skip_empty)
         film.splat("L_d", rays.pixel, ld)
         if env is not None:
-            film.splat("L_e", rays.pixel, trans[None, :] * env[:, None])
+            film.splat("L_e", rays.pixel, trans[None, :] * env.radiance(rays.d))
     return finish(film, timer, spp, t_start, {})

@@ -7,13 +7,20 @@ quantity is ``color * power``:
 - :class:`DirectionalLight` (``direction``: the direction light *travels*): irradiance E [W/m^2] on a
   surface facing the light; at infinite distance, so no falloff.
 - :class:`EnvironmentLight`: constant radiance L [W/(m^2 sr)] arriving from every direction (a uniform
-  sky). It is the only non-delta light: it can be hit by phase-sampled paths, so it is the case where
+  sky). It is a non-delta light: it can be hit by phase-sampled paths, so it is the case where
   the path tracer's multiple importance sampling matters, and it makes the white-furnace test possible.
+- :class:`EnvironmentMap` (``path`` of an equirectangular ``.exr`` / ``.hdr`` image, ``rotation``): radiance
+  ``image(w) * color * power`` arriving from direction w; the lat-long convention, the rotation and the
+  importance sampling are in :mod:`photon_fields.runtime.transport.environment_map`. A scene has at most one;
+  constant environments are merged into it (:meth:`photon_fields.runtime.scene.scene.Scene.packed_lights`).
 
 Renderers and photon tracing consume :func:`pack_lights`, a structure-of-arrays form: ``kind (n,) int64``
-(:data:`POINT`, :data:`DIRECTIONAL`, :data:`ENVIRONMENT`, defined here only), ``vec (n, 3)`` (position or
-unit travel direction) and ``rgb (n, 3)`` (color * power). What each kind does in transport (direct-light
-sampling, photon emission, the environment) is in :mod:`photon_fields.runtime.transport.emitters`.
+(:data:`POINT`, :data:`DIRECTIONAL`, :data:`ENVIRONMENT`, :data:`ENVIRONMENT_MAP`, defined here only), ``vec (n,
+3)`` (position or unit travel direction) and ``rgb (n, 3)`` (color * power; 1 for an environment map, whose
+radiance table, :class:`photon_fields.runtime.transport.environment_map.EnvMap`, is packed by
+:meth:`photon_fields.runtime.scene.scene.Scene.packed_environment_map` and passed to the kernels beside them).
+What each kind does in transport (direct-light sampling, photon emission, the environment) is in
+:mod:`photon_fields.runtime.transport.emitters`.
 
 Adding a light kind touches exactly:
 
@@ -30,19 +37,23 @@ Adding a light kind touches exactly:
 
 A kind that, like the environment, is not a delta light and is seen by rays that leave the volume also
 needs the renderers' escape handling (``environment_radiance`` in ``runtime/wavefront/batches.py``, the
-path tracer's ``add_escaped_radiance``), which today knows the constant environment only.
+path tracer's ``add_escaped_radiance``): both go through
+:class:`photon_fields.runtime.wavefront.batches.Environment`, which knows the constant environment and the map.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import copy
+import hashlib
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from photon_fields.runtime.errors import InputError, unknown_keys_problem
 
-POINT, DIRECTIONAL, ENVIRONMENT = 0, 1, 2
+POINT, DIRECTIONAL, ENVIRONMENT, ENVIRONMENT_MAP = 0, 1, 2, 3
 
 
 def as_vec3(v: Any, what: str) -> np.ndarray:
@@ -120,20 +131,106 @@ class EnvironmentLight:
         return {"type": "environment", "color": self.color.tolist(), "power": self.power}
 
 
-Light = PointLight | DirectionalLight | EnvironmentLight
+def _rotation(rotation: Any, what: str) -> tuple[float, float, float]:
+    """An environment map's rotation: one number (yaw, degrees about +y) or [yaw, pitch, roll] in degrees."""
+    r = [rotation] if isinstance(rotation, (int, float)) and not isinstance(rotation, bool) else rotation
+    try:
+        a = np.asarray(r, dtype=np.float64)
+    except (TypeError, ValueError):
+        a = np.zeros(0)
+    if a.ndim != 1 or a.size not in (1, 3) or not np.all(np.isfinite(a)) or isinstance(rotation, (str, bool)):
+        raise InputError(what, f"must be a yaw angle in degrees or [yaw, pitch, roll] in degrees, got {rotation!r}")
+    a = np.concatenate([a, np.zeros(3 - a.size)])
+    return float(a[0]), float(a[1]), float(a[2])
 
 
-#: Keys a light object may have, by type (besides 'type').
+@dataclass(frozen=True, eq=False)
+class EnvironmentMap:
+    """Radiance ``image(w) * color * power`` from an equirectangular HDR image (``.exr`` or ``.hdr``, W = 2 H,
+    finite, >= 0), rotated by ``rotation`` = (yaw, pitch, roll) degrees (see
+    :mod:`photon_fields.runtime.transport.environment_map` for the axes). Give ``path`` (the file is read and
+    validated here: one-line InputError) or ``image`` (an (H, 2H, 3) array, validated the same way; ``path``
+    then only names it). :meth:`rotated` gives the same map turned, sharing the image (PVRT rotates the
+    environment: no file is read again and the sampling tables are reused)."""
+
+    path: str | None = None
+    color: np.ndarray = field(default_factory=lambda: np.ones(3))
+    power: float = 1.0
+    rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    image: np.ndarray | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        c, p = _color_power(self.color, self.power, "environment map")
+        object.__setattr__(self, "color", c)
+        object.__setattr__(self, "power", p)
+        object.__setattr__(self, "rotation", _rotation(self.rotation, "environment map rotation"))
+        if self.image is None:
+            if self.path is None:
+                raise InputError("environment map", "needs 'path' (an .exr or .hdr image)")
+            from photon_fields.runtime.io.hdr_images import read_environment_image
+
+            object.__setattr__(self, "image", read_environment_image(self.path))
+        else:
+            object.__setattr__(self, "image", _check_image(self.image, self.path or "environment map image"))
+        self.image.setflags(write=False)
+        object.__setattr__(self, "_sha256", hashlib.sha256(self.image.tobytes()).hexdigest())
+
+    @property
+    def sha256(self) -> str:
+        """Hash of the pixels: the lights' fingerprint changes when the image does, whatever its path."""
+        return self._sha256  # type: ignore[attr-defined]
+
+    def rotated(self, yaw: float, pitch: float = 0.0, roll: float = 0.0) -> EnvironmentMap:
+        """The same map with another rotation (degrees), sharing the image: nothing is validated or hashed again,
+        and a scene with it reuses the sampling tables (``Scene.packed_environment_map``)."""
+        new = copy.copy(self)
+        object.__setattr__(new, "rotation", _rotation([yaw, pitch, roll], "environment map rotation"))
+        return new
+
+    def radiance(self) -> np.ndarray:
+        """The emitted radiance table (H, W, 3) float64: image * color * power."""
+        return self.image.astype(np.float64) * (self.color * self.power)
+
+    def identity(self) -> dict[str, Any]:
+        """What the lights' fingerprint hashes: :meth:`to_dict` without the path (the pixels' hash stands for
+        the image, so moving the file keeps photon maps and fields valid)."""
+        return {k: v for k, v in self.to_dict().items() if k != "path"}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"type": "environment_map", "path": self.path, "color": self.color.tolist(), "power": self.power,
+                "rotation": list(self.rotation), "sha256": self.sha256}
+
+
+def _check_image(image: Any, what: str) -> np.ndarray:
+    """An in-memory environment image as (H, 2H, 3) float32, with the file reader's checks."""
+    a = np.asarray(image)
+    if not np.issubdtype(a.dtype, np.floating):
+        raise InputError(what, f"not a float image (dtype {a.dtype})")
+    if a.ndim != 3 or a.shape[2] != 3 or a.shape[0] < 1 or a.shape[1] != 2 * a.shape[0]:
+        raise InputError(what, f"an equirectangular environment map must be (H, 2H, 3), got {a.shape}")
+    if not np.all(np.isfinite(a)) or np.any(a < 0):
+        raise InputError(what, "pixels must be finite and >= 0")
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+Light = PointLight | DirectionalLight | EnvironmentLight | EnvironmentMap
+
+
+#: Keys a light object may have, by type (besides 'type'). An environment map's optional 'sha256' (written by
+#: ``to_dict``) must match the image: a scene spec recorded with a bundle refuses a changed file.
 _LIGHT_KEYS = {"point": {"position", "color", "power"}, "directional": {"direction", "color", "power"},
-               "environment": {"color", "power"}}
+               "environment": {"color", "power"}, "environment_map": {"path", "color", "power", "rotation", "sha256"}}
 
 
-def light_from_dict(d: Any, what: str = "light") -> Light:
+def light_from_dict(d: Any, what: str = "light", base_dir: Path | None = None) -> Light:
+    """A light from its JSON object; an environment map's relative ``path`` resolves against ``base_dir`` (the
+    scene file's folder; default the working directory)."""
     if not isinstance(d, dict):
         raise InputError(what, "must be a JSON object")
     kind = d.get("type")
     if kind not in _LIGHT_KEYS:
-        raise InputError(what, f"unknown light type {kind!r} (expected 'point', 'directional' or 'environment')")
+        raise InputError(what, f"unknown light type {kind!r} (expected 'point', 'directional', 'environment' or "
+                         "'environment_map')")
     # Unknown keys are refused: a misspelt "power" would otherwise render silently with power 1.
     unknown = [k for k in d if k not in _LIGHT_KEYS[kind] | {"type"}]
     if unknown:
@@ -144,6 +241,8 @@ def light_from_dict(d: Any, what: str = "light") -> Light:
         raise InputError(what, "a point light needs 'position'")
     if kind == "directional" and "direction" not in d:
         raise InputError(what, "a directional light needs 'direction' (the direction light travels)")
+    if kind == "environment_map":
+        return _environment_map_from_dict(d, what, base_dir)
     try:
         if kind == "point":
             return PointLight(d["position"], color, power)
@@ -154,6 +253,30 @@ def light_from_dict(d: Any, what: str = "light") -> Light:
         # The constructors name the field ("point light power") but not the light entry: prefix the entry
         # ("s.json lights[1] power") so an error in a scene file says which file and which light.
         raise InputError(f"{what} {err.what.rsplit(' ', 1)[-1]}", err.problem) from None
+
+
+def _environment_map_from_dict(d: dict[str, Any], what: str, base_dir: Path | None) -> EnvironmentMap:
+    path = d.get("path")
+    if not isinstance(path, str) or not path:
+        raise InputError(what, "an environment map needs 'path' (an .exr or .hdr image, relative to the scene file)")
+    p = Path(path).expanduser()
+    if not p.is_absolute():
+        p = ((base_dir if base_dir is not None else Path.cwd()) / p).absolute()
+    try:
+        light = EnvironmentMap(str(p), d.get("color", [1.0, 1.0, 1.0]), d.get("power", 1.0),
+                               d.get("rotation", 0.0))
+    except InputError as err:
+        if err.what == str(p):  # the image's own problem: name the file and the entry
+            raise InputError(f"{what} path {p}", err.problem) from None
+        raise InputError(f"{what} {err.what.rsplit(' ', 1)[-1]}", err.problem) from None
+    if "sha256" in d and d["sha256"] != light.sha256:
+        raise InputError(f"{what} path {p}", "the image has changed since this scene was recorded (sha256 differs)")
+    return light
+
+
+def light_identity(light: Light) -> dict[str, Any]:
+    """The dict a scene's fingerprint hashes for ``light``: its ``to_dict`` (an environment map's without its path)."""
+    return light.identity() if isinstance(light, EnvironmentMap) else light.to_dict()
 
 
 def pack_lights(lights: list[Light] | tuple[Light, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -170,7 +293,9 @@ def pack_lights(lights: list[Light] | tuple[Light, ...]) -> tuple[np.ndarray, np
             kind[i], vec[i] = DIRECTIONAL, light.direction
         elif isinstance(light, EnvironmentLight):
             kind[i] = ENVIRONMENT
-        else:  # the kernels branch on these three kinds only: another one must not pass as an environment
+        elif isinstance(light, EnvironmentMap):  # its radiance is the map's (Scene.packed_environment_map)
+            kind[i], rgb[i] = ENVIRONMENT_MAP, 1.0
+        else:  # the kernels branch on these four kinds only: another one must not pass as an environment
             raise TypeError(f"light {i}: {type(light).__name__} is not a light kind the kernels know "
-                            "(PointLight, DirectionalLight, EnvironmentLight)")
+                            "(PointLight, DirectionalLight, EnvironmentLight, EnvironmentMap)")
     return kind, vec, rgb

@@ -42,15 +42,19 @@ from photon_fields.runtime.scene.camera import Camera
 from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.lights import (
     ENVIRONMENT,
+    ENVIRONMENT_MAP,
     DirectionalLight,
     EnvironmentLight,
+    EnvironmentMap,
     Light,
     PointLight,
     light_from_dict,
+    light_identity,
     pack_lights,
 )
 from photon_fields.runtime.scene.transfer import TransferFunction, preset
 from photon_fields.runtime.scene.volume import Volume, make_volume
+from photon_fields.runtime.transport.environment_map import NO_ENV_MAP, EnvMap, cached_env_map, rotation_matrix
 from photon_fields.runtime.transport.medium import Medium, build_medium
 from photon_fields.runtime.transport.phase import check_g
 
@@ -76,6 +80,9 @@ class Scene:
             raise InputError(f"scene '{self.name}' lights", "at least one light is required")
         if not any(float(np.max(light.color)) * light.power > 0 for light in lights):
             raise InputError(f"scene '{self.name}' lights", "all lights have zero power")
+        if sum(isinstance(light, EnvironmentMap) for light in lights) > 1:
+            raise InputError(f"scene '{self.name}' lights", "at most one environment_map (constant environments "
+                             "are added to it)")
         object.__setattr__(self, "lights", lights)
         object.__setattr__(self, "g", check_g(self.g, f"scene '{self.name}' phase g"))
         if isinstance(self.tf, LabelTransfer):  # refused here, in one line, not when the medium is first built
@@ -90,7 +97,7 @@ class Scene:
         """Identifies the light distribution: volume data, transfer function and lights (not camera, not g)."""
         if "fingerprint" not in self._cache:
             self._cache["fingerprint"] = scene_fingerprint(
-                self._volume_fingerprint(), self.tf.to_dict(), [light.to_dict() for light in self.lights])
+                self._volume_fingerprint(), self.tf.to_dict(), [light_identity(light) for light in self.lights])
         return self._cache["fingerprint"]
 
     def fingerprint_parts(self) -> dict[str, str]:
@@ -98,7 +105,7 @@ class Scene:
         photon maps and bundles, so that a mismatch can name what differs."""
         if "fingerprint_parts" not in self._cache:
             self._cache["fingerprint_parts"] = fingerprint_parts(
-                self._volume_fingerprint(), self.tf.to_dict(), [light.to_dict() for light in self.lights])
+                self._volume_fingerprint(), self.tf.to_dict(), [light_identity(light) for light in self.lights])
         return dict(self._cache["fingerprint_parts"])
 
     def medium(self) -> Medium:
@@ -108,18 +115,39 @@ class Scene:
         return self._cache["medium"]
 
     def packed_lights(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Lights in SoA form, with all environment lights merged into one (radiances add up)."""
+        """Lights in SoA form, with all environment lights merged into one (radiances add up): an
+        ENVIRONMENT_MAP entry when the scene has a map (the constant ones are added to its radiance table,
+        :meth:`packed_environment_map`), else one ENVIRONMENT entry."""
         if "lights" not in self._cache:
             kind, vec, rgb = pack_lights(self.lights)
-            env = kind == ENVIRONMENT
+            env = (kind == ENVIRONMENT) | (kind == ENVIRONMENT_MAP)
             if env.sum() > 1:
-                merged = rgb[env].sum(axis=0)
+                merged_kind = ENVIRONMENT_MAP if np.any(kind == ENVIRONMENT_MAP) else ENVIRONMENT
+                merged = np.ones(3) if merged_kind == ENVIRONMENT_MAP else rgb[env].sum(axis=0)
                 keep = ~env
-                kind = np.concatenate([kind[keep], [ENVIRONMENT]])
+                kind = np.concatenate([kind[keep], [merged_kind]])
                 vec = np.concatenate([vec[keep], np.zeros((1, 3))])
                 rgb = np.concatenate([rgb[keep], merged[None]])
             self._cache["lights"] = (kind, vec, rgb)
         return self._cache["lights"]
+
+    def packed_environment_map(self) -> EnvMap:
+        """The environment map's tables for the kernels (:mod:`photon_fields.runtime.transport.environment_map`):
+        its radiance (image x color x power) plus every constant environment's, rotated; :data:`NO_ENV_MAP`
+        when the scene has no map. The tables are cached by radiance, so a rotated copy of a scene rebuilds
+        nothing but the rotation matrix."""
+        if "env_map" not in self._cache:
+            maps = [lt for lt in self.lights if isinstance(lt, EnvironmentMap)]
+            if not maps:
+                self._cache["env_map"] = NO_ENV_MAP
+            else:
+                m = maps[0]
+                constant = sum((lt.color * lt.power for lt in self.lights if isinstance(lt, EnvironmentLight)),
+                               np.zeros(3))
+                key = f"{m.sha256} {m.image.shape} {m.color.tolist()} {m.power!r} {constant.tolist()}"
+                self._cache["env_map"] = cached_env_map(key, lambda: m.radiance() + constant,
+                                                        rotation_matrix(*m.rotation))
+        return self._cache["env_map"]
 
     def with_overrides(self, *, g: float | None = None, camera: Camera | None = None,
                        width: int | None = None, height: int | None = None) -> Scene:
@@ -130,7 +158,7 @@ class Scene:
             cam = cam.with_resolution(cam.width if width is None else width,
                                       cam.height if height is None else height)
         new = replace(self, g=self.g if g is None else g, camera=cam, _cache={})
-        for key in ("medium", "fingerprint", "fingerprint_parts", "lights"):  # none depend on g or the camera
+        for key in ("medium", "fingerprint", "fingerprint_parts", "lights", "env_map"):  # none depend on g or camera
             if key in self._cache:
                 new._cache[key] = self._cache[key]
         return new
@@ -258,7 +286,7 @@ def scene_from_dict(d: Any, base_dir: Path | None = None, what: str = "scene") -
         tf = TransferFunction.from_dict(tf_spec, what=f"{what} transfer_function", volume=volume)
     if not isinstance(d["lights"], list):
         raise InputError(f"{what} lights", "must be a list of light objects")
-    lights = tuple(light_from_dict(x, f"{what} lights[{i}]") for i, x in enumerate(d["lights"]))
+    lights = tuple(light_from_dict(x, f"{what} lights[{i}]", base_dir) for i, x in enumerate(d["lights"]))
     camera = Camera.from_dict(d["camera"], f"{what} camera")
     phase = d.get("phase", {})
     if not isinstance(phase, dict):
@@ -304,4 +332,4 @@ def _volume_from_dict(v: Any, base_dir: Path, what: str) -> tuple[Volume, dict[s
 
 
 __all__ = ["Scene", "builtin_scene", "load_scene", "scene_from_dict", "BUILTIN_SCENES", "DEFAULT_SCENE",
-           "PointLight", "DirectionalLight", "EnvironmentLight"]
+           "PointLight", "DirectionalLight", "EnvironmentLight", "EnvironmentMap"]

@@ -3,7 +3,8 @@
 For a vertex at ``p`` reached by a path travelling along ``d``, :func:`direct_light` returns
 
     sum over lights  f_g(d . l) * Le * Tr(p -> light)        (point: Le = I / r^2; directional: Le = E)
-    + for the environment: f_g(d . l) * L_env * Tr / pdf_l * w_nee,   l ~ uniform sphere, pdf_l = 1/(4 pi)
+    + for the environment: f_g(d . l) * L_env(l) * Tr / pdf_l * w_nee,
+      l ~ uniform sphere, pdf_l = 1/(4 pi) (constant) or l ~ the map's density p_w (environment map)
 
 without the path throughput. The direction ``l``, ``Le / rgb`` and ``pdf_l`` of each light come from its
 kind's branch in :func:`photon_fields.runtime.transport.emitters.sample_light_direction`; this module has no
@@ -11,8 +12,8 @@ per-kind code. Transmittance is estimated by ratio tracking. Delta lights (pdf i
 directional) can only be reached by NEE, so their weight is 1. The environment can also be reached by
 phase sampling; both strategies are combined with the power heuristic (Veach 1997):
 ``w_nee = pdf_l^2 / (pdf_l^2 + pdf_phase^2)``, and the phase-sampled escape gets the complement
-(:func:`mis_weight_phase`). Used by the reference path tracer and, at the first vertex, by the neural
-renderer (paper Sec. 3.6, "Direct Illumination").
+(:func:`mis_weight_phase`, with the map's pdf of the escape direction for an environment map). Used by the
+reference path tracer and, at the first vertex, by the neural renderer (paper Sec. 3.6, "Direct Illumination").
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.transport.emitters import sample_light_direction
+from photon_fields.runtime.transport.environment_map import EnvMap
 from photon_fields.runtime.transport.medium import Medium, intersect_box
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, ratio_track
@@ -38,51 +40,57 @@ def mis_weight_phase(pdf_phase: float, pdf_light: float) -> float:
 
 
 @njit(cache=True)
-def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, px: float, py: float,
-                 pz: float, dx: float, dy: float, dz: float, state: np.uint64,
+def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
+                 py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
                  env_mis: bool) -> tuple[float, float, float, np.uint64]:
     r = 0.0
     gr = 0.0
     b = 0.0
     for k in range(kind.shape[0]):
-        lx, ly, lz, scale, pdf_l, tend, state = sample_light_direction(kind[k], vec[k], px, py, pz, state)
-        if not math.isinf(pdf_l):  # not a delta light (the environment): MIS against phase sampling
+        lx, ly, lz, lr, lg, lb, pdf_l, tend, state = sample_light_direction(kind[k], vec[k], rgb[k], env, px, py,
+                                                                            pz, state)
+        scale = 1.0
+        if not math.isinf(pdf_l):  # not a delta light (an environment): MIS against phase sampling
+            if pdf_l <= 0.0:
+                continue
             w = 1.0
             if env_mis:
                 w = 1.0 - mis_weight_phase(hg_eval(g, dx * lx + dy * ly + dz * lz), pdf_l)
-            scale = scale * w / pdf_l
+            scale = w / pdf_l
         f = hg_eval(g, dx * lx + dy * ly + dz * lz)
-        if f * scale <= 0.0 or (rgb[k, 0] + rgb[k, 1] + rgb[k, 2]) <= 0.0:
+        if f * scale <= 0.0 or (lr + lg + lb) <= 0.0:
             continue
         t0, t1 = intersect_box(m, px, py, pz, lx, ly, lz)
         tr = 1.0
         if t0 < t1:
             tr, state = ratio_track(m, px, py, pz, lx, ly, lz, t0, min(t1, tend), state)
         c = f * scale * tr
-        r += c * rgb[k, 0]
-        gr += c * rgb[k, 1]
-        b += c * rgb[k, 2]
+        r += c * lr
+        gr += c * lg
+        b += c * lb
     return r, gr, b, state
 
 
 @njit(cache=True)
-def _direct_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, o: np.ndarray,
-                        d: np.ndarray, states: np.ndarray, env_mis: bool, out: np.ndarray, lo: int, hi: int) -> None:
+def _direct_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
+                        o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, out: np.ndarray, lo: int,
+                        hi: int) -> None:
     """:func:`direct_light_batch` for items lo..hi-1 (one task; ``TASK_ITEMS`` in tracking.py says why)."""
     for i in range(lo, hi):
         out[0, i], out[1, i], out[2, i], states[i] = direct_light(
-            m, kind, vec, rgb, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
+            m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
 
 
 @njit(cache=True, parallel=True)
-def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, o: np.ndarray,
-                       d: np.ndarray, states: np.ndarray, env_mis: bool = True) -> np.ndarray:
-    """Stage: NEE at every vertex of a SoA batch; returns radiance (3, n) (times throughput later).
+def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
+                       o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool = True) -> np.ndarray:
+    """Stage: NEE at every vertex of a SoA batch; returns radiance (3, n) (times throughput later). ``env`` is
+    the scene's environment map (``Scene.packed_environment_map()``, a placeholder when it has none).
     ``env_mis=False`` gives the environment's NEE full weight, for estimators that never reach the
     environment by phase sampling (the first-interaction renderers)."""
     n = o.shape[1]
     out = np.empty((3, n))
     for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
-        _direct_light_items(m, kind, vec, rgb, g, o, d, states, env_mis, out, task * TASK_ITEMS,
+        _direct_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, out, task * TASK_ITEMS,
                             min(n, (task + 1) * TASK_ITEMS))
     return out

@@ -5,17 +5,22 @@ everything a light kind does in transport lives here, one branch per kind (the k
 ``kind``/``vec``/``rgb`` arrays are defined in :mod:`photon_fields.runtime.scene.lights`):
 
 - **direct-light sampling** towards a point ``p`` (next-event estimation), :func:`sample_light_direction`:
-  the direction ``l`` towards the light, the light's value per unit ``rgb`` along it, the solid-angle pdf of
-  the sample and the distance to the light. Delta lights (point, directional) alone are
+  the direction ``l`` towards the light, the light's RGB value along it (``value * rgb``), the solid-angle pdf
+  of the sample and the distance to the light. Delta lights (point, directional) alone are
   :func:`delta_light_direction` (the ray marcher's shadow rays use only these).
 
-  ============  =========================================  ========  ===========  ===============
-  kind          l                                          value     pdf          distance
-  ============  =========================================  ========  ===========  ===============
-  point         towards ``vec`` (the position)             1 / r^2   inf (delta)  r
-  directional   ``-vec`` (``vec`` is the travel direction)  1         inf (delta)  inf
-  environment   uniform on the sphere (two random numbers)  1         1 / (4 pi)   inf
-  ============  =========================================  ========  ===========  ===============
+  ===============  =========================================  ============  ===========  ===============
+  kind             l                                          value         pdf          distance
+  ===============  =========================================  ============  ===========  ===============
+  point            towards ``vec`` (the position)             1 / r^2       inf (delta)  r
+  directional      ``-vec`` (``vec`` is the travel direction)  1             inf (delta)  inf
+  environment      uniform on the sphere (two random numbers)  1             1 / (4 pi)   inf
+  environment map  from the map's density (two random numbers) L(l) (table)  p_w(l)       inf
+  ===============  =========================================  ============  ===========  ===============
+
+  (the environment map's density p_w, proportional to luminance x sin(theta) per pixel, is derived in
+  :mod:`photon_fields.runtime.transport.environment_map`; the map's packed ``rgb`` is 1, its radiance is in the
+  :class:`~photon_fields.runtime.transport.environment_map.EnvMap` ``env`` every kernel here takes).
 
   :func:`photon_fields.runtime.transport.direct_light.direct_light` turns a sample into
   ``f_g(d . l) * value * w / pdf * rgb * Tr`` (``w`` = 1 and no division for delta lights; the MIS weight
@@ -31,10 +36,15 @@ everything a light kind does in transport lives here, one branch per kind (the k
     the direction, 1.01 R behind the centre;
   - environment, radiance L: flux 4 pi^2 R^2 L (uniform radiance through a sphere of radius R); a uniform
     direction, then a disk as for the directional light.
+  - environment map, radiance L(w) arriving from w: flux pi R^2 int L(w) dw (per channel; 4 pi^2 R^2 L for a
+    constant map); the direction w from the map's density p_w, the photon travels along -w from a disk as
+    for the directional light, and its power is scaled by ``L(w) / (p_w(w) int L dw)`` per channel (1 on
+    average: the one-sample estimate of the flux through the disk from w, relative to the light's flux).
+    :func:`emit_photon` returns that per-channel scale (1 for the other kinds).
 
-- **the environment** (the one non-delta kind, reached by escaping rays too): :func:`environment_index`,
-  :data:`ENVIRONMENT_PDF` (the pdf of its direct-light samples, which the path tracer's MIS weight of an
-  escaping ray needs).
+- **the environment** (the non-delta kinds, reached by escaping rays too): :func:`environment_index`,
+  :data:`ENVIRONMENT_PDF` (the pdf of the constant environment's direct-light samples, which the path tracer's
+  MIS weight of an escaping ray needs; a map's is ``env_map_eval``'s).
 
 Every per-kind branch raises for a kind it does not know (``pack_lights`` refuses unknown light classes
 before that). The kernels called inside other modules' ``prange`` loops (:func:`emit_photon` by photon
@@ -51,7 +61,8 @@ import math
 import numpy as np
 from numba import njit
 
-from photon_fields.runtime.scene.lights import DIRECTIONAL, ENVIRONMENT, POINT
+from photon_fields.runtime.scene.lights import DIRECTIONAL, ENVIRONMENT, ENVIRONMENT_MAP, POINT
+from photon_fields.runtime.transport.environment_map import NO_ENV_MAP, EnvMap, env_map_sample
 from photon_fields.runtime.transport.medium import Medium
 from photon_fields.runtime.transport.phase import INV_4PI, orthonormal_basis
 from photon_fields.runtime.transport.rng import next_float
@@ -88,31 +99,40 @@ def delta_light_direction(kind: int, pos_or_dir: np.ndarray, px: float, py: floa
         return -pos_or_dir[0], -pos_or_dir[1], -pos_or_dir[2], 1.0, math.inf
     if kind == ENVIRONMENT:
         return 0.0, 0.0, 1.0, 0.0, 0.0
+    if kind == ENVIRONMENT_MAP:
+        return 0.0, 0.0, 1.0, 0.0, 0.0
     raise ValueError("unknown light kind")
 
 
 @njit(cache=True, inline="always")
-def sample_light_direction(kind: int, pos_or_dir: np.ndarray, px: float, py: float, pz: float,
-                           state: np.uint64) -> tuple[float, float, float, float, float, float, np.uint64]:
-    """A direct-light sample from p: (lx, ly, lz, value, pdf, distance, state), see the module docstring.
-    ``pdf`` is inf for a delta light (no other strategy can reach it); only the environment draws random
-    numbers. Raises for an unknown kind."""
+def sample_light_direction(kind: int, pos_or_dir: np.ndarray, rgb: np.ndarray, env: EnvMap, px: float, py: float,
+                           pz: float, state: np.uint64
+                           ) -> tuple[float, float, float, float, float, float, float, float, np.uint64]:
+    """A direct-light sample from p: (lx, ly, lz, r, g, b, pdf, distance, state) with (r, g, b) = value * rgb, see
+    the module docstring. ``pdf`` is inf for a delta light (no other strategy can reach it); only the
+    environments draw random numbers. Raises for an unknown kind."""
     if kind == ENVIRONMENT:
         state, u1 = next_float(state)
         state, u2 = next_float(state)
         lx, ly, lz = sample_uniform_sphere(u1, u2)
-        return lx, ly, lz, 1.0, ENVIRONMENT_PDF, math.inf, state
+        return lx, ly, lz, rgb[0], rgb[1], rgb[2], ENVIRONMENT_PDF, math.inf, state
+    if kind == ENVIRONMENT_MAP:
+        state, u1 = next_float(state)
+        state, u2 = next_float(state)
+        lx, ly, lz, lr, lg, lb, pdf = env_map_sample(env, u1, u2)
+        return lx, ly, lz, lr * rgb[0], lg * rgb[1], lb * rgb[2], pdf, math.inf, state
     lx, ly, lz, falloff, dist = delta_light_direction(kind, pos_or_dir, px, py, pz)
-    return lx, ly, lz, falloff, math.inf, dist, state
+    return lx, ly, lz, falloff * rgb[0], falloff * rgb[1], falloff * rgb[2], math.inf, dist, state
 
 
 # --- photon emission ----------------------------------------------------------------------------------
 
 
-def emission_fluxes(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def emission_fluxes(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray,
+                    env: EnvMap = NO_ENV_MAP) -> tuple[np.ndarray, np.ndarray]:
     """(flux (n, 3) of the part of each light that can reach the volume's bounding sphere, emission cone
-    cos_max (n,): -1 = all directions) for packed lights; see the module docstring. Raises ValueError for
-    an unknown kind."""
+    cos_max (n,): -1 = all directions) for packed lights (``env``: the scene's environment map); see the module
+    docstring. Raises ValueError for an unknown kind."""
     center = m.bmin + 0.5 * m.bsize
     radius = 0.5 * float(np.linalg.norm(m.bsize))
     flux = np.zeros_like(rgb)
@@ -127,17 +147,21 @@ def emission_fluxes(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarra
             flux[i] = rgb[i] * math.pi * radius**2
         elif kind[i] == ENVIRONMENT:
             flux[i] = rgb[i] * 4 * math.pi**2 * radius**2
+        elif kind[i] == ENVIRONMENT_MAP:
+            flux[i] = rgb[i] * math.pi * radius**2 * env.integral
         else:
             raise ValueError(f"light {i}: unknown light kind {int(kind[i])}")
     return flux, cos_max
 
 
 @njit(cache=True)
-def emit_photon(kind: int, vec: np.ndarray, cos_max: float, cx: float, cy: float, cz: float, radius: float,
-                u1: float, u2: float, u3: float, u4: float) -> tuple[float, float, float, float, float, float]:
-    """Origin and travel direction (ox, oy, oz, dx, dy, dz) of a photon emitted by a light whose cone is
-    ``cos_max`` (:func:`emission_fluxes`), towards the bounding sphere (centre c, ``radius``), from four
-    uniforms in [0, 1). Raises for an unknown kind."""
+def emit_photon(kind: int, vec: np.ndarray, env: EnvMap, cos_max: float, cx: float, cy: float, cz: float,
+                radius: float, u1: float, u2: float, u3: float, u4: float
+                ) -> tuple[float, float, float, float, float, float, float, float, float]:
+    """Origin, travel direction and per-channel power scale (ox, oy, oz, dx, dy, dz, sr, sg, sb) of a photon
+    emitted by a light whose cone is ``cos_max`` (:func:`emission_fluxes`), towards the bounding sphere (centre
+    c, ``radius``), from four uniforms in [0, 1). The scale multiplies the light's flux / P(light); it is 1
+    except for an environment map (module docstring). Raises for an unknown kind."""
     if kind == POINT:
         ax, ay, az = cx - vec[0], cy - vec[1], cz - vec[2]
         n = math.sqrt(ax * ax + ay * ay + az * az)
@@ -150,11 +174,21 @@ def emit_photon(kind: int, vec: np.ndarray, cos_max: float, cx: float, cy: float
         tx, ty, tz, bx, by, bz = orthonormal_basis(ax, ay, az)
         cp, sp = s * math.cos(2 * math.pi * u2), s * math.sin(2 * math.pi * u2)
         wx, wy, wz = cp * tx + sp * bx + c * ax, cp * ty + sp * by + c * ay, cp * tz + sp * bz + c * az
-        return vec[0], vec[1], vec[2], wx, wy, wz
+        return vec[0], vec[1], vec[2], wx, wy, wz, 1.0, 1.0, 1.0
+    sr, sg, sb = 1.0, 1.0, 1.0
     if kind == DIRECTIONAL:
         dx, dy, dz = vec[0], vec[1], vec[2]
     elif kind == ENVIRONMENT:  # uniform travel direction
         dx, dy, dz = sample_uniform_sphere(u3, u4)
+    elif kind == ENVIRONMENT_MAP:  # light from w travels along -w
+        wx, wy, wz, lr, lg, lb, pdf = env_map_sample(env, u3, u4)
+        dx, dy, dz = -wx, -wy, -wz
+        if pdf > 0.0:
+            sr = lr / (pdf * env.integral[0]) if env.integral[0] > 0.0 else 0.0
+            sg = lg / (pdf * env.integral[1]) if env.integral[1] > 0.0 else 0.0
+            sb = lb / (pdf * env.integral[2]) if env.integral[2] > 0.0 else 0.0
+        else:
+            sr, sg, sb = 0.0, 0.0, 0.0
     else:
         raise ValueError("unknown light kind")
     # Parallel rays through a disk of radius R perpendicular to d, 1.01 R behind the centre.
@@ -163,13 +197,14 @@ def emit_photon(kind: int, vec: np.ndarray, cos_max: float, cx: float, cy: float
     px, py = r * math.cos(2 * math.pi * u2), r * math.sin(2 * math.pi * u2)
     back = 1.01 * radius
     return (cx - back * dx + px * tx + py * bx, cy - back * dy + px * ty + py * by,
-            cz - back * dz + px * tz + py * bz, dx, dy, dz)
+            cz - back * dz + px * tz + py * bz, dx, dy, dz, sr, sg, sb)
 
 
 # --- the environment ------------------------------------------------------------------------------------
 
 
 def environment_index(kind: np.ndarray) -> int:
-    """Index of the (single) environment light, -1 if none. Several are merged by ``Scene.packed_lights``."""
-    idx = np.flatnonzero(kind == ENVIRONMENT)
+    """Index of the (single) environment light, constant or map, -1 if none. Several are merged by
+    ``Scene.packed_lights``."""
+    idx = np.flatnonzero((kind == ENVIRONMENT) | (kind == ENVIRONMENT_MAP))
     return int(idx[0]) if idx.size else -1

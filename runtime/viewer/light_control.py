@@ -4,19 +4,20 @@ about the scene's vertical axis, and its power; converted from and to the scene'
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, PointLight
+from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, EnvironmentMap, PointLight
 
 
 @dataclass
 class LightControl:
     """A light as the page edits it: where it comes from (azimuth, elevation in degrees about the scene's
     vertical axis, y) and its power. Point lights keep their distance from the origin; an environment light
-    has a power only."""
+    has a power only. An environment map is shown as an environment (a power only) and keeps its image and
+    rotation in ``source``, so that editing its power never turns it into a constant environment."""
 
     kind: str
     azimuth: float
@@ -24,6 +25,7 @@ class LightControl:
     power: float
     distance: float
     color: np.ndarray
+    source: EnvironmentMap | None = field(default=None, repr=False)
 
     @classmethod
     def from_light(cls, light: Any) -> LightControl:
@@ -34,7 +36,8 @@ class LightControl:
             dist = float(np.linalg.norm(light.position))
             toward = light.position / dist if dist > 0 else np.array([0.0, 1.0, 0.0])
         else:
-            return cls("environment", 0.0, 90.0, float(light.power), 0.0, light.color)
+            source = light if isinstance(light, EnvironmentMap) else None
+            return cls("environment", 0.0, 90.0, float(light.power), 0.0, light.color, source)
         az = math.degrees(math.atan2(float(toward[2]), float(toward[0])))
         el = math.degrees(math.asin(max(-1.0, min(1.0, float(toward[1])))))
         kind = "directional" if isinstance(light, DirectionalLight) else "point"
@@ -49,6 +52,9 @@ class LightControl:
             return DirectionalLight(-self.toward(), self.color, self.power)
         if self.kind == "point":
             return PointLight(self.toward() * self.distance, self.color, self.power)
+        if self.source is not None:
+            src = self.source
+            return EnvironmentMap(src.path, self.color, self.power, src.rotation, src.image)
         return EnvironmentLight(self.color, self.power)
 
     def to_dict(self) -> dict[str, Any]:

@@ -16,8 +16,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from photon_fields.runtime.progress import progress_bar
+from photon_fields.runtime.scene.lights import ENVIRONMENT_MAP
 from photon_fields.runtime.scene.scene import Scene
-from photon_fields.runtime.transport.emitters import environment_index
+from photon_fields.runtime.transport.emitters import ENVIRONMENT_PDF, environment_index
+from photon_fields.runtime.transport.environment_map import EnvMap, env_map_eval_batch
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.rays import RayBatch, clip_rays_to_volume, generate_camera_rays
 
@@ -46,11 +48,37 @@ class StageTimer:
             self.ms[name] += (time.perf_counter() - t) * 1e3
 
 
-def environment_radiance(scene: Scene) -> np.ndarray | None:
-    """RGB radiance of the (merged) environment light, or None."""
+@dataclass(frozen=True)
+class Environment:
+    """What rays that leave the volume see: the scene's (merged) environment, constant (``env_map`` None: radiance
+    ``rgb`` from every direction) or a map (``env_map``: radiance by direction). Every renderer's escape handling
+    goes through :meth:`radiance` (and the path tracer's MIS through :meth:`radiance_and_pdf`), so a new
+    environment kind changes this class, not the renderers."""
+
+    rgb: np.ndarray  # (3,): the constant radiance (ones for a map: its radiance is in the table)
+    env_map: EnvMap | None = None
+
+    def radiance_and_pdf(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Radiance (3, n) arriving along the unit directions ``d`` (3, n) (the rays' travel directions) and the
+        solid-angle pdf (n,) with which NEE samples those directions (the MIS weight of an escape needs it)."""
+        if self.env_map is None:
+            n = d.shape[1]
+            return np.broadcast_to(self.rgb[:, None], (3, n)), np.full(n, ENVIRONMENT_PDF)
+        rgb, pdf = env_map_eval_batch(self.env_map, np.ascontiguousarray(d, dtype=np.float64))
+        return rgb * self.rgb[:, None], pdf
+
+    def radiance(self, d: np.ndarray) -> np.ndarray:
+        """Radiance (3, n) arriving along the unit directions ``d`` (3, n)."""
+        return self.radiance_and_pdf(d)[0]
+
+
+def scene_environment(scene: Scene) -> Environment | None:
+    """The scene's (merged) environment light, or None."""
     kind, _, rgb = scene.packed_lights()
     i = environment_index(kind)
-    return rgb[i] if i >= 0 else None
+    if i < 0:
+        return None
+    return Environment(rgb[i], scene.packed_environment_map() if kind[i] == ENVIRONMENT_MAP else None)
 
 
 def primary_ray_batches(scene: Scene, film: Film, timer: StageTimer, *, spp: int, seed: int, batch_size: int,
@@ -63,7 +91,7 @@ def primary_ray_batches(scene: Scene, film: Film, timer: StageTimer, *, spp: int
     add up to exactly the image of one render with all their samples (progressive accumulation)."""
     cam = scene.camera
     m = scene.medium()
-    env = environment_radiance(scene)
+    env = scene_environment(scene)
     n_pixels = cam.width * cam.height
     first, total = first_sample * n_pixels, n_pixels * spp
     with progress_bar(total=total, desc=desc, unit="spl", unit_scale=True, enabled=progress) as bar:
@@ -74,7 +102,7 @@ def primary_ray_batches(scene: Scene, film: Film, timer: StageTimer, *, spp: int
             with timer("clip_rays_to_volume"):
                 hit = clip_rays_to_volume(m, rays)
             if env is not None and not np.all(hit):
-                film.splat("L_e", rays.pixel[~hit], np.broadcast_to(env[:, None], (3, int((~hit).sum()))))
+                film.splat("L_e", rays.pixel[~hit], env.radiance(rays.d[:, ~hit]))
             with timer("compact"):
                 rays = rays.compact(hit)
             yield rays

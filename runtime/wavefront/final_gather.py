@@ -37,6 +37,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.transport.direct_light import direct_light_batch
+from photon_fields.runtime.transport.environment_map import EnvMap
 from photon_fields.runtime.transport.medium import Medium, albedo_at, intersect_box
 from photon_fields.runtime.transport.phase import sample_hg
 from photon_fields.runtime.transport.rng import mix64, next_float
@@ -85,11 +86,12 @@ def _bounce(m: Medium, g: float, x: np.ndarray, d: np.ndarray, rng: np.ndarray, 
     return hit
 
 
-def gather_indirect(m: Medium, lights: tuple[np.ndarray, np.ndarray, np.ndarray], g: float, x: np.ndarray,
+def gather_indirect(m: Medium, lights: tuple[np.ndarray, np.ndarray, np.ndarray, EnvMap], g: float, x: np.ndarray,
                     d: np.ndarray, rng: np.ndarray, estimator: object, forced: bool, w_min: float,
                     timer: StageTimer) -> np.ndarray:
     """Q^(x, d, g) at every item of a SoA batch (module docstring): (3, n). ``lights`` is
-    ``Scene.packed_lights()``; ``estimator`` an ``IndirectEstimator`` evaluated at the bounces' collisions;
+    ``Scene.packed_lights()`` followed by ``Scene.packed_environment_map()``; ``estimator`` an
+    ``IndirectEstimator`` evaluated at the bounces' collisions;
     ``forced`` / ``w_min`` the camera estimator's choice and weight floor, used for the bounce too. ``rng`` is
     read, not advanced. Sub-stages are timed as ``final_gather.bounce`` / ``.direct`` / ``.estimator``."""
     n = x.shape[1]
@@ -103,9 +105,9 @@ def gather_indirect(m: Medium, lights: tuple[np.ndarray, np.ndarray, np.ndarray]
         return q
     x2, w, weight, states = (np.ascontiguousarray(x2[:, idx]), np.ascontiguousarray(w[:, idx]),
                              weight[:, idx], states[idx])
-    kind, vec, rgb = lights
+    kind, vec, rgb, env = lights
     with timer("final_gather.direct"):
-        arriving = direct_light_batch(m, kind, vec, rgb, float(g), x2, w, states, False)
+        arriving = direct_light_batch(m, kind, vec, rgb, env, float(g), x2, w, states, False)
     with timer("final_gather.estimator"):
         arriving += estimator(x2, w, g)
     q[:, idx] = weight * arriving

@@ -62,10 +62,11 @@ from photon_fields.runtime.transport.medium import Medium, albedo_at
 from photon_fields.runtime.transport.tracking import camera_collision
 from photon_fields.runtime.wavefront.batches import (
     DEFAULT_BATCH,
+    Environment,
     RenderResult,
     StageTimer,
-    environment_radiance,
     finish,
+    scene_environment,
 )
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.final_gather import gather_indirect
@@ -254,7 +255,8 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
 
     m = scene.medium()
     kind, vec, rgb = scene.packed_lights()
-    env = environment_radiance(scene)
+    env_map = scene.packed_environment_map()
+    env = scene_environment(scene)
     film = film if film is not None else Film(scene.camera.width, scene.camera.height)
     if (film.width, film.height) != (scene.camera.width, scene.camera.height):
         raise ValueError(f"film is {film.width}x{film.height}, camera {scene.camera.width}x{scene.camera.height}")
@@ -274,7 +276,8 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
                 counts = sample_first_interactions(scene, m, start, count, seed, scratch, status, transmit, camera)
             n_rays += int(counts[:, 1].sum())
             if env is not None:
-                splat_environment(film, env, status[:count], transmit[:count], start, n_pixels, distinct, forced)
+                splat_environment(film, env, status[:count], transmit[:count], start, n_pixels, distinct, forced,
+                                  scene, seed)
             with timer("compact"):
                 fi = compact_first_interactions(scratch, counts)
             n_samples += len(fi)
@@ -285,31 +288,54 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
             if estimator is not None:
                 with timer("estimate_indirect"):
                     if final_gather:
-                        q = gather_indirect(m, (kind, vec, rgb), scene.g, fi.x, fi.d, fi.rng, estimator, forced,
-                                            FORCED_MIN_WEIGHT, timer)
+                        q = gather_indirect(m, (kind, vec, rgb, env_map), scene.g, fi.x, fi.d, fi.rng, estimator,
+                                            forced, FORCED_MIN_WEIGHT, timer)
                     else:
                         q = estimator(fi.x, fi.d, scene.g)
                 with timer("compose"):
                     film.splat("L_i", fi.pixel, q, distinct, weight=throughput)
             if direct:
                 with timer("estimate_direct"):
-                    nee = direct_light_batch(m, kind, vec, rgb, scene.g, fi.x, fi.d, fi.rng, False)
+                    nee = direct_light_batch(m, kind, vec, rgb, env_map, scene.g, fi.x, fi.d, fi.rng, False)
                 with timer("compose"):
                     film.splat("L_d", fi.pixel, nee, distinct, weight=throughput)
     return finish(film, timer, spp, t_start, {"rays_in_volume": float(n_rays), "samples_in_volume": float(n_samples),
                                              "compaction_removed": 1.0 - n_samples / max(n_rays, 1)})
 
 
-def splat_environment(film: Film, env: np.ndarray, status: np.ndarray, transmit: np.ndarray, start: int,
-                      n_pixels: int, distinct: bool, forced: bool) -> None:
+@njit(cache=True)
+def _camera_directions(origin: np.ndarray, du: np.ndarray, dv: np.ndarray, width: int, n_pixels: int,
+                       work: np.ndarray, seed: int) -> np.ndarray:
+    """The unit directions (3, n) of the camera rays of work items ``work``: :func:`camera_ray` again (the same
+    jitter draws), for the environment seen behind them (the fused kernel keeps no direction of a ray that
+    misses or escapes)."""
+    d = np.empty((3, work.shape[0]))
+    s0 = np.uint64(seed)
+    for k in range(work.shape[0]):
+        d[0, k], d[1, k], d[2, k], _, _ = camera_ray(origin, du, dv, width, n_pixels, work[k], s0)
+    return d
+
+
+def splat_environment(film: Film, env: Environment, status: np.ndarray, transmit: np.ndarray, start: int,
+                      n_pixels: int, distinct: bool, forced: bool, scene: Scene, seed: int) -> None:
     """L_e of one batch: the environment behind every ray that misses the box and, inside it, behind every
     ray that escapes ("delta", in that order, as the separate stages added them) or weighted by each ray's
-    transmittance estimate ("forced")."""
+    transmittance estimate ("forced"). The environment's radiance along each ray comes from
+    :meth:`Environment.radiance`, with the camera rays' directions regenerated for a map."""
+    cam = scene.camera
+    origin, du, dv = cam.image_plane()
+
+    def radiance(items: np.ndarray) -> np.ndarray:
+        if env.env_map is None:
+            return np.broadcast_to(env.rgb[:, None], (3, items.shape[0]))
+        work = (items + start).astype(np.int64)
+        return env.radiance(_camera_directions(origin, du, dv, cam.width, n_pixels, work, int(seed)))
+
     if not forced:
         for which in (MISSED_BOX, ESCAPED):
-            pixel = (np.flatnonzero(status == which) + start) % n_pixels
-            film.splat("L_e", pixel, np.broadcast_to(env[:, None], (3, pixel.shape[0])), distinct)
+            items = np.flatnonzero(status == which)
+            film.splat("L_e", (items + start) % n_pixels, radiance(items), distinct)
         return
     seen = np.flatnonzero(transmit > 0.0)
-    film.splat("L_e", (seen + start) % n_pixels, np.broadcast_to(env[:, None], (3, seen.shape[0])), distinct,
+    film.splat("L_e", (seen + start) % n_pixels, radiance(seen), distinct,
                weight=np.broadcast_to(transmit[seen][None, :], (3, seen.shape[0])))

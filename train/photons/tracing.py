@@ -53,6 +53,7 @@ from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.emitters import emission_fluxes, emit_photon
+from photon_fields.runtime.transport.environment_map import EnvMap
 from photon_fields.runtime.transport.medium import Medium, albedo_at, intersect_box
 from photon_fields.runtime.transport.phase import check_g, sample_hg
 from photon_fields.runtime.transport.rng import next_float, stream_state
@@ -68,11 +69,11 @@ def light_fluxes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     """(flux (n_lights, 3) of the part of each light that can reach the bounding sphere, cone cos_max (n,)):
     :func:`photon_fields.runtime.transport.emitters.emission_fluxes` of the scene's packed lights."""
     kind, vec, rgb = scene.packed_lights()
-    return emission_fluxes(scene.medium(), kind, vec, rgb)
+    return emission_fluxes(scene.medium(), kind, vec, rgb, scene.packed_environment_map())
 
 
 @njit(cache=True)
-def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, power: np.ndarray, cos_max: np.ndarray,
+def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, power: np.ndarray, cos_max: np.ndarray,
                  light_cdf: np.ndarray, phases: np.ndarray, active: np.ndarray, seed: int, first: int, lo: int, hi: int,
                  max_bounces: int,
                  out_pos: np.ndarray, out_dir: np.ndarray, out_pow: np.ndarray, out_phase: np.ndarray,
@@ -91,10 +92,11 @@ def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, power: np.ndarray
         st, u2 = next_float(st)
         st, u3 = next_float(st)
         st, u4 = next_float(st)
-        ox, oy, oz, dx, dy, dz = emit_photon(kind[li], vec[li], cos_max[li], cx, cy, cz, radius, u1, u2, u3, u4)
+        ox, oy, oz, dx, dy, dz, sr, sg, sb = emit_photon(kind[li], vec[li], env, cos_max[li], cx, cy, cz, radius,
+                                                         u1, u2, u3, u4)
         ph = active[i % active.shape[0]]
         g = phases[ph]
-        br, bg, bb = power[li, 0], power[li, 1], power[li, 2]
+        br, bg, bb = power[li, 0] * sr, power[li, 1] * sg, power[li, 2] * sb
         count = 0
         t0, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
         if t0 < t1:
@@ -129,15 +131,16 @@ def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, power: np.ndarray
 
 
 @njit(cache=True, parallel=True)
-def _trace_chunk(m: Medium, kind: np.ndarray, vec: np.ndarray, power: np.ndarray, cos_max: np.ndarray,
+def _trace_chunk(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, power: np.ndarray, cos_max: np.ndarray,
                  light_cdf: np.ndarray, phases: np.ndarray, active: np.ndarray, seed: int, first: int, n: int,
                  max_bounces: int,
                  out_pos: np.ndarray, out_dir: np.ndarray, out_pow: np.ndarray, out_phase: np.ndarray,
                  out_count: np.ndarray) -> None:
     """Trace photon paths first .. first + n - 1; path i scatters with phase active[i % len(active)],
-    writes its records to slots [i * (max_bounces - 1), ...) and their number to out_count[i]."""
+    writes its records to slots [i * (max_bounces - 1), ...) and their number to out_count[i]. ``env``: the
+    scene's environment map (its photons' power is scaled per channel by ``emit_photon``)."""
     for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
-        _trace_paths(m, kind, vec, power, cos_max, light_cdf, phases, active, seed, first, task * TASK_ITEMS,
+        _trace_paths(m, kind, vec, env, power, cos_max, light_cdf, phases, active, seed, first, task * TASK_ITEMS,
                      min(n, (task + 1) * TASK_ITEMS), max_bounces, out_pos, out_dir, out_pow, out_phase, out_count)
 
 
@@ -177,6 +180,7 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
     gs = check_phases(phases)
     m = scene.medium()
     kind, vec, _ = scene.packed_lights()
+    env = scene.packed_environment_map()
     flux, cos_max = light_fluxes(scene)
     weight = flux.sum(axis=1)
     if weight.sum() <= 0:
@@ -204,7 +208,7 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
                       enabled=progress) as bar:
         while np.any(stored < quota):
             active = np.flatnonzero(stored < quota).astype(np.int64)
-            _trace_chunk(m, kind, vec, power, cos_max, light_cdf, g_arr, active, int(seed), first_path, CHUNK,
+            _trace_chunk(m, kind, vec, env, power, cos_max, light_cdf, g_arr, active, int(seed), first_path, CHUNK,
                          max_bounces, buf_pos, buf_dir, buf_pow, buf_phase, counts)
             first_path += CHUNK
             for j, ph in enumerate(active):

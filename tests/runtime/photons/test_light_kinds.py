@@ -8,7 +8,9 @@ only if both are right. Each light kind gets its own scene, because each has its
 - a point light *outside* the volume's bounding sphere (the photons are emitted into the cone towards it, and
   their power is scaled by the cone's solid-angle fraction);
 - a directional light (a disk of parallel rays);
-- a constant environment light (a uniform direction, then a disk).
+- a constant environment light (a uniform direction, then a disk);
+- an environment map (a sky with a warm glow, rotated: the direction from the map's importance sampling, then a
+  disk, the photon's power scaled per channel by L / (p int L)).
 
 The medium has a coloured albedo that varies with density (three transfer-function points with different RGB
 albedo), so a missing or misapplied albedo factor (at the camera vertex or along the photon paths) shifts the
@@ -34,10 +36,21 @@ from conftest import coloured_tf, small_camera, smooth_field
 from photon_fields.runtime.photons.estimate import PhotonMapEstimator
 from photon_fields.runtime.renderers.neural import render_neural
 from photon_fields.runtime.renderers.path_tracer import render_path_traced
-from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, Light, PointLight
+from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, EnvironmentMap, Light, PointLight
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.scene.volume import make_volume
 from photon_fields.train.photons.tracing import trace_photons
+
+
+def sky_image(h: int = 16) -> np.ndarray:
+    """A 2:1 sky: bright zenith fading to a dim ground, a warm glow: strongly directional but smooth."""
+    v = (np.arange(h) + 0.5) / h
+    u = (np.arange(2 * h) + 0.5) / (2 * h)
+    vv, uu = np.meshgrid(v, u, indexing="ij")
+    glow = np.exp(-((vv - 0.3) ** 2 + (uu - 0.2) ** 2) / 0.02)
+    base = np.where(vv < 0.5, 1.5 - vv, 0.1)
+    return (base[..., None] * [0.5, 0.7, 1.0] + glow[..., None] * [4.0, 2.5, 1.0]).astype(np.float32)
+
 
 #: (light, g): the point light at distance 1.1 from the centre, outside the bounding sphere (radius 0.87);
 #: dropping the cone's solid-angle fraction would make its photons 5.2x too strong.
@@ -45,6 +58,7 @@ LIGHT_KINDS: dict[str, tuple[Light, float]] = {
     "point_outside": (PointLight([0.9, 0.6, 0.2], [1.0, 0.9, 0.8], 0.6), -0.5),
     "directional": (DirectionalLight([-0.5, -1.0, -0.3], [1.0, 1.0, 1.0], 3.0), 0.75),
     "environment": (EnvironmentLight([0.9, 1.0, 1.1], 1.0), 0.4),
+    "environment_map": (EnvironmentMap("sky", [1.0, 1.0, 1.0], 1.0, [40.0, 25.0, 0.0], sky_image()), 0.3),
 }
 PHOTONS = 1_000_000
 PT_SPP = 4096

@@ -22,7 +22,7 @@ from conftest import constant_tf
 from numba import njit
 from scipy import stats
 
-from photon_fields.runtime.scene.lights import DIRECTIONAL, ENVIRONMENT, POINT
+from photon_fields.runtime.scene.lights import DIRECTIONAL, ENVIRONMENT, ENVIRONMENT_MAP, POINT
 from photon_fields.runtime.scene.volume import make_volume
 from photon_fields.runtime.transport.direct_light import direct_light_batch
 from photon_fields.runtime.transport.emitters import (
@@ -32,12 +32,20 @@ from photon_fields.runtime.transport.emitters import (
     environment_index,
     sample_light_direction,
 )
+from photon_fields.runtime.transport.environment_map import (
+    NO_ENV_MAP,
+    EnvMap,
+    build_env_map,
+    env_map_eval_batch,
+    rotation_matrix,
+)
 from photon_fields.runtime.transport.medium import Medium, build_medium
 from photon_fields.runtime.transport.rng import next_float, stream_states, uniform_batch
 
 N = 240_000
 P_MIN = 1e-3
-UNKNOWN = 3  # no light kind has this number
+UNKNOWN = 99  # no light kind has this number
+ONES = np.ones(3)  # a light's rgb: the samples' values are per unit rgb
 
 
 @pytest.fixture(scope="module")
@@ -56,8 +64,8 @@ def _emit_batch(kind: int, vec: np.ndarray, cos_max: float, c: np.ndarray, radiu
     o = np.empty((u.shape[0], 3))
     w = np.empty((u.shape[0], 3))
     for i in range(u.shape[0]):
-        o[i, 0], o[i, 1], o[i, 2], w[i, 0], w[i, 1], w[i, 2] = emit_photon(
-            kind, vec, cos_max, c[0], c[1], c[2], radius, u[i, 0], u[i, 1], u[i, 2], u[i, 3])
+        o[i, 0], o[i, 1], o[i, 2], w[i, 0], w[i, 1], w[i, 2], _, _, _ = emit_photon(
+            kind, vec, NO_ENV_MAP, cos_max, c[0], c[1], c[2], radius, u[i, 0], u[i, 1], u[i, 2], u[i, 3])
     return o, w
 
 
@@ -66,8 +74,8 @@ def _environment_nee_batch(states: np.ndarray) -> np.ndarray:
     out = np.empty((states.shape[0], 5))
     vec = np.zeros(3)
     for i in range(states.shape[0]):
-        out[i, 0], out[i, 1], out[i, 2], out[i, 3], out[i, 4], _, states[i] = sample_light_direction(
-            ENVIRONMENT, vec, 0.1, 0.2, 0.3, states[i])
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3], _, _, out[i, 4], _, states[i] = sample_light_direction(
+            ENVIRONMENT, vec, ONES, NO_ENV_MAP, 0.1, 0.2, 0.3, states[i])
     return out
 
 
@@ -197,6 +205,60 @@ def test_environment_emits_uniform_directions_through_a_disk_across_the_sphere(m
     assert joint_uniform_p(x, r2) > P_MIN  # disk position independent of the direction
 
 
+@njit
+def _emit_map_batch(env: EnvMap, c: np.ndarray, radius: float, u: np.ndarray) -> tuple[np.ndarray, ...]:
+    o, w, scale = np.empty((u.shape[0], 3)), np.empty((u.shape[0], 3)), np.empty((u.shape[0], 3))
+    for i in range(u.shape[0]):
+        r = emit_photon(ENVIRONMENT_MAP, np.zeros(3), env, -1.0, c[0], c[1], c[2], radius, u[i, 0], u[i, 1], u[i, 2],
+                        u[i, 3])
+        o[i, 0], o[i, 1], o[i, 2], w[i, 0], w[i, 1], w[i, 2] = r[0], r[1], r[2], r[3], r[4], r[5]
+        scale[i, 0], scale[i, 1], scale[i, 2] = r[6], r[7], r[8]
+    return o, w, scale
+
+
+def test_environment_map_photons_carry_the_maps_radiance_by_direction(medium: Medium) -> None:
+    """A map photon travels along -w with w from the map's density, from a disk as for the constant environment,
+    and its power scale s_c = L_c(w) / (p(w) int L_c) makes the weighted directions follow each channel's own
+    radiance: per cell of arriving directions w (6 x 8 in cos theta, phi), mean(s_c 1[w in cell]) = int_cell L_c dw
+    / int L_c dw (z < 5). The map's channels differ by direction (a red sun, a blue sky, a green ground), so the
+    luminance-based density alone (s = 1) fails, and so does a photon travelling towards its light. Flux
+    pi R^2 int L dw per channel."""
+    h = 16
+    img = np.zeros((h, 2 * h, 3))
+    img[: h // 2] = [0.1, 0.3, 1.0]
+    img[h // 2:] = [0.05, 0.4, 0.05]
+    img[3:5, 10:12] = [60.0, 20.0, 2.0]
+    env = build_env_map(img, rotation_matrix(30.0, 20.0))
+    c, radius = bounding_sphere(medium)
+    flux, _ = emission_fluxes(medium, np.array([ENVIRONMENT_MAP]), np.zeros((1, 3)), np.ones((1, 3)), env)
+    np.testing.assert_allclose(flux[0], math.pi * radius**2 * env.integral, rtol=1e-14)
+    o, d, scale = _emit_map_batch(env, c, radius, uniform_batch(stream_states(12, 0, N), 4))
+    s, lateral = disk_coordinates(o, d, c)
+    np.testing.assert_allclose(s, -1.01 * radius, rtol=1e-12)
+    assert (np.linalg.norm(lateral, axis=1) / radius).max() < 1.0 + 1e-12
+    w = -d  # where the light comes from
+    bins = (6, 8)
+    zi = np.minimum(((w[:, 1] + 1) / 2 * bins[0]).astype(int), bins[0] - 1)
+    pi = np.minimum(((np.arctan2(w[:, 2], w[:, 0]) / (2 * math.pi)) % 1.0 * bins[1]).astype(int), bins[1] - 1)
+    cell = zi * bins[1] + pi
+    # Expected: each channel's radiance integrated over the cells on a fine (cos theta, phi) grid.
+    sub = 60
+    nz, nphi = bins[0] * sub, bins[1] * sub
+    zz, pp = np.meshgrid(-1 + 2 * (np.arange(nz) + 0.5) / nz, 2 * math.pi * (np.arange(nphi) + 0.5) / nphi,
+                         indexing="ij")
+    ss = np.sqrt(1 - zz**2)
+    rad, _ = env_map_eval_batch(env, np.stack([ss * np.cos(pp), zz, ss * np.sin(pp)]).reshape(3, -1))
+    dw = (2.0 / nz) * (2 * math.pi / nphi)
+    for ch in range(3):
+        per_cell = (rad[ch].reshape(nz, nphi) * dw).reshape(bins[0], sub, bins[1], sub).sum(axis=(1, 3)).ravel()
+        expected = per_cell / env.integral[ch]
+        x = np.zeros((N, bins[0] * bins[1]))
+        x[np.arange(N), cell] = scale[:, ch]
+        z = (x.mean(axis=0) - expected) / (x.std(axis=0) / math.sqrt(N) + 1e-12)
+        assert np.abs(z).max() < 5.0, (ch, np.abs(z).max())
+        assert abs(scale[:, ch].mean() - 1.0) < 5 * scale[:, ch].std() / math.sqrt(N)
+
+
 # --- direct-light sampling --------------------------------------------------------------------------
 
 
@@ -204,14 +266,14 @@ def test_delta_light_samples_point_at_the_light() -> None:
     p = np.array([0.1, -0.2, 0.3])
     pos = np.array([0.9, 0.6, 0.2])
     state = np.uint64(12345)
-    lx, ly, lz, value, pdf, dist, st = sample_light_direction(POINT, pos, *p, state)
+    lx, ly, lz, value, _, _, pdf, dist, st = sample_light_direction(POINT, pos, ONES, NO_ENV_MAP, *p, state)
     r = float(np.linalg.norm(pos - p))
     np.testing.assert_allclose([lx, ly, lz], (pos - p) / r, rtol=1e-14)
     assert value == pytest.approx(1.0 / r**2, rel=1e-14) and dist == pytest.approx(r, rel=1e-14)
     assert math.isinf(pdf) and st == state
-    assert sample_light_direction(POINT, p, *p, state)[3] == 0.0  # on the light: no contribution
+    assert sample_light_direction(POINT, p, ONES, NO_ENV_MAP, *p, state)[3] == 0.0  # on the light: no contribution
     d = np.array([0.0, -0.6, -0.8])
-    lx, ly, lz, value, pdf, dist, st = sample_light_direction(DIRECTIONAL, d, *p, state)
+    lx, ly, lz, value, _, _, pdf, dist, st = sample_light_direction(DIRECTIONAL, d, ONES, NO_ENV_MAP, *p, state)
     assert [lx, ly, lz] == (-d).tolist() and value == 1.0 and math.isinf(pdf) and math.isinf(dist)
     assert st == state
     assert delta_light_direction(ENVIRONMENT, d, *p)[3] == 0.0  # not a delta light: the ray marcher skips it
@@ -248,11 +310,11 @@ def test_unknown_light_kind_is_refused_by_every_branch(medium: Medium) -> None:
     with pytest.raises(ValueError, match="unknown light kind"):
         emission_fluxes(medium, np.array([POINT, UNKNOWN]), np.stack([v, v]), np.ones((2, 3)))
     with pytest.raises(ValueError, match="unknown light kind"):
-        emit_photon(UNKNOWN, v, -1.0, 0.0, 0.0, 0.0, 1.0, 0.1, 0.2, 0.3, 0.4)
+        emit_photon(UNKNOWN, v, NO_ENV_MAP, -1.0, 0.0, 0.0, 0.0, 1.0, 0.1, 0.2, 0.3, 0.4)
     with pytest.raises(ValueError, match="unknown light kind"):
         delta_light_direction(UNKNOWN, v, 0.0, 0.0, 0.0)
     with pytest.raises(ValueError, match="unknown light kind"):
-        sample_light_direction(UNKNOWN, v, 0.0, 0.0, 0.0, np.uint64(1))
+        sample_light_direction(UNKNOWN, v, ONES, NO_ENV_MAP, 0.0, 0.0, 0.0, np.uint64(1))
     with pytest.raises(ValueError, match="unknown light kind"):
-        direct_light_batch(medium, np.array([UNKNOWN]), v[None], np.ones((1, 3)), 0.0, np.zeros((3, 4)),
+        direct_light_batch(medium, np.array([UNKNOWN]), v[None], np.ones((1, 3)), NO_ENV_MAP, 0.0, np.zeros((3, 4)),
                            np.ones((3, 4)), np.arange(4, dtype=np.uint64))

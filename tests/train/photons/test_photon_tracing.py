@@ -13,9 +13,10 @@ from scipy import stats
 from photon_fields.models_spec import PAPER_PHASES
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.photon_map import PhotonMap
-from photon_fields.runtime.scene.lights import DirectionalLight, PointLight
+from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentMap, PointLight
 from photon_fields.runtime.scene.scene import Scene, builtin_scene
 from photon_fields.runtime.scene.volume import make_volume
+from photon_fields.runtime.transport.environment_map import NO_ENV_MAP
 from photon_fields.train.photons.tracing import CHUNK, _trace_chunk, light_fluxes, trace_photons
 
 
@@ -78,8 +79,8 @@ def test_directions_follow_hg_at_scattering(g_index: int) -> None:
     cnt = np.empty(CHUNK, np.int64)
     cos = []
     for chunk in range(3):
-        _trace_chunk(m, kind, vec, flux, cos_max, np.array([1.0]), phases, np.array([g_index]), 9, chunk * CHUNK,
-                     CHUNK, max_b, pos, dirs, pw, ph, cnt)
+        _trace_chunk(m, kind, vec, scene.packed_environment_map(), flux, cos_max, np.array([1.0]), phases,
+                     np.array([g_index]), 9, chunk * CHUNK, CHUNK, max_b, pos, dirs, pw, ph, cnt)
         both = np.flatnonzero(cnt == 2)
         d1 = dirs[both * slots].astype(np.float64)
         d2 = dirs[both * slots + 1].astype(np.float64)
@@ -102,7 +103,7 @@ def test_tracing_kernel_refuses_an_unknown_light_kind() -> None:
     slots = max_b - 1
     out = [np.empty((n * slots, 3), np.float32) for _ in range(3)]
     with pytest.raises((ValueError, SystemError)) as info:
-        _trace_chunk(scene.medium(), np.array([3]), np.zeros((1, 3)), np.ones((1, 3)), np.array([-1.0]),
+        _trace_chunk(scene.medium(), np.array([99]), np.zeros((1, 3)), NO_ENV_MAP, np.ones((1, 3)), np.array([-1.0]),
                      np.array([1.0]), np.array([0.0]), np.array([0]), 1, 0, n, max_b, *out,
                      np.empty(n * slots, np.uint8), np.empty(n, np.int64))
     assert "unknown light kind" in str(info.value) + repr(info.value.__cause__)
@@ -198,3 +199,23 @@ def test_lights_that_never_reach_the_volume_are_reported() -> None:
     scene = Scene(vol, black, (DirectionalLight([0, -1, 0], [1, 1, 1], 1.0),), small_camera())
     with pytest.raises(InputError, match="scatters twice"):
         trace_photons(scene, 1000, progress=False)
+
+
+def test_environment_map_photons_keep_the_colour_of_their_direction() -> None:
+    """Under a map whose upper half is pure red and lower half pure blue, in a white (albedo 1, so no roulette)
+    medium, every photon record carries the colour of the half its photon came from (exactly one of R and B),
+    and both halves are represented: the tracer applies emit_photon's per-channel power scale L / (p int L). With
+    the scale dropped every photon would carry the map's average colour."""
+    h = 8
+    img = np.zeros((h, 2 * h, 3), np.float32)
+    img[: h // 2, :, 0] = 1.0
+    img[h // 2:, :, 2] = 2.0
+    vol = make_volume(np.ones((8, 8, 8)), window=(0.0, 1.0))
+    scene = Scene(vol, constant_tf(4.0, 1.0), (EnvironmentMap("halves", image=img, rotation=[0.0, 30.0, 0.0]),),
+                  small_camera(), 0.0, "halves")
+    pmap = trace_photons(scene, 20_000, phases=(0.0,), max_bounces=4, seed=2, progress=False)
+    pw = pmap.power
+    assert np.all(pw[:, 1] == 0.0)
+    red, blue = pw[:, 0] > 0, pw[:, 2] > 0
+    assert not np.any(red & blue) and np.all(red | blue)
+    assert 0.2 < red.mean() < 0.8
