@@ -22,7 +22,11 @@ lights: a transfer is made to be relit), ``g`` (the phase coefficient every phot
 (``{"kind": "dsf" | "sh", "order": int}``), ``exitance_order`` (SH l_max of the per-cell radiance), ``parts``
 (= PVRT_PARTS), ``grid`` ([gx, gy, gz]), ``box`` (``{"min": [3], "size": [3]}``, the world box), ``cpca``
 (``{"clusters": K, "bases": N, "relative_error": float}``), ``photons`` (``{"paths_per_basis", "seed",
-"max_bounces", "kernel_c"}``) and ``seconds`` (``{"trace", "cpca"}``).
+"max_bounces", "kernel_c"}``).
+
+The file is a pure function of the scene's volume, transfer function and g and of the settings and seed: the zip
+entries carry a fixed timestamp and the manifest no timings (``pfn-train pvrt`` prints them), so the same seed
+writes the same bytes.
 """
 
 from __future__ import annotations
@@ -34,8 +38,7 @@ PVRT_PARTS: tuple[str, ...] = ("direct", "ms_r", "ms_g", "ms_b")
 PVRT_ARRAYS: dict[str, tuple[str, int]] = {"cluster": ("int32", 1), "mass": ("float32", 1), "weights": ("float32", 2),
                                            "mean": ("float32", 2), "basis": ("float32", 3)}
 PVRT_MANIFEST_KEYS: tuple[str, ...] = ("format", "version", "scene_name", "scene_parts", "g", "basis",
-                                       "exitance_order", "parts", "grid", "box", "cpca", "photons", "seconds")
+                                       "exitance_order", "parts", "grid", "box", "cpca", "photons")
 PVRT_SCENE_PARTS: tuple[str, ...] = ("volume", "transfer_function")
 PVRT_CPCA_KEYS: tuple[str, ...] = ("clusters", "bases", "relative_error")
 PVRT_PHOTON_KEYS: tuple[str, ...] = ("paths_per_basis", "seed", "max_bounces", "kernel_c")
-PVRT_SECONDS_KEYS: tuple[str, ...] = ("trace", "cpca")

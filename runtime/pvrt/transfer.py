@@ -30,7 +30,6 @@ from photon_fields.models_spec.pvrt_transfer import (
     PVRT_PARTS,
     PVRT_PHOTON_KEYS,
     PVRT_SCENE_PARTS,
-    PVRT_SECONDS_KEYS,
     PVRT_SUFFIX,
     PVRT_VERSION,
 )
@@ -52,6 +51,7 @@ from photon_fields.runtime.pvrt.precompute import precompute_raw
 from photon_fields.runtime.pvrt.sh import sh_count
 from photon_fields.runtime.scene.scene import Scene
 
+_ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # the earliest zip timestamp (as train/export/bundle.py)
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
 
 
@@ -66,6 +66,9 @@ class Transfer:
     basis_matrices: np.ndarray
     manifest: dict[str, Any]
     path: Path | None = None
+    #: Where the precomputation's time went ({"trace", "cpca"} seconds); not in the file, whose bytes depend on
+    #: the inputs and the seed only (None for a loaded transfer).
+    seconds: dict[str, float] | None = None
 
     @property
     def basis(self) -> LightingBasis:
@@ -141,9 +144,9 @@ def precompute_transfer(scene: Scene, *, basis: str = "dsf", order: int | None =
                 "cpca": {"clusters": int(c.mean.shape[0]), "bases": int(bases),
                          "relative_error": float(c.relative_error)},
                 "photons": {"paths_per_basis": int(paths), "seed": int(seed), "max_bounces": MAX_BOUNCES,
-                            "kernel_c": KERNEL_C},
-                "seconds": {"trace": float(raw.seconds), "cpca": float(cpca_s)}}
-    return Transfer(c.cluster, raw.mass, c.weights, c.mean, c.basis, manifest)
+                            "kernel_c": KERNEL_C}}
+    return Transfer(c.cluster, raw.mass, c.weights, c.mean, c.basis, manifest,
+                    seconds={"trace": float(raw.seconds), "cpca": float(cpca_s)})
 
 
 def save_transfer(transfer: Transfer, path: str | Path, *, force: bool = False) -> Path:
@@ -154,9 +157,15 @@ def save_transfer(transfer: Transfer, path: str | Path, *, force: bool = False) 
     if p.exists() and not force:
         raise InputError(str(p), "exists; pass --force to replace it")
     meta = np.frombuffer(json.dumps(transfer.manifest, sort_keys=True).encode(), dtype=np.uint8)
-    with atomic_path(p) as tmp, open(tmp, "wb") as f:
-        np.savez(f, cluster=transfer.cluster, mass=transfer.mass, weights=transfer.weights, mean=transfer.mean,
-                 basis=transfer.basis_matrices, manifest=meta)
+    arrays = {"cluster": transfer.cluster, "mass": transfer.mass, "weights": transfer.weights,
+              "mean": transfer.mean, "basis": transfer.basis_matrices, "manifest": meta}
+    # np.savez stamps every entry with the current time; fixed timestamps keep the bytes reproducible.
+    with atomic_path(p) as tmp, zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:
+        for name, arr in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_TIME)
+            info.external_attr = 0o644 << 16
+            with zf.open(info, "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.ascontiguousarray(arr), allow_pickle=False)
     return p
 
 
@@ -167,6 +176,8 @@ def load_transfer(path: str | Path, scene: Scene | None = None) -> Transfer:
     what = str(p)
     if not p.is_file():
         raise InputError(what, "transfer file not found (pfn-train pvrt SCENE --out NAME.pvrt makes one)")
+    if not zipfile.is_zipfile(p):  # else np.load would talk of pickles about a text file
+        raise InputError(what, "not a PVRT transfer (not an .npz zip; pfn-train pvrt SCENE --out NAME.pvrt makes one)")
     try:
         with np.load(p, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
@@ -223,7 +234,7 @@ def _parse_manifest(raw: np.ndarray, what: str) -> dict[str, Any]:
     if not isinstance(box, dict):
         raise InputError(f"{what} manifest box", "must be an object {\"min\", \"size\"}")
     check_keys(box, ("min", "size"), f"{what} manifest box", required=("min", "size"))
-    for key, sub in (("cpca", PVRT_CPCA_KEYS), ("photons", PVRT_PHOTON_KEYS), ("seconds", PVRT_SECONDS_KEYS)):
+    for key, sub in (("cpca", PVRT_CPCA_KEYS), ("photons", PVRT_PHOTON_KEYS)):
         if not isinstance(meta[key], dict):
             raise InputError(f"{what} manifest {key}", "must be an object")
         check_keys(meta[key], sub, f"{what} manifest {key}", required=sub)

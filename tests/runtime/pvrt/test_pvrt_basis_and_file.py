@@ -78,8 +78,7 @@ def _tiny_transfer() -> Transfer:
                 "basis": {"kind": "dsf", "order": 0}, "exitance_order": 0, "parts": ["direct", "ms_r", "ms_g", "ms_b"],
                 "grid": [2, 2, 2], "box": {"min": [-0.5] * 3, "size": [1.0] * 3},
                 "cpca": {"clusters": k, "bases": n, "relative_error": 0.0},
-                "photons": {"paths_per_basis": 1, "seed": 0, "max_bounces": 16, "kernel_c": 1.5},
-                "seconds": {"trace": 0.0, "cpca": 0.0}}
+                "photons": {"paths_per_basis": 1, "seed": 0, "max_bounces": 16, "kernel_c": 1.5}}
     return Transfer(rng.integers(-1, k, v).astype(np.int32), rng.random(v).astype(np.float32),
                     rng.random((v, n)).astype(np.float32), rng.random((k, d)).astype(np.float32),
                     rng.random((k, n, d)).astype(np.float32), manifest)
