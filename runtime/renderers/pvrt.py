@@ -9,9 +9,10 @@ the fall-back for a delta the basis cannot represent), then ray-march the camera
     L_i = sum_s T_s (1 - exp(-sigma_s dt)) albedo_s R_ms(x_s)
     L_e = T_exit * sky(w)
 
-with ``R`` the radiance volume (trilinear, cell-centred), sigma and albedo from the full-resolution medium, the
-same segment quadrature and jittered start as ``runtime/renderers/ray_marcher.py`` and its empty-space skipping
-(``tracking.empty_run``). Layers L, L_d, L_i, L_e as the other renderers.
+with ``R`` the radiance volume (trilinear, cell-centred, D_v-weighted: ``runtime/pvrt/radiance.py``), sigma and
+albedo from the full-resolution medium, the same segment quadrature and jittered start as
+``runtime/renderers/ray_marcher.py`` and its empty-space skipping (``tracking.empty_run``). Layers L, L_d, L_i, L_e
+as the other renderers.
 
 Parameters: ``transfer`` (a :class:`photon_fields.runtime.pvrt.transfer.Transfer`, checked against the scene),
 ``step`` (camera step in voxels), ``direct`` ("nee": directional lights' direct term from light volumes, "transfer":
@@ -97,7 +98,7 @@ def _march_ray(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarra
             i, j, k, fx, fy, fz = _cell_coords(m, x, y, z, rg)
             r = np.zeros(6)
             occ = _trilinear(rad[:, :, :, 6], i, j, k, fx, fy, fz)
-            if occ > 0.0:  # the mean over the stencil's occupied cells (radiance.CHANNELS)
+            if occ > 0.0:  # interpolated photon energy / interpolated D_v (radiance.CHANNELS)
                 for c in range(6):
                     r[c] = _trilinear(rad[:, :, :, c], i, j, k, fx, fy, fz) / occ
             if lights.shape[0] > 0:

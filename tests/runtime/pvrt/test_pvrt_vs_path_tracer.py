@@ -10,8 +10,9 @@ Tolerances come from measurement (this scene, 24x24 pixels, path tracer at 64 sp
   transfer) has a mean 0.992 of the path tracer's: asserted within 3 %. Its relative L2 is 0.170, the reference's
   noise plus the 64^3 light volume's blur: asserted below 0.20;
 - PVRT's L_i (multiple scattering from the transfer, DSF order 0, 8^3 grid, 8000 paths per basis light) has a mean
-  1.003 of the path tracer's with seed 0, and 0.89-1.03 over seeds 0-3 (0.87-1.02 at 2000 paths: the spread is not
-  photon noise, it follows the seed of CPCA's k-means): asserted within 15 %, which every one of those seeds passes.
+  1.11 of the path tracer's with seed 0, and 0.99-1.11 over seeds 0-3 (the spread follows the seed of CPCA's
+  k-means more than the photons': 2000 paths give nearly the same values): asserted within 15 %, which every one of
+  those seeds passes; the remaining +5 % in the mean is the D_v-weighted interpolation's (runtime/pvrt/radiance.py).
   This dense ball is an easy case: on the thin vortex a coarse grid under-estimates L_i by a quarter
   (bench/README.md), which this test does not cover.
 """
