@@ -397,7 +397,14 @@ def cmd_pvrt(args: argparse.Namespace) -> int:
     """``pfn-train pvrt``: check every option, then precompute and write the transfer (``runtime.pvrt``)."""
     from photon_fields.models_spec.pvrt_transfer import PVRT_SUFFIX
     from photon_fields.runtime.pvrt.basis import check_basis
-    from photon_fields.runtime.pvrt.constants import DEFAULT_DSF_ORDER, DEFAULT_SH_ORDER
+    from photon_fields.runtime.pvrt.constants import (
+        DEFAULT_DSF_ORDER,
+        DEFAULT_SH_ORDER,
+        DSF_ORDERS,
+        EXITANCE_ORDERS,
+        GRID_RANGE,
+        SH_ORDERS,
+    )
     from photon_fields.runtime.pvrt.precompute import check_settings
     from photon_fields.runtime.pvrt.transfer import precompute_transfer, save_transfer
     from photon_fields.runtime.scene.scene import load_scene
@@ -405,7 +412,15 @@ def cmd_pvrt(args: argparse.Namespace) -> int:
     out = Path(args.out)
     paths = parse_count(args.paths, "--paths")
     order = (DEFAULT_DSF_ORDER if args.basis == "dsf" else DEFAULT_SH_ORDER) if args.order is None else args.order
+    lo, hi = DSF_ORDERS if args.basis == "dsf" else SH_ORDERS
+    if not lo <= order <= hi:
+        raise InputError("--order", f"a {args.basis} order must be an integer in [{lo}, {hi}], got {order}")
     check_basis(args.basis, order, "--basis")
+    ranges = (("--grid", args.grid, GRID_RANGE), ("--exitance-order", args.exitance_order, EXITANCE_ORDERS),
+              ("--paths", paths, (1, 2**32 - 1)))
+    for flag, value, (lo, hi) in ranges:
+        if not lo <= value <= hi:
+            raise InputError(flag, f"must be an integer in [{lo}, {hi}], got {value}")
     check_settings(args.grid, args.exitance_order, paths)
     for flag, value, lo, hi in (("--clusters", args.clusters, 1, 4096), ("--pca-bases", args.pca_bases, 0, 64)):
         if not lo <= value <= hi:
