@@ -37,8 +37,11 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
         (:func:`photon_fields.runtime.scene.labels.labels_transfer` builds one).
     lights: a rig name (:data:`photon_fields.runtime.scene.rigs.LIGHT_RIGS`: studio, sun, sky) or a list of
         light dicts in the scene-file form.
-    method: a renderer's name (pt, raymarch, photonmap, field); ``options`` are its own settings by keyword
-        (e.g. ``max_depth=4`` for pt). ``field`` trains a photon field on first use (needs the ``train``
+    method: a renderer's name (pt, raymarch, photonmap, field, pvrt); ``options`` are its own settings by keyword
+        (e.g. ``max_depth=4`` for pt). ``pvrt`` precomputes a PVRT transfer for the volume, transfer function and g
+        on first use (cached like a field; ``training`` a dict of ``grid``, ``paths``, ``order``, ``basis``,
+        ``exitance_order``, ``clusters``, ``bases``) and relights it with ``lights`` (distant lights only).
+        ``field`` trains a photon field on first use (needs the ``train``
         extra), ``photonmap`` traces a photon map, both cached in ``cache`` (default ``$PFN_CACHE`` or
         ``~/.cache/photon-fields``); ``training`` is a trainer preset name (default ``cpu``) or a dict of
         ``preset``, ``photons``, ``steps``, ``batch``, ``k``, ``threads``.
@@ -71,20 +74,31 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
     width, height = _size(size)
     check_g(g, "g")
     settings = None
-    if renderer.input is not None:
+    if renderer.input == "transfer":
+        from photon_fields.field_cache import cache_root, training_settings
+
+        settings = training_settings(training, "pvrt")
+        root = cache_root(cache)
+    elif renderer.input is not None:
         from photon_fields.field_cache import cache_root, training_settings
 
         settings = training_settings(training, method)
         root = cache_root(cache)
     elif training is not None:
-        raise InputError("training", f"method {method!r} trains nothing (only field and photonmap do)")
+        raise InputError("training", f"method {method!r} trains nothing (only field, photonmap and pvrt do)")
     vol, source = as_volume(volume, spacing)
     tf = _transfer_function(transfer_function, vol)
     cam = (Camera.from_dict(camera, "camera").with_resolution(width, height) if camera is not None
            else framing_camera(vol, width, height))
     scene = Scene(vol, tf, _lights(lights), cam, g, vol.name, source)
     inputs: dict[str, Any] = {}
-    if settings is not None:
+    if settings is not None and renderer.input == "transfer":
+        from photon_fields.field_cache import cached_transfer
+        from photon_fields.runtime.pvrt.transfer import load_transfer
+
+        with numba_threads(threads, "threads"):
+            inputs = {"transfer": load_transfer(cached_transfer(scene, settings, seed, root), scene)}
+    elif settings is not None:
         from photon_fields.field_cache import cached_input
 
         path = cached_input(scene, method, settings, seed, root)

@@ -58,6 +58,8 @@ UPDATE = "tests/train/fit/test_update.py"
 LABELS_MEDIUM = "tests/runtime/transport/test_labels_medium.py"
 ENVMAP = "tests/runtime/transport/test_environment_map.py"
 ENVRENDER = "tests/runtime/renderers/test_environment_map_render.py"
+PVRT_CLI = "tests/train/cli/test_pvrt_cli.py"
+PVRT_PT = "tests/runtime/pvrt/test_pvrt_vs_path_tracer.py"
 
 
 @dataclass(frozen=True)
@@ -389,6 +391,35 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/scene/test_labels.py::"
             "test_fingerprint_tells_label_volumes_with_the_same_normalized_grid_apart",),
            "label scenes fingerprinted by the normalized grid alone: {0, 1, 2} and {0, 2, 4} share photon maps"),
+    # PVRT (issue 18): the transfer file, its refusals, and its radiance against the path tracer.
+    Mutant("pvrt_seed_not_passed", "train/cli/train.py", "bases=args.pca_bases, seed=args.seed",
+           "bases=args.pca_bases, seed=0",
+           (f"{PVRT_CLI}::test_same_seed_same_bytes_any_threads_other_seed_differs",),
+           "pfn-train pvrt ignores --seed (every seed writes seed 0's transfer)"),
+    Mutant("pvrt_zip_timestamps", "runtime/pvrt/transfer.py",
+           'info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_TIME)',
+           'info = zipfile.ZipInfo(f"{name}.npy", date_time=time.localtime()[:6])',
+           (f"{PVRT_CLI}::test_same_seed_same_bytes_any_threads_other_seed_differs",),
+           "the transfer file's zip entries carry the time of writing (as np.savez does): same seed, other bytes"),
+    Mutant("pvrt_check_volume_only", "runtime/pvrt/transfer.py",
+           "expected = {k: parts[k] for k in PVRT_SCENE_PARTS}",
+           'expected = {k: parts[k] if k == "volume" else self.manifest["scene_parts"][k] for k in PVRT_SCENE_PARTS}',
+           (f"{PVRT_CLI}::test_render_refuses_missing_foreign_or_unreadable_transfer",
+            f"{PVRT_PT}::test_refuses_a_transfer_for_another_transfer_function_or_g"),
+           "a transfer made for another transfer function of the same volume is accepted"),
+    Mutant("pvrt_no_nee", "runtime/pvrt/lighting.py", "                nee_rgb.append(rgb)",
+           "                nee_rgb.append(0.0 * rgb)", (f"{PVRT_PT}::test_pvrt_matches_path_tracer_under_its_light",),
+           "a directional light's direct term is dropped (NEE light volume weighted by 0)"),
+    Mutant("pvrt_no_mass_division", "runtime/pvrt/radiance.py", "out[ix, iy, iz, resp.shape[2]] = mass[v]",
+           "out[ix, iy, iz, resp.shape[2]] = 1.0",
+           (f"{PVRT_PT}::test_pvrt_matches_path_tracer_under_its_light",),
+           "the radiance volume is the photon energy, not divided by the cell's kernel-weighted extinction D_v"),
+    Mutant("pvrt_no_hg_bands", "runtime/pvrt/radiance.py", "                    y[j] *= band[j]",
+           "                    y[j] *= 1.0", (f"{PVRT_PT}::test_pvrt_matches_path_tracer_under_its_light",),
+           "the camera's HG phase (band factors g^l) is left out of the exitant radiance (isotropic instead)"),
+    Mutant("pvrt_photon_power_doubled", "runtime/pvrt/precompute.py", "        power = weight * scale",
+           "        power = 2.0 * weight * scale", (f"{PVRT_PT}::test_pvrt_matches_path_tracer_under_its_light",),
+           "basis-light photons carry twice their energy"),
 )
 
 

@@ -152,7 +152,8 @@ def test_the_default_camera_frames_the_volume() -> None:
     (np.full((3, 3, 3), "a"), {}, "volume: must hold real numbers, got dtype <U1"),
     ("no_such_volume.npy", {}, "no_such_volume.npy: file not found"),
     ({"a": 1}, {}, "volume: expected a 3-D numpy array, a volume file path or a pyvista.ImageData, got dict"),
-    (None, {"method": "magic"}, "method: unknown method 'magic' (available: pt, raymarch, photonmap, field)"),
+    (None, {"method": "magic"}, "method: unknown method 'magic' (available: pt, raymarch, photonmap, field, pvrt)"),
+    (None, {"method": "pvrt", "training": {"grid": 4, "gird": 4}}, "training: unknown key 'gird'"),
     (None, {"lights": "disco"}, "lights: unknown light rig 'disco' (available: studio, sun, sky)"),
     (None, {"transfer_function": "nope"}, "transfer_function: unknown preset 'nope' and not a .json file"),
     (None, {"transfer_function": "missing.json"}, "missing.json: file not found"),
@@ -197,3 +198,20 @@ def test_label_volume_with_the_labels_preset(tmp_path: Path) -> None:
     assert img.L.max() > 0
     with pytest.raises(pf.InputError, match="^transfer_function: volume 'volume' is not a label volume"):
         pf.render(np.random.default_rng(0).random((6, 6, 6)), transfer_function="labels", spp=1, size=(4, 4))
+
+
+def test_pvrt_precomputes_once_and_relights(tmp_path: Path) -> None:
+    """``method="pvrt"``: a transfer precomputed on first use and cached by volume, transfer function and g (not
+    the lights: another light reuses it); a point light is refused in one line."""
+    vol = np.random.default_rng(0).random((8, 8, 8))
+    tiny = {"grid": 4, "order": 0, "paths": 200, "clusters": 2}
+    kwargs = {"method": "pvrt", "spp": 1, "size": (8, 8), "cache": tmp_path, "training": tiny, "g": 0.2}
+    img = pf.render(vol, lights="sun", **kwargs)
+    assert img.L_i.mean() > 0 and img.L_d.mean() > 0
+    files = list(tmp_path.glob("fields/*/transfer.pvrt"))
+    assert len(files) == 1
+    stamp = files[0].stat().st_mtime_ns
+    pf.render(vol, lights="sky", **kwargs)  # another light: the same transfer
+    assert list(tmp_path.glob("fields/*/transfer.pvrt")) == files and files[0].stat().st_mtime_ns == stamp
+    with pytest.raises(pf.InputError, match="^light 1: a point light is local"):
+        pf.render(vol, lights="studio", **kwargs)

@@ -8,6 +8,7 @@ Examples::
     pfn-render --method field --bundle run/field.pfn --out img.exr     # the scene the bundle was trained for
     pfn-render --method field --bundle run/field.pfn --scene vortex --orbit 120 --out orbit/frame.exr
     pfn-render --scene head --method pt --spp 4 --denoise oidn --out head.exr   # L denoised, L_noisy kept
+    pfn-render --method pvrt --transfer vortex.pvrt --scene vortex --out relit.exr  # pfn-train pvrt vortex ...
 
 Bad input exits with status 2 and one line on stderr: ``error: <input>: <problem>``.
 """
@@ -72,6 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument(opt.flag, type=opt.type, default=opt.default, help=f"{', '.join(names)}: {opt.help}")
     p.add_argument("--map", default=None, help="photonmap: photon map (.npz) from `pfn-train trace`")
     p.add_argument("--bundle", default=None, help="field: photon-field bundle (NAME.pfn) from `pfn-train export`")
+    p.add_argument("--transfer", default=None, help="pvrt: PVRT transfer (NAME.pvrt) from `pfn-train pvrt`; it must "
+                   "match the scene's volume, transfer function and g (default --scene: the builtin it was made for)")
     p.add_argument("--precision", default="fp32",
                    help="field: MLP precision; fp32 (exact) is the only one (int8 was removed: runtime/field/field.py)")
     p.add_argument("--denoise", default=None, metavar="NAME",
@@ -138,6 +141,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         from photon_fields.runtime.field.bundle_reader import scene_for_bundle
 
         scene, scene_from = scene_for_bundle(args.bundle, force=args.force)
+    elif args.scene is None and renderer.input == "transfer":
+        scene, scene_from = scene_for_transfer(args.transfer)
     else:
         from photon_fields.runtime.scene.scene import DEFAULT_SCENE
 
@@ -173,6 +178,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
               "scene_from": scene_from, "warnings": warnings, "cpu": cpu_record()}
     if field is not None:
         report["field"] = field.describe()
+    if "transfer" in inputs:
+        mf = inputs["transfer"].manifest
+        keys = ("scene_name", "basis", "grid", "exitance_order", "cpca", "photons")
+        report["transfer"] = {"path": str(args.transfer), **{k: mf[k] for k in keys}}
     if denoised is not None:
         report["denoise"] = denoised
     from photon_fields.runtime.io.atomic import atomic_write_text
@@ -258,6 +267,12 @@ def load_inputs(args: argparse.Namespace, kind: str | None, scene: Any,
 
         answerable(pmap.phases, scene.g, map_window(pmap.phases), "--g")
         return {"pmap": pmap, "force": args.force}, [warning] if warning else [], None
+    if kind == "transfer":
+        from photon_fields.runtime.pvrt.transfer import load_transfer
+
+        # A transfer made for another volume, transfer function, g or box is refused, --force or not: relighting
+        # it would render the photons of another medium (Transfer.check_scene).
+        return {"transfer": load_transfer(args.transfer, scene)}, [], None
     if kind == "bundle":
         from photon_fields.runtime.field.field import PhotonField
 
@@ -266,6 +281,21 @@ def load_inputs(args: argparse.Namespace, kind: str | None, scene: Any,
                                  expected_parts=scene.fingerprint_parts())
         return {"estimator": field.estimator()}, [field.scene_warning] if field.scene_warning else [], field
     return {}, [], None
+
+
+def scene_for_transfer(path: str) -> tuple[Any, str]:
+    """No ``--scene`` with ``--method pvrt``: the builtin scene the transfer was precomputed for (its manifest's
+    ``scene_name``; the fingerprints are checked when the transfer is loaded against it), else a one-line error
+    asking for ``--scene``."""
+    from photon_fields.runtime.pvrt.transfer import load_transfer
+    from photon_fields.runtime.scene.scene import BUILTIN_SCENES, builtin_scene
+
+    transfer = load_transfer(path)
+    name = transfer.manifest["scene_name"]
+    if name not in BUILTIN_SCENES:
+        raise InputError("--scene", f"{path} was precomputed for scene {name!r}, not a builtin: pass its scene file "
+                         "with --scene")
+    return builtin_scene(name), "transfer"
 
 
 def output_exr_path(text: str) -> Path:

@@ -5,7 +5,8 @@ Every renderer is called the same way::
     render(scene, *, spp, seed, batch_size, progress, **inputs, **options) -> RenderResult
 
 ``inputs`` are what the command line loads for it (``"map"``: ``pmap=`` a photon map and ``force=``;
-``"bundle"``: ``estimator=`` a photon field's estimator), ``options`` its own settings, each declared as an
+``"bundle"``: ``estimator=`` a photon field's estimator; ``"transfer"``: ``transfer=`` a PVRT transfer),
+``options`` its own settings, each declared as an
 :class:`Option` that the command line turns into a flag, validates before any work and passes on by keyword.
 The render functions are imported when a renderer is first used, so building the command line stays cheap.
 """
@@ -22,7 +23,8 @@ from photon_fields.runtime.errors import InputError
 
 #: What a renderer can ask the command line to load: the flag that names the file, and what it is.
 INPUTS = {"map": ("--map", "a photon map (pfn-train trace SCENE --out map.npz)"),
-          "bundle": ("--bundle", "a bundle (pfn-train all SCENE --out run/ writes run/field.pfn)")}
+          "bundle": ("--bundle", "a bundle (pfn-train all SCENE --out run/ writes run/field.pfn)"),
+          "transfer": ("--transfer", "a PVRT transfer (pfn-train pvrt SCENE --out NAME.pvrt)")}
 
 
 def int_in(lo: int, hi: int) -> Callable[[str, Any], int]:
@@ -137,4 +139,14 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
     Renderer("field", "the neural renderer (Alg. 2): first interactions + NEE + the photon field's L_i "
              "(needs --bundle)", "photon_fields.runtime.renderers.neural:render_neural", (CAMERA_OPTION, GATHER_OPTION),
              input="bundle"),
+    # Defaults spelt out as in runtime.pvrt.constants / lighting (not imported: building the CLI stays cheap).
+    Renderer("pvrt", "PVRT relighting (Zhang et al. 2013) from a precomputed transfer: distant lights only, "
+             "multiple scattering from the transfer, directional lights' direct term by NEE (needs --transfer)",
+             "photon_fields.runtime.renderers.pvrt:render_pvrt",
+             (Option("--direct", "direct", "direct term of directional lights: nee (a light volume of their "
+                     "transmittance, sharp shadows) or transfer (from the lighting basis, blurred)", str, "nee",
+                     one_of(("nee", "transfer"))),
+              Option("--light-grid", "light_grid", "pvrt --direct nee: light-volume cells along the box's longest "
+                     "side", int, 64, int_in(4, 512))),
+             input="transfer"),
 )}

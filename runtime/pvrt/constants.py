@@ -1,0 +1,43 @@
+"""Defaults and limits of the PVRT pipeline, in one place (each with the reason for its value)."""
+
+from __future__ import annotations
+
+from photon_fields.models_spec.pvrt_transfer import PVRT_PARTS
+
+#: Lighting basis kinds: the paper's DSF (Sec. 5) and SH, the comparison it makes (Sec. 6.1, Fig. 11).
+BASIS_KINDS: tuple[str, ...] = ("dsf", "sh")
+#: DSF order = icosahedral subdivision level: 12, 42, 162, 642 directions (Sec. 5.2). The paper uses 642 on a GPU;
+#: on 2 CPU cores 42 keeps the transfer (V x 42 x 4 x 9 floats) at ~200 MB on a 32^3 grid and precomputation under
+#: a minute, and the lighting it blurs (a directional light's multiple scattering) is low-frequency.
+DSF_ORDERS: tuple[int, int] = (0, 3)
+DEFAULT_DSF_ORDER = 1
+#: SH lighting order = l_max (so (l_max + 1)^2 basis lights); the paper's SH comparison uses up to l_max 25.
+SH_ORDERS: tuple[int, int] = (0, 8)
+DEFAULT_SH_ORDER = 3
+#: The radiant-exitance SH band limit l_max (Sec. 6.1: 1st order for isotropic, 4-6th for anisotropic phase
+#: functions). We store incident radiance and apply the HG phase at render time (its SH coefficients are g^l), so
+#: l_max 2 (9 coefficients) holds |g| <= 0.4 of the embedded scenes to a truncation of g^3 <= 6 %.
+EXITANCE_ORDERS: tuple[int, int] = (0, 4)
+DEFAULT_EXITANCE_ORDER = 2
+#: Transfer grid: cells along the volume box's longest side. The multiple scattering it holds is smooth; the direct
+#: term of a directional light comes from the light volume (NEE) at render time. 32 on 96^3 volumes: 3 voxels a cell.
+DEFAULT_GRID = 32
+GRID_RANGE: tuple[int, int] = (4, 128)
+#: Photon paths traced per basis light (Sec. 8.3's NP, here per basis light rather than per boundary voxel).
+DEFAULT_PATHS_PER_BASIS = 1 << 16
+MAX_BOUNCES = 16  # the path tracer's max_depth: paths of up to 16 scattering vertices
+#: Splatting kernel radius h = c * cell edge (Eq. 14; the paper's c = 4 on a full-resolution grid). Our transfer
+#: grid is already 3x coarser than the volume, so c = 1.5 cells is about the paper's smoothing, at ~14 cells a photon.
+KERNEL_C = 1.5
+#: CPCA (Sec. 6.4): clusters and PCA bases per cluster. The paper uses 128 clusters / 4 bases for 5123 voxels; our
+#: ~10^4 occupied cells need fewer clusters (bench/README.md reports the reconstruction error).
+DEFAULT_CLUSTERS = 32
+DEFAULT_PCA_BASES = 4
+KMEANS_ITERATIONS = 12
+#: Light volume of a directional light's direct term (NEE through the medium): cells along the longest side.
+DEFAULT_LIGHT_GRID = 64
+#: Transfer parts: the first collision (direct, single scattering; scalar, before the albedo) and the later ones
+#: (multiple scattering; RGB, because the albedo of earlier vertices colours it).
+PARTS = PVRT_PARTS
+#: Quadrature points for projecting sky functions and for the DSF basis' solid angles.
+SPHERE_QUADRATURE = 1 << 14

@@ -1,0 +1,117 @@
+"""Clustered PCA of the per-voxel transfer matrices (paper Sec. 6.4, Eq. 16; Sloan et al. 2003 [34]).
+
+Each occupied cell's transfer matrix (``m x parts x n``, flattened to a vector of length D) is assigned to one of
+K clusters by k-means in signal space ("vector quantization"); within cluster k, PCA gives the mean ``T_mean^k``
+and N basis matrices ``T_i^k``, and each cell keeps its cluster index and N weights ``w_i``:
+
+    T ~ T_mean^k + sum_i w_i T_i^k            (Eq. 16)
+
+Cells whose matrix is all zero (no photon reached them: empty space) are left out and get cluster -1 and zero
+weights ("empty voxels ... are excluded from the clustering and zero weights are assigned directly").
+k-means is seeded (k-means++ from ``numpy.random.default_rng(seed)``) and runs a fixed number of Lloyd
+iterations, so the same transfer and seed give the same bytes.
+
+Parts of very different magnitude (the direct part is several times the multiple scattering) would leave the small
+one to the truncation: the clustering and PCA run on the matrices with each part scaled to unit RMS (``groups``),
+and the means and bases are scaled back, so the compressed form still reconstructs the original matrices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.pvrt.constants import KMEANS_ITERATIONS
+
+
+@dataclass
+class CPCA:
+    cluster: np.ndarray  # int32 (V,): cluster of each cell, -1 for empty cells
+    weights: np.ndarray  # float32 (V, N)
+    mean: np.ndarray  # float32 (K, D)
+    basis: np.ndarray  # float32 (K, N, D)
+    relative_error: float  # ||X - X_hat||_F / ||X||_F over all cells
+
+    def reconstruct(self) -> np.ndarray:
+        """The approximated matrices (V, D) (zero for empty cells)."""
+        out = np.zeros((len(self.cluster), self.mean.shape[1]), np.float32)
+        full = self.cluster >= 0
+        c = self.cluster[full]
+        out[full] = self.mean[c] + np.einsum("vn,vnd->vd", self.weights[full], self.basis[c])
+        return out
+
+
+def _kmeans(x: np.ndarray, k: int, rng: np.random.Generator, iterations: int) -> np.ndarray:
+    """Labels (n,) of Lloyd's k-means with k-means++ seeding, in float64."""
+    n = len(x)
+    sq = np.einsum("ij,ij->i", x, x)
+    centres = [x[int(rng.integers(n))]]
+    d2 = np.maximum(sq - 2 * x @ centres[0] + centres[0] @ centres[0], 0)
+    for _ in range(1, k):
+        p = d2 / d2.sum() if d2.sum() > 0 else np.full(n, 1.0 / n)
+        c = x[int(rng.choice(n, p=p))]
+        centres.append(c)
+        d2 = np.minimum(d2, np.maximum(sq - 2 * x @ c + c @ c, 0))
+    cen = np.array(centres)
+    labels = np.zeros(n, np.int64)
+    for _ in range(iterations):
+        dist = sq[:, None] - 2 * x @ cen.T + np.einsum("ij,ij->i", cen, cen)[None, :]
+        labels = np.argmin(dist, axis=1)
+        for j in range(k):
+            sel = labels == j
+            if sel.any():
+                cen[j] = x[sel].mean(axis=0)
+    return labels
+
+
+def compress(matrices: np.ndarray, clusters: int, bases: int, seed: int = 0,
+             iterations: int = KMEANS_ITERATIONS, groups: np.ndarray | None = None) -> CPCA:
+    """CPCA of ``matrices`` (V, ...) flattened per cell: ``clusters`` clusters (fewer if there are fewer occupied
+    cells), ``bases`` PCA bases each (module docstring). ``groups`` (D,) ints: the part of each flattened entry,
+    each scaled to unit RMS for the fit (None: one group)."""
+    if isinstance(clusters, bool) or not isinstance(clusters, (int, np.integer)) or not 1 <= clusters <= 4096:
+        raise InputError("clusters", f"must be an integer in [1, 4096], got {clusters!r}")
+    if isinstance(bases, bool) or not isinstance(bases, (int, np.integer)) or not 0 <= bases <= 64:
+        raise InputError("pca bases", f"must be an integer in [0, 64], got {bases!r}")
+    v = matrices.shape[0]
+    x32 = matrices.reshape(v, -1)
+    d = x32.shape[1]
+    occupied = np.flatnonzero(np.any(x32 != 0, axis=1))
+    cluster = np.full(v, -1, np.int32)
+    weights = np.zeros((v, bases), np.float32)
+    if occupied.size == 0:
+        return CPCA(cluster, weights, np.zeros((1, d), np.float32), np.zeros((1, bases, d), np.float32), 0.0)
+    x = x32[occupied].astype(np.float64)
+    grp = np.zeros(d, np.int64) if groups is None else np.asarray(groups).reshape(-1)
+    scale = np.ones(d)
+    for gi in np.unique(grp):
+        rms = float(np.sqrt(np.mean(x[:, grp == gi] ** 2)))
+        scale[grp == gi] = rms if rms > 0 else 1.0
+    x_full = x
+    x = x / scale
+    k = min(int(clusters), len(x))
+    labels = _kmeans(x, k, np.random.default_rng(seed), iterations)
+    mean = np.zeros((k, d))
+    basis = np.zeros((k, bases, d))
+    w = np.zeros((len(x), bases))
+    for j in range(k):
+        sel = np.flatnonzero(labels == j)
+        if sel.size == 0:
+            continue
+        mean[j] = x[sel].mean(axis=0)
+        centred = x[sel] - mean[j]
+        if bases > 0 and sel.size > 1:
+            _, _, vt = np.linalg.svd(centred, full_matrices=False)
+            nb = min(bases, vt.shape[0])
+            # A deterministic sign per component: its largest entry positive.
+            signs = np.sign(vt[np.arange(nb), np.argmax(np.abs(vt[:nb]), axis=1)])
+            basis[j, :nb] = vt[:nb] * signs[:, None]
+            w[sel] = centred @ basis[j].T
+    cluster[occupied] = labels.astype(np.int32)
+    weights[occupied] = w.astype(np.float32)
+    out = CPCA(cluster, weights, (mean * scale).astype(np.float32), (basis * scale).astype(np.float32), 0.0)
+    err = np.linalg.norm(out.reconstruct()[occupied].astype(np.float64) - x_full)
+    out.relative_error = float(err / max(np.linalg.norm(x_full), 1e-300))
+    return out

@@ -1,0 +1,89 @@
+"""A lighting for PVRT: the scene's lights, and optionally a sky function, as basis coefficients (Sec. 7.1).
+
+PVRT precomputes the response to distant basis lights, so it renders distant lights only:
+
+- a :class:`~photon_fields.runtime.scene.lights.DirectionalLight` (a delta in direction): projected for its
+  multiple scattering (:meth:`LightingBasis.project_directional`). No finite basis represents a delta's sharp
+  direct shadows, so by default its direct term falls back to next-event estimation (a light volume of its
+  transmittance, ``runtime/pvrt/radiance.py``) and :attr:`Lighting.notes` says so;
+- an :class:`~photon_fields.runtime.scene.lights.EnvironmentLight` (a constant sky) and any sky function
+  ``L(w)``: projected whole (direct and multiple scattering from the transfer);
+- a point light is local, not distant: refused in one line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.pvrt.basis import LightingBasis, SkyFunction
+from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, PointLight
+
+#: How a directional light's direct term is rendered: "nee" (light volume, sharp) or "transfer" (from the basis).
+DIRECT_MODES = ("nee", "transfer")
+
+
+@dataclass
+class Lighting:
+    """Basis coefficients of every distant light, and the directional lights whose direct term is NEE."""
+
+    coeffs: np.ndarray  # (m, 3): everything the transfer renders the multiple scattering of
+    direct_coeffs: np.ndarray  # (m, 3): what the transfer renders the direct term of (lights not done by NEE)
+    nee_directions: np.ndarray  # (k, 3) travel directions of the directional lights done by NEE
+    nee_rgb: np.ndarray  # (k, 3) their irradiance
+    sky: SkyFunction | None = None  # what rays that leave the volume see (None: nothing, or the constant below)
+    constant_sky: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    notes: list[str] = field(default_factory=list)
+
+
+def scene_lighting(lights: tuple, basis: LightingBasis, *, sky: SkyFunction | None = None,
+                   direct: str = "nee", rotation: np.ndarray | None = None) -> Lighting:
+    """Project ``lights`` (a scene's) and ``sky`` into ``basis``; ``rotation`` (3x3) turns the whole lighting
+    (the relighting the paper's viewer does). ``direct``: how directional lights' direct term is rendered."""
+    if direct not in DIRECT_MODES:
+        raise InputError("direct", f"must be one of {', '.join(DIRECT_MODES)}, got {direct!r}")
+    r = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
+    if r.shape != (3, 3) or not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
+        raise InputError("rotation", "must be a 3x3 rotation matrix")
+    m = basis.size
+    coeffs = np.zeros((m, 3))
+    direct_coeffs = np.zeros((m, 3))
+    nee_dirs, nee_rgb, notes = [], [], []
+    constant = np.zeros(3)
+    for i, light in enumerate(lights):
+        if isinstance(light, PointLight):
+            raise InputError(f"light {i}", "a point light is local, and PVRT's basis lights are distant: "
+                             "use directional or environment lights (or another --method)")
+        rgb = light.color * light.power
+        if isinstance(light, DirectionalLight):
+            travel = r @ light.direction
+            c = basis.project_directional(-travel, rgb)
+            coeffs += c
+            if direct == "nee":
+                nee_dirs.append(travel)
+                nee_rgb.append(rgb)
+            else:
+                direct_coeffs += c
+        elif isinstance(light, EnvironmentLight):
+            constant += rgb
+        else:
+            raise InputError(f"light {i}", f"{type(light).__name__} is not a light PVRT can project")
+    if nee_dirs:
+        notes.append(f"{len(nee_dirs)} directional light{'s' if len(nee_dirs) > 1 else ''}: a delta the "
+                     f"{basis.kind} basis cannot represent sharply; direct term by NEE (light volume), multiple "
+                     "scattering from the transfer")
+    sky_fn = None
+    if np.any(constant > 0) or sky is not None:
+        user = sky
+
+        def sky_fn(w: np.ndarray) -> np.ndarray:
+            v = np.broadcast_to(constant, (len(w), 3)).astype(np.float64)
+            return v + (np.asarray(user(w @ r), dtype=np.float64) if user is not None else 0.0)
+
+        c = basis.project_sky(sky_fn)
+        coeffs += c
+        direct_coeffs += c
+    return Lighting(coeffs, direct_coeffs, np.array(nee_dirs).reshape(-1, 3), np.array(nee_rgb).reshape(-1, 3),
+                    sky_fn if sky is not None else None, constant, notes)

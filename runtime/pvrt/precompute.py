@@ -1,0 +1,301 @@
+"""Precomputation of the radiance transfer (paper Alg. 1 lines 2-19, Sec. 6.2-6.3): basis-light photon tracing
+and photon splatting into per-voxel transfer matrices.
+
+For every basis light ``B_k`` (a distant radiance, ``runtime/pvrt/basis.py``) photon paths are traced through the
+medium and each real collision splats the photon's energy into the transfer cells around it. The result holds,
+per cell ``v`` of the transfer grid, the SH coefficients (Sec. 6.1: "we use SH to approximate L_re") of the radiance
+*arriving* there under ``B_k`` = 1, as a function of its travel direction:
+
+    T[v, k, part, j] = sum_photons K_v(x_p) Phi_p Y_j(d_p) / D_v,      D_v = integral K_v(x) sigma_t(x) dx
+
+- ``part`` 0 (``direct``): first collisions: the reduced incident radiance L_ri of Eq. 2 at the voxel (Sec. 6.2's
+  direct illumination; scalar, the light has not met an albedo yet); parts 1-3 (``ms_r/g/b``): later collisions,
+  the multiple-scattering term of Eq. 6, RGB because earlier vertices' albedo colours it.
+- Collisions are sampled by delta tracking with density ``sigma_t L``, so the numerator estimates the kernel-weighted
+  integral of ``sigma_t L`` and the quotient is the sigma_t-weighted mean of the radiance over the kernel (a ratio
+  estimate; ``D_v`` is summed over the volume's voxels, deterministically). Dividing each photon by sigma_t at its
+  collision instead (plain volume photon mapping) would under-estimate every cell that is partly empty, which on a
+  coarse grid is most of them; and the camera weights the radiance by sigma_t anyway. The phase function and the
+  albedo of the camera's own vertex are left to render time: the HG phase is a per-band factor ``g^l`` on these
+  coefficients (``runtime/pvrt/sh.py``), and the albedo comes from the full-resolution transfer function.
+- ``K_v`` is the paper's polynomial splatting kernel (Eq. 14), ``(h^2 - |d|^2)^3`` with radius ``h = c`` cells
+  (``KERNEL_C``), normalized over the cells it reaches so that every photon's energy is kept whole (Eq. 14's
+  analytic constant assumes a continuum of cells; at 1-2 cells it would not sum to 1).
+
+Photon sampling (Sec. 6.3.1). The paper starts photons on the volume's boundary voxels with uniform directions and
+energy ``B_k(w) dl^2 (w . n)``; we start them, as our photon tracer (``runtime/transport/emitters.py``) does for a
+distant light, on a disk of the bounding sphere's radius R perpendicular to their direction, which is the same
+estimator with no photon wasted on directions that leave at once. The direction is drawn where ``B_k`` is nonzero:
+for a DSF basis light, uniformly in the cone of its support (radius h around ``w_k``; the paper's "restrict w
+inside a small differential solid angle for each DSF basis light"), weight ``wbar_k(w) Omega_cone``; for an SH basis
+light, uniformly on the sphere, weight ``Y_k(w) 4 pi`` (signed: negative lobes carry negative energy). A photon's
+energy is ``weight * pi R^2 / paths``.
+
+Transport (Sec. 6.3.2): delta tracking over the majorant grid (``runtime/transport/tracking.py``; the paper steps a
+fixed ``dl``), Russian roulette on the albedo and HG importance sampling with the scene's g, up to ``MAX_BOUNCES``
+collisions: exactly the photon paths of ``train/photons/tracing.py`` (Alg. 1 of the Photon Field Networks paper).
+
+Determinism and memory: basis light k is one task (a serial kernel called from ``prange``), its path i uses random
+stream ``k * 2^32 + i`` and writes only ``T[:, k]``: the transfer is the same bytes for any thread count. Memory is
+the float32 transfer itself, ``V * m * 4 * (l_max + 1)^2`` floats (200 MB for 32^3 cells, 42 DSF lights, l_max 2).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+from tqdm import tqdm
+
+from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.pvrt.basis import LightingBasis
+from photon_fields.runtime.pvrt.constants import (
+    DEFAULT_EXITANCE_ORDER,
+    DEFAULT_GRID,
+    DEFAULT_PATHS_PER_BASIS,
+    EXITANCE_ORDERS,
+    GRID_RANGE,
+    KERNEL_C,
+    MAX_BOUNCES,
+    PARTS,
+)
+from photon_fields.runtime.pvrt.dsf import dsf_weights
+from photon_fields.runtime.pvrt.sh import sh_count, sh_eval
+from photon_fields.runtime.scene.lights import DIRECTIONAL
+from photon_fields.runtime.scene.scene import Scene
+from photon_fields.runtime.transport.emitters import emit_photon, sample_uniform_sphere
+from photon_fields.runtime.transport.medium import Medium, albedo_at, extinction_at, intersect_box
+from photon_fields.runtime.transport.phase import orthonormal_basis, sample_hg
+from photon_fields.runtime.transport.rng import next_float, stream_state
+from photon_fields.runtime.transport.tracking import delta_track
+
+_STREAM_STRIDE = np.uint64(1 << 32)  # basis light k owns random streams k * 2^32 + path
+
+
+def grid_shape(bsize: np.ndarray, grid: int) -> tuple[int, int, int]:
+    """Transfer-grid cells per axis: ``grid`` along the box's longest side, cells as close to cubes as the box
+    allows (at least 2 per axis)."""
+    longest = float(np.max(bsize))
+    return tuple(max(2, int(round(grid * float(s) / longest))) for s in bsize)  # type: ignore[return-value]
+
+
+@njit(cache=True)
+def _splat(acc: np.ndarray, k: int, part0: int, nparts: int, vals: np.ndarray, y: np.ndarray, n_out: int,
+           gx: int, gy: int, gz: int, ux: float, uy: float, uz: float, hc: float, cells: np.ndarray,
+           weights: np.ndarray) -> None:
+    """Eq. 14's kernel around the photon at cell coordinates (ux, uy, uz) (cell centres at integers), normalized
+    over the cells it reaches; adds weight * vals[p] * y[j] to acc[cell, k, part0 + p, j]."""
+    r = int(math.ceil(hc))
+    cx, cy, cz = int(math.floor(ux + 0.5)), int(math.floor(uy + 0.5)), int(math.floor(uz + 0.5))
+    h2 = hc * hc
+    n = 0
+    total = 0.0
+    for i in range(max(cx - r, 0), min(cx + r, gx - 1) + 1):
+        for j in range(max(cy - r, 0), min(cy + r, gy - 1) + 1):
+            for kk in range(max(cz - r, 0), min(cz + r, gz - 1) + 1):
+                d2 = (i - ux) ** 2 + (j - uy) ** 2 + (kk - uz) ** 2
+                if d2 < h2:
+                    w = (h2 - d2) ** 3
+                    cells[n] = (i * gy + j) * gz + kk
+                    weights[n] = w
+                    total += w
+                    n += 1
+    if total <= 0.0:
+        return
+    for c in range(n):
+        w = weights[c] / total
+        v = cells[c]
+        for p in range(nparts):
+            wp = w * vals[p]
+            for jj in range(n_out):
+                acc[v, k, part0 + p, jj] += np.float32(wp * y[jj])
+
+
+@njit(cache=True)
+def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: float, neighbours: np.ndarray,
+                       light_lmax: int, out_lmax: int, paths: int, seed: int, g: float, max_bounces: int,
+                       gx: int, gy: int, gz: int, hc: float, acc: np.ndarray) -> None:
+    """All photon paths of basis light ``k`` (module docstring), splatted into ``acc[:, k]``."""
+    cx, cy, cz = m.bmin[0] + 0.5 * m.bsize[0], m.bmin[1] + 0.5 * m.bsize[1], m.bmin[2] + 0.5 * m.bsize[2]
+    radius = 0.5 * math.sqrt(m.bsize[0] ** 2 + m.bsize[1] ** 2 + m.bsize[2] ** 2)
+    n_out = (out_lmax + 1) ** 2
+    y = np.empty(n_out)
+    ylight = np.empty((light_lmax + 1) ** 2)
+    idx = np.empty(neighbours.shape[1], dtype=np.int64)
+    wts = np.empty(neighbours.shape[1])
+    r = int(math.ceil(hc))
+    cells = np.empty((2 * r + 1) ** 3, dtype=np.int64)
+    kw = np.empty((2 * r + 1) ** 3)
+    vals = np.empty(3)
+    dvec = np.empty(3)
+    cos_h = math.cos(h)
+    if is_dsf:
+        ax, ay, az = dirs[k, 0], dirs[k, 1], dirs[k, 2]
+        tx, ty, tz, bx, by, bz = orthonormal_basis(ax, ay, az)
+    scale = math.pi * radius * radius / paths
+    for path in range(paths):
+        st = stream_state(np.uint64(seed), np.uint64(k) * _STREAM_STRIDE + np.uint64(path))
+        st, u1 = next_float(st)
+        st, u2 = next_float(st)
+        if is_dsf:  # uniform in the cone of B_k's support
+            c = 1.0 - u1 * (1.0 - cos_h)
+            s = math.sqrt(max(0.0, 1.0 - c * c))
+            cp, sp = s * math.cos(2 * math.pi * u2), s * math.sin(2 * math.pi * u2)
+            wx, wy, wz = cp * tx + sp * bx + c * ax, cp * ty + sp * by + c * ay, cp * tz + sp * bz + c * az
+            nb = dsf_weights(dirs, h, wx, wy, wz, neighbours[k], idx, wts)
+            weight = 0.0
+            for i in range(nb):
+                if idx[i] == k:
+                    weight = wts[i]
+            weight *= 2.0 * math.pi * (1.0 - cos_h)
+        else:  # uniform on the sphere
+            wx, wy, wz = sample_uniform_sphere(u1, u2)
+            sh_eval(light_lmax, wx, wy, wz, ylight)
+            weight = ylight[k] * 4.0 * math.pi
+        if weight == 0.0:
+            continue
+        power = weight * scale
+        dvec[0], dvec[1], dvec[2] = -wx, -wy, -wz
+        st, u3 = next_float(st)
+        st, u4 = next_float(st)
+        ox, oy, oz, dx, dy, dz = emit_photon(DIRECTIONAL, dvec, -1.0, cx, cy, cz, radius, u3, u4, 0.0, 0.0)
+        t0, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
+        if t0 >= t1:
+            continue
+        ox, oy, oz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
+        tmax = t1 - t0
+        br, bg, bb = 1.0, 1.0, 1.0
+        for bounce in range(max_bounces):
+            t, st = delta_track(m, ox, oy, oz, dx, dy, dz, 0.0, tmax, st)
+            if math.isinf(t):
+                break
+            ox, oy, oz = ox + t * dx, oy + t * dy, oz + t * dz
+            if extinction_at(m, ox, oy, oz) > 0.0:
+                sh_eval(out_lmax, dx, dy, dz, y)
+                e = power
+                ux = (ox - m.bmin[0]) / m.bsize[0] * gx - 0.5
+                uy = (oy - m.bmin[1]) / m.bsize[1] * gy - 0.5
+                uz = (oz - m.bmin[2]) / m.bsize[2] * gz - 0.5
+                if bounce == 0:
+                    vals[0] = e
+                    _splat(acc, k, 0, 1, vals, y, n_out, gx, gy, gz, ux, uy, uz, hc, cells, kw)
+                else:
+                    vals[0], vals[1], vals[2] = e * br, e * bg, e * bb
+                    _splat(acc, k, 1, 3, vals, y, n_out, gx, gy, gz, ux, uy, uz, hc, cells, kw)
+            if bounce + 1 == max_bounces:
+                break
+            a0, a1, a2 = albedo_at(m, ox, oy, oz)
+            q = max(a0, a1, a2)
+            st, u = next_float(st)
+            if u >= q:
+                break
+            br, bg, bb = br * a0 / q, bg * a1 / q, bb * a2 / q
+            st, u1 = next_float(st)
+            st, u2 = next_float(st)
+            dx, dy, dz, _ = sample_hg(g, dx, dy, dz, u1, u2)
+            _, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
+            tmax = max(t1, 0.0)
+
+
+@njit(cache=True, parallel=True)
+def _trace_group(m: Medium, ks: np.ndarray, is_dsf: bool, dirs: np.ndarray, h: float, neighbours: np.ndarray,
+                 light_lmax: int, out_lmax: int, paths: int, seed: int, g: float, max_bounces: int, gx: int,
+                 gy: int, gz: int, hc: float, acc: np.ndarray) -> None:
+    for i in prange(ks.shape[0]):
+        _trace_basis_light(m, ks[i], is_dsf, dirs, h, neighbours, light_lmax, out_lmax, paths, seed, g,
+                           max_bounces, gx, gy, gz, hc, acc)
+
+
+@njit(cache=True, parallel=True)
+def _extinction_mass(m: Medium, gx: int, gy: int, gz: int, hc: float, sub: int) -> np.ndarray:
+    """D_v = integral of K_v(x) sigma_t(x) dx (the denominator of the ratio estimate) by the midpoint rule on
+    ``sub``^3 points per voxel of the volume (fine enough that the kernel, a few cells wide, is resolved); each
+    x-slab splats into its own row, and the rows are summed in a fixed order."""
+    nx, ny, nz = m.density.shape
+    sx, sy, sz = nx * sub, ny * sub, nz * sub
+    dv = m.bsize[0] * m.bsize[1] * m.bsize[2] / (sx * sy * sz)
+    rows = np.zeros((sx, gx * gy * gz))
+    for i in prange(sx):
+        r = int(math.ceil(hc))
+        cells = np.empty((2 * r + 1) ** 3, dtype=np.int64)
+        kw = np.empty((2 * r + 1) ** 3)
+        vals = np.empty(1)
+        one = np.ones(1)
+        acc = np.zeros((gx * gy * gz, 1, 1, 1), dtype=np.float32)
+        x = m.bmin[0] + (i + 0.5) / sx * m.bsize[0]
+        for j in range(sy):
+            y = m.bmin[1] + (j + 0.5) / sy * m.bsize[1]
+            for k in range(sz):
+                z = m.bmin[2] + (k + 0.5) / sz * m.bsize[2]
+                s = extinction_at(m, x, y, z)
+                if s > 0.0:
+                    vals[0] = s * dv
+                    _splat(acc, 0, 0, 1, vals, one, 1, gx, gy, gz, (x - m.bmin[0]) / m.bsize[0] * gx - 0.5,
+                           (y - m.bmin[1]) / m.bsize[1] * gy - 0.5, (z - m.bmin[2]) / m.bsize[2] * gz - 0.5, hc,
+                           cells, kw)
+        rows[i] = acc[:, 0, 0, 0]
+    return rows.sum(axis=0)
+
+
+@dataclass
+class RawTransfer:
+    """The uncompressed transfer on a ``grid`` of cells: the numerators ``matrices[v, k, part, j]`` and the
+    denominators ``mass[v]`` = D_v of the module docstring (T = matrices / mass). The numerators, the photon energy,
+    are what CPCA compresses: weighted by the medium they cover, unlike the quotients, whose noisy values in cells
+    that are barely occupied would take the least-squares fit over."""
+
+    matrices: np.ndarray  # float32 (V, m, len(PARTS), (out_lmax + 1)^2)
+    mass: np.ndarray  # float32 (V,)
+    grid: tuple[int, int, int]
+    out_lmax: int
+    seconds: float
+
+
+def check_settings(grid: int, out_lmax: int, paths: int) -> None:
+    """One-line errors for settings out of range (before any work)."""
+    lo, hi = GRID_RANGE
+    if isinstance(grid, bool) or not isinstance(grid, (int, np.integer)) or not lo <= grid <= hi:
+        raise InputError("grid", f"transfer cells along the longest side must be an integer in [{lo}, {hi}], "
+                         f"got {grid!r}")
+    lo, hi = EXITANCE_ORDERS
+    if isinstance(out_lmax, bool) or not isinstance(out_lmax, (int, np.integer)) or not lo <= out_lmax <= hi:
+        raise InputError("exitance order", f"the radiant-exitance SH band limit must be an integer in [{lo}, {hi}], "
+                         f"got {out_lmax!r}")
+    if isinstance(paths, bool) or not isinstance(paths, (int, np.integer)) or not 1 <= paths < (1 << 32):
+        raise InputError("paths", f"photon paths per basis light must be an integer in [1, 2^32), got {paths!r}")
+
+
+def precompute_raw(scene: Scene, basis: LightingBasis, *, grid: int = DEFAULT_GRID,
+                   out_lmax: int = DEFAULT_EXITANCE_ORDER, paths: int = DEFAULT_PATHS_PER_BASIS, seed: int = 0,
+                   progress: bool = True, on_progress: Callable[[int, int], None] | None = None) -> RawTransfer:
+    """Trace every basis light and splat (module docstring). ``on_progress(done, total)`` after every group of
+    basis lights."""
+    check_settings(grid, out_lmax, paths)
+    from photon_fields.runtime.threads import max_threads
+
+    m = scene.medium()
+    shape = grid_shape(m.bsize, grid)
+    n_cells = int(np.prod(shape))
+    acc = np.zeros((n_cells, basis.size, len(PARTS), sh_count(out_lmax)), dtype=np.float32)
+    if basis.dsf is not None:
+        dirs, h, neighbours, light_lmax = basis.dsf.dirs, basis.dsf.h, basis.dsf.neighbours, 0
+    else:
+        dirs, h, neighbours, light_lmax = np.zeros((1, 3)), 0.0, np.full((1, 1), -1, np.int64), basis.order
+    group = 2 * max_threads()
+    t0 = time.perf_counter()
+    with tqdm(total=basis.size, desc="pvrt basis lights", unit="light", disable=not progress, leave=False) as bar:
+        for start in range(0, basis.size, group):
+            ks = np.arange(start, min(start + group, basis.size), dtype=np.int64)
+            _trace_group(m, ks, basis.dsf is not None, dirs, h, neighbours, light_lmax, out_lmax, int(paths),
+                         int(seed), float(scene.g), MAX_BOUNCES, shape[0], shape[1], shape[2], KERNEL_C, acc)
+            bar.update(len(ks))
+            if on_progress is not None:
+                on_progress(int(ks[-1]) + 1, basis.size)
+    # Quadrature points at most a third of a cell apart.
+    sub = max(1, int(math.ceil(3.0 * max(g / n for g, n in zip(shape, m.density.shape, strict=True)))))
+    mass = _extinction_mass(m, shape[0], shape[1], shape[2], KERNEL_C, sub)
+    return RawTransfer(acc, mass.astype(np.float32), shape, out_lmax, time.perf_counter() - t0)
