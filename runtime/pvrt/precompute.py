@@ -49,9 +49,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
-from tqdm import tqdm
 
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.pvrt.basis import LightingBasis
 from photon_fields.runtime.pvrt.constants import (
     DEFAULT_EXITANCE_ORDER,
@@ -68,6 +68,7 @@ from photon_fields.runtime.pvrt.sh import sh_count, sh_eval
 from photon_fields.runtime.scene.lights import DIRECTIONAL
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.emitters import emit_photon, sample_uniform_sphere
+from photon_fields.runtime.transport.environment_map import NO_ENV_MAP, EnvMap
 from photon_fields.runtime.transport.medium import Medium, albedo_at, extinction_at, intersect_box
 from photon_fields.runtime.transport.phase import orthonormal_basis, sample_hg
 from photon_fields.runtime.transport.rng import next_float, stream_state
@@ -118,8 +119,9 @@ def _splat(acc: np.ndarray, k: int, part0: int, nparts: int, vals: np.ndarray, y
 @njit(cache=True)
 def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: float, neighbours: np.ndarray,
                        light_lmax: int, out_lmax: int, paths: int, seed: int, g: float, max_bounces: int,
-                       gx: int, gy: int, gz: int, hc: float, acc: np.ndarray) -> None:
-    """All photon paths of basis light ``k`` (module docstring), splatted into ``acc[:, k]``."""
+                       gx: int, gy: int, gz: int, hc: float, acc: np.ndarray, env: EnvMap) -> None:
+    """All photon paths of basis light ``k`` (module docstring), splatted into ``acc[:, k]``. ``env`` is the
+    emitters' environment-map argument, unused by the directional photons traced here (``NO_ENV_MAP``)."""
     cx, cy, cz = m.bmin[0] + 0.5 * m.bsize[0], m.bmin[1] + 0.5 * m.bsize[1], m.bmin[2] + 0.5 * m.bsize[2]
     radius = 0.5 * math.sqrt(m.bsize[0] ** 2 + m.bsize[1] ** 2 + m.bsize[2] ** 2)
     n_out = (out_lmax + 1) ** 2
@@ -162,7 +164,8 @@ def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: flo
         dvec[0], dvec[1], dvec[2] = -wx, -wy, -wz
         st, u3 = next_float(st)
         st, u4 = next_float(st)
-        ox, oy, oz, dx, dy, dz = emit_photon(DIRECTIONAL, dvec, -1.0, cx, cy, cz, radius, u3, u4, 0.0, 0.0)
+        ox, oy, oz, dx, dy, dz, _, _, _ = emit_photon(DIRECTIONAL, dvec, env, -1.0, cx, cy, cz, radius, u3, u4, 0.0,
+                                                      0.0)
         t0, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
         if t0 >= t1:
             continue
@@ -204,10 +207,10 @@ def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: flo
 @njit(cache=True, parallel=True)
 def _trace_group(m: Medium, ks: np.ndarray, is_dsf: bool, dirs: np.ndarray, h: float, neighbours: np.ndarray,
                  light_lmax: int, out_lmax: int, paths: int, seed: int, g: float, max_bounces: int, gx: int,
-                 gy: int, gz: int, hc: float, acc: np.ndarray) -> None:
+                 gy: int, gz: int, hc: float, acc: np.ndarray, env: EnvMap) -> None:
     for i in prange(ks.shape[0]):
         _trace_basis_light(m, ks[i], is_dsf, dirs, h, neighbours, light_lmax, out_lmax, paths, seed, g,
-                           max_bounces, gx, gy, gz, hc, acc)
+                           max_bounces, gx, gy, gz, hc, acc, env)
 
 
 @njit(cache=True, parallel=True)
@@ -287,11 +290,12 @@ def precompute_raw(scene: Scene, basis: LightingBasis, *, grid: int = DEFAULT_GR
         dirs, h, neighbours, light_lmax = np.zeros((1, 3)), 0.0, np.full((1, 1), -1, np.int64), basis.order
     group = 2 * max_threads()
     t0 = time.perf_counter()
-    with tqdm(total=basis.size, desc="pvrt basis lights", unit="light", disable=not progress, leave=False) as bar:
+    with progress_bar(total=basis.size, desc="pvrt basis lights", unit="light", enabled=progress) as bar:
         for start in range(0, basis.size, group):
             ks = np.arange(start, min(start + group, basis.size), dtype=np.int64)
             _trace_group(m, ks, basis.dsf is not None, dirs, h, neighbours, light_lmax, out_lmax, int(paths),
-                         int(seed), float(scene.g), MAX_BOUNCES, shape[0], shape[1], shape[2], KERNEL_C, acc)
+                         int(seed), float(scene.g), MAX_BOUNCES, shape[0], shape[1], shape[2], KERNEL_C, acc,
+                         NO_ENV_MAP)
             bar.update(len(ks))
             if on_progress is not None:
                 on_progress(int(ks[-1]) + 1, basis.size)
