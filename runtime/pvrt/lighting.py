@@ -6,8 +6,10 @@ PVRT precomputes the response to distant basis lights, so it renders distant lig
   multiple scattering (:meth:`LightingBasis.project_directional`). No finite basis represents a delta's sharp
   direct shadows, so by default its direct term falls back to next-event estimation (a light volume of its
   transmittance, ``runtime/pvrt/radiance.py``) and :attr:`Lighting.notes` says so;
-- an :class:`~photon_fields.runtime.scene.lights.EnvironmentLight` (a constant sky) and any sky function
-  ``L(w)``: projected whole (direct and multiple scattering from the transfer);
+- an :class:`~photon_fields.runtime.scene.lights.EnvironmentLight` (a constant sky), an
+  :class:`~photon_fields.runtime.scene.lights.EnvironmentMap` (an HDR image, looked up with its rotation by
+  :func:`~photon_fields.runtime.transport.environment_map.env_map_eval_batch`) and any sky function ``L(w)``:
+  projected whole (direct and multiple scattering from the transfer), and seen by rays that leave the volume;
 - a point light is local, not distant: refused in one line.
 """
 
@@ -19,7 +21,8 @@ import numpy as np
 
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.pvrt.basis import LightingBasis, SkyFunction
-from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, PointLight
+from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, EnvironmentMap, PointLight
+from photon_fields.runtime.transport.environment_map import cached_env_map, env_map_eval_batch, rotation_matrix
 
 #: How a directional light's direct term is rendered: "nee" (light volume, sharp) or "transfer" (from the basis).
 DIRECT_MODES = ("nee", "transfer")
@@ -52,6 +55,7 @@ def scene_lighting(lights: tuple, basis: LightingBasis, *, sky: SkyFunction | No
     direct_coeffs = np.zeros((m, 3))
     nee_dirs, nee_rgb, notes = [], [], []
     constant = np.zeros(3)
+    maps = []
     for i, light in enumerate(lights):
         if isinstance(light, PointLight):
             raise InputError(f"light {i}", "a point light is local, and PVRT's basis lights are distant: "
@@ -68,6 +72,9 @@ def scene_lighting(lights: tuple, basis: LightingBasis, *, sky: SkyFunction | No
                 direct_coeffs += c
         elif isinstance(light, EnvironmentLight):
             constant += rgb
+        elif isinstance(light, EnvironmentMap):
+            key = f"{light.sha256} {light.image.shape} {light.color.tolist()} {light.power!r}"
+            maps.append(cached_env_map(key, light.radiance, rotation_matrix(*light.rotation)))
         else:
             raise InputError(f"light {i}", f"{type(light).__name__} is not a light PVRT can project")
     if nee_dirs:
@@ -75,15 +82,18 @@ def scene_lighting(lights: tuple, basis: LightingBasis, *, sky: SkyFunction | No
                      f"{basis.kind} basis cannot represent sharply; direct term by NEE (light volume), multiple "
                      "scattering from the transfer")
     sky_fn = None
-    if np.any(constant > 0) or sky is not None:
+    if np.any(constant > 0) or sky is not None or maps:
         user = sky
 
         def sky_fn(w: np.ndarray) -> np.ndarray:
             v = np.broadcast_to(constant, (len(w), 3)).astype(np.float64)
-            return v + (np.asarray(user(w @ r), dtype=np.float64) if user is not None else 0.0)
+            turned = np.ascontiguousarray(w @ r)
+            for env in maps:  # radiance arriving from each direction w (the map's own rotation inside)
+                v = v + env_map_eval_batch(env, np.ascontiguousarray(turned.T))[0].T
+            return v + (np.asarray(user(turned), dtype=np.float64) if user is not None else 0.0)
 
         c = basis.project_sky(sky_fn)
         coeffs += c
         direct_coeffs += c
     return Lighting(coeffs, direct_coeffs, np.array(nee_dirs).reshape(-1, 3), np.array(nee_rgb).reshape(-1, 3),
-                    sky_fn if sky is not None else None, constant, notes)
+                    sky_fn if sky is not None or maps else None, constant, notes)

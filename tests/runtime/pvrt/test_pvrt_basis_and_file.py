@@ -107,3 +107,30 @@ def test_file_round_trip_and_refusals(tmp_path) -> None:  # noqa: ANN001
     (tmp_path / "x.pvrt.npz").rename(tmp_path / "x.pvrt")
     with pytest.raises(InputError, match="unknown array"):
         load_transfer(tmp_path / "x.pvrt")
+
+
+@pytest.mark.parametrize("kind", ["sh", "dsf"])
+def test_environment_map_projects_like_the_sky_it_shows(kind: str) -> None:
+    """An environment map in a PVRT lighting: a constant map gives the coefficients of the constant environment
+    of the same radiance, and the lighting's sky (what escaping rays see) is the map itself, turned with the
+    lighting: a map bright above the horizon, turned so that its zenith faces +x, is bright at a direction
+    slightly below the horizon towards +x (dark without the turn) and dark towards -x."""
+    from photon_fields.runtime.pvrt.lighting import scene_lighting
+    from photon_fields.runtime.scene.lights import EnvironmentLight, EnvironmentMap
+
+    basis = make_basis(kind, 1)
+    flat = EnvironmentMap("flat", [0.5, 1.0, 2.0], 1.5, image=np.ones((8, 16, 3)))
+    const = EnvironmentLight([0.5, 1.0, 2.0], 1.5)
+    a, b = scene_lighting((flat,), basis), scene_lighting((const,), basis)
+    np.testing.assert_allclose(a.coeffs, b.coeffs, rtol=1e-9)
+    np.testing.assert_allclose(a.direct_coeffs, b.direct_coeffs, rtol=1e-9)
+    img = np.zeros((8, 16, 3))
+    img[:4] = 1.0  # the upper half of the image: the hemisphere around +y (the zenith)
+    half = EnvironmentMap("half", image=img)
+    w = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0]])
+    np.testing.assert_allclose(scene_lighting((half,), basis).sky(w)[:, 1], [1.0, 0.0])
+    rot = _rotation([0.0, 0.0, 1.0], -math.pi / 2)  # the lighting turned: +y goes to +x
+    tilted = np.array([[1.0, -0.3, 0.0], [-1.0, 0.3, 0.0]]) / math.sqrt(1.09)
+    assert np.allclose(scene_lighting((half,), basis).sky(tilted)[:, 1], [0.0, 1.0])  # unturned: the other way
+    turned = scene_lighting((half,), basis, rotation=rot).sky(tilted)
+    np.testing.assert_allclose(turned[:, 1], [1.0, 0.0])
