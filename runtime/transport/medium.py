@@ -149,31 +149,15 @@ def categorical_majorant_grid(index: np.ndarray, ext_lut: np.ndarray, macrocell:
     the macrocell's trilinear support (module docstring: a superset of the nearest voxels of its points)."""
     n = np.array(index.shape)
     cells = np.maximum(1, -(-n // macrocell))
-    return _cell_label_max(index, ext_lut, int(cells[0]), int(cells[1]), int(cells[2])) * _MAJORANT_SAFETY
-
-
-@njit(cache=True, parallel=True)
-def _cell_label_max(index: np.ndarray, ext_lut: np.ndarray, cx: int, cy: int, cz: int) -> np.ndarray:
-    nx, ny, nz = index.shape
-    out = np.empty((cx, cy, cz))
-    for a in prange(cx):
-        x0, x1 = _voxel_span(a, cx, nx)
-        for b in range(cy):
-            y0, y1 = _voxel_span(b, cy, ny)
-            for c in range(cz):
-                z0, z1 = _voxel_span(c, cz, nz)
-                hi = 0.0
-                for i in range(x0, x1):
-                    for j in range(y0, y1):
-                        for k in range(z0, z1):
-                            hi = max(hi, ext_lut[int(index[i, j, k])])
-                out[a, b, c] = hi
-    return out
+    voxel_sigma = np.asarray(ext_lut, dtype=np.float64)[np.asarray(index, dtype=np.int64)]
+    _, smax = _cell_scalar_range(voxel_sigma, int(cells[0]), int(cells[1]), int(cells[2]))
+    return smax * _MAJORANT_SAFETY
 
 
 @njit(cache=True, parallel=True)
 def _cell_scalar_range(density: np.ndarray, cx: int, cy: int, cz: int) -> tuple[np.ndarray, np.ndarray]:
-    """Min and max of the voxels whose trilinear support reaches into each macrocell: macrocell a spans
+    """Min and max of the voxels whose trilinear support reaches into each macrocell (of any per-voxel value: the
+    normalized scalar, or a categorical medium's extinction per voxel): macrocell a spans
     normalized [a / cells, (a + 1) / cells), i.e. voxel-centre coordinates [a n / cells - 0.5, ...)."""
     nx, ny, nz = density.shape
     smin = np.empty((cx, cy, cz))
