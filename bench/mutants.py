@@ -264,6 +264,16 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("update_unseeded_sampler", "train/fit/fine_tune.py", "psi=settings.psi, seed=settings.seed,",
            "psi=settings.psi, seed=time.perf_counter_ns(),", (f"{UPDATE}::test_same_seed_same_field",),
            "the fine-tune's training batches do not follow the seed: two updates with one seed differ"),
+    # Training points where cameras see the medium (issue 13, sampling="visible").
+    Mutant("visible_disk_radius_uniform", "train/fit/visible_points.py",
+           "r = radius * np.sqrt(rng.random(chunk))[:, None]", "r = radius * rng.random(chunk)[:, None]",
+           ("tests/train/fit/test_visible_points.py",),
+           "ray offsets uniform in radius instead of in area: lines crowd the volume's centre"),
+    Mutant("visible_points_reversed", "train/fit/targets.py", "np.tile(dv, (VISIBLE_REUSE, 1))[:seen]",
+           "np.tile(-dv, (VISIBLE_REUSE, 1))[:seen]",
+           ("tests/train/fit/test_field_training.py::"
+            "test_visible_sampling_mixes_seen_collisions_each_with_several_g_and_the_support",),
+           "seen points paired with the opposite direction: the field learns the side no camera sees"),
     # The viewer (issue 15, step 1): session, messages, server.
     Mutant("viewer_same_samples", "runtime/viewer/field_in_use.py", "first_sample=n,", "first_sample=0,",
            (f"{VSESSION}::test_neural_accumulation_equals_one_render_with_all_samples",),

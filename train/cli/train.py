@@ -169,9 +169,9 @@ def _add_fit_options(f: argparse.ArgumentParser) -> None:
     f.add_argument("--schedule", choices=["staggered", "naive"], default=None,
                    help="KNN radius schedule: Table 1 by photon count, or its final radius throughout "
                         "(default: the preset's)")
-    f.add_argument("--sampling", choices=["box", "support"], default=None,
-                   help="training positions: uniform in the box (paper) or in the medium's support "
-                        "(default: the preset's)")
+    f.add_argument("--sampling", choices=["box", "support", "visible"], default=None,
+                   help="training positions: uniform in the box (paper), in the medium's support, or half of them "
+                        "where cameras around the volume see it (default: the preset's)")
     f.add_argument("--loss", choices=["linear", "log"], default=None,
                    help="training loss: relative L2 of the decoded radiance (unbiased under noisy targets) or of the "
                         "log-encoded output (the paper's) (default: the preset's)")

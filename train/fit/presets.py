@@ -49,7 +49,9 @@ class Preset:
     schedule: str
     """KNN radius schedule: "staggered" (Table 1 by photon count) or "naive" (its final radius throughout)."""
     sampling: str
-    """Training positions: "box" (uniform in the volume's box, the paper) or "support" (where sigma_t > 0)."""
+    """Training positions: "box" (uniform in the volume's box, the paper), "support" (where sigma_t > 0) or
+    "visible" (half of them where cameras around the volume see the medium, with the direction they see it from;
+    the rest in the support)."""
     k: int = 1024
     """Photons per target estimate (Eq. 5's K). Fewer photons make noisier targets, which the linear loss
     averages without bias, and a smaller ball, which is less biased at dense surfaces and cheaper."""

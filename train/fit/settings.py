@@ -44,7 +44,7 @@ class FitSettings:
     schedule_kind: str = _DEFAULT.schedule
     """"staggered" (Table 1) or "naive" (its final radius throughout)."""
     sampling: str = _DEFAULT.sampling
-    """Training positions: "box" or "support"."""
+    """Training positions: "box", "support" or "visible" (:mod:`photon_fields.train.fit.targets`)."""
     loss: str = _DEFAULT.loss
     """Training loss: "linear" or "log" (:mod:`photon_fields.train.fit.loss`)."""
     g_sampling: str = _DEFAULT.g_sampling

@@ -148,6 +148,35 @@ def test_support_sampling_is_uniform_over_the_medium(tiny: tuple) -> None:
     np.testing.assert_allclose(share, share_ref, atol=0.015)
 
 
+def test_visible_sampling_mixes_seen_collisions_each_with_several_g_and_the_support(tiny: tuple) -> None:
+    """``sampling="visible"``: VISIBLE_SHARE of a draw are first collisions of rays from outside (every point
+    VISIBLE_REUSE times, the copies a pool apart, each with its own g), the rest uniform over the support."""
+    from photon_fields.runtime.transport.medium import extinction_batch
+    from photon_fields.train.fit.targets import VISIBLE_REUSE, VISIBLE_SHARE
+
+    scene, pmap, _, _ = tiny
+    m = scene.medium()
+    sampler = TargetSampler(pmap, m, k=16, psi=5.0, seed=0, sampling="visible", g_sampling="continuous")
+    n = 8000
+    x, d, g, _ = sampler.draw(np.random.default_rng(3), n, "visible")
+    seen = round(VISIBLE_SHARE * n)
+    distinct = -(-seen // VISIBLE_REUSE)
+    assert x.shape == (n, 3) and np.all(extinction_batch(m, np.ascontiguousarray(x.T)) > 0)
+    assert np.array_equal(x[:seen - distinct], x[distinct:seen])
+    assert np.array_equal(d[:seen - distinct], d[distinct:seen])
+    assert len(np.unique(x[:distinct], axis=0)) == distinct and len(np.unique(x[seen:], axis=0)) == n - seen
+    assert np.mean(g[:seen - distinct] == g[distinct:seen]) < 0.01
+    # Seen points lie nearer the medium's surface than support points: from outside, a ray of travel direction d
+    # found nothing before x, so the medium behind x (along -d) is thinner than in front of it.
+    back = x[:distinct] - 0.05 * d[:distinct]
+    ahead = x[:distinct] + 0.05 * d[:distinct]
+    inside = (np.abs(back - (m.bmin + 0.5 * m.bsize)) < 0.5 * m.bsize).all(axis=1) & \
+             (np.abs(ahead - (m.bmin + 0.5 * m.bsize)) < 0.5 * m.bsize).all(axis=1)
+    sig_back = extinction_batch(m, np.ascontiguousarray(back[inside].T))
+    sig_ahead = extinction_batch(m, np.ascontiguousarray(ahead[inside].T))
+    assert sig_back.mean() < 0.8 * sig_ahead.mean()
+
+
 def test_continuous_g_is_uniform_and_takes_the_photons_of_the_phases_around_it(tiny: tuple) -> None:
     # g uniform over [min G, max G]; its target's photons come from the phase below g with probability 1 - t and
     # from the phase above with probability t (t = g's position between them), so the target's mean is the
