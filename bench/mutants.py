@@ -393,7 +393,7 @@ MUTANTS: tuple[Mutant, ...] = (
             "test_fingerprint_tells_label_volumes_with_the_same_normalized_grid_apart",),
            "label scenes fingerprinted by the normalized grid alone: {0, 1, 2} and {0, 2, 4} share photon maps"),
     # PVRT (issue 18): the transfer file, its refusals, and its radiance against the path tracer.
-    Mutant("pvrt_seed_not_passed", "train/cli/train.py", "bases=args.pca_bases, seed=args.seed",
+    Mutant("pvrt_seed_not_passed", "train/cli/pvrt_command.py", "bases=args.pca_bases, seed=args.seed",
            "bases=args.pca_bases, seed=0",
            (f"{PVRT_CLI}::test_same_seed_same_bytes_any_threads_other_seed_differs",),
            "pfn-train pvrt ignores --seed (every seed writes seed 0's transfer)"),
