@@ -26,6 +26,8 @@ cannot be compared), and readers of version 1 that predate it ignore metadata ke
 
 from __future__ import annotations
 
+from photon_fields.models_spec.npz_manifest import NpzManifestFormat
+
 PHOTON_MAP_FORMAT = "photon-fields/photon-map"
 PHOTON_MAP_VERSION = 1
 #: The paper's phase set G (Sec. 3.2): "the best compromise between tracing and training speed and quality".
@@ -53,3 +55,8 @@ PHOTON_MAP_ARRAYS = {"position": ("float32", 3), "direction": ("float32", 3), "p
 PHOTON_MAP_META_REQUIRED: tuple[str, ...] = ("format", "version", "scene_fingerprint", "phases", "emitted")
 PHOTON_MAP_META_KEYS: tuple[str, ...] = (*PHOTON_MAP_META_REQUIRED, "stored", "per_phase", "seed", "max_bounces",
                                          "trace_seconds", "scene_name", "emitted_per_phase", "scene_parts")
+#: The file layout above, and its reader (:mod:`photon_fields.models_spec.npz_manifest`).
+PHOTON_MAP_NPZ = NpzManifestFormat(kind="photon map", format=PHOTON_MAP_FORMAT, version=PHOTON_MAP_VERSION,
+                                   entry="meta", label="metadata", keys=PHOTON_MAP_META_KEYS,
+                                   required=PHOTON_MAP_META_REQUIRED, arrays=tuple(PHOTON_MAP_ARRAYS),
+                                   remedy="re-trace it")

@@ -31,6 +31,8 @@ writes the same bytes.
 
 from __future__ import annotations
 
+from photon_fields.models_spec.npz_manifest import NpzManifestFormat
+
 PVRT_FORMAT = "photon-fields/pvrt-transfer"
 PVRT_VERSION = 1
 PVRT_SUFFIX = ".pvrt"
@@ -42,3 +44,7 @@ PVRT_MANIFEST_KEYS: tuple[str, ...] = ("format", "version", "scene_name", "scene
 PVRT_SCENE_PARTS: tuple[str, ...] = ("volume", "transfer_function")
 PVRT_CPCA_KEYS: tuple[str, ...] = ("clusters", "bases", "relative_error")
 PVRT_PHOTON_KEYS: tuple[str, ...] = ("paths_per_basis", "seed", "max_bounces", "kernel_c")
+#: The file layout above, and its reader (:mod:`photon_fields.models_spec.npz_manifest`).
+PVRT_NPZ = NpzManifestFormat(kind="PVRT transfer", format=PVRT_FORMAT, version=PVRT_VERSION, entry="manifest",
+                             label="manifest", keys=PVRT_MANIFEST_KEYS, required=PVRT_MANIFEST_KEYS,
+                             arrays=tuple(PVRT_ARRAYS), remedy="precompute it again")

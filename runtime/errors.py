@@ -8,9 +8,14 @@ see a deep traceback for a mistake of theirs.
 
 from __future__ import annotations
 
-import difflib
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from typing import Any
+
+from photon_fields.models_spec.json_keys import keys_problem, unknown_keys_problem
+from photon_fields.models_spec.npz_manifest import NpzError
+
+__all__ = ["InputError", "check_keys", "unknown_keys_problem", "npz_errors_as_input"]
 
 
 class InputError(ValueError):
@@ -22,24 +27,19 @@ class InputError(ValueError):
         super().__init__(f"{self.what}: {self.problem}")
 
 
-def unknown_keys_problem(unknown: Sequence[str], allowed: Iterable[str]) -> str:
-    """``unknown key 'densty_scale' (did you mean 'density_scale'?); allowed: 'density_scale', 'points'``."""
-    allowed = sorted(allowed)
-    names = ", ".join(repr(str(k)) for k in unknown)
-    text = f"unknown key{'s' if len(unknown) > 1 else ''} {names}"
-    guesses = [g for k in unknown for g in difflib.get_close_matches(str(k), allowed, n=1, cutoff=0.75)]
-    if len(guesses) == len(unknown):
-        text += f" (did you mean {', '.join(repr(g) for g in guesses)}?)"
-    return f"{text}; allowed: {', '.join(repr(k) for k in allowed)}"
-
-
 def check_keys(d: Mapping[str, Any], allowed: Iterable[str], what: str, required: Iterable[str] = ()) -> None:
     """Refuse a JSON object with keys outside ``allowed`` (a typo must not silently fall back to a default),
     then one without every key of ``required``; ``what`` names the file and the entry."""
-    allowed = set(allowed)
-    unknown = [k for k in d if k not in allowed]
-    if unknown:
-        raise InputError(what, unknown_keys_problem(unknown, allowed))
-    missing = [k for k in required if k not in d]
-    if missing:
-        raise InputError(what, f"missing {', '.join(repr(k) for k in missing)}")
+    problem = keys_problem(d, allowed, required)
+    if problem is not None:
+        raise InputError(what, problem)
+
+
+@contextmanager
+def npz_errors_as_input() -> Iterator[None]:
+    """Re-raise the contract's :class:`~photon_fields.models_spec.npz_manifest.NpzError` (a photon map or transfer
+    file refused by ``models_spec``, which cannot import this module) as an :class:`InputError` of the same text."""
+    try:
+        yield
+    except NpzError as err:
+        raise InputError(err.what, err.problem) from None

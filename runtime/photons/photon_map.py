@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import re
-import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,14 +19,14 @@ from typing import Any
 import numpy as np
 
 from photon_fields.models_spec.fingerprint import FINGERPRINT_PARTS, mismatch_detail
+from photon_fields.models_spec.npz_manifest import ArrayHeaders
 from photon_fields.models_spec.photon_map import (
     PHOTON_MAP_ARRAYS,
     PHOTON_MAP_FORMAT,
-    PHOTON_MAP_META_KEYS,
-    PHOTON_MAP_META_REQUIRED,
+    PHOTON_MAP_NPZ,
     PHOTON_MAP_VERSION,
 )
-from photon_fields.runtime.errors import InputError, check_keys
+from photon_fields.runtime.errors import InputError, check_keys, npz_errors_as_input
 from photon_fields.runtime.io.atomic import atomic_path
 
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
@@ -99,14 +98,8 @@ class PhotonMap:
         what = str(p)
         if not p.is_file():
             raise InputError(what, "photon map file not found")
-        try:
-            with np.load(p, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-            raise InputError(what, f"not a readable photon map (.npz): {exc}") from None
-        if "meta" not in arrays:
-            raise InputError(what, "not a photon map: no 'meta' entry")
-        meta = _parse_meta(arrays.pop("meta"), what)
+        with npz_errors_as_input():
+            meta, arrays = PHOTON_MAP_NPZ.read(p)
         n = _check_arrays({k: (a.shape, a.dtype) for k, a in arrays.items()}, what)
         phases, fp, emitted = _check_meta_values(meta, what)
         if n and int(arrays["phase"].max()) >= len(phases):
@@ -159,24 +152,8 @@ def read_header(path: str | Path, expected_fingerprint: str | None = None) -> Ph
     what = str(p)
     if not p.is_file():
         raise InputError(what, "photon map file not found")
-    shapes: dict[str, tuple[tuple[int, ...], np.dtype]] = {}
-    try:
-        with zipfile.ZipFile(p) as z:
-            names = {n[:-4] if n.endswith(".npy") else n: n for n in z.namelist()}
-            if "meta" not in names:
-                raise InputError(what, "not a photon map: no 'meta' entry")
-            with z.open(names["meta"]) as f:
-                raw = np.lib.format.read_array(f, allow_pickle=False)
-            for name in names.keys() - {"meta"}:
-                with z.open(names[name]) as f:
-                    version = np.lib.format.read_magic(f)
-                    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
-                        np.lib.format.read_array_header_2_0
-                    shape, _, dtype = read(f)
-                shapes[name] = (tuple(shape), np.dtype(dtype))
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise InputError(what, f"not a readable photon map (.npz): {exc}") from None
-    meta = _parse_meta(raw, what)
+    with npz_errors_as_input():
+        meta, shapes = PHOTON_MAP_NPZ.read_headers(p)
     n = _check_arrays(shapes, what)
     phases, fp, emitted = _check_meta_values(meta, what)
     if "stored" in meta and meta["stored"] != n:
@@ -191,18 +168,13 @@ def read_header(path: str | Path, expected_fingerprint: str | None = None) -> Ph
     return PhotonMapHeader(p, meta, phases, fp, emitted, int(n or 0))
 
 
-def _check_arrays(shapes: dict[str, tuple[tuple[int, ...], np.dtype]], what: str) -> int | None:
-    """The arrays of a map (name -> (shape, dtype), ``meta`` left out): exactly :data:`PHOTON_MAP_ARRAYS`, each of
-    its dtype and width, all with one row count, which is returned (None without arrays). One-line errors naming
-    ``what``; shared by :meth:`PhotonMap.load` and :func:`read_header`, which reads only the ``.npy`` headers."""
-    extra = sorted(set(shapes) - set(PHOTON_MAP_ARRAYS))
-    if extra:
-        raise InputError(what, f"unknown array{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))}; a "
-                         f"photon map holds {', '.join(map(repr, [*PHOTON_MAP_ARRAYS, 'meta']))}")
+def _check_arrays(shapes: ArrayHeaders, what: str) -> int | None:
+    """The arrays of a map (name -> (shape, dtype), ``meta`` left out, names checked by
+    :data:`PHOTON_MAP_NPZ`): each of its dtype and width, all with one row count, which is returned (None without
+    arrays). One-line errors naming ``what``; shared by :meth:`PhotonMap.load` and :func:`read_header`, which reads
+    only the ``.npy`` headers."""
     n = None
     for name, (dtype, width) in PHOTON_MAP_ARRAYS.items():
-        if name not in shapes:
-            raise InputError(what, f"photon map lacks the '{name}' array")
         shape, found = tuple(shapes[name][0]), np.dtype(shapes[name][1])
         if found != np.dtype(dtype) or len(shape) != (2 if width else 1) or (width and shape[1] != width):
             expected = f"(n, {width})" if width else "(n,)"
@@ -212,22 +184,6 @@ def _check_arrays(shapes: dict[str, tuple[tuple[int, ...], np.dtype]], what: str
         elif shape[0] != n:
             raise InputError(what, f"'{name}' has {shape[0]} rows, expected {n}")
     return n
-
-
-def _parse_meta(raw: np.ndarray, what: str) -> dict[str, Any]:
-    """The ``meta`` entry's JSON, checked for format, version and keys (one-line errors naming ``what``)."""
-    try:
-        meta = json.loads(np.asarray(raw).tobytes().decode())
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(what, f"corrupt photon map metadata ({exc})") from None
-    if not isinstance(meta, dict) or meta.get("format") != PHOTON_MAP_FORMAT:
-        found = meta.get("format") if isinstance(meta, dict) else None
-        raise InputError(what, f"not a photon map (format {found!r}, expected {PHOTON_MAP_FORMAT!r})")
-    if meta.get("version") != PHOTON_MAP_VERSION:
-        raise InputError(what, f"photon map version {meta.get('version')!r} is not supported "
-                         f"(this build reads version {PHOTON_MAP_VERSION}); re-trace it")
-    check_keys(meta, PHOTON_MAP_META_KEYS, f"{what} metadata", required=PHOTON_MAP_META_REQUIRED)
-    return meta
 
 
 def _check_meta_values(meta: dict[str, Any], what: str) -> tuple[tuple[float, ...], str, int]:

@@ -33,7 +33,8 @@ energy is ``weight * pi R^2 / paths``.
 
 Transport (Sec. 6.3.2): delta tracking over the majorant grid (``runtime/transport/tracking.py``; the paper steps a
 fixed ``dl``), Russian roulette on the albedo and HG importance sampling with the scene's g, up to ``MAX_BOUNCES``
-collisions: exactly the photon paths of ``train/photons/tracing.py`` (Alg. 1 of the Photon Field Networks paper).
+collisions: the photon path of ``runtime/photons/photon_path.py``, the one ``train/photons/tracing.py`` (Alg. 1 of
+the Photon Field Networks paper) follows too.
 
 Determinism and memory: basis light k is one task (a serial kernel called from ``prange``), its path i uses random
 stream ``k * 2^32 + i`` and writes only ``T[:, k]``: the transfer is the same bytes for any thread count. Memory is
@@ -51,6 +52,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.photons.photon_path import trace_path
 from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.pvrt.basis import LightingBasis
 from photon_fields.runtime.pvrt.constants import (
@@ -69,10 +71,9 @@ from photon_fields.runtime.scene.lights import DIRECTIONAL
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.emitters import emit_photon, sample_uniform_sphere
 from photon_fields.runtime.transport.environment_map import NO_ENV_MAP, EnvMap
-from photon_fields.runtime.transport.medium import Medium, albedo_at, extinction_at, intersect_box
-from photon_fields.runtime.transport.phase import orthonormal_basis, sample_hg
+from photon_fields.runtime.transport.medium import Medium, extinction_at
+from photon_fields.runtime.transport.phase import orthonormal_basis
 from photon_fields.runtime.transport.rng import next_float, stream_state
-from photon_fields.runtime.transport.tracking import delta_track
 
 _STREAM_STRIDE = np.uint64(1 << 32)  # basis light k owns random streams k * 2^32 + path
 
@@ -134,6 +135,7 @@ def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: flo
     kw = np.empty((2 * r + 1) ** 3)
     vals = np.empty(3)
     dvec = np.empty(3)
+    hit_pos, hit_dir, hit_pow = np.empty((max_bounces, 3)), np.empty((max_bounces, 3)), np.empty((max_bounces, 3))
     cos_h = math.cos(h)
     if is_dsf:
         ax, ay, az = dirs[k, 0], dirs[k, 1], dirs[k, 2]
@@ -166,42 +168,21 @@ def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: flo
         st, u4 = next_float(st)
         ox, oy, oz, dx, dy, dz, _, _, _ = emit_photon(DIRECTIONAL, dvec, env, -1.0, cx, cy, cz, radius, u3, u4, 0.0,
                                                       0.0)
-        t0, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
-        if t0 >= t1:
-            continue
-        ox, oy, oz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
-        tmax = t1 - t0
-        br, bg, bb = 1.0, 1.0, 1.0
-        for bounce in range(max_bounces):
-            t, st = delta_track(m, ox, oy, oz, dx, dy, dz, 0.0, tmax, st)
-            if math.isinf(t):
-                break
-            ox, oy, oz = ox + t * dx, oy + t * dy, oz + t * dz
-            if extinction_at(m, ox, oy, oz) > 0.0:
-                sh_eval(out_lmax, dx, dy, dz, y)
-                e = power
-                ux = (ox - m.bmin[0]) / m.bsize[0] * gx - 0.5
-                uy = (oy - m.bmin[1]) / m.bsize[1] * gy - 0.5
-                uz = (oz - m.bmin[2]) / m.bsize[2] * gz - 0.5
+        n, _ = trace_path(m, g, ox, oy, oz, dx, dy, dz, 1.0, 1.0, 1.0, st, max_bounces, hit_pos, hit_dir, hit_pow)
+        for bounce in range(n):
+            px, py, pz = hit_pos[bounce, 0], hit_pos[bounce, 1], hit_pos[bounce, 2]
+            if extinction_at(m, px, py, pz) > 0.0:
+                sh_eval(out_lmax, hit_dir[bounce, 0], hit_dir[bounce, 1], hit_dir[bounce, 2], y)
+                ux = (px - m.bmin[0]) / m.bsize[0] * gx - 0.5
+                uy = (py - m.bmin[1]) / m.bsize[1] * gy - 0.5
+                uz = (pz - m.bmin[2]) / m.bsize[2] * gz - 0.5
                 if bounce == 0:
-                    vals[0] = e
+                    vals[0] = power
                     _splat(acc, k, 0, 1, vals, y, n_out, gx, gy, gz, ux, uy, uz, hc, cells, kw)
                 else:
-                    vals[0], vals[1], vals[2] = e * br, e * bg, e * bb
+                    for ch in range(3):
+                        vals[ch] = power * hit_pow[bounce, ch]
                     _splat(acc, k, 1, 3, vals, y, n_out, gx, gy, gz, ux, uy, uz, hc, cells, kw)
-            if bounce + 1 == max_bounces:
-                break
-            a0, a1, a2 = albedo_at(m, ox, oy, oz)
-            q = max(a0, a1, a2)
-            st, u = next_float(st)
-            if u >= q:
-                break
-            br, bg, bb = br * a0 / q, bg * a1 / q, bb * a2 / q
-            st, u1 = next_float(st)
-            st, u2 = next_float(st)
-            dx, dy, dz, _ = sample_hg(g, dx, dy, dz, u1, u2)
-            _, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
-            tmax = max(t1, 0.0)
 
 
 @njit(cache=True, parallel=True)

@@ -26,14 +26,14 @@ from photon_fields.models_spec.pvrt_transfer import (
     PVRT_ARRAYS,
     PVRT_CPCA_KEYS,
     PVRT_FORMAT,
-    PVRT_MANIFEST_KEYS,
+    PVRT_NPZ,
     PVRT_PARTS,
     PVRT_PHOTON_KEYS,
     PVRT_SCENE_PARTS,
     PVRT_SUFFIX,
     PVRT_VERSION,
 )
-from photon_fields.runtime.errors import InputError, check_keys
+from photon_fields.runtime.errors import InputError, check_keys, npz_errors_as_input
 from photon_fields.runtime.io.atomic import atomic_path
 from photon_fields.runtime.pvrt.basis import LightingBasis, check_basis, make_basis
 from photon_fields.runtime.pvrt.constants import (
@@ -178,14 +178,9 @@ def load_transfer(path: str | Path, scene: Scene | None = None) -> Transfer:
         raise InputError(what, "transfer file not found (pfn-train pvrt SCENE --out NAME.pvrt makes one)")
     if not zipfile.is_zipfile(p):  # else np.load would talk of pickles about a text file
         raise InputError(what, "not a PVRT transfer (not an .npz zip; pfn-train pvrt SCENE --out NAME.pvrt makes one)")
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise InputError(what, f"not a readable PVRT transfer (.npz): {exc}") from None
-    if "manifest" not in arrays:
-        raise InputError(what, "not a PVRT transfer: no 'manifest' entry")
-    manifest = _parse_manifest(arrays.pop("manifest"), what)
+    with npz_errors_as_input():
+        manifest, arrays = PVRT_NPZ.read(p)
+    _check_manifest(manifest, what)
     _check_arrays(arrays, manifest, what)
     t = Transfer(arrays["cluster"], arrays["mass"], arrays["weights"], arrays["mean"], arrays["basis"], manifest, p)
     if scene is not None:
@@ -193,18 +188,8 @@ def load_transfer(path: str | Path, scene: Scene | None = None) -> Transfer:
     return t
 
 
-def _parse_manifest(raw: np.ndarray, what: str) -> dict[str, Any]:
-    try:
-        meta = json.loads(np.asarray(raw).tobytes().decode())
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(what, f"corrupt PVRT manifest ({exc})") from None
-    if not isinstance(meta, dict) or meta.get("format") != PVRT_FORMAT:
-        found = meta.get("format") if isinstance(meta, dict) else None
-        raise InputError(what, f"not a PVRT transfer (format {found!r}, expected {PVRT_FORMAT!r})")
-    if meta.get("version") != PVRT_VERSION:
-        raise InputError(what, f"PVRT transfer version {meta.get('version')!r} is not supported (this build reads "
-                         f"version {PVRT_VERSION}); precompute it again")
-    check_keys(meta, PVRT_MANIFEST_KEYS, f"{what} manifest", required=PVRT_MANIFEST_KEYS)
+def _check_manifest(meta: dict[str, Any], what: str) -> None:
+    """The manifest's values (its format, version and keys are checked by :data:`PVRT_NPZ`)."""
     parts = meta["scene_parts"]
     if not isinstance(parts, dict):
         raise InputError(f"{what} manifest scene_parts", "must be an object")
@@ -240,17 +225,10 @@ def _parse_manifest(raw: np.ndarray, what: str) -> dict[str, Any]:
         check_keys(meta[key], sub, f"{what} manifest {key}", required=sub)
     if not isinstance(meta["scene_name"], str):
         raise InputError(f"{what} manifest scene_name", "must be a string")
-    return meta
 
 
 def _check_arrays(arrays: dict[str, np.ndarray], meta: dict[str, Any], what: str) -> None:
-    extra = sorted(set(arrays) - set(PVRT_ARRAYS))
-    if extra:
-        raise InputError(what, f"unknown array{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))}; a "
-                         f"PVRT transfer holds {', '.join(map(repr, [*PVRT_ARRAYS, 'manifest']))}")
     for name, (dtype, ndim) in PVRT_ARRAYS.items():
-        if name not in arrays:
-            raise InputError(what, f"PVRT transfer lacks the '{name}' array")
         a = arrays[name]
         if a.dtype != np.dtype(dtype) or a.ndim != ndim:
             raise InputError(what, f"'{name}' has dtype {a.dtype} and {a.ndim} dimensions, expected {dtype} "

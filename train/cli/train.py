@@ -21,7 +21,9 @@ replaced if present). ``update`` makes the run folder of an edited scene (transf
 volume) from an earlier run's field in seconds: retrace with the same seed, warm-started training until the
 validation error stops improving or ``--budget`` runs out, export (:mod:`photon_fields.train.fit.update`).
 ``pvrt`` precomputes a PVRT transfer (Zhang et al. 2013; :mod:`photon_fields.runtime.pvrt`) for
-``pfn-render --method pvrt --transfer NAME.pvrt``: the precomputation itself lives in the runtime (no torch).
+``pfn-render --method pvrt --transfer NAME.pvrt``: the precomputation itself lives in the runtime (no torch), the
+subcommand in :mod:`photon_fields.train.cli.pvrt_command`. ``--progress-file`` (every long job) is
+:mod:`photon_fields.train.cli.progress_option`.
 
 Bad input exits with status 2 and one line on stderr: ``error: <input>: <problem>``.
 """
@@ -31,7 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 from photon_fields.models_spec import DEFAULT_MAP_PHASES, DEFAULT_PHOTONS
@@ -44,8 +46,15 @@ from photon_fields.runtime.cli.common import (
     refuse_to_replace,
 )
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.io.progress import Progress, ProgressFile, read_progress
+from photon_fields.runtime.io.progress import ProgressFile
 from photon_fields.runtime.threads import set_threads
+from photon_fields.train.cli.progress_option import (
+    add_progress_option,
+    open_progress,
+    record_failure,
+    stage_callback,
+)
+from photon_fields.train.cli.pvrt_command import add_pvrt_parser, cmd_pvrt
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -59,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.add_argument("--out", required=True, help="output photon map (.npz)")
     t.add_argument("--force", action="store_true", help="replace an existing photon map")
-    _add_progress_option(t)
+    add_progress_option(t)
 
     f = sub.add_parser("fit", help="fit a photon field to a photon map (Sec. 3.5)",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -84,39 +93,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hash-table precision (float16: half the size, L' within ~1e-3)")
     e.add_argument("--force", action="store_true", help="replace an existing bundle")
     _add_update_parser(sub)
-    _add_pvrt_parser(sub)
+    add_pvrt_parser(sub)
     return p
-
-
-def _add_pvrt_parser(sub: argparse._SubParsersAction) -> None:
-    # Defaults from runtime.pvrt.constants (a light module: numpy and models_spec only).
-    from photon_fields.runtime.pvrt import constants as c
-
-    v = sub.add_parser("pvrt", help="precompute a PVRT transfer (basis-light photon tracing, splatting, CPCA) for "
-                       "pfn-render --method pvrt", formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    v.add_argument("scene", help="builtin scene name or scene JSON file (its volume, transfer function and g; its "
-                                 "lights are not used: the transfer is relit at render time)")
-    v.add_argument("--out", required=True, help="output transfer file (NAME.pvrt)")
-    v.add_argument("--basis", choices=list(c.BASIS_KINDS), default="dsf",
-                   help="lighting basis: dsf (the paper's discrete spherical functions) or sh")
-    v.add_argument("--order", type=int, default=None,
-                   help=f"basis order: DSF subdivision level in {list(c.DSF_ORDERS)} (12, 42, 162, 642 lights; "
-                        f"default {c.DEFAULT_DSF_ORDER}) or SH l_max in {list(c.SH_ORDERS)} (default "
-                        f"{c.DEFAULT_SH_ORDER})")
-    v.add_argument("--grid", type=int, default=c.DEFAULT_GRID, help="transfer cells along the box's longest side")
-    v.add_argument("--paths", default=str(c.DEFAULT_PATHS_PER_BASIS),
-                   help="photon paths per basis light (e.g. 64k)")
-    v.add_argument("--exitance-order", type=int, default=c.DEFAULT_EXITANCE_ORDER,
-                   help="SH l_max of each cell's radiance (the phase function's band limit)")
-    v.add_argument("--clusters", type=int, default=c.DEFAULT_CLUSTERS, help="CPCA clusters")
-    v.add_argument("--pca-bases", type=int, default=c.DEFAULT_PCA_BASES, help="CPCA bases per cluster")
-    v.add_argument("--g", type=float, default=None, help="Henyey-Greenstein g the photons scatter with (default: "
-                                                         "the scene's; the renderer refuses another)")
-    v.add_argument("--seed", type=int, default=0, help="random seed: same seed, same transfer bytes")
-    v.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
-    v.add_argument("--quiet", action="store_true", help="no progress bar")
-    v.add_argument("--force", action="store_true", help="replace an existing transfer file")
-    _add_progress_option(v)
 
 
 def _add_update_parser(sub: argparse._SubParsersAction) -> None:
@@ -143,7 +121,7 @@ def _add_update_parser(sub: argparse._SubParsersAction) -> None:
     u.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     u.add_argument("--quiet", action="store_true", help="no progress bar")
     u.add_argument("--force", action="store_true", help="replace the results of an earlier run in --out")
-    _add_progress_option(u)
+    add_progress_option(u)
 
 
 def _add_trace_options(t: argparse.ArgumentParser) -> None:
@@ -186,30 +164,7 @@ def _add_fit_options(f: argparse.ArgumentParser) -> None:
     f.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     f.add_argument("--quiet", action="store_true", help="no progress bar")
     f.add_argument("--force", action="store_true", help="replace the results of an earlier run in --out")
-    _add_progress_option(f)
-
-
-def _add_progress_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--progress-file", default=None,
-                   help="also write the progress as JSON to this file (replaced atomically, read by pfn-view; "
-                        "format: photon_fields.runtime.io.progress)")
-
-
-def _progress(args: argparse.Namespace, stages: Sequence[str]) -> ProgressFile | None:
-    """The job's progress file, or None without --progress-file; written at once so a reader sees the job start."""
-    if args.progress_file is None:
-        return None
-    path = Path(args.progress_file)
-    if not path.parent.is_dir():
-        raise InputError("--progress-file", f"the folder of {str(path)!r} does not exist")
-    progress = ProgressFile(path, stages)
-    progress.update(stages[0], 0, 0)
-    return progress
-
-
-def _stage(progress: ProgressFile | None, stage: str) -> Callable[[int, int], None] | None:
-    """The ``on_progress(done, total)`` callback of one stage."""
-    return None if progress is None else (lambda done, total: progress.update(stage, done, total))
+    add_progress_option(f)
 
 
 def cmd_trace(args: argparse.Namespace) -> int:
@@ -223,9 +178,9 @@ def cmd_trace(args: argparse.Namespace) -> int:
     set_threads(args.threads)
     scene = load_scene(args.scene)
     prepare_output(out, ".npz", force=args.force, what="a photon map")
-    progress = _progress(args, ("trace",))
+    progress = open_progress(args, ("trace",))
     pmap = trace_photons(scene, photons, phases=phases, max_bounces=args.max_bounces, seed=args.seed,
-                         progress=not args.quiet, on_progress=_stage(progress, "trace"))
+                         progress=not args.quiet, on_progress=stage_callback(progress, "trace"))
     pmap.save(out)
     if progress is not None:
         progress.finish("done", f"photon map {out}")
@@ -284,7 +239,7 @@ def _run_fit(args: argparse.Namespace, scene, pmap, settings,  # noqa: ANN001
     out = Path(args.out)
     check_map_for_sampling(pmap, settings.g_sampling)  # refuse before anything is written into the run folder
     write_run_domain(out, scene, args.scene)  # the world box the export needs (checkpoints do not hold it)
-    result = fit(scene, pmap, out, settings, progress=not args.quiet, on_progress=_stage(progress, "fit"))
+    result = fit(scene, pmap, out, settings, progress=not args.quiet, on_progress=stage_callback(progress, "fit"))
     t = result.log["totals"]
     val = t["final_validation"] or {}
     print(f"fitted {t['steps_done']} steps x {settings.batch} samples in {t['wall_s']:.1f} s (targets "
@@ -308,7 +263,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     if (out / "field.pfn").exists():
         print(f"note: {out / 'field.pfn'} is the earlier fit's bundle; re-export it with "
               f"pfn-train export {out} --force", file=sys.stderr)
-    progress = _progress(args, ("fit",))
+    progress = open_progress(args, ("fit",))
     _run_fit(args, scene, pmap, settings, progress)
     if progress is not None:
         progress.finish("done", f"run folder {out}")
@@ -326,9 +281,9 @@ def cmd_all(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     out = Path(args.out)
     _prepare_run_folder(out, args.force, ALL_OUTPUTS)
-    progress = _progress(args, ("trace", "fit", "export"))
+    progress = open_progress(args, ("trace", "fit", "export"))
     pmap = trace_photons(scene, photons, phases=phases, max_bounces=args.max_bounces, seed=args.seed,
-                         progress=not args.quiet, on_progress=_stage(progress, "trace"))
+                         progress=not args.quiet, on_progress=stage_callback(progress, "trace"))
     map_path = pmap.save(out / "map.npz")
     secs = pmap.metadata()["trace_seconds"]
     print(f"traced {len(pmap):,} photons in {secs:.2f} s -> {map_path}")
@@ -372,7 +327,7 @@ def cmd_update(args: argparse.Namespace) -> int:
         check_seed(args.seed)
     _set_all_threads(args.threads)
     scene = load_scene(args.scene)
-    progress = _progress(args, ("trace", "fit", "export"))
+    progress = open_progress(args, ("trace", "fit", "export"))
     res = update_run(args.run, scene, args.out, budget_s=args.budget, max_steps=args.max_steps, seed=args.seed,
                      photons=photons, force=args.force, scene_source=args.scene, tables_dtype=args.tables_dtype,
                      progress=not args.quiet, on_progress=None if progress is None else progress.update)
@@ -390,63 +345,6 @@ def cmd_update(args: argparse.Namespace) -> int:
               file=sys.stderr)
     if progress is not None:
         progress.finish("done", f"bundle {res.bundle.path}")
-    return 0
-
-
-def cmd_pvrt(args: argparse.Namespace) -> int:
-    """``pfn-train pvrt``: check every option, then precompute and write the transfer (``runtime.pvrt``)."""
-    from photon_fields.models_spec.pvrt_transfer import PVRT_SUFFIX
-    from photon_fields.runtime.pvrt.basis import check_basis
-    from photon_fields.runtime.pvrt.constants import (
-        DEFAULT_DSF_ORDER,
-        DEFAULT_SH_ORDER,
-        DSF_ORDERS,
-        EXITANCE_ORDERS,
-        GRID_RANGE,
-        SH_ORDERS,
-    )
-    from photon_fields.runtime.pvrt.precompute import check_settings
-    from photon_fields.runtime.pvrt.transfer import precompute_transfer, save_transfer
-    from photon_fields.runtime.scene.scene import load_scene
-
-    out = Path(args.out)
-    paths = parse_count(args.paths, "--paths")
-    order = (DEFAULT_DSF_ORDER if args.basis == "dsf" else DEFAULT_SH_ORDER) if args.order is None else args.order
-    lo, hi = DSF_ORDERS if args.basis == "dsf" else SH_ORDERS
-    if not lo <= order <= hi:
-        raise InputError("--order", f"a {args.basis} order must be an integer in [{lo}, {hi}], got {order}")
-    check_basis(args.basis, order, "--basis")
-    ranges = (("--grid", args.grid, GRID_RANGE), ("--exitance-order", args.exitance_order, EXITANCE_ORDERS),
-              ("--paths", paths, (1, 2**32 - 1)))
-    for flag, value, (lo, hi) in ranges:
-        if not lo <= value <= hi:
-            raise InputError(flag, f"must be an integer in [{lo}, {hi}], got {value}")
-    check_settings(args.grid, args.exitance_order, paths)
-    for flag, value, lo, hi in (("--clusters", args.clusters, 1, 4096), ("--pca-bases", args.pca_bases, 0, 64)):
-        if not lo <= value <= hi:
-            raise InputError(flag, f"must be an integer in [{lo}, {hi}], got {value}")
-    if args.g is not None:
-        from photon_fields.runtime.transport.phase import check_g
-
-        check_g(args.g, "--g")
-    check_seed(args.seed)
-    set_threads(args.threads)
-    scene = load_scene(args.scene).with_overrides(g=args.g)
-    prepare_output(out, PVRT_SUFFIX, force=args.force, what="a transfer file")
-    progress = _progress(args, ("trace", "cpca"))
-    transfer = precompute_transfer(scene, basis=args.basis, order=order, grid=args.grid,
-                                   exitance_order=args.exitance_order, paths=paths, clusters=args.clusters,
-                                   bases=args.pca_bases, seed=args.seed, progress=not args.quiet,
-                                   on_progress=_stage(progress, "trace"))
-    save_transfer(transfer, out, force=args.force)
-    if progress is not None:
-        progress.finish("done", f"transfer {out}")
-    mf = transfer.manifest
-    secs = transfer.seconds or {"trace": 0.0, "cpca": 0.0}
-    print(f"precomputed {transfer.basis.size} {mf['basis']['kind']} basis lights x {paths:,} paths on a "
-          f"{'x'.join(map(str, mf['grid']))} grid in {secs['trace']:.1f} s (CPCA {secs['cpca']:.1f} s, "
-          f"{mf['cpca']['clusters']} clusters x {mf['cpca']['bases']} bases, relative error "
-          f"{mf['cpca']['relative_error']:.3f}) -> {out} ({out.stat().st_size / 1e6:.1f} MB)")
     return 0
 
 
@@ -469,28 +367,8 @@ def _main(argv: Sequence[str] | None = None) -> int:
     try:
         return command(args)
     except BaseException as exc:
-        _record_failure(args, exc)
+        record_failure(args, exc)
         raise
-
-
-def _record_failure(args: argparse.Namespace, exc: BaseException) -> None:
-    """Mark the progress file failed with the error's one line (what pfn-view shows), if the job wrote one."""
-    path = getattr(args, "progress_file", None)
-    if path is None or not Path(path).parent.is_dir():
-        return
-    line = str(exc) if isinstance(exc, InputError) else f"{type(exc).__name__}: {exc}"
-    previous = read_progress_quietly(path)
-    progress = ProgressFile(path, previous.stages if previous else ())
-    if previous is not None:
-        progress.update(previous.stage, previous.done, previous.total)
-    progress.finish("failed", line or type(exc).__name__)
-
-
-def read_progress_quietly(path: str) -> Progress | None:
-    try:
-        return read_progress(path)
-    except InputError:
-        return None
 
 
 def main(argv: Sequence[str] | None = None) -> int:

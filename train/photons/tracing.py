@@ -27,7 +27,8 @@ sampler are in ``runtime.transport.emitters`` (:func:`emission_fluxes`, :func:`e
 is aimed at the volume's bounding sphere (a point light's cone towards it, a disk of parallel rays across it
 for the directional and environment lights), so none is wasted on directions that cannot reach the volume.
 
-Transport: free flights by delta tracking over the majorant grid; at each real collision the photon is
+Transport (:func:`photon_fields.runtime.photons.photon_path.trace_path`, shared with the PVRT precomputation):
+free flights by delta tracking over the majorant grid; at each real collision the photon is
 recorded (from the second collision on, Alg. 1's "skip first interaction") with the power it *arrives*
 with, then Russian roulette with survival probability = max albedo component, and the surviving power
 is multiplied by albedo / survival (Jensen's photon tracing: powers stay nearly constant, which keeps
@@ -50,14 +51,15 @@ from numba import njit, prange
 from photon_fields.models_spec import DEFAULT_MAP_PHASES
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.photon_map import PhotonMap
+from photon_fields.runtime.photons.photon_path import trace_path
 from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.emitters import emission_fluxes, emit_photon
 from photon_fields.runtime.transport.environment_map import EnvMap
-from photon_fields.runtime.transport.medium import Medium, albedo_at, intersect_box
-from photon_fields.runtime.transport.phase import check_g, sample_hg
+from photon_fields.runtime.transport.medium import Medium
+from photon_fields.runtime.transport.phase import check_g
 from photon_fields.runtime.transport.rng import next_float, stream_state
-from photon_fields.runtime.transport.tracking import TASK_ITEMS, delta_track
+from photon_fields.runtime.transport.tracking import TASK_ITEMS
 
 CHUNK = 1 << 15  # photon paths per kernel call; fixed so results do not depend on anything else
 #: Give up when the stored/emitted ratio says the target would need more than this many paths.
@@ -82,6 +84,7 @@ def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, powe
     cx, cy, cz = m.bmin[0] + 0.5 * m.bsize[0], m.bmin[1] + 0.5 * m.bsize[1], m.bmin[2] + 0.5 * m.bsize[2]
     radius = 0.5 * math.sqrt(m.bsize[0] ** 2 + m.bsize[1] ** 2 + m.bsize[2] ** 2)
     slots = max_bounces - 1
+    hit_pos, hit_dir, hit_pow = np.empty((max_bounces, 3)), np.empty((max_bounces, 3)), np.empty((max_bounces, 3))
     for i in range(lo, hi):
         st = stream_state(np.uint64(seed), np.uint64(first + i))
         st, u = next_float(st)
@@ -98,35 +101,16 @@ def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, powe
         g = phases[ph]
         br, bg, bb = power[li, 0] * sr, power[li, 1] * sg, power[li, 2] * sb
         count = 0
-        t0, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
-        if t0 < t1:
-            ox, oy, oz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
-            tmax = t1 - t0
-            for bounce in range(max_bounces):
-                t, st = delta_track(m, ox, oy, oz, dx, dy, dz, 0.0, tmax, st)
-                if math.isinf(t):
-                    break
-                ox, oy, oz = ox + t * dx, oy + t * dy, oz + t * dz
-                if bounce >= 1:  # Alg. 1: the first interaction is direct light, not stored
-                    k = i * slots + count
-                    out_pos[k, 0], out_pos[k, 1], out_pos[k, 2] = ox, oy, oz
-                    out_dir[k, 0], out_dir[k, 1], out_dir[k, 2] = dx, dy, dz
-                    out_pow[k, 0], out_pow[k, 1], out_pow[k, 2] = br, bg, bb
-                    out_phase[k] = ph
-                    count += 1
-                if bounce + 1 == max_bounces:
-                    break
-                a0, a1, a2 = albedo_at(m, ox, oy, oz)
-                q = max(a0, a1, a2)
-                st, u = next_float(st)
-                if u >= q:
-                    break
-                br, bg, bb = br * a0 / q, bg * a1 / q, bb * a2 / q
-                st, u1 = next_float(st)
-                st, u2 = next_float(st)
-                dx, dy, dz, _ = sample_hg(g, dx, dy, dz, u1, u2)
-                _, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
-                tmax = max(t1, 0.0)
+        n, st = trace_path(m, g, ox, oy, oz, dx, dy, dz, br, bg, bb, st, max_bounces, hit_pos, hit_dir, hit_pow)
+        for bounce in range(n):
+            if bounce >= 1:  # Alg. 1: the first interaction is direct light, not stored
+                k = i * slots + count
+                for c in range(3):
+                    out_pos[k, c] = hit_pos[bounce, c]
+                    out_dir[k, c] = hit_dir[bounce, c]
+                    out_pow[k, c] = hit_pow[bounce, c]
+                out_phase[k] = ph
+                count += 1
         out_count[i] = count
 
 
