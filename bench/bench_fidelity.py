@@ -92,9 +92,10 @@ class Config:
 
 CONFIGS: dict[str, Config] = {
     "default": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", g_window=PHASE_WINDOW,
-                      about="the product's defaults: 37 phase bins, any g from a kernel in g, spline features, anneal"),
-    "visible": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", {"sampling": "visible"}, g_window=PHASE_WINDOW,
-                      about="the default with half the training samples where cameras see the medium"),
+                      about="the product's defaults: 37 phase bins, any g from a kernel in g, spline features, anneal, "
+                            "half the samples where cameras see the medium"),
+    "support": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", {"sampling": "support"}, g_window=PHASE_WINDOW,
+                      about="the default before 2026-11-25: every training sample uniform over the support"),
     "phases": Config(DEFAULT_PHOTONS, about="the defaults before the kernel in g: five phases, 1M photons each, "
                                             "the field trained at the phases (cpu-phases)"),
     "paper-like": Config(1_000_000, PAPER_PHASES, overrides={"loss": "log", "k": 1024},

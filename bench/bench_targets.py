@@ -7,6 +7,9 @@ computes ``per_set`` targets per structure at once and serves the batches from t
 This bench times the estimate (draw, search, support fraction) per 4096 samples for each ``--per-set``, as a
 ratio against one batch's share (the first value, default 256), on one traced map per scene and ``g_sampling``
 (the default map and the ``cpu`` preset's window sampling; ``--discrete`` adds the five-phase map).
+``--samplings support visible`` times the same at the sampler's default ``per_set`` for each training-position
+mode (:data:`photon_fields.train.fit.targets.SAMPLING_MODES`) as a ratio against the first, the modes
+alternating repeat by repeat so that a changing load falls on all of them.
 
 Output: a table on stdout and JSON (default ``bench/results/targets.json``) with the machine record.
 """
@@ -27,7 +30,7 @@ from common import Contention, finish_info, machine_info, parse_scenes, write_re
 from photon_fields.models_spec import DEFAULT_MAP_PHASES, DEFAULT_PHASES  # noqa: E402
 from photon_fields.runtime.scene.scene import builtin_scene  # noqa: E402
 from photon_fields.train.fit.presets import PRESETS  # noqa: E402
-from photon_fields.train.fit.targets import TargetSampler  # noqa: E402
+from photon_fields.train.fit.targets import TARGETS_PER_SET, TargetSampler  # noqa: E402
 from photon_fields.train.photons.tracing import trace_photons  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -35,17 +38,30 @@ DEFAULT_OUT = HERE / "results" / "targets.json"
 BATCH = 4096
 
 
-def time_per_batch(sampler: TargetSampler, per_set: int, repeats: int, radius: float) -> float:
+def time_per_batch(sampler: TargetSampler, per_set: int, repeats: int, radius: float,
+                   mode: str | None = None) -> float:
     """Seconds per BATCH samples when ``per_set`` targets per search structure are estimated at once (median of
-    ``repeats`` pools)."""
+    ``repeats`` pools), positions drawn by ``mode`` (default: the sampler's)."""
     n = per_set * len(sampler.phases)
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        x, d, g, ph = sampler.draw(sampler.rng, n, sampler.sampling)
+        x, d, g, ph = sampler.draw(sampler.rng, n, mode or sampler.sampling)
         sampler.estimate(x, d, g, ph, radius)
         times.append((time.perf_counter() - t0) / n * BATCH)
     return float(np.median(times))
+
+
+def compare_samplings(sampler: TargetSampler, modes: list[str], repeats: int, radius: float) -> dict[str, float]:
+    """Seconds per BATCH samples (draw and estimate) for each position mode at TARGETS_PER_SET, the modes
+    alternating repeat by repeat (median per mode)."""
+    times: dict[str, list[float]] = {m: [] for m in modes}
+    for m in modes:
+        time_per_batch(sampler, 64, 1, radius, m)  # compile
+    for _ in range(repeats):
+        for m in modes:
+            times[m].append(time_per_batch(sampler, TARGETS_PER_SET, 1, radius, m))
+    return {m: float(np.median(t)) for m, t in times.items()}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -56,6 +72,8 @@ def main(argv: list[str] | None = None) -> None:
                     help="targets per phase or window computed at once; the first is the baseline")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--discrete", action="store_true", help="also the five-phase map with discrete g (cpu-phases)")
+    ap.add_argument("--samplings", nargs="*", default=[],
+                    help="training-position modes to compare at the default per_set (the first is the baseline)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = ap.parse_args(argv)
@@ -81,6 +99,14 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{key}: {len(sampler.phases)} search structures, K {preset.k}, built in "
                   f"{sampler.build_seconds:.1f} s; ms per {BATCH} targets: "
                   + ", ".join(f"{p} at once {1e3 * t:.1f} (x{base / t:.2f})" for p, t in rows.items()), flush=True)
+            if args.samplings:
+                with Contention() as busy:
+                    modes = compare_samplings(sampler, args.samplings, args.repeats, 0.05)
+                first = modes[args.samplings[0]]
+                results[key]["samplings"] = {m: {"ms_per_batch": 1e3 * t, "over_first": t / first,
+                                                 "other_cores": busy.other_cores} for m, t in modes.items()}
+                print(f"{key}: ms per {BATCH} samples drawn and estimated by position mode: "
+                      + ", ".join(f"{m} {1e3 * t:.1f} (x{t / first:.2f})" for m, t in modes.items()), flush=True)
     write_report(args.out, "targets", finish_info(info, results),
                  {k: v for k, v in vars(args).items() if k != "out"}, results=results)
 
