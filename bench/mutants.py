@@ -54,6 +54,7 @@ CAMERA = "tests/runtime/wavefront/test_camera_estimators.py"
 VSESSION = "tests/runtime/viewer/test_viewer_session.py"
 GATHER = "tests/runtime/wavefront/test_final_gather.py"
 VGATHER = "tests/runtime/viewer/test_viewer_gather.py"
+VLABELS = "tests/runtime/viewer/test_viewer_labels.py"
 UPDATE = "tests/train/fit/test_update.py"
 LABELS_MEDIUM = "tests/runtime/transport/test_labels_medium.py"
 ENVMAP = "tests/runtime/transport/test_environment_map.py"
@@ -313,6 +314,19 @@ MUTANTS: tuple[Mutant, ...] = (
            "                pass\n",
            ("tests/runtime/viewer/test_viewer_server.py::test_closing_an_idle_page_ends_its_render_thread",),
            "a closed page's render thread lives on"),
+    # The viewer's label panel (label scenes, issue 17 item 2 in pfn-view).
+    Mutant("viewer_label_visibility_ignored", "runtime/viewer/transfer_edit.py",
+           "np.where(self.visible, self.opacity, 0.0)", "self.opacity",
+           (f"{VLABELS}::test_hiding_a_label_darkens_its_region_and_only_its_region",),
+           "the label panel's visibility checkbox is acknowledged but a hidden label is still rendered"),
+    Mutant("viewer_absent_label_accepted", "runtime/viewer/transfer_edit.py",
+           "        if missing.size:\n            listed", "        if False:\n            listed",
+           (f"{VLABELS}::test_the_other_kind_of_edit_and_absent_labels_are_refused",),
+           "a labels message naming labels the volume does not have is applied instead of refused"),
+    Mutant("viewer_points_on_a_label_scene", "runtime/viewer/transfer_edit.py",
+           "    if panel is not None or not isinstance(base, TransferFunction):", "    if False:",
+           (f"{VLABELS}::test_the_other_kind_of_edit_and_absent_labels_are_refused",),
+           "a scalar transfer message turns a label scene into a scalar one (interpolated label values)"),
     # The final gather (one real bounce before the field).
     Mutant("gather_environment_halved", "runtime/wavefront/final_gather.py", "x2, w, states, False)",
            "x2, w, states, True)", (f"{GATHER}::test_gather_of_nothing_is_the_path_tracers_second_bounce",),

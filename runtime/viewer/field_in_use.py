@@ -16,11 +16,13 @@ from typing import Any
 
 import numpy as np
 
+from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.viewer.light_control import LightControl
 from photon_fields.runtime.viewer.messages import RENDERER_NAMES
 from photon_fields.runtime.viewer.retrain import RetrainJob
+from photon_fields.runtime.viewer.transfer_edit import shows_something
 from photon_fields.runtime.viewer.updater import FieldUpdater, same_transfer
 
 
@@ -31,7 +33,7 @@ class FieldInUse:
     def __init__(self, scene: Scene, estimator: Any = None, pmap: Any = None, run_dir: Path | None = None) -> None:
         self.estimator, self.pmap = estimator, pmap
         self.run_dir = run_dir  # the field's run folder, when it has one: retraining then fine-tunes it
-        self.tf: TransferFunction = scene.tf
+        self.tf: TransferFunction | LabelTransfer = scene.tf
         self.lights = [LightControl.from_light(lt) for lt in scene.lights]
 
     @classmethod
@@ -114,12 +116,12 @@ class FieldInUse:
             return lights[0].power / trained[0].power
         return None
 
-    def stale(self, transfer: TransferFunction | None, lights: list[LightControl]) -> bool:
+    def stale(self, transfer: TransferFunction | LabelTransfer | None, lights: list[LightControl]) -> bool:
         """Whether L_i is not the edited scene's: another transfer function, or a light edit
         :meth:`indirect_scale` cannot follow."""
         return not same_transfer(transfer, self.tf) or self.indirect_scale(lights) is None
 
-    def warnings(self, renderer: str, transfer: TransferFunction | None, lights: list[LightControl],
+    def warnings(self, renderer: str, transfer: TransferFunction | LabelTransfer | None, lights: list[LightControl],
                  updater: FieldUpdater) -> list[str]:
         """What a frame of ``renderer`` tells the page about its L_i (nothing when it is right)."""
         if renderer == "pt" or not self.stale(transfer, lights):
@@ -133,6 +135,8 @@ class FieldInUse:
                        "does; a single light's power alone would be followed exactly)")
         if updater.busy:
             return [warning + "; retraining in the background"]
+        if not shows_something(transfer):
+            return [f"{warning}; every label is hidden (show one to retrain)"]
         return [f"{warning}; {'press retrain' if updater.available else updater.reason}"]
 
 

@@ -55,10 +55,14 @@ def load_inputs(scene: str | None, *, bundle: str | None = None, map_path: str |
         sc, _ = scene_for_bundle(bundle, force=force)
     else:
         sc = load_scene(scene)
-    if getattr(sc.tf, "categorical", False):
-        # The page's editor edits control points on a scalar axis; labels have no such axis (yet).
-        raise InputError(scene or bundle, "has a label transfer function, which the viewer's editor cannot edit "
-                                          "yet: render it with pfn-render, or edit the labels JSON by hand")
+    if getattr(sc.tf, "categorical", False):  # a label scene: the page shows a row per label present
+        from photon_fields.runtime.scene.labels import volume_labels
+        from photon_fields.runtime.viewer.transfer_edit import MAX_PANEL_LABELS
+
+        count = volume_labels(sc.volume).values.size
+        if count > MAX_PANEL_LABELS:
+            raise InputError(scene or bundle, f"its volume has {count} labels; the viewer's label panel shows at most "
+                                              f"{MAX_PANEL_LABELS} (render it with pfn-render)")
     if size is not None:
         check_size(size)
         sc = sc.with_overrides(width=size[0], height=size[1])

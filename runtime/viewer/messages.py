@@ -30,6 +30,12 @@ report the last ``seq`` they include, which is how the page and the bench measur
 - ``{"type": "transfer", "points": [{"s": f, "opacity": f, "albedo": [r, g, b]}, ...], "density_scale": f}``:
   the transfer function (1 to :data:`MAX_TF_POINTS` points, ``s`` strictly increasing in [0, 1], opacity and
   albedo in [0, 1]; the model is :class:`photon_fields.runtime.scene.transfer.TransferFunction`);
+- ``{"type": "labels", "labels": {"3": {"albedo": [r, g, b], "opacity": o, "visible": true}, ...}}``: a label
+  scene's label panel (1 to :data:`MAX_LABEL_EDITS` labels, each a decimal integer string with at least one of
+  ``albedo`` (three numbers in [0, 1]), ``opacity`` (in [0, 1]) and ``visible`` (a boolean)); labels it does not
+  list keep their settings, so "show all" on a volume of many labels is several messages. Whether the labels
+  are in the volume is the session's check (:class:`photon_fields.runtime.viewer.transfer_edit.LabelPanel`);
+  the model is :class:`photon_fields.runtime.scene.labels.LabelTransfer`;
 - ``{"type": "retrain", "action": "start" | "cancel"}``: start a background retrain of the field for the
   scene as edited now, or cancel the running one.
 """
@@ -50,6 +56,12 @@ MAX_MESSAGE_BYTES = 4096
 MIN_SIDE, MAX_SIDE, MAX_PIXELS = 16, 2048, 1920 * 1080
 #: The most control points a page's transfer function may have (a message stays under MAX_MESSAGE_BYTES).
 MAX_TF_POINTS = 32
+#: The most labels one ``labels`` message may change (a message of that many stays under MAX_MESSAGE_BYTES with
+#: the page's four decimals).
+MAX_LABEL_EDITS = 32
+#: A label as a ``labels`` message names it: a decimal integer in its one canonical spelling ("3", "-2"; not
+#: "03", "+3" or " 3", so two keys never name one label), at most 10 digits.
+LABEL_PATTERN = re.compile(r"-?(0|[1-9][0-9]{0,9})")
 #: Renderers by the names the page uses, and what each is called in the renderer table.
 RENDERER_NAMES = {"neural": "field", "pt": "pt", "photonmap": "photonmap"}
 LAYERS = ("L", "L_d", "L_i")
@@ -164,7 +176,14 @@ def _boolean(key: str, value: Any) -> bool:
     return value
 
 
-_TF_POINT: dict[str, Check] = {"s": number(0.0, 1.0), "opacity": number(0.0, 1.0)}
+def albedo(key: str, value: Any) -> list[float]:
+    """An RGB albedo: a list of three numbers in [0, 1]."""
+    if not isinstance(value, list) or len(value) != 3:
+        raise MessageError(f"'{key}' must be a list of three numbers [r, g, b]")
+    return [number(0.0, 1.0)(key, a) for a in value]
+
+
+_TF_POINT: dict[str, Check] = {"s": number(0.0, 1.0), "opacity": number(0.0, 1.0), "albedo": albedo}
 
 
 def tf_points(key: str, value: Any) -> list[dict[str, Any]]:
@@ -180,14 +199,34 @@ def tf_points(key: str, value: Any) -> list[dict[str, Any]]:
             shown = sorted(str(k)[:20] for k in p)[:5] if isinstance(p, dict) else type(p).__name__
             raise MessageError(f"'{where}' must be an object with exactly s, opacity, albedo, got {shown}")
         point = {k: check(f"{where}.{k}", p[k]) for k, check in _TF_POINT.items()}
-        albedo = p["albedo"]
-        if not isinstance(albedo, list) or len(albedo) != 3:
-            raise MessageError(f"'{where}.albedo' must be a list of three numbers [r, g, b]")
-        point["albedo"] = [number(0.0, 1.0)(f"{where}.albedo", a) for a in albedo]
         if points and point["s"] <= points[-1]["s"]:
             raise MessageError(f"'{key}': s must increase strictly from point to point ({where})")
         points.append(point)
     return points
+
+
+_LABEL_EDIT: dict[str, Check] = {"albedo": albedo, "opacity": number(0.0, 1.0), "visible": _boolean}
+
+
+def label_edits(key: str, value: Any) -> list[dict[str, Any]]:
+    """A ``labels`` message's edits: an object of 1 to :data:`MAX_LABEL_EDITS` labels (:data:`LABEL_PATTERN`), each
+    an object with some of ``albedo``, ``opacity``, ``visible`` and nothing else. Returned as a list of
+    ``{"label": int, ...the keys given}`` in the message's order (plain values: no integer keys)."""
+    if not isinstance(value, dict) or not 1 <= len(value) <= MAX_LABEL_EDITS:
+        got = f"{len(value)} labels" if isinstance(value, dict) else type(value).__name__
+        raise MessageError(f"'{key}' must be an object of 1 to {MAX_LABEL_EDITS} labels, got {got}")
+    edits = []
+    for label, entry in value.items():
+        where = f"{key}[{label[:20]!r}]"
+        if not LABEL_PATTERN.fullmatch(label):
+            raise MessageError(f"{where}: a label must be a decimal integer such as \"3\" (no sign but -, no "
+                               "leading zeros, at most 10 digits)")
+        if not isinstance(entry, dict) or not entry or not set(entry) <= set(_LABEL_EDIT):
+            shown = sorted(str(k)[:20] for k in entry)[:5] if isinstance(entry, dict) else type(entry).__name__
+            raise MessageError(f"{where} must be an object with some of albedo, opacity, visible, got {shown}")
+        edit = {k: check(f"{where}.{k}", entry[k]) for k, check in _LABEL_EDIT.items() if k in entry}
+        edits.append({"label": int(label), **edit})
+    return edits
 
 
 #: Per message type: (required keys, optional keys), each key -> check. ``seq`` is optional everywhere.
@@ -202,6 +241,7 @@ SCHEMAS: dict[str, tuple[dict[str, Check], dict[str, Check]]] = {
     "view": ({"width": integer(MIN_SIDE, MAX_SIDE), "height": integer(MIN_SIDE, MAX_SIDE)}, {}),
     "screenshot": ({}, {"name": name}),
     "transfer": ({"points": tf_points, "density_scale": number(1e-3, 1e5)}, {}),
+    "labels": ({"labels": label_edits}, {}),
     "retrain": ({"action": choice(("start", "cancel"))}, {}),
 }
 SEQ = integer(0, (1 << 53) - 1)

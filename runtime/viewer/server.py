@@ -3,7 +3,7 @@
 Built on starlette (ASGI) and served by uvicorn; docs/viewer.md says why not trame. Routes:
 
 - ``GET /``: the page (``page/index.html``, plain HTML and JavaScript, no build step);
-- ``GET /viewer.js``, ``GET /tf_editor.js``: its scripts;
+- ``GET /viewer.js``, ``GET /tf_editor.js``, ``GET /label_panel.js``: its scripts;
 - ``WS /ws``: the page's connection. The client sends JSON text messages
   (:mod:`photon_fields.runtime.viewer.messages`); the server sends a ``state`` text message on connect, an
   ``error`` text message for every refused message, a ``screenshot`` text message with the files written, and
@@ -179,7 +179,7 @@ def create_app(make_session: Callable[[], ViewerSession], *, allowed_origins: Ca
                 stats.active -= 1
 
     app = Starlette(routes=[Route("/", page), Route("/viewer.js", script), Route("/tf_editor.js", script),
-                            WebSocketRoute("/ws", socket)])
+                            Route("/label_panel.js", script), WebSocketRoute("/ws", socket)])
     app.state.stats = stats
     if warm is not None:
         threading.Thread(target=_warm_quietly, args=(warm,), name="pfn-view-warm", daemon=True).start()

@@ -42,8 +42,10 @@ frame after a cut, and then kept while the camera moves so brightness does not f
 control adds stops to it, and ``"auto"`` measures it again.
 
 Transfer-function and light edits (:mod:`photon_fields.runtime.viewer.field_in_use`): the edited scene renders at
-once (its medium, L_d, the path tracer); the field's L_i follows a single light's power exactly and is marked
-stale otherwise, while :class:`photon_fields.runtime.viewer.updater.FieldUpdater` retrains in the background and
+once (its medium, L_d, the path tracer), whether the function was edited as control points (``transfer``) or, in
+a label scene, in the label panel (``labels``, :class:`photon_fields.runtime.viewer.transfer_edit.LabelPanel`);
+the field's L_i follows a single light's power exactly and is marked stale otherwise, while
+:class:`photon_fields.runtime.viewer.updater.FieldUpdater` retrains in the background and
 :meth:`ViewerSession.poll_updates` swaps the new field in.
 """
 
@@ -69,7 +71,13 @@ from photon_fields.runtime.viewer.frame_size import fit_view
 from photon_fields.runtime.viewer.light_control import LightControl
 from photon_fields.runtime.viewer.messages import MAX_PIXELS, MAX_SIDE, MIN_SIDE, Message, MessageError
 from photon_fields.runtime.viewer.retrain import RetrainSettings
-from photon_fields.runtime.viewer.transfer_edit import transfer_from_message, transfer_message, volume_histogram
+from photon_fields.runtime.viewer.transfer_edit import (
+    edited_transfer,
+    label_panel,
+    shows_something,
+    transfer_message,
+    volume_histogram,
+)
 from photon_fields.runtime.viewer.updater import FieldUpdater
 from photon_fields.runtime.viewer.view_state import DEFAULT_GATHER_AFTER, DEFAULT_MAX_SPP, Frame, ViewState
 
@@ -118,7 +126,7 @@ class ViewerSession:
                                lights=[LightControl.from_light(lt) for lt in scene.lights], max_spp=int(max_spp),
                                width=width or cam.width, height=height or cam.height,
                                drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale),
-                               transfer=scene.tf)
+                               transfer=scene.tf, labels=label_panel(scene.tf, scene.volume))
         self.max_size = (self.state.width, self.state.height)  # the largest frame (pfn-view --size)
         self.updater = FieldUpdater(self.out_dir, retrain or RetrainSettings(), seed=self.seed)
         self.drag_level = 0  # drag_scale "auto": the index in DRAG_LEVELS of the next moving frame
@@ -192,14 +200,16 @@ class ViewerSession:
                 restart, cut, redisplay, reexpose = self._apply_set(s, f["control"], f["value"])
             elif msg.type == "screenshot":
                 restart = False
-            elif msg.type == "transfer":
-                s.transfer = transfer_from_message(f, self.base_scene.tf)
+            elif msg.type in ("transfer", "labels"):  # control points, or a label scene's panel
+                s.transfer, s.labels = edited_transfer(msg.type, f, self.base_scene.tf, s.labels)
                 self._lights_version += 1  # the scene is rebuilt (its medium too) for the next frame
                 cut = True
             elif msg.type == "retrain":
                 restart = False
                 if f["action"] == "cancel":
                     self.updater.cancel()
+                elif not shows_something(s.transfer):
+                    raise MessageError("retrain: every label is hidden: there is nothing to train a field for")
                 else:
                     self.updater.want(self.edited_scene(s), now=True, warm_from=self.field.run_dir)
             else:  # validate() knows no other types; a new one must be handled here first
@@ -207,8 +217,9 @@ class ViewerSession:
             if msg.seq is not None:
                 self.last_seq = msg.seq
             # without a field or map nothing is stale: only the page's retrain button trains one
-            if msg.type in ("transfer", "light") and self.updater.settings.auto and self.field.exists \
-                    and self.field_stale(s):
+            # (and nothing to train for while every label is hidden: the retrain waits for one to be shown)
+            if msg.type in ("transfer", "labels", "light") and self.updater.settings.auto and self.field.exists \
+                    and self.field_stale(s) and shows_something(s.transfer):
                 self.updater.want(self.edited_scene(s), warm_from=self.field.run_dir)
             if restart:
                 self.generation += 1
@@ -458,8 +469,11 @@ class ViewerSession:
                     "height": s.height, "max_size": list(self.max_size),
                     "view_limits": {"min_side": MIN_SIDE, "max_side": MAX_SIDE, "max_pixels": MAX_PIXELS},
                     "drag_scale": s.drag_scale, "lights": [lt.to_dict() for lt in s.lights],
-                    "out_dir": str(self.out_dir), "transfer": transfer_message(s.transfer or self.base_scene.tf),
-                    "histogram": self.histogram(),
+                    "out_dir": str(self.out_dir),
+                    # the editor the page shows: control points over the histogram, or a label scene's panel
+                    "transfer": None if s.labels else transfer_message(s.transfer or self.base_scene.tf),
+                    "histogram": None if s.labels else self.histogram(),
+                    "labels": s.labels.message() if s.labels else None,
                     "retrain": {"available": self.updater.available, "why": self.updater.reason,
                                 "auto": self.updater.settings.auto, "status": self.updater.status()}}
 

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.viewer.retrain import (
@@ -33,14 +34,25 @@ from photon_fields.runtime.viewer.retrain import (
 STATUS_INTERVAL = 0.5
 
 
-def same_transfer(a: TransferFunction | None, b: TransferFunction | None) -> bool:
-    """Whether two transfer functions map every scalar to the same medium (their names aside)."""
+def same_transfer(a: TransferFunction | LabelTransfer | None, b: TransferFunction | LabelTransfer | None) -> bool:
+    """Whether two transfer functions give the same medium (their names aside): the same control points; for
+    label functions the same extinction per label and the same albedo wherever a label is seen (a label at
+    opacity 0, named or not, is transparent either way, so the label panel's function, which names every label,
+    equals the scene's own until an edit changes what is seen). A label function never equals a scalar one."""
     if a is b:
         return True
     if a is None or b is None:
         return False
+    if isinstance(a, LabelTransfer) or isinstance(b, LabelTransfer):
+        return isinstance(a, LabelTransfer) and isinstance(b, LabelTransfer) and _seen_labels(a) == _seen_labels(b)
     return (a.density_scale == b.density_scale and np.array_equal(a.points, b.points)
             and np.array_equal(a.albedo, b.albedo) and np.array_equal(a.opacity, b.opacity))
+
+
+def _seen_labels(tf: LabelTransfer) -> dict[int, tuple[float, ...]]:
+    """label -> (extinction, albedo) of the labels a label function does not leave transparent."""
+    return {int(label): (float(o) * tf.density_scale, *(float(c) for c in alb))
+            for label, alb, o in zip(tf.labels, tf.albedo, tf.opacity, strict=True) if o > 0}
 
 
 class FieldUpdater:

@@ -5,9 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.viewer.camera import OrbitView
 from photon_fields.runtime.viewer.light_control import LightControl
+from photon_fields.runtime.viewer.transfer_edit import LabelPanel
 
 DEFAULT_MAX_SPP = 1024
 #: Samples of a resting view after which the neural renderer's frames take the final gather (None: never); the
@@ -35,8 +37,10 @@ class ViewState:
     """The size of the page's view box in device pixels, as its last ``view`` message said (None: not yet)."""
     drag_scale: float | str = 1.0
     """Moving frames are rendered at this fraction of the size (1: full size); resting frames always full."""
-    transfer: TransferFunction | None = None
+    transfer: TransferFunction | LabelTransfer | None = None
     """The transfer function as the page edited it (None: the scene's)."""
+    labels: LabelPanel | None = None
+    """A label scene's label panel as the page set it (None: a scalar scene, edited with control points)."""
 
 
 @dataclass

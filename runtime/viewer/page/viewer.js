@@ -14,6 +14,8 @@ let pendingOrbit = null;        // input is coalesced to one message per animati
 let pendingPan = null;
 let pendingZoom = 1.0;
 let pendingTransfer = null;     // the transfer-function editor's newest state, sent once per animation frame
+let pendingLabels = {};         // a label scene's panel: label -> what changed, merged, sent once per animation frame
+let maxLabelEdits = 32;         // labels one message may change (the server's, from its state message)
 let lastRetrain = null;         // the last retrain status message
 const sentAt = new Map();       // seq -> time sent (input-to-image latency)
 let lastLatency = null;
@@ -43,6 +45,11 @@ function flushInput() {
   if (pendingPan) { send({type: "pan", dx: pendingPan[0], dy: pendingPan[1]}); pendingPan = null; }
   if (pendingZoom !== 1.0) { send({type: "zoom", factor: Math.min(20, Math.max(0.05, pendingZoom))}); pendingZoom = 1.0; }
   if (pendingTransfer) { send({type: "transfer", ...pendingTransfer}); pendingTransfer = null; }
+  const labels = Object.keys(pendingLabels);
+  for (let i = 0; i < labels.length; i += maxLabelEdits) {  // "show all" on many labels: several messages
+    send({type: "labels", labels: Object.fromEntries(labels.slice(i, i + maxLabelEdits).map((k) => [k, pendingLabels[k]]))});
+  }
+  pendingLabels = {};
   requestAnimationFrame(flushInput);
 }
 
@@ -176,8 +183,16 @@ function onText(msg) {
 function buildControls(s) {
   $("title").textContent = `pfn-view: ${s.scene}`;
   setRenderers(s.renderers, s.renderer);
-  tfEditor.load(s.transfer, s.histogram);
-  $("density").value = 0; $("density_value").textContent = s.transfer.density_scale.toPrecision(3);
+  // A label scene gets the label panel, a scalar one the control-point editor over its histogram.
+  $("tf_box").classList.toggle("hidden", Boolean(s.labels));
+  $("labels_box").classList.toggle("hidden", !s.labels);
+  if (s.labels) {
+    labelPanel.load(s.labels);
+    maxLabelEdits = s.labels.max_edits;
+  } else {
+    tfEditor.load(s.transfer, s.histogram);
+    $("density").value = 0; $("density_value").textContent = s.transfer.density_scale.toPrecision(3);
+  }
   $("retrain").disabled = !s.retrain.available;
   if (!s.retrain.available) $("retrain_line").textContent = s.retrain.why;
   if (s.retrain.status) onRetrain(s.retrain.status);
@@ -252,12 +267,17 @@ $("tf_color").addEventListener("input", (e) => tfEditor.setColour(e.target.value
 $("density").addEventListener("input", (e) => {
   $("density_value").textContent = tfEditor.setDensityFactor(Math.pow(10, Number(e.target.value))).toPrecision(3);
 });
+const labelPanel = createLabelPanel($("label_rows"), (changes) => {
+  for (const [label, edit] of Object.entries(changes)) pendingLabels[label] = {...(pendingLabels[label] || {}), ...edit};
+});
+$("labels_show_all").addEventListener("click", () => labelPanel.showAll());
+$("labels_hide_all").addEventListener("click", () => labelPanel.hideAll());
 $("retrain").addEventListener("click", () => send({type: "retrain", action: "start"}));
 $("retrain_cancel").addEventListener("click", () => send({type: "retrain", action: "cancel"}));
 
 // For tests and the curious: frames shown, the last frame's header, the last input's number, the retraining.
 window.pfnView = {frames: () => framesShown, header: () => lastFrame, lastSeq: () => seq, send: send,
-                  retrain: () => lastRetrain, tf: tfEditor, view: () => sentView};
+                  retrain: () => lastRetrain, tf: tfEditor, labels: labelPanel, view: () => sentView};
 new ResizeObserver(fitCanvas).observe($("stage"));
 window.addEventListener("resize", fitCanvas);
 watchPixelRatio();

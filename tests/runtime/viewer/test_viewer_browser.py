@@ -12,31 +12,21 @@ Frames converge at a small ``max_spp`` so that the image at rest is fixed: any d
 
 from __future__ import annotations
 
-import base64
-import io
 import json
-import os
-import shutil
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from browser_helpers import header, pixels, require_browser, served_page, wait_for
+from browser_helpers import settled as settled_at
 from PIL import Image
 from viewer_helpers import inputs, stand_in_trainer
 
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-DRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
-if not (os.path.exists(CHROMIUM) and os.path.exists(DRIVER)):
-    pytest.skip("Chromium or chromedriver is not installed (Debian: apt-get install chromium chromium-driver; "
-                "`make install` does it where apt-get is available as root)", allow_module_level=True)
-pytest.importorskip("selenium", reason="selenium is not installed (pip install -e '.[browser-test]')")
-pytest.importorskip("uvicorn", reason="the view extra is not installed (pip install -e '.[view]')")
+require_browser()
 
-from selenium import webdriver  # noqa: E402
-from selenium.webdriver.chrome.service import Service  # noqa: E402
 from selenium.webdriver.common.action_chains import ActionChains  # noqa: E402
 from selenium.webdriver.common.by import By  # noqa: E402
 from selenium.webdriver.common.keys import Keys  # noqa: E402
@@ -51,58 +41,15 @@ SIZE, MAX_SPP = 64, 3
 def page(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Any, ViewerServer]]:
     out = tmp_path_factory.mktemp("browser") / "shots"
     trainer = stand_in_trainer(tmp_path_factory.mktemp("trainer"), "slow", delay_s=0.2)
-    srv = ViewerServer(inputs(out, size=SIZE, renderer="neural"), port=0, warm=False, max_spp=MAX_SPP,
-                       drag_scale=1.0,  # full-size moving frames whatever the machine's speed
-                       retrain=trainer)  # reports progress, then waits: the page shows a running retrain
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = CHROMIUM
-    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                "--window-size=900,700", "--no-first-run", "--disable-extensions"):
-        opts.add_argument(arg)
-    os.environ.setdefault("SE_OFFLINE", "true")  # selenium must not fetch a browser or a driver
-    driver = webdriver.Chrome(options=opts, service=Service(executable_path=DRIVER))
-    driver.set_script_timeout(30)
-    try:
-        driver.get(srv.url)
-        yield driver, srv
-    finally:
-        driver.quit()
-        srv.stop()
-
-
-def wait_for(cond: Callable[[], Any], what: str, timeout: float = 600.0) -> Any:
-    """Wait for ``cond()`` to be truthy. The timeout is generous: on a fresh clone the first frame compiles the
-    renderer's kernels (~100 s on 2 cores), and a slow CI machine must not fail a test that is not about speed."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        value = cond()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
-def header(driver: Any) -> dict | None:
-    return driver.execute_script("return window.pfnView && window.pfnView.header();")
+    with served_page(inputs(out, size=SIZE, renderer="neural"), max_spp=MAX_SPP,
+                     drag_scale=1.0,  # full-size moving frames whatever the machine's speed
+                     retrain=trainer) as opened:  # reports progress, then waits: the page shows a running retrain
+        yield opened
 
 
 def settled(driver: Any, **want: Any) -> dict:
-    """Wait for a frame at MAX_SPP (the image at rest) that includes every input the page sent (a drag's last
-    movement is sent on the next animation frame, after the test's pointer events) and has the ``want``
-    values."""
-    def ok() -> dict | None:
-        h = header(driver)
-        last = driver.execute_script("return window.pfnView.lastSeq();")
-        if not h or h["spp"] < MAX_SPP or (last and h["seq"] != last):
-            return None
-        return h if all(h.get(k) == v for k, v in want.items()) else None
-
-    return wait_for(ok, f"a settled frame with {want}")
-
-
-def pixels(driver: Any) -> np.ndarray:
-    url = driver.execute_script("return document.getElementById('view').toDataURL('image/png');")
-    return np.asarray(Image.open(io.BytesIO(base64.b64decode(url.split(",", 1)[1]))).convert("RGB"), dtype=float)
+    """:func:`browser_helpers.settled` at this module's MAX_SPP."""
+    return settled_at(driver, MAX_SPP, **want)
 
 
 def view_box(driver: Any) -> tuple[int, int]:

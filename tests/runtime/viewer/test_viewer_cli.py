@@ -81,16 +81,19 @@ def test_final_gather_after_takes_a_count_or_never() -> None:
     assert parse(["blobs", "--final-gather-after", "0"]).final_gather_after == 0
 
 
-def test_a_label_scene_is_refused_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """The page's editor edits control points; a label scene is refused before anything is served."""
-    import json
+def test_a_label_scene_opens_and_one_with_too_many_labels_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """A label scene loads with its label panel; a volume with more labels than the panel shows is refused in one
+    line before anything is served."""
+    from viewer_helpers import label_scene_file
 
-    import numpy as np
+    from photon_fields.runtime.viewer import transfer_edit
+    from photon_fields.runtime.viewer.launch import load_inputs
 
-    np.save(tmp_path / "seg.npy", np.arange(27, dtype=np.uint8).reshape(3, 3, 3) % 3)
-    scene = {"volume": {"path": "seg.npy"}, "transfer_function": {"preset": "labels"},
-             "lights": [{"type": "directional", "direction": [-1, -1, -0.5], "power": 3}],
-             "camera": {"eye": [1.2, 0.7, 1.5], "target": [0, 0, 0], "fov": 40, "width": 64, "height": 64}}
-    (tmp_path / "seg.json").write_text(json.dumps(scene))
-    assert _main([str(tmp_path / "seg.json"), "--no-browser", "--out", str(tmp_path / "out")]) == 2
-    assert "label transfer function, which the viewer's editor cannot edit" in one_error_line(capsys.readouterr().err)
+    scene = label_scene_file(tmp_path)
+    loaded = load_inputs(str(scene), out_dir=tmp_path / "out")
+    assert loaded.scene.tf.categorical
+    monkeypatch.setattr(transfer_edit, "MAX_PANEL_LABELS", 2)
+    assert _main([str(scene), "--no-browser", "--out", str(tmp_path / "out")]) == 2
+    assert "its volume has 3 labels; the viewer's label panel shows at most 2" in \
+        one_error_line(capsys.readouterr().err)

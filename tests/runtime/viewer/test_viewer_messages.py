@@ -45,6 +45,12 @@ VALID = [
      '{"s": 0.5, "opacity": 0.25, "albedo": [0.9, 0.5, 0.1]}], "density_scale": 40}', "transfer",
      {"points": [{"s": 0.0, "opacity": 0.0, "albedo": [1.0, 1.0, 1.0]},
                  {"s": 0.5, "opacity": 0.25, "albedo": [0.9, 0.5, 0.1]}], "density_scale": 40.0}, None),
+    ('{"type": "labels", "labels": {"3": {"albedo": [0.9, 0.1, 0], "opacity": 0.5, "visible": true}, '
+     '"-2": {"visible": false}, "0": {"opacity": 1}}, "seq": 2}', "labels",
+     {"labels": [{"label": 3, "albedo": [0.9, 0.1, 0.0], "opacity": 0.5, "visible": True},
+                 {"label": -2, "visible": False}, {"label": 0, "opacity": 1.0}]}, 2),
+    ('{"type": "labels", "labels": {"4294967295": {"albedo": [1, 1, 1]}}}', "labels",
+     {"labels": [{"label": 4294967295, "albedo": [1.0, 1.0, 1.0]}]}, None),
     ('{"type": "retrain", "action": "start", "seq": 9}', "retrain", {"action": "start"}, 9),
     ('{"type": "retrain", "action": "cancel"}', "retrain", {"action": "cancel"}, None),
 ]
@@ -143,6 +149,36 @@ BAD = [
     ('{"type": "transfer", "points": [{"s": 0.5, "opacity": 1, "albedo": [1, 1, 1]}], "density_scale": 0}',
      "must be in"),
     ('{"type": "transfer", "points": [{"s": 0.5, "opacity": 1, "albedo": [1, 1, 1]}]}', "missing 'density_scale'"),
+    # labels: each kind of bad label key, entry, albedo, opacity, visibility, and too many labels
+    ('{"type": "labels"}', "missing 'labels'"),
+    ('{"type": "labels", "labels": {}}', "1 to 32 labels, got 0"),
+    ('{"type": "labels", "labels": [{"label": 3, "visible": true}]}', "must be an object of 1 to 32"),
+    ('{"type": "labels", "labels": {' + ", ".join(f'"{i}": {{"visible": true}}' for i in range(33)) + "}}",
+     "got 33 labels"),
+    ('{"type": "labels", "labels": {"liver": {"visible": true}}}', "a label must be a decimal integer"),
+    ('{"type": "labels", "labels": {"3.0": {"visible": true}}}', "a label must be a decimal integer"),
+    ('{"type": "labels", "labels": {"03": {"visible": true}}}', "a label must be a decimal integer"),
+    ('{"type": "labels", "labels": {"+3": {"visible": true}}}', "a label must be a decimal integer"),
+    ('{"type": "labels", "labels": {" 3": {"visible": true}}}', "a label must be a decimal integer"),
+    ('{"type": "labels", "labels": {"12345678901": {"visible": true}}}', "a label must be a decimal integer"),
+    ('{"type": "labels", "labels": {"": {"visible": true}}}', "a label must be a decimal integer"),
+    ('{"type": "labels", "labels": {"3": {"visible": true}, "3": {"visible": false}}}', "more than once"),
+    ('{"type": "labels", "labels": {"3": {}}}', "some of albedo, opacity, visible"),
+    ('{"type": "labels", "labels": {"3": true}}', "some of albedo, opacity, visible"),
+    ('{"type": "labels", "labels": {"3": {"visible": true, "colour": [1, 0, 0]}}}', "some of albedo, opacity, visible"),
+    ('{"type": "labels", "labels": {"3": {"albedo": [1, 0]}}}', "three numbers"),
+    ('{"type": "labels", "labels": {"3": {"albedo": "#ff0000"}}}', "three numbers"),
+    ('{"type": "labels", "labels": {"3": {"albedo": [1, 0, 1.5]}}}', "must be in [0, 1]"),
+    ('{"type": "labels", "labels": {"3": {"albedo": [1, 0, -0.1]}}}', "must be in [0, 1]"),
+    ('{"type": "labels", "labels": {"3": {"albedo": [1, 0, NaN]}}}', "NaN"),
+    ('{"type": "labels", "labels": {"3": {"albedo": [1, 0, 1e400]}}}', "finite"),
+    ('{"type": "labels", "labels": {"3": {"albedo": [1, 0, false]}}}', "must be a number"),
+    ('{"type": "labels", "labels": {"3": {"opacity": 2}}}', "must be in [0, 1]"),
+    ('{"type": "labels", "labels": {"3": {"opacity": -Infinity}}}', "Infinity"),
+    ('{"type": "labels", "labels": {"3": {"opacity": "1"}}}', "must be a number"),
+    ('{"type": "labels", "labels": {"3": {"visible": 1}}}', "true or false"),
+    ('{"type": "labels", "labels": {"3": {"visible": "no"}}}', "true or false"),
+    ('{"type": "labels", "labels": {"3": {"visible": true}}, "points": []}', "unknown key"),
     ('{"type": "retrain"}', "missing 'action'"),
     ('{"type": "retrain", "action": "rm -rf"}', "must be one of"),
     ("[" * 3000 + "]" * 3000, "larger than"),
@@ -180,7 +216,7 @@ json_values = st.recursive(
     lambda children: st.lists(children, max_size=4) | st.dictionaries(st.text(max_size=8), children, max_size=4),
     max_leaves=12)
 field_names = st.sampled_from(["dx", "dy", "factor", "control", "value", "index", "azimuth", "elevation", "power",
-                               "width", "height", "name", "seq", "extra"])
+                               "width", "height", "name", "seq", "extra", "labels"])
 messages = st.fixed_dictionaries({"type": st.sampled_from([*SCHEMAS, "nope"])},
                                  optional={"control": st.sampled_from([*CONTROLS, "nope"])}) \
     .flatmap(lambda base: st.dictionaries(field_names, json_values, max_size=5).map(lambda d: {**d, **base}))
@@ -214,3 +250,25 @@ def test_fuzzed_messages_parse_or_are_refused(data: dict) -> None:
 def test_fuzzed_text_never_raises_anything_else(payload: str | bytes) -> None:
     with contextlib.suppress(MessageError):
         parse(payload)
+
+
+label_keys = st.sampled_from(["3", "0", "-7", "03", "x", "", "1e3", "99999999999"]) | st.text(max_size=6)
+label_entries = st.dictionaries(st.sampled_from(["albedo", "opacity", "visible", "colour"]), json_values, max_size=3)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.dictionaries(label_keys, label_entries | json_values, max_size=5))
+def test_fuzzed_label_edits_parse_or_are_refused(labels: dict) -> None:
+    """A ``labels`` message either validates to integer labels with finite values in [0, 1] and booleans, or is
+    refused in one MessageError line."""
+    try:
+        m = parse(json.dumps({"type": "labels", "labels": labels}, allow_nan=True))
+    except MessageError as err:
+        assert "\n" not in str(err)
+        return
+    for edit in m.fields["labels"]:
+        assert type(edit["label"]) is int and set(edit) - {"label"} and set(edit) <= {"label", "albedo", "opacity",
+                                                                                      "visible"}
+        values = [*edit.get("albedo", []), *([edit["opacity"]] if "opacity" in edit else [])]
+        assert all(type(v) is float and 0.0 <= v <= 1.0 for v in values)
+        assert type(edit.get("visible", True)) is bool

@@ -25,6 +25,35 @@ def tiny_scene(size: int = SIZE) -> Scene:
     return scene_from_dict(tiny_scene_dict("blobs")).with_overrides(width=size, height=size)
 
 
+#: The label scene's labels: background, a ball on the left, a cube on the right (side by side in the view).
+BACKGROUND, BALL, CUBE = 0, 3, 7
+
+
+def label_scene_file(folder: Path, size: int = SIZE) -> Path:
+    """A label scene file in ``folder``: a 32^3 segmentation (``seg.npy``, uint8) of :data:`BACKGROUND`, a ball of
+    :data:`BALL` and a cube of :data:`CUBE`, with ``{"preset": "labels"}`` (background transparent, each object its
+    own colour) and a light from the camera's side, viewed at ``size`` x ``size``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    x, y, z = np.meshgrid(*(np.arange(32) + 0.5,) * 3, indexing="ij")
+    seg = np.full((32, 32, 32), BACKGROUND, np.uint8)
+    seg[(x - 9) ** 2 + (y - 16) ** 2 + (z - 16) ** 2 < 7.5**2] = BALL
+    seg[(abs(x - 24) < 6) & (abs(y - 16) < 6) & (abs(z - 16) < 6)] = CUBE
+    np.save(folder / "seg.npy", seg)
+    scene = {"name": "seg", "volume": {"path": "seg.npy"}, "transfer_function": {"preset": "labels"},
+             "lights": [{"type": "directional", "direction": [-0.3, -0.5, -1.0], "power": 3.0}],
+             "camera": {"eye": [0.0, 0.3, 1.6], "target": [0, 0, 0], "fov": 40, "width": size, "height": size}}
+    path = folder / "seg.json"
+    path.write_text(json.dumps(scene))
+    return path
+
+
+def label_scene(folder: Path, size: int = SIZE) -> Scene:
+    """:func:`label_scene_file`'s scene, loaded as ``pfn-view`` loads it."""
+    from photon_fields.runtime.scene.scene import load_scene
+
+    return load_scene(label_scene_file(folder, size))
+
+
 class AnalyticField:
     """Q(x, d, g) = (0.2 + 0.3 (1 + x_y)) (1 + 0.8 g d_x) per channel (tinted): smooth, positive, and different
     for every g, so a frame at another g must differ."""
@@ -38,13 +67,16 @@ def msg(kind: str, **fields: Any) -> Message:
     return validate({"type": kind, **fields})
 
 
-def make_session(out_dir: Path, renderer: str = "neural", size: int = SIZE, **kw: Any) -> ViewerSession:
-    return ViewerSession(tiny_scene(size), estimator=AnalyticField(), out_dir=out_dir, seed=5, width=size,
+def make_session(out_dir: Path, renderer: str = "neural", size: int = SIZE, scene: Scene | None = None,
+                 **kw: Any) -> ViewerSession:
+    """A session on ``scene`` (default: :func:`tiny_scene`) with the analytic field as its neural renderer's."""
+    return ViewerSession(scene or tiny_scene(size), estimator=AnalyticField(), out_dir=out_dir, seed=5, width=size,
                          height=size, renderer=renderer, **kw)
 
 
-def inputs(out_dir: Path, size: int = SIZE, renderer: str | None = "pt") -> ViewerInputs:
-    sc = tiny_scene(size)
+def inputs(out_dir: Path, size: int = SIZE, renderer: str | None = "pt", scene: Scene | None = None) -> ViewerInputs:
+    """What ``pfn-view`` would load for ``scene`` (default: :func:`tiny_scene`) with the analytic field."""
+    sc = scene or tiny_scene(size)
     return ViewerInputs(sc, AnalyticField(), None, out_dir, 5, size, size, renderer, {"bundle": None, "map": None})
 
 
