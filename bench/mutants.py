@@ -268,7 +268,8 @@ MUTANTS: tuple[Mutant, ...] = (
     # Training points where cameras see the medium (issue 13, sampling="visible").
     Mutant("visible_disk_radius_uniform", "train/fit/visible_points.py",
            "r = radius * np.sqrt(rng.random(chunk))[:, None]", "r = radius * rng.random(chunk)[:, None]",
-           ("tests/train/fit/test_visible_points.py",),
+           ("tests/train/fit/test_visible_points.py::"
+            "test_collisions_follow_the_density_of_first_collisions_of_uniform_lines",),
            "ray offsets uniform in radius instead of in area: lines crowd the volume's centre"),
     Mutant("visible_points_reversed", "train/fit/targets.py", "np.tile(dv, (VISIBLE_REUSE, 1))[:seen]",
            "np.tile(-dv, (VISIBLE_REUSE, 1))[:seen]",
