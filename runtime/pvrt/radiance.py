@@ -14,6 +14,9 @@ scattering (RGB).
 Light volume. A directional light's direct term is NEE: its transmittance ``T(x -> light)`` is marched (the ray
 marcher's shadow rays with empty-space skipping) from the centre of every cell of a grid (``DEFAULT_LIGHT_GRID``
 along the longest side) once per light change, and camera samples interpolate it. Shadows are as sharp as that grid.
+Only the cells that a camera sample with sigma_t > 0 can read are marched (the trilinear stencils of the occupied
+macrocells, :func:`_needed_cells`): on sparse volumes most cells lie in empty space, where the camera adds nothing.
+All lights' cells are one parallel loop.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from photon_fields.runtime.pvrt.sh import hg_band_factors, sh_count, sh_eval
 from photon_fields.runtime.pvrt.transfer import Transfer
 from photon_fields.runtime.renderers.ray_marcher import march_transmittance
 from photon_fields.runtime.transport.medium import Medium
+from photon_fields.runtime.transport.tracking import TASK_ITEMS, task_stride
 
 #: Radiance-volume channels: direct RGB and multiple-scattering RGB *photon energy* towards the eye (the CPCA
 #: numerators, not divided by D_v), and D_v itself. The camera divides the trilinear interpolations of the two
@@ -102,24 +106,75 @@ def radiance_volume(transfer: Transfer, lighting: Lighting, eye: np.ndarray, g: 
                            np.asarray(box["size"], np.float64), gx, gy, gz)
 
 
-@njit(cache=True, parallel=True)
-def _light_volume(m: Medium, lx: float, ly: float, lz: float, gx: int, gy: int, gz: int, h: float) -> np.ndarray:
-    out = np.empty((gx, gy, gz), dtype=np.float32)
-    for ix in prange(gx):
-        for iy in range(gy):
-            for iz in range(gz):
-                px = m.bmin[0] + (ix + 0.5) / gx * m.bsize[0]
-                py = m.bmin[1] + (iy + 0.5) / gy * m.bsize[1]
-                pz = m.bmin[2] + (iz + 0.5) / gz * m.bsize[2]
-                out[ix, iy, iz] = march_transmittance(m, px, py, pz, lx, ly, lz, math.inf, h, True)
+@njit(cache=True, inline="always")
+def grid_coord(p: float, lo: float, size: float, n: int) -> tuple[int, float]:
+    """Lower index and fraction of the trilinear stencil along one axis of a cell-centred grid of ``n`` cells over
+    [lo, lo + size] at coordinate ``p`` (clamped at the border): the camera's lookups of the radiance and light
+    volumes, and :func:`_needed_cells`, which must agree with them."""
+    u = min(max((p - lo) / size * n - 0.5, 0.0), n - 1.0)
+    i = min(int(u), n - 2)
+    return i, u - i
+
+
+@njit(cache=True)
+def _needed_cells(m: Medium, gx: int, gy: int, gz: int) -> np.ndarray:
+    """Which cells of a (gx, gy, gz) cell-centred grid a camera sample with sigma_t > 0 can read: every corner of
+    the trilinear stencil (:func:`grid_coord`) of any point of a macrocell whose majorant is > 0. A sample with
+    sigma_t > 0 lies in such a macrocell, so the cells left out are only ever read by samples that add nothing."""
+    cx, cy, cz = m.majorant.shape
+    out = np.zeros((gx, gy, gz), dtype=np.bool_)
+    lo = np.empty(3, dtype=np.int64)
+    hi = np.empty(3, dtype=np.int64)
+    for a in range(cx):
+        for b in range(cy):
+            for c in range(cz):
+                if m.majorant[a, b, c] <= 0.0:
+                    continue
+                for ax, (j, cells, n) in enumerate(((a, cx, gx), (b, cy, gy), (c, cz, gz))):
+                    x0 = m.bmin[ax] + j / cells * m.bsize[ax]
+                    x1 = m.bmin[ax] + (j + 1) / cells * m.bsize[ax]
+                    lo[ax] = grid_coord(x0, m.bmin[ax], m.bsize[ax], n)[0]
+                    hi[ax] = grid_coord(x1, m.bmin[ax], m.bsize[ax], n)[0] + 1  # the stencil's upper corner
+                out[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1] = True
     return out
 
 
-def light_volumes(m: Medium, travel_dirs: np.ndarray, grid: int, step: float) -> np.ndarray:
+@njit(cache=True)
+def _light_cells(m: Medium, lights: np.ndarray, cells: np.ndarray, h: float, skip: bool, out: np.ndarray, lo: int,
+                 hi: int) -> None:
+    """Entries lo..hi-1 of ``cells`` ((light, ix, iy, iz) rows) of :func:`_light_volumes`, serially."""
+    _, gx, gy, gz = out.shape
+    for v in range(lo, hi):
+        li, ix, iy, iz = cells[v, 0], cells[v, 1], cells[v, 2], cells[v, 3]
+        px = m.bmin[0] + (ix + 0.5) / gx * m.bsize[0]
+        py = m.bmin[1] + (iy + 0.5) / gy * m.bsize[1]
+        pz = m.bmin[2] + (iz + 0.5) / gz * m.bsize[2]
+        out[li, ix, iy, iz] = march_transmittance(m, px, py, pz, -lights[li, 0], -lights[li, 1], -lights[li, 2],
+                                                  math.inf, h, skip)
+
+
+@njit(cache=True, parallel=True)
+def _light_volumes(m: Medium, lights: np.ndarray, cells: np.ndarray, h: float, skip: bool, out: np.ndarray) -> None:
+    """All lights' cells in one parallel region (``TASK_ITEMS`` tasks, spread by ``task_stride``)."""
+    n = cells.shape[0]
+    tasks = (n + TASK_ITEMS - 1) // TASK_ITEMS
+    stride = task_stride(tasks)
+    for task in prange(tasks):
+        b = (task * stride) % tasks
+        _light_cells(m, lights, cells, h, skip, out, b * TASK_ITEMS, min(n, (b + 1) * TASK_ITEMS))
+
+
+def light_volumes(m: Medium, travel_dirs: np.ndarray, grid: int, step: float, skip_empty: bool = True) -> np.ndarray:
     """Transmittance towards each directional light (travel direction rows of ``travel_dirs``) from the centres of
-    a grid with ``grid`` cells along the longest side: (lights, gx, gy, gz) float32; ``step`` in world units."""
+    a grid with ``grid`` cells along the longest side: (lights, gx, gy, gz) float32; ``step`` in world units.
+    ``skip_empty``: only the cells a camera sample in the medium can read are marched (:func:`_needed_cells`; the
+    others hold 1), skipping empty macrocells; False: every cell, every midpoint (the tests' reference)."""
     shape = grid_shape(m.bsize, grid)
-    out = np.empty((len(travel_dirs), *shape), dtype=np.float32)
-    for i, t in enumerate(travel_dirs):
-        out[i] = _light_volume(m, -float(t[0]), -float(t[1]), -float(t[2]), *shape, step)
+    out = np.ones((len(travel_dirs), *shape), dtype=np.float32)
+    if len(travel_dirs) == 0:
+        return out
+    needed = np.argwhere(_needed_cells(m, *shape) if skip_empty else np.ones(shape, dtype=np.bool_))
+    cells = np.concatenate([np.column_stack([np.full(len(needed), i), needed]) for i in range(len(travel_dirs))])
+    _light_volumes(m, np.ascontiguousarray(travel_dirs, dtype=np.float64), np.ascontiguousarray(cells), step,
+                   skip_empty, out)
     return out
