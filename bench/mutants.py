@@ -60,6 +60,7 @@ ENVMAP = "tests/runtime/transport/test_environment_map.py"
 ENVRENDER = "tests/runtime/renderers/test_environment_map_render.py"
 PVRT_CLI = "tests/train/cli/test_pvrt_cli.py"
 PVRT_PT = "tests/runtime/pvrt/test_pvrt_vs_path_tracer.py"
+PVRT_MARCH = "tests/runtime/pvrt/test_pvrt_march.py"
 
 
 @dataclass(frozen=True)
@@ -421,6 +422,16 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("pvrt_photon_power_doubled", "runtime/pvrt/precompute.py", "        power = weight * scale",
            "        power = 2.0 * weight * scale", (f"{PVRT_PT}::test_pvrt_matches_path_tracer_under_its_light",),
            "basis-light photons carry twice their energy"),
+    Mutant("pvrt_march_jumps_too_far", "runtime/renderers/pvrt.py", "math.floor(empty_until / h - jitter + 0.5)",
+           "math.floor(empty_until / h - jitter + 2.5)", (f"{PVRT_MARCH}::test_skipping_empty_space_changes_no_pixel",),
+           "a PVRT camera ray jumps two segments past the end of an empty run and misses the medium there (one "
+           "segment is not seen: the first midpoint past a run has sigma_t = 0 on this scene)"),
+    Mutant("pvrt_light_cells_short", "runtime/pvrt/radiance.py", "[0] + 1  # the stencil's upper corner",
+           "[0]  # the stencil's upper corner",
+           (f"{PVRT_MARCH}::test_light_volume_marches_every_cell_a_sample_in_the_medium_reads",
+            f"{PVRT_MARCH}::test_skipping_empty_space_changes_no_pixel"),
+           "the light volume leaves out the upper corner of the stencils of the occupied macrocells (shadows there "
+           "read an unmarched 1)"),
 )
 
 

@@ -17,7 +17,7 @@ as the other renderers.
 Parameters: ``transfer`` (a :class:`photon_fields.runtime.pvrt.transfer.Transfer`, checked against the scene),
 ``step`` (camera step in voxels), ``direct`` ("nee": directional lights' direct term from light volumes, "transfer":
 from the basis), ``light_grid`` (light-volume cells along the longest side), ``sky`` (a callable sky, Python API),
-``rotation`` (3x3: turns the whole lighting).
+``rotation`` (3x3: turns the whole lighting), ``skip_empty`` (see :func:`render_pvrt`).
 """
 
 from __future__ import annotations
@@ -30,13 +30,13 @@ from numba import njit, prange
 
 from photon_fields.runtime.pvrt.constants import DEFAULT_LIGHT_GRID
 from photon_fields.runtime.pvrt.lighting import scene_lighting
-from photon_fields.runtime.pvrt.radiance import light_volumes, radiance_volume
+from photon_fields.runtime.pvrt.radiance import grid_coord, light_volumes, radiance_volume
 from photon_fields.runtime.pvrt.transfer import Transfer
 from photon_fields.runtime.scene.scene import Scene
-from photon_fields.runtime.transport.medium import Medium, albedo_at, extinction_at
+from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
-from photon_fields.runtime.transport.tracking import empty_run
+from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run, task_stride
 from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.rays import clip_rays_to_volume, generate_camera_rays
@@ -45,17 +45,13 @@ _T_MIN = 1e-4  # as the ray marcher: stop once the camera ray is this opaque
 
 
 @njit(cache=True, inline="always")
-def _cell_coords(m: Medium, x: float, y: float, z: float, g: tuple) -> tuple[int, int, int, float, float, float]:
-    """Lower corner and fractions of the trilinear stencil of a cell-centred grid of shape ``g`` at world x."""
-    out_i = np.empty(3, dtype=np.int64)
-    out_f = np.empty(3)
-    for a, p in enumerate((x, y, z)):
-        n = g[a]
-        u = min(max((p - m.bmin[a]) / m.bsize[a] * n - 0.5, 0.0), n - 1.0)
-        i = min(int(u), n - 2)
-        out_i[a] = i
-        out_f[a] = u - i
-    return out_i[0], out_i[1], out_i[2], out_f[0], out_f[1], out_f[2]
+def _stencil(m: Medium, x: float, y: float, z: float, gx: int, gy: int,
+             gz: int) -> tuple[int, int, int, float, float, float]:
+    """Lower corner and fractions of the trilinear stencil of a cell-centred (gx, gy, gz) grid over the box at x."""
+    i, fx = grid_coord(x, m.bmin[0], m.bsize[0], gx)
+    j, fy = grid_coord(y, m.bmin[1], m.bsize[1], gy)
+    k, fz = grid_coord(z, m.bmin[2], m.bsize[2], gz)
+    return i, j, k, fx, fy, fz
 
 
 @njit(cache=True, inline="always")
@@ -67,82 +63,110 @@ def _trilinear(vol: np.ndarray, i: int, j: int, k: int, fx: float, fy: float, fz
     return (c00 * (1 - fy) + c10 * fy) * (1 - fz) + (c01 * (1 - fy) + c11 * fy) * fz
 
 
+@njit(cache=True, inline="always")
+def _radiance_at(rad: np.ndarray, i: int, j: int, k: int, fx: float, fy: float, fz: float, r: np.ndarray) -> None:
+    """r[0:6] = the D_v-weighted trilinear radiance (radiance.CHANNELS): the interpolated photon energy of each
+    channel over the interpolated D_v (channel 6), 0 where D_v interpolates to 0. All channels share the
+    stencil's weights, and a corner's channels are adjacent in memory."""
+    for c in range(7):
+        r[c] = 0.0
+    for corner in range(8):
+        a, b, e = corner & 1, (corner >> 1) & 1, corner >> 2
+        w = (fx if a else 1.0 - fx) * (fy if b else 1.0 - fy) * (fz if e else 1.0 - fz)
+        for c in range(7):
+            r[c] += w * rad[i + a, j + b, k + e, c]
+    if r[6] > 0.0:
+        inv = 1.0 / r[6]
+        for c in range(6):
+            r[c] *= inv
+    else:
+        for c in range(6):
+            r[c] = 0.0
+
+
 @njit(cache=True)
-def _march_ray(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, g: float,
-               ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmax: float, jitter: float,
-               h: float, out: np.ndarray) -> float:
-    """One camera ray: adds L_d to out[0:3], L_i to out[3:6]; returns its transmittance."""
-    rg = (rad.shape[0], rad.shape[1], rad.shape[2])
-    lg = (lights.shape[1], lights.shape[2], lights.shape[3])
-    T = 1.0
-    t = jitter * h
-    t_prev = 0.0
-    empty_until = -math.inf
-    while t_prev < tmax and T > _T_MIN:
-        t_next = min(t, tmax)
-        seg = t_next - t_prev
-        tm = 0.5 * (t_prev + t_next)
-        x, y, z = ox + tm * dx, oy + tm * dy, oz + tm * dz
-        if tm >= empty_until:
-            run = empty_run(m, x, y, z, dx, dy, dz)
-            if run > 0.0:
-                empty_until = tm + run
-        if tm < empty_until:
+def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, g: float,
+                 o: np.ndarray, d: np.ndarray, tmax: np.ndarray, states: np.ndarray, h: float, skip: bool,
+                 out: np.ndarray, trans: np.ndarray, lo: int, hi: int) -> None:
+    """Camera rays lo..hi-1 of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why): L_d into
+    out[0:3], L_i into out[3:6], the transmittance into ``trans``. Segment s of a ray spans [t_{s-1}, t_s] with
+    t_s = (jitter + s) h (t_{-1} = 0), sampled at its midpoint; over an empty run (:func:`empty_run`) the walk
+    jumps to the first segment whose midpoint is past it (the midpoints it passes have sigma_t = 0 and add
+    nothing), so empty space costs one step per run, not one per segment (``skip`` False: every midpoint looked
+    up, the same sums). (The rays are not a kernel of their own: an inlined call per ray took and released a
+    reference to each of its 13 arrays.)"""
+    r = np.empty(7)  # one sample's radiance, reused by every sample of the task
+    nl = lights.shape[0]
+    for ray in range(lo, hi):
+        states[ray], jitter = next_float(states[ray])
+        ox, oy, oz, dx, dy, dz = o[0, ray], o[1, ray], o[2, ray], d[0, ray], d[1, ray], d[2, ray]
+        t_end = tmax[ray]
+        T = 1.0
+        s = 0
+        t_prev = 0.0
+        empty_until = -math.inf
+        while t_prev < t_end and T > _T_MIN:
+            t_next = min((jitter + s) * h, t_end)
+            seg = t_next - t_prev
+            tm = 0.5 * (t_prev + t_next)
+            x, y, z = ox + tm * dx, oy + tm * dy, oz + tm * dz
+            if skip and tm >= empty_until:
+                run = empty_run(m, x, y, z, dx, dy, dz)
+                if run > 0.0:
+                    empty_until = tm + run
+            if tm < empty_until:  # floor() never passes the first s with (jitter + s - 0.5) h >= empty_until
+                s = max(s + 1, int(min(math.floor(empty_until / h - jitter + 0.5), t_end / h + 2.0)))
+                t_prev = (jitter + s - 1) * h
+                continue
+            sigma, a0, a1, a2 = extinction_albedo_at(m, x, y, z)
+            if sigma > 0.0 and seg > 0.0:
+                w = T * (1.0 - math.exp(-sigma * seg))
+                i, j, k, fx, fy, fz = _stencil(m, x, y, z, rad.shape[0], rad.shape[1], rad.shape[2])
+                _radiance_at(rad, i, j, k, fx, fy, fz, r)
+                if nl > 0:
+                    i, j, k, fx, fy, fz = _stencil(m, x, y, z, lights.shape[1], lights.shape[2], lights.shape[3])
+                    for li in range(nl):
+                        ph = hg_eval(g, -(dx * travel[li, 0] + dy * travel[li, 1] + dz * travel[li, 2]))
+                        tr = _trilinear(lights[li], i, j, k, fx, fy, fz) * ph
+                        r[0] += tr * rgb[li, 0]
+                        r[1] += tr * rgb[li, 1]
+                        r[2] += tr * rgb[li, 2]
+                out[0, ray] += w * a0 * r[0]
+                out[1, ray] += w * a1 * r[1]
+                out[2, ray] += w * a2 * r[2]
+                out[3, ray] += w * a0 * r[3]
+                out[4, ray] += w * a1 * r[4]
+                out[5, ray] += w * a2 * r[5]
+                T *= math.exp(-sigma * seg)
+            s += 1
             t_prev = t_next
-            t = t_next + h
-            continue
-        sigma = extinction_at(m, x, y, z)
-        if sigma > 0.0 and seg > 0.0:
-            a0, a1, a2 = albedo_at(m, x, y, z)
-            w = T * (1.0 - math.exp(-sigma * seg))
-            i, j, k, fx, fy, fz = _cell_coords(m, x, y, z, rg)
-            r = np.zeros(6)
-            occ = _trilinear(rad[:, :, :, 6], i, j, k, fx, fy, fz)
-            if occ > 0.0:  # interpolated photon energy / interpolated D_v (radiance.CHANNELS)
-                for c in range(6):
-                    r[c] = _trilinear(rad[:, :, :, c], i, j, k, fx, fy, fz) / occ
-            if lights.shape[0] > 0:
-                i, j, k, fx, fy, fz = _cell_coords(m, x, y, z, lg)
-                for li in range(lights.shape[0]):
-                    ph = hg_eval(g, -(dx * travel[li, 0] + dy * travel[li, 1] + dz * travel[li, 2]))
-                    tr = _trilinear(lights[li], i, j, k, fx, fy, fz) * ph
-                    r[0] += tr * rgb[li, 0]
-                    r[1] += tr * rgb[li, 1]
-                    r[2] += tr * rgb[li, 2]
-            out[0] += w * a0 * r[0]
-            out[1] += w * a1 * r[1]
-            out[2] += w * a2 * r[2]
-            out[3] += w * a0 * r[3]
-            out[4] += w * a1 * r[4]
-            out[5] += w * a2 * r[5]
-            T *= math.exp(-sigma * seg)
-        t_prev = t_next
-        t = t_next + h
-    return T if T > _T_MIN else 0.0
+        trans[ray] = T if T > _T_MIN else 0.0
 
 
 @njit(cache=True, parallel=True)
 def _march(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, g: float,
-           o: np.ndarray, d: np.ndarray, tmax: np.ndarray, states: np.ndarray,
-           h: float) -> tuple[np.ndarray, np.ndarray]:
+           o: np.ndarray, d: np.ndarray, tmax: np.ndarray, states: np.ndarray, h: float,
+           skip: bool) -> tuple[np.ndarray, np.ndarray]:
     n = o.shape[1]
     out = np.zeros((6, n))
     trans = np.ones(n)
-    for i in prange(n):
-        states[i], jitter = next_float(states[i])
-        acc = np.zeros(6)
-        trans[i] = _march_ray(m, rad, lights, travel, rgb, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i],
-                              tmax[i], jitter, h, acc)
-        for c in range(6):
-            out[c, i] = acc[c]
+    tasks = (n + TASK_ITEMS - 1) // TASK_ITEMS
+    stride = task_stride(tasks)
+    for task in prange(tasks):
+        b = (task * stride) % tasks  # blocks spread over the image (task_stride)
+        _march_items(m, rad, lights, travel, rgb, g, o, d, tmax, states, h, skip, out, trans, b * TASK_ITEMS,
+                     min(n, (b + 1) * TASK_ITEMS))
     return out, trans
 
 
 def render_pvrt(scene: Scene, *, transfer: Transfer, spp: int = 1, seed: int = 0, batch_size: int = 1 << 18,
                 progress: bool = True, step: float = 1.0, direct: str = "nee", light_grid: int = DEFAULT_LIGHT_GRID,
-                sky=None, rotation: np.ndarray | None = None) -> RenderResult:  # noqa: ANN001  (sky: SkyFunction)
+                sky=None, rotation: np.ndarray | None = None,  # noqa: ANN001  (sky: SkyFunction)
+                skip_empty: bool = True) -> RenderResult:
     """Render ``scene`` (its lights, plus ``sky``) from ``transfer`` (module docstring). ``stats`` records the
-    notes of the lighting's projection (e.g. the NEE fall-back of a directional light)."""
+    notes of the lighting's projection (e.g. the NEE fall-back of a directional light). ``skip_empty``: camera
+    and shadow rays look nothing up in empty macrocells and the light volumes march only the cells a camera sample
+    in the medium can read (the same image, sooner; False: every sample and cell, the reference of the tests)."""
     timer = StageTimer()
     t_start = time.perf_counter()
     transfer.check_scene(scene)
@@ -152,7 +176,7 @@ def render_pvrt(scene: Scene, *, transfer: Transfer, spp: int = 1, seed: int = 0
     with timer("radiance_volume"):
         rad = radiance_volume(transfer, lighting, scene.camera.eye, scene.g)
     with timer("light_volumes"):
-        lights = light_volumes(m, lighting.nee_directions, light_grid, float(scene.volume.voxel_size))
+        lights = light_volumes(m, lighting.nee_directions, light_grid, float(scene.volume.voxel_size), skip_empty)
     cam = scene.camera
     film = Film(cam.width, cam.height)
     h = step * scene.volume.voxel_size
@@ -176,7 +200,8 @@ def render_pvrt(scene: Scene, *, transfer: Transfer, spp: int = 1, seed: int = 0
             film.splat("L_e", rays.pixel[~hit], sky_at(rays.d[:, ~hit]))
         rays = rays.compact(hit)
         with timer("march"):
-            out, trans = _march(m, rad, lights, travel, rgb, float(scene.g), rays.o, rays.d, rays.tmax, rays.rng, h)
+            out, trans = _march(m, rad, lights, travel, rgb, float(scene.g), rays.o, rays.d, rays.tmax, rays.rng, h,
+                                skip_empty)
         film.splat("L_d", rays.pixel, out[:3])
         film.splat("L_i", rays.pixel, out[3:])
         if see_sky:
