@@ -41,8 +41,9 @@ from photon_fields.runtime.transport.tracking import TASK_ITEMS, task_stride
 #: that holds a thin wisp as much as a full one, and CPCA's error in such a cell's numerator, divided by its small
 #: D_v, became a radiance error that did not average out: on the vortex (48^3, 32^3 grid) the L_i mean went from
 #: 1.01 of the path tracer's uncompressed to 1.17 with 32 CPCA clusters and 0.19 with 128; D_v-weighted it is
-#: 1.04, 1.08 and 1.08 (bench/README.md, PVRT). Cells without medium (D_v = 0) weigh nothing.
-CHANNELS = 7
+#: 1.04, 1.08 and 1.08 (bench/README.md, PVRT). Cells without medium (D_v = 0) weigh nothing. The eighth channel is
+#: 0: a cell's channels then fill 32 bytes, which the camera's interpolation sums as one vector of 8 floats.
+CHANNELS = 8
 #: A light volume's shadow ray stops where its optical depth passes this (transmittance 1e-4, the camera march's
 #: stopping point, runtime/renderers/pvrt.py) and counts as dark: the light it would still let through is at most
 #: 1e-4 of the light's (the same bound the camera march accepts for what lies behind its end). On the head, the skull
@@ -51,7 +52,8 @@ SHADOW_TAU_MAX = -math.log(1e-4)
 
 
 def cluster_responses(transfer: Transfer, lighting: Lighting) -> np.ndarray:
-    """Eq. 17-18: (K, N + 1, CHANNELS, n) radiance vectors of every cluster's mean (index 0) and basis matrices."""
+    """Eq. 17-18: (K, N + 1, 6, n) radiance vectors (the first 6 of :data:`CHANNELS`) of every cluster's mean
+    (index 0) and basis matrices."""
     m = transfer.basis.size
     n = sh_count(transfer.exitance_order)
     mats = np.concatenate([transfer.mean[:, None], transfer.basis_matrices], axis=1)  # (K, N + 1, D)
@@ -65,7 +67,7 @@ def cluster_responses(transfer: Transfer, lighting: Lighting) -> np.ndarray:
 def _evaluate_cells(cluster: np.ndarray, mass: np.ndarray, weights: np.ndarray, resp: np.ndarray,
                     band: np.ndarray, lmax: int,
                     eye: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, gx: int, gy: int, gz: int) -> np.ndarray:
-    out = np.zeros((gx, gy, gz, resp.shape[2] + 1), dtype=np.float32)
+    out = np.zeros((gx, gy, gz, CHANNELS), dtype=np.float32)
     n = resp.shape[3]
     nb = weights.shape[1]
     for ix in prange(gx):
@@ -169,17 +171,21 @@ def _light_volumes(m: Medium, lights: np.ndarray, cells: np.ndarray, h: float, s
         _light_cells(m, lights, cells, h, skip, out, b * TASK_ITEMS, min(n, (b + 1) * TASK_ITEMS))
 
 
-def light_volumes(m: Medium, travel_dirs: np.ndarray, grid: int, step: float, skip_empty: bool = True) -> np.ndarray:
+def light_volumes(m: Medium, travel_dirs: np.ndarray, grid: int, step: float, skip_empty: bool = True,
+                  cells: np.ndarray | None = None) -> np.ndarray:
     """Transmittance towards each directional light (travel direction rows of ``travel_dirs``) from the centres of
     a grid with ``grid`` cells along the longest side: (lights, gx, gy, gz) float32; ``step`` in world units.
     ``skip_empty``: only the cells a camera sample in the medium can read are marched (:func:`_needed_cells`; the
-    others hold 1), skipping empty macrocells; False: every cell, every midpoint (the tests' reference)."""
+    others hold 1), skipping empty macrocells; False: every cell, every midpoint (the tests' reference). ``cells``
+    (a boolean mask of the grid) names the cells to march instead: those that known camera samples read."""
     shape = grid_shape(m.bsize, grid)
     out = np.ones((len(travel_dirs), *shape), dtype=np.float32)
     if len(travel_dirs) == 0:
         return out
-    needed = np.argwhere(_needed_cells(m, *shape) if skip_empty else np.ones(shape, dtype=np.bool_))
-    cells = np.concatenate([np.column_stack([np.full(len(needed), i), needed]) for i in range(len(travel_dirs))])
-    _light_volumes(m, np.ascontiguousarray(travel_dirs, dtype=np.float64), np.ascontiguousarray(cells), step,
+    if cells is None:
+        cells = _needed_cells(m, *shape) if skip_empty else np.ones(shape, dtype=np.bool_)
+    needed = np.argwhere(cells)
+    cells_all = np.concatenate([np.column_stack([np.full(len(needed), i), needed]) for i in range(len(travel_dirs))])
+    _light_volumes(m, np.ascontiguousarray(travel_dirs, dtype=np.float64), np.ascontiguousarray(cells_all), step,
                    skip_empty, out)
     return out

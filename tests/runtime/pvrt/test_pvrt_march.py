@@ -1,6 +1,7 @@
 """The PVRT renderer's empty-space skipping (runtime/renderers/pvrt.py, ``skip_empty``): camera rays jump over
 empty runs and the light volumes march only the cells a camera sample in the medium can read, and the image is
-the same, bit for bit, as the renderer that looks up every sample and marches every cell."""
+the same, bit for bit, as the renderer that looks up every sample and marches every cell. And its relighting
+(:class:`Relighting`): frames from the kept camera samples are render_pvrt's frames under the same lights."""
 
 from __future__ import annotations
 
@@ -11,8 +12,8 @@ from conftest import small_camera
 from photon_fields.runtime.pvrt.precompute import grid_shape
 from photon_fields.runtime.pvrt.radiance import _needed_cells, grid_coord, light_volumes
 from photon_fields.runtime.pvrt.transfer import Transfer, precompute_transfer
-from photon_fields.runtime.renderers.pvrt import render_pvrt
-from photon_fields.runtime.scene.lights import DirectionalLight
+from photon_fields.runtime.renderers.pvrt import Relighting, render_pvrt
+from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.scene.volume import make_volume
@@ -73,3 +74,40 @@ def test_light_volume_marches_every_cell_a_sample_in_the_medium_reads(sparse: Sc
         lower = [grid_coord(x[a], m.bmin[a], m.bsize[a], shape[a])[0] for a in range(3)]
         corners = needed[lower[0]:lower[0] + 2, lower[1]:lower[1] + 2, lower[2]:lower[2] + 2]
         assert corners.all(), f"a stencil corner at {x} was not marched"
+
+
+def _lit(scene: Scene, direction: list[float], sky: float) -> Scene:
+    """``scene`` under one directional light from ``direction`` and a constant sky (shares the medium)."""
+    from dataclasses import replace
+
+    out = replace(scene, lights=(DirectionalLight(direction, [1.0, 0.9, 0.8], 2.0),
+                                 EnvironmentLight([0.3, 0.5, 1.0], sky)), _cache={})
+    out._cache["medium"] = scene.medium()
+    return out
+
+
+def test_relighting_gives_render_pvrts_frames(sparse: Scene, transfer: Transfer) -> None:
+    """Each frame from the kept samples matches render_pvrt's under the same lights to the float32 precision
+    of the kept positions and weights; the light volume cells it marches are a fraction of the needed ones."""
+    relit = Relighting(sparse, transfer, seed=5)
+    assert relit.samples > 100
+    m = sparse.medium()
+    assert 0 < relit.cells.sum() < _needed_cells(m, *relit.cells.shape).sum()
+    for direction, sky in (([-0.5, -0.8, 0.3], 0.2), ([0.7, -0.2, -0.6], 0.0), ([0.1, 0.9, 0.2], 0.5)):
+        scene = _lit(sparse, direction, sky)
+        want = render_pvrt(scene, transfer=transfer, seed=5, progress=False).layers
+        got = relit.render(scene.lights).layers
+        assert want["L_d"].max() > 0.0 and want["L_i"].max() > 0.0
+        for layer in ("L", "L_d", "L_i", "L_e"):
+            np.testing.assert_allclose(got[layer], want[layer], rtol=1e-5, atol=1e-6 * float(want[layer].max()),
+                                       err_msg=f"{direction}: {layer}")
+
+
+def test_relighting_keeps_nothing_beyond_max_samples(sparse: Scene, transfer: Transfer) -> None:
+    relit = Relighting(sparse, transfer, seed=5, max_samples=10)
+    assert relit.samples == 0
+    scene = _lit(sparse, [0.7, -0.2, -0.6], 0.2)
+    want = render_pvrt(scene, transfer=transfer, seed=5, progress=False).layers
+    got = relit.render(scene.lights).layers
+    for layer in ("L", "L_d", "L_i", "L_e"):
+        np.testing.assert_array_equal(got[layer], want[layer], err_msg=layer)
