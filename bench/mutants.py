@@ -432,6 +432,12 @@ MUTANTS: tuple[Mutant, ...] = (
             f"{PVRT_MARCH}::test_skipping_empty_space_changes_no_pixel"),
            "the light volume leaves out the upper corner of the stencils of the occupied macrocells (shadows there "
            "read an unmarched 1)"),
+    Mutant("pvrt_relight_keeps_old_shadows", "runtime/renderers/pvrt.py",
+           "np.array_equal(previous.lighting.nee_directions,\n" + " " * 55 + "self.lighting.nee_directions)",
+           "np.array_equal(previous.lighting.nee_rgb,\n" + " " * 55 + "self.lighting.nee_rgb)",
+           (f"{PVRT_MARCH}::test_relighting_gives_render_pvrts_frames",),
+           "a relit frame takes the last frame's light volumes when the directional lights' colours are unchanged, "
+           "although they moved"),
 )
 
 

@@ -272,18 +272,24 @@ def _read_cells(m: Medium, pos: np.ndarray, gx: int, gy: int, gz: int) -> np.nda
 
 class _Frame:
     """What one frame's lighting gives the camera: the lighting's projection, the radiance volume towards the eye,
-    the light volumes (of ``cells``, a mask of the light grid, when given), and the sky along view directions."""
+    the light volumes (of ``cells``, a mask of the light grid, when given; ``previous``'s when a frame of the same
+    view had the same directional lights), and the sky along view directions."""
 
     def __init__(self, scene: Scene, lights: tuple, transfer: Transfer, timer: StageTimer, *, sky, direct: str,  # noqa: ANN001
-                 rotation: np.ndarray | None, light_grid: int, skip_empty: bool, cells: np.ndarray | None = None):
+                 rotation: np.ndarray | None, light_grid: int, skip_empty: bool, cells: np.ndarray | None = None,
+                 previous: _Frame | None = None):
         m = scene.medium()
         with timer("project_lighting"):
             self.lighting = scene_lighting(lights, transfer.basis, sky=sky, direct=direct, rotation=rotation)
         with timer("radiance_volume"):
             self.rad = radiance_volume(transfer, self.lighting, scene.camera.eye, scene.g)
         with timer("light_volumes"):
-            self.lights = light_volumes(m, self.lighting.nee_directions, light_grid, float(scene.volume.voxel_size),
-                                        skip_empty, cells)
+            if previous is not None and np.array_equal(previous.lighting.nee_directions,
+                                                       self.lighting.nee_directions):
+                self.lights = previous.lights  # only the sky, a colour or a power changed: the same shadows
+            else:
+                self.lights = light_volumes(m, self.lighting.nee_directions, light_grid,
+                                            float(scene.volume.voxel_size), skip_empty, cells)
         self.travel = np.ascontiguousarray(self.lighting.nee_directions, dtype=np.float64)
         self.rgb = np.ascontiguousarray(self.lighting.nee_rgb, dtype=np.float64)
         self.see_sky = self.lighting.sky is not None or bool(np.any(self.lighting.constant_sky > 0))
@@ -351,7 +357,8 @@ class Relighting:
     T_s (1 - exp(-sigma_s dt)) albedo_s depend on the medium and the camera only. The constructor marches the
     camera rays twice (counting, then recording the samples: 24 bytes each, float32) and notes which light-volume
     cells they read; each :meth:`render` then projects the lighting, evaluates the radiance volume, marches the
-    light volumes at those cells only and sums the kept samples (:func:`_sum_kept`): the same sums as
+    light volumes at those cells only (or reuses the last frame's when the directional lights did not move: an
+    environment turned, a colour or power changed) and sums the kept samples (:func:`_sum_kept`): the same sums as
     :func:`render_pvrt` with the same ``seed``, up to the float32 positions and weights (relative 1e-6), without
     the walk through the medium. More than ``max_samples`` samples are not kept; every frame then marches."""
 
@@ -363,6 +370,7 @@ class Relighting:
         self.spp, self.seed, self.batch_size, self.step, self.light_grid = spp, seed, batch_size, step, light_grid
         self.timings_ms: dict[str, float] = {}
         self.kept = False
+        self._previous: _Frame | None = None  # the last frame: its light volumes serve a frame with the same lights
         t0 = time.perf_counter()
         m = scene.medium()
         cam = scene.camera
@@ -418,7 +426,8 @@ class Relighting:
         timer = StageTimer()
         t_start = time.perf_counter()
         frame = _Frame(scene, scene.lights, self.transfer, timer, sky=sky, direct=direct, rotation=rotation,
-                       light_grid=self.light_grid, skip_empty=True, cells=self.cells)
+                       light_grid=self.light_grid, skip_empty=True, cells=self.cells, previous=self._previous)
+        self._previous = frame
         film = Film(scene.camera.width, scene.camera.height)
         with timer("sum_samples"):
             out = _sum_kept(scene.medium(), frame.rad, frame.lights, frame.travel, frame.rgb, float(scene.g), self.d,

@@ -111,3 +111,18 @@ def test_relighting_keeps_nothing_beyond_max_samples(sparse: Scene, transfer: Tr
     got = relit.render(scene.lights).layers
     for layer in ("L", "L_d", "L_i", "L_e"):
         np.testing.assert_array_equal(got[layer], want[layer], err_msg=layer)
+
+
+def test_relighting_reuses_the_light_volumes_while_the_lights_stay(sparse: Scene, transfer: Transfer) -> None:
+    """A frame whose directional lights did not move (only the sky changed) takes the last frame's light volumes,
+    and is still render_pvrt's frame."""
+    relit = Relighting(sparse, transfer, seed=5)
+    relit.render(_lit(sparse, [0.7, -0.2, -0.6], 0.2).lights)
+    shadows = relit._previous.lights
+    scene = _lit(sparse, [0.7, -0.2, -0.6], 0.6)
+    got = relit.render(scene.lights).layers
+    assert relit._previous.lights is shadows
+    want = render_pvrt(scene, transfer=transfer, seed=5, progress=False).layers
+    for layer in ("L", "L_d", "L_i", "L_e"):
+        np.testing.assert_allclose(got[layer], want[layer], rtol=1e-5, atol=1e-6 * float(want[layer].max()),
+                                   err_msg=layer)
