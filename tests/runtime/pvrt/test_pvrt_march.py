@@ -86,16 +86,18 @@ def _lit(scene: Scene, direction: list[float], sky: float) -> Scene:
     return out
 
 
-def test_relighting_gives_render_pvrts_frames(sparse: Scene, transfer: Transfer) -> None:
+@pytest.mark.parametrize(("spp", "batch_size"), [(1, 1 << 18), (2, 700)])
+def test_relighting_gives_render_pvrts_frames(sparse: Scene, transfer: Transfer, spp: int, batch_size: int) -> None:
     """Each frame from the kept samples matches render_pvrt's under the same lights to the float32 precision
-    of the kept positions and weights; the light volume cells it marches are a fraction of the needed ones."""
-    relit = Relighting(sparse, transfer, seed=5)
+    of the kept positions and weights (also over several batches and samples per pixel); the light volume cells
+    it marches are a fraction of the needed ones."""
+    relit = Relighting(sparse, transfer, seed=5, spp=spp, batch_size=batch_size)
     assert relit.samples > 100
     m = sparse.medium()
     assert 0 < relit.cells.sum() < _needed_cells(m, *relit.cells.shape).sum()
     for direction, sky in (([-0.5, -0.8, 0.3], 0.2), ([0.7, -0.2, -0.6], 0.0), ([0.1, 0.9, 0.2], 0.5)):
         scene = _lit(sparse, direction, sky)
-        want = render_pvrt(scene, transfer=transfer, seed=5, progress=False).layers
+        want = render_pvrt(scene, transfer=transfer, seed=5, spp=spp, batch_size=batch_size, progress=False).layers
         got = relit.render(scene.lights).layers
         assert want["L_d"].max() > 0.0 and want["L_i"].max() > 0.0
         for layer in ("L", "L_d", "L_i", "L_e"):
