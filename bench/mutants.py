@@ -425,7 +425,7 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("pvrt_march_jumps_too_far", "runtime/renderers/pvrt.py", "math.floor(empty_until / h - jitter + 0.5)",
            "math.floor(empty_until / h - jitter + 2.5)", (f"{PVRT_MARCH}::test_skipping_empty_space_changes_no_pixel",),
            "a PVRT camera ray jumps two segments past the end of an empty run and misses the medium there (one "
-           "segment is not seen: the first midpoint past a run has sigma_t = 0 on this scene)"),
+           "segment is not seen: the first midpoint past a run had sigma_t = 0 on every ray of this scene)"),
     Mutant("pvrt_light_cells_short", "runtime/pvrt/radiance.py", "[0] + 1  # the stencil's upper corner",
            "[0]  # the stencil's upper corner",
            (f"{PVRT_MARCH}::test_light_volume_marches_every_cell_a_sample_in_the_medium_reads",
