@@ -87,7 +87,8 @@ def _radiance_at(rad: np.ndarray, i: int, j: int, k: int, fx: float, fy: float,
     """The D_v-weighted trilinear radiance (radiance.CHANNELS), direct RGB then multiple-scattering RGB: the
     interpolated photon energy of each channel over the interpolated D_v (channel 6), 0 where D_v interpolates to
     0. A corner's 8 channels are 32 adjacent bytes and all share the stencil's weight: summed in float32 (the
-    volume's precision), as 8 scalars the compiler turns into one vector (an array of 7 sums took twice as long)."""
+    volume's precision) as 8 scalars, which fit one vector register, not in an array the kernel would have to
+    allocate or be handed."""
     r0 = r1 = r2 = r3 = r4 = r5 = r6 = r7 = np.float32(0.0)
     for corner in range(8):
         a, b, e = corner & 1, (corner >> 1) & 1, corner >> 2
