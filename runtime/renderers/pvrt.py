@@ -191,7 +191,7 @@ def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndar
                     l3 += w * a0 * r3
                     l4 += w * a1 * r4
                     l5 += w * a2 * r5
-                elif mode == _RECORD:
+                elif mode == _RECORD and q < pos.shape[1]:  # the same walk as _COUNT's: never false
                     pos[0, q], pos[1, q], pos[2, q] = x, y, z
                     weight[0, q], weight[1, q], weight[2, q] = w * a0, w * a1, w * a2
                 q += 1
