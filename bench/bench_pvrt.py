@@ -7,7 +7,10 @@ Per builtin scene (default vortex, at ``--resolution``^3 voxels, its directional
    process's peak RSS growth (``ru_maxrss``), the file's size;
 2. frame time after a light change at each of ``--sizes`` (1 spp; the light direction changes before every frame,
    so every frame re-projects the lighting, re-evaluates the radiance volume and re-marches the light volume):
-   median of ``--repeats`` frames after a warm-up, with the stages' split;
+   median and best of ``--repeats`` frames after a warm-up, with the stages' split (of the median frame), for
+   ``render_pvrt`` (the whole march: what a frame after a camera change costs too) and for ``Relighting`` (the
+   view kept: the camera samples marched once, their cost reported as "keep", and summed under each new light),
+   and the largest relative difference of the two frames' L_d and L_i (the float32 of the kept samples);
 3. for each light direction (the scene's and ``--dirs`` more, turned about the vertical axis): PVRT against two
    path-traced images (``--ref-spp`` each, seeds 1 and 2; cached in ``--work``) at ``--ref-size``: mean ratios of
    L_d, L_i and L, and the relative L2 of L against the first reference beside the references' own (the L2
@@ -36,7 +39,7 @@ from common import Contention, finish_info, machine_info, parse_scenes, write_re
 from photon_fields.runtime.eval.metrics import relative_l2  # noqa: E402
 from photon_fields.runtime.pvrt.transfer import precompute_transfer, save_transfer  # noqa: E402
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
-from photon_fields.runtime.renderers.pvrt import render_pvrt  # noqa: E402
+from photon_fields.runtime.renderers.pvrt import Relighting, render_pvrt  # noqa: E402
 from photon_fields.runtime.scene.lights import DirectionalLight  # noqa: E402
 from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
 
@@ -46,12 +49,17 @@ DEFAULT_WORK = HERE / "results" / "pvrt"
 
 
 def turned(scene: Scene, degrees: float) -> Scene:
-    """``scene`` with its directional lights (only) turned by ``degrees`` about the vertical (y) axis."""
+    """``scene`` with its directional lights (only) turned by ``degrees`` about the vertical (y) axis. The medium
+    ignores the lights, so the copy shares it, as the viewer's scene after a light edit does
+    (``runtime/viewer/session.py``): a light change rebuilds no majorant grid."""
     a = math.radians(degrees)
     r = np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
     lights = tuple(DirectionalLight(r @ lt.direction, lt.color, lt.power) for lt in scene.lights
                    if isinstance(lt, DirectionalLight))
-    return replace(scene, lights=lights, _cache={})
+    out = replace(scene, lights=lights, _cache={})
+    if "medium" in scene._cache:
+        out._cache["medium"] = scene._cache["medium"]
+    return out
 
 
 def reference(scene: Scene, spp: int, seed: int, work: Path, tag: str) -> dict[str, np.ndarray]:
@@ -108,20 +116,42 @@ def main(argv: list[str] | None = None) -> None:
         for size in args.sizes:
             scene = base.with_overrides(width=size, height=size)
             render_pvrt(turned(scene, 7.0), transfer=transfer, progress=False)  # warm-up (compiles)
-            times, stages = [], []
+            t0 = time.perf_counter()
+            relit = Relighting(scene, transfer)
+            keep_ms = (time.perf_counter() - t0) * 1e3
+            relit.render(turned(scene, 7.0).lights)  # warm-up
+            times: dict[str, list[float]] = {"march": [], "relit": []}
+            stages: dict[str, list[dict[str, float]]] = {"march": [], "relit": []}
+            diff = 0.0
             with Contention() as c:
                 for r in range(args.repeats):
                     lit = turned(scene, 15.0 * (r + 1))  # a light change before every frame
-                    t0 = time.perf_counter()
-                    res = render_pvrt(lit, transfer=transfer, progress=False)
-                    times.append((time.perf_counter() - t0) * 1e3)
-                    stages.append(res.timings_ms)
-            mid = int(np.argsort(times)[len(times) // 2])
-            frames[f"{size}x{size}"] = {"median_ms": float(np.median(times)), "ms": times,
-                                        "stages_ms": stages[mid], "other_cores": c.other_cores}
-            split = ", ".join(f"{k} {v:.0f}" for k, v in sorted(stages[mid].items(), key=lambda kv: -kv[1])
-                              if k != "total")
-            print(f"  frame {size}x{size} after a light change: {np.median(times):.0f} ms ({split})", flush=True)
+                    layers = {}
+                    for kind in ("march", "relit"):
+                        t0 = time.perf_counter()
+                        res = (render_pvrt(lit, transfer=transfer, progress=False) if kind == "march"
+                               else relit.render(lit.lights))
+                        times[kind].append((time.perf_counter() - t0) * 1e3)
+                        stages[kind].append(res.timings_ms)
+                        layers[kind] = res.layers
+                    diff = max(diff, *(float(np.abs(layers["relit"][k] - layers["march"][k]).max()
+                                             / max(float(np.abs(layers["march"][k]).max()), 1e-30))
+                                       for k in ("L_d", "L_i")))
+            row: dict[str, Any] = {"keep_ms": keep_ms, "kept_samples": relit.samples, "relit_max_rel_diff": diff,
+                                   "other_cores": c.other_cores}
+            for kind, prefix in (("march", ""), ("relit", "relit_")):
+                mid = int(np.argsort(times[kind])[len(times[kind]) // 2])
+                best = int(np.argmin(times[kind]))
+                row.update({f"{prefix}median_ms": float(np.median(times[kind])), f"{prefix}ms": times[kind],
+                            f"{prefix}stages_ms": stages[kind][mid], f"{prefix}best_stages_ms": stages[kind][best]})
+                split = ", ".join(f"{k} {v:.0f}" for k, v in sorted(stages[kind][mid].items(), key=lambda kv: -kv[1])
+                                  if k != "total")
+                what = "march" if kind == "march" else "relit (kept samples)"
+                print(f"  frame {size}x{size} after a light change, {what}: {np.median(times[kind]):.0f} ms, best "
+                      f"{min(times[kind]):.0f} ({split})", flush=True)
+            print(f"  kept {relit.samples} camera samples in {keep_ms:.0f} ms; relit vs march: max rel. diff "
+                  f"{diff:.1e}", flush=True)
+            frames[f"{size}x{size}"] = row
         accuracy = []
         print(f"  {'light':>8s} {'L_d ratio':>9s} {'L_i ratio':>9s} {'L ratio':>8s} {'rel. L2 L':>9s} "
               f"{'ref noise':>9s}")

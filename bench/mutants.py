@@ -61,6 +61,7 @@ ENVMAP = "tests/runtime/transport/test_environment_map.py"
 ENVRENDER = "tests/runtime/renderers/test_environment_map_render.py"
 PVRT_CLI = "tests/train/cli/test_pvrt_cli.py"
 PVRT_PT = "tests/runtime/pvrt/test_pvrt_vs_path_tracer.py"
+PVRT_MARCH = "tests/runtime/pvrt/test_pvrt_march.py"
 
 
 @dataclass(frozen=True)
@@ -446,6 +447,22 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("pvrt_photon_power_doubled", "runtime/pvrt/precompute.py", "        power = weight * scale",
            "        power = 2.0 * weight * scale", (f"{PVRT_PT}::test_pvrt_matches_path_tracer_under_its_light",),
            "basis-light photons carry twice their energy"),
+    Mutant("pvrt_march_jumps_too_far", "runtime/renderers/pvrt.py", "math.floor(empty_until / h - jitter + 0.5)",
+           "math.floor(empty_until / h - jitter + 2.5)", (f"{PVRT_MARCH}::test_skipping_empty_space_changes_no_pixel",),
+           "a PVRT camera ray jumps two segments past the end of an empty run and misses the medium there (one "
+           "segment is not seen: the first midpoint past a run had sigma_t = 0 on every ray of this scene)"),
+    Mutant("pvrt_light_cells_short", "runtime/pvrt/radiance.py", "[0] + 1  # the stencil's upper corner",
+           "[0]  # the stencil's upper corner",
+           (f"{PVRT_MARCH}::test_light_volume_marches_every_cell_a_sample_in_the_medium_reads",
+            f"{PVRT_MARCH}::test_skipping_empty_space_changes_no_pixel"),
+           "the light volume leaves out the upper corner of the stencils of the occupied macrocells (shadows there "
+           "read an unmarched 1)"),
+    Mutant("pvrt_relight_keeps_old_shadows", "runtime/renderers/pvrt.py",
+           "np.array_equal(previous.lighting.nee_directions,\n" + " " * 55 + "self.lighting.nee_directions)",
+           "np.array_equal(previous.lighting.nee_rgb,\n" + " " * 55 + "self.lighting.nee_rgb)",
+           (f"{PVRT_MARCH}::test_relighting_gives_render_pvrts_frames",),
+           "a relit frame takes the last frame's light volumes when the directional lights' colours are unchanged, "
+           "although they moved"),
 )
 
 

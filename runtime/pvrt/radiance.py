@@ -14,6 +14,9 @@ scattering (RGB).
 Light volume. A directional light's direct term is NEE: its transmittance ``T(x -> light)`` is marched (the ray
 marcher's shadow rays with empty-space skipping) from the centre of every cell of a grid (``DEFAULT_LIGHT_GRID``
 along the longest side) once per light change, and camera samples interpolate it. Shadows are as sharp as that grid.
+Only the cells that a camera sample with sigma_t > 0 can read are marched (the trilinear stencils of the occupied
+macrocells, :func:`_needed_cells`): on sparse volumes most cells lie in empty space, where the camera adds nothing.
+All lights' cells are one parallel loop.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from photon_fields.runtime.pvrt.sh import hg_band_factors, sh_count, sh_eval
 from photon_fields.runtime.pvrt.transfer import Transfer
 from photon_fields.runtime.renderers.ray_marcher import march_transmittance
 from photon_fields.runtime.transport.medium import Medium
+from photon_fields.runtime.transport.tracking import TASK_ITEMS, task_stride
 
 #: Radiance-volume channels: direct RGB and multiple-scattering RGB *photon energy* towards the eye (the CPCA
 #: numerators, not divided by D_v), and D_v itself. The camera divides the trilinear interpolations of the two
@@ -37,12 +41,19 @@ from photon_fields.runtime.transport.medium import Medium
 #: that holds a thin wisp as much as a full one, and CPCA's error in such a cell's numerator, divided by its small
 #: D_v, became a radiance error that did not average out: on the vortex (48^3, 32^3 grid) the L_i mean went from
 #: 1.01 of the path tracer's uncompressed to 1.17 with 32 CPCA clusters and 0.19 with 128; D_v-weighted it is
-#: 1.04, 1.08 and 1.08 (bench/README.md, PVRT). Cells without medium (D_v = 0) weigh nothing.
-CHANNELS = 7
+#: 1.04, 1.08 and 1.08 (bench/README.md, PVRT). Cells without medium (D_v = 0) weigh nothing. The eighth channel is
+#: 0: a cell's channels then fill 32 bytes, which the camera's interpolation sums as one vector of 8 floats.
+CHANNELS = 8
+#: A light volume's shadow ray stops where its optical depth passes this (transmittance 1e-4, the camera march's
+#: stopping point, runtime/renderers/pvrt.py) and counts as dark: the light it would still let through is at most
+#: 1e-4 of the light's (the same bound the camera march accepts for what lies behind its end). On the head, the skull
+#: makes many shadow rays this deep, and not marching their rest saves a third of the light volume's time.
+SHADOW_TAU_MAX = -math.log(1e-4)
 
 
 def cluster_responses(transfer: Transfer, lighting: Lighting) -> np.ndarray:
-    """Eq. 17-18: (K, N + 1, CHANNELS, n) radiance vectors of every cluster's mean (index 0) and basis matrices."""
+    """Eq. 17-18: (K, N + 1, 6, n) radiance vectors (the first 6 of :data:`CHANNELS`) of every cluster's mean
+    (index 0) and basis matrices."""
     m = transfer.basis.size
     n = sh_count(transfer.exitance_order)
     mats = np.concatenate([transfer.mean[:, None], transfer.basis_matrices], axis=1)  # (K, N + 1, D)
@@ -56,7 +67,7 @@ def cluster_responses(transfer: Transfer, lighting: Lighting) -> np.ndarray:
 def _evaluate_cells(cluster: np.ndarray, mass: np.ndarray, weights: np.ndarray, resp: np.ndarray,
                     band: np.ndarray, lmax: int,
                     eye: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, gx: int, gy: int, gz: int) -> np.ndarray:
-    out = np.zeros((gx, gy, gz, resp.shape[2] + 1), dtype=np.float32)
+    out = np.zeros((gx, gy, gz, CHANNELS), dtype=np.float32)
     n = resp.shape[3]
     nb = weights.shape[1]
     for ix in prange(gx):
@@ -102,24 +113,79 @@ def radiance_volume(transfer: Transfer, lighting: Lighting, eye: np.ndarray, g: 
                            np.asarray(box["size"], np.float64), gx, gy, gz)
 
 
-@njit(cache=True, parallel=True)
-def _light_volume(m: Medium, lx: float, ly: float, lz: float, gx: int, gy: int, gz: int, h: float) -> np.ndarray:
-    out = np.empty((gx, gy, gz), dtype=np.float32)
-    for ix in prange(gx):
-        for iy in range(gy):
-            for iz in range(gz):
-                px = m.bmin[0] + (ix + 0.5) / gx * m.bsize[0]
-                py = m.bmin[1] + (iy + 0.5) / gy * m.bsize[1]
-                pz = m.bmin[2] + (iz + 0.5) / gz * m.bsize[2]
-                out[ix, iy, iz] = march_transmittance(m, px, py, pz, lx, ly, lz, math.inf, h, True)
+@njit(cache=True, inline="always")
+def grid_coord(p: float, lo: float, size: float, n: int) -> tuple[int, float]:
+    """Lower index and fraction of the trilinear stencil along one axis of a cell-centred grid of ``n`` cells over
+    [lo, lo + size] at coordinate ``p`` (clamped at the border): the camera's lookups of the radiance and light
+    volumes, and :func:`_needed_cells`, which must agree with them."""
+    u = min(max((p - lo) / size * n - 0.5, 0.0), n - 1.0)
+    i = min(int(u), n - 2)
+    return i, u - i
+
+
+@njit(cache=True)
+def _needed_cells(m: Medium, gx: int, gy: int, gz: int) -> np.ndarray:
+    """Which cells of a (gx, gy, gz) cell-centred grid a camera sample with sigma_t > 0 can read: every corner of
+    the trilinear stencil (:func:`grid_coord`) of any point of a macrocell whose majorant is > 0. A sample with
+    sigma_t > 0 lies in such a macrocell, so the cells left out are only ever read by samples that add nothing."""
+    cx, cy, cz = m.majorant.shape
+    out = np.zeros((gx, gy, gz), dtype=np.bool_)
+    lo = np.empty(3, dtype=np.int64)
+    hi = np.empty(3, dtype=np.int64)
+    for a in range(cx):
+        for b in range(cy):
+            for c in range(cz):
+                if m.majorant[a, b, c] <= 0.0:
+                    continue
+                for ax, (j, cells, n) in enumerate(((a, cx, gx), (b, cy, gy), (c, cz, gz))):
+                    x0 = m.bmin[ax] + j / cells * m.bsize[ax]
+                    x1 = m.bmin[ax] + (j + 1) / cells * m.bsize[ax]
+                    lo[ax] = grid_coord(x0, m.bmin[ax], m.bsize[ax], n)[0]
+                    hi[ax] = grid_coord(x1, m.bmin[ax], m.bsize[ax], n)[0] + 1  # the stencil's upper corner
+                out[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1] = True
     return out
 
 
-def light_volumes(m: Medium, travel_dirs: np.ndarray, grid: int, step: float) -> np.ndarray:
+@njit(cache=True)
+def _light_cells(m: Medium, lights: np.ndarray, cells: np.ndarray, h: float, skip: bool, out: np.ndarray, lo: int,
+                 hi: int) -> None:
+    """Entries lo..hi-1 of ``cells`` ((light, ix, iy, iz) rows) of :func:`_light_volumes`, serially."""
+    _, gx, gy, gz = out.shape
+    for v in range(lo, hi):
+        li, ix, iy, iz = cells[v, 0], cells[v, 1], cells[v, 2], cells[v, 3]
+        px = m.bmin[0] + (ix + 0.5) / gx * m.bsize[0]
+        py = m.bmin[1] + (iy + 0.5) / gy * m.bsize[1]
+        pz = m.bmin[2] + (iz + 0.5) / gz * m.bsize[2]
+        out[li, ix, iy, iz] = march_transmittance(m, px, py, pz, -lights[li, 0], -lights[li, 1], -lights[li, 2],
+                                                  math.inf, h, skip, SHADOW_TAU_MAX)
+
+
+@njit(cache=True, parallel=True)
+def _light_volumes(m: Medium, lights: np.ndarray, cells: np.ndarray, h: float, skip: bool, out: np.ndarray) -> None:
+    """All lights' cells in one parallel region (``TASK_ITEMS`` tasks, spread by ``task_stride``)."""
+    n = cells.shape[0]
+    tasks = (n + TASK_ITEMS - 1) // TASK_ITEMS
+    stride = task_stride(tasks)
+    for task in prange(tasks):
+        b = (task * stride) % tasks
+        _light_cells(m, lights, cells, h, skip, out, b * TASK_ITEMS, min(n, (b + 1) * TASK_ITEMS))
+
+
+def light_volumes(m: Medium, travel_dirs: np.ndarray, grid: int, step: float, skip_empty: bool = True,
+                  cells: np.ndarray | None = None) -> np.ndarray:
     """Transmittance towards each directional light (travel direction rows of ``travel_dirs``) from the centres of
-    a grid with ``grid`` cells along the longest side: (lights, gx, gy, gz) float32; ``step`` in world units."""
+    a grid with ``grid`` cells along the longest side: (lights, gx, gy, gz) float32; ``step`` in world units.
+    ``skip_empty``: only the cells a camera sample in the medium can read are marched (:func:`_needed_cells`; the
+    others hold 1), skipping empty macrocells; False: every cell, every midpoint (the tests' reference). ``cells``
+    (a boolean mask of the grid) names the cells to march instead: those that known camera samples read."""
     shape = grid_shape(m.bsize, grid)
-    out = np.empty((len(travel_dirs), *shape), dtype=np.float32)
-    for i, t in enumerate(travel_dirs):
-        out[i] = _light_volume(m, -float(t[0]), -float(t[1]), -float(t[2]), *shape, step)
+    out = np.ones((len(travel_dirs), *shape), dtype=np.float32)
+    if len(travel_dirs) == 0:
+        return out
+    if cells is None:
+        cells = _needed_cells(m, *shape) if skip_empty else np.ones(shape, dtype=np.bool_)
+    needed = np.argwhere(cells)
+    cells_all = np.concatenate([np.column_stack([np.full(len(needed), i), needed]) for i in range(len(travel_dirs))])
+    _light_volumes(m, np.ascontiguousarray(travel_dirs, dtype=np.float64), np.ascontiguousarray(cells_all), step,
+                   skip_empty, out)
     return out

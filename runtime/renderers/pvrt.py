@@ -14,29 +14,36 @@ albedo from the full-resolution medium, the same segment quadrature and jittered
 ``runtime/renderers/ray_marcher.py`` and its empty-space skipping (``tracking.empty_run``). Layers L, L_d, L_i, L_e
 as the other renderers.
 
+Relighting (the paper's use: the view stays, a light or the environment turns): the samples x_s and their weights
+T_s (1 - exp(-sigma_s dt)) albedo_s do not depend on the lighting. :class:`Relighting` marches the camera rays once
+and keeps them; each frame then only projects the lighting, evaluates the radiance volume, marches the light volumes
+at the cells the kept samples read, and sums the samples: the same sums without the walk through the medium.
+
 Parameters: ``transfer`` (a :class:`photon_fields.runtime.pvrt.transfer.Transfer`, checked against the scene),
 ``step`` (camera step in voxels), ``direct`` ("nee": directional lights' direct term from light volumes, "transfer":
 from the basis), ``light_grid`` (light-volume cells along the longest side), ``sky`` (a callable sky, Python API),
-``rotation`` (3x3: turns the whole lighting).
+``rotation`` (3x3: turns the whole lighting), ``skip_empty`` (see :func:`render_pvrt`).
 """
 
 from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.pvrt.constants import DEFAULT_LIGHT_GRID
 from photon_fields.runtime.pvrt.lighting import scene_lighting
-from photon_fields.runtime.pvrt.radiance import light_volumes, radiance_volume
+from photon_fields.runtime.pvrt.precompute import grid_shape
+from photon_fields.runtime.pvrt.radiance import CHANNELS, grid_coord, light_volumes, radiance_volume
 from photon_fields.runtime.pvrt.transfer import Transfer
 from photon_fields.runtime.scene.scene import Scene
-from photon_fields.runtime.transport.medium import Medium, albedo_at, extinction_at
+from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
-from photon_fields.runtime.transport.tracking import empty_run
+from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run, task_stride
 from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.rays import clip_rays_to_volume, generate_camera_rays
@@ -44,18 +51,25 @@ from photon_fields.runtime.wavefront.rays import clip_rays_to_volume, generate_c
 _T_MIN = 1e-4  # as the ray marcher: stop once the camera ray is this opaque
 
 
+#: The world box as 6 floats (min xyz, size xyz), for the kernels below: an inlined kernel that is handed the medium
+#: and loops took and released a reference to each of its 7 arrays per call (numba's pruning of reference counts
+#: missed them), which cost a third of the time of summing a sample; floats carry no reference.
+Box = tuple[float, float, float, float, float, float]
+
+
 @njit(cache=True, inline="always")
-def _cell_coords(m: Medium, x: float, y: float, z: float, g: tuple) -> tuple[int, int, int, float, float, float]:
-    """Lower corner and fractions of the trilinear stencil of a cell-centred grid of shape ``g`` at world x."""
-    out_i = np.empty(3, dtype=np.int64)
-    out_f = np.empty(3)
-    for a, p in enumerate((x, y, z)):
-        n = g[a]
-        u = min(max((p - m.bmin[a]) / m.bsize[a] * n - 0.5, 0.0), n - 1.0)
-        i = min(int(u), n - 2)
-        out_i[a] = i
-        out_f[a] = u - i
-    return out_i[0], out_i[1], out_i[2], out_f[0], out_f[1], out_f[2]
+def _box(m: Medium) -> Box:
+    return m.bmin[0], m.bmin[1], m.bmin[2], m.bsize[0], m.bsize[1], m.bsize[2]
+
+
+@njit(cache=True, inline="always")
+def _stencil(box: Box, x: float, y: float, z: float, gx: int, gy: int,
+             gz: int) -> tuple[int, int, int, float, float, float]:
+    """Lower corner and fractions of the trilinear stencil of a cell-centred (gx, gy, gz) grid over the box at x."""
+    i, fx = grid_coord(x, box[0], box[3], gx)
+    j, fy = grid_coord(y, box[1], box[4], gy)
+    k, fz = grid_coord(z, box[2], box[5], gz)
+    return i, j, k, fx, fy, fz
 
 
 @njit(cache=True, inline="always")
@@ -67,120 +81,365 @@ def _trilinear(vol: np.ndarray, i: int, j: int, k: int, fx: float, fy: float, fz
     return (c00 * (1 - fy) + c10 * fy) * (1 - fz) + (c01 * (1 - fy) + c11 * fy) * fz
 
 
+@njit(cache=True, inline="always")
+def _radiance_at(rad: np.ndarray, i: int, j: int, k: int, fx: float, fy: float,
+                 fz: float) -> tuple[float, float, float, float, float, float]:
+    """The D_v-weighted trilinear radiance (radiance.CHANNELS), direct RGB then multiple-scattering RGB: the
+    interpolated photon energy of each channel over the interpolated D_v (channel 6), 0 where D_v interpolates to
+    0. A corner's 8 channels are 32 adjacent bytes and all share the stencil's weight: summed in float32 (the
+    volume's precision) as 8 scalars, which fit one vector register, not in an array the kernel would have to
+    allocate or be handed."""
+    r0 = r1 = r2 = r3 = r4 = r5 = r6 = r7 = np.float32(0.0)
+    for corner in range(8):
+        a, b, e = corner & 1, (corner >> 1) & 1, corner >> 2
+        w = np.float32((fx if a else 1.0 - fx) * (fy if b else 1.0 - fy) * (fz if e else 1.0 - fz))
+        v = rad[i + a, j + b, k + e]
+        r0 += w * v[0]
+        r1 += w * v[1]
+        r2 += w * v[2]
+        r3 += w * v[3]
+        r4 += w * v[4]
+        r5 += w * v[5]
+        r6 += w * v[6]
+        r7 += w * v[7]
+    if r6 <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    inv = 1.0 / float(r6)
+    return r0 * inv, r1 * inv, r2 * inv, r3 * inv, r4 * inv, r5 * inv
+
+
+@njit(cache=True, inline="always")
+def _sample_radiance(box: Box, rad: np.ndarray, lights: np.ndarray, ph: np.ndarray, rgb: np.ndarray, x: float,
+                     y: float, z: float) -> tuple[float, float, float, float, float, float]:
+    """What the sample at x sends towards the camera per unit albedo, direct RGB then multiple-scattering RGB: the
+    radiance volume's (:func:`_radiance_at`) plus, in the direct part, each light's NEE (``ph``: its phase value
+    along this camera ray, ``rgb``: its irradiance) through the light volumes."""
+    i, j, k, fx, fy, fz = _stencil(box, x, y, z, rad.shape[0], rad.shape[1], rad.shape[2])
+    r0, r1, r2, r3, r4, r5 = _radiance_at(rad, i, j, k, fx, fy, fz)
+    if lights.shape[0] > 0:
+        i, j, k, fx, fy, fz = _stencil(box, x, y, z, lights.shape[1], lights.shape[2], lights.shape[3])
+        for li in range(lights.shape[0]):
+            tr = _trilinear(lights[li], i, j, k, fx, fy, fz) * ph[li]
+            r0 += tr * rgb[li, 0]
+            r1 += tr * rgb[li, 1]
+            r2 += tr * rgb[li, 2]
+    return r0, r1, r2, r3, r4, r5
+
+
+@njit(cache=True, inline="always")
+def _phases(g: float, travel: np.ndarray, dx: float, dy: float, dz: float, ph: np.ndarray) -> None:
+    """ph[l] = the HG phase between light l's travel direction and the camera ray's way back (one per ray)."""
+    for li in range(travel.shape[0]):
+        ph[li] = hg_eval(g, -(dx * travel[li, 0] + dy * travel[li, 1] + dz * travel[li, 2]))
+
+
+#: What :func:`_march_items` does with a sample: sum its light, count it, or keep its position and weight.
+_EVALUATE, _COUNT, _RECORD = 0, 1, 2
+
+
 @njit(cache=True)
-def _march_ray(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, g: float,
-               ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmax: float, jitter: float,
-               h: float, out: np.ndarray) -> float:
-    """One camera ray: adds L_d to out[0:3], L_i to out[3:6]; returns its transmittance."""
-    rg = (rad.shape[0], rad.shape[1], rad.shape[2])
-    lg = (lights.shape[1], lights.shape[2], lights.shape[3])
-    T = 1.0
-    t = jitter * h
-    t_prev = 0.0
-    empty_until = -math.inf
-    while t_prev < tmax and T > _T_MIN:
-        t_next = min(t, tmax)
-        seg = t_next - t_prev
-        tm = 0.5 * (t_prev + t_next)
-        x, y, z = ox + tm * dx, oy + tm * dy, oz + tm * dz
-        if tm >= empty_until:
-            run = empty_run(m, x, y, z, dx, dy, dz)
-            if run > 0.0:
-                empty_until = tm + run
-        if tm < empty_until:
+def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, g: float,
+                 o: np.ndarray, d: np.ndarray, tmax: np.ndarray, states: np.ndarray, h: float, skip: bool, mode: int,
+                 out: np.ndarray, trans: np.ndarray, first: np.ndarray, pos: np.ndarray, weight: np.ndarray, lo: int,
+                 hi: int) -> None:
+    """Camera rays lo..hi-1 of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why). Per
+    sample with sigma_t > 0 (its weight w = T_s (1 - exp(-sigma_s dt)) albedo_s, RGB), by ``mode``: _EVALUATE adds
+    w times :func:`_sample_radiance` to out[0:3] (L_d) and out[3:6] (L_i); _COUNT counts the ray's samples into
+    ``first[ray]``; _RECORD writes their positions and weights to ``pos`` and ``weight`` from index ``first[ray]``
+    on. Every mode writes the transmittance into ``trans``.
+
+    Segment s of a ray spans [t_{s-1}, t_s] with t_s = (jitter + s) h (t_{-1} = 0), sampled at its midpoint; over
+    an empty run (:func:`empty_run`) the walk jumps to the first segment whose midpoint is past it (the midpoints
+    it passes have sigma_t = 0 and add nothing), so empty space costs one step per run, not one per segment
+    (``skip`` False: every midpoint looked up, the same sums). (The rays are not a kernel of their own: an inlined
+    call per ray took and released a reference to each of its 13 arrays.)"""
+    ph = np.empty(travel.shape[0])  # each light's phase along the ray
+    box = _box(m)
+    for ray in range(lo, hi):
+        states[ray], jitter = next_float(states[ray])
+        ox, oy, oz, dx, dy, dz = o[0, ray], o[1, ray], o[2, ray], d[0, ray], d[1, ray], d[2, ray]
+        _phases(g, travel, dx, dy, dz, ph)
+        t_end = tmax[ray]
+        T = 1.0
+        s = 0
+        t_prev = 0.0
+        empty_until = -math.inf
+        q = first[ray] if mode == _RECORD else 0
+        l0 = l1 = l2 = l3 = l4 = l5 = 0.0
+        while t_prev < t_end and T > _T_MIN:
+            t_next = min((jitter + s) * h, t_end)
+            seg = t_next - t_prev
+            tm = 0.5 * (t_prev + t_next)
+            x, y, z = ox + tm * dx, oy + tm * dy, oz + tm * dz
+            if skip and tm >= empty_until:
+                run = empty_run(m, x, y, z, dx, dy, dz)
+                if run > 0.0:
+                    empty_until = tm + run
+            if tm < empty_until:  # floor() never passes the first s with (jitter + s - 0.5) h >= empty_until
+                s = max(s + 1, int(min(math.floor(empty_until / h - jitter + 0.5), t_end / h + 2.0)))
+                t_prev = (jitter + s - 1) * h
+                continue
+            sigma, a0, a1, a2 = extinction_albedo_at(m, x, y, z)
+            if sigma > 0.0 and seg > 0.0:
+                e = math.exp(-sigma * seg)
+                w = T * (1.0 - e)
+                if mode == _EVALUATE:
+                    r0, r1, r2, r3, r4, r5 = _sample_radiance(box, rad, lights, ph, rgb, x, y, z)
+                    l0 += w * a0 * r0
+                    l1 += w * a1 * r1
+                    l2 += w * a2 * r2
+                    l3 += w * a0 * r3
+                    l4 += w * a1 * r4
+                    l5 += w * a2 * r5
+                elif mode == _RECORD and q < pos.shape[1]:  # the same walk as _COUNT's: never false
+                    pos[0, q], pos[1, q], pos[2, q] = x, y, z
+                    weight[0, q], weight[1, q], weight[2, q] = w * a0, w * a1, w * a2
+                q += 1
+                T *= e
+            s += 1
             t_prev = t_next
-            t = t_next + h
-            continue
-        sigma = extinction_at(m, x, y, z)
-        if sigma > 0.0 and seg > 0.0:
-            a0, a1, a2 = albedo_at(m, x, y, z)
-            w = T * (1.0 - math.exp(-sigma * seg))
-            i, j, k, fx, fy, fz = _cell_coords(m, x, y, z, rg)
-            r = np.zeros(6)
-            occ = _trilinear(rad[:, :, :, 6], i, j, k, fx, fy, fz)
-            if occ > 0.0:  # interpolated photon energy / interpolated D_v (radiance.CHANNELS)
-                for c in range(6):
-                    r[c] = _trilinear(rad[:, :, :, c], i, j, k, fx, fy, fz) / occ
-            if lights.shape[0] > 0:
-                i, j, k, fx, fy, fz = _cell_coords(m, x, y, z, lg)
-                for li in range(lights.shape[0]):
-                    ph = hg_eval(g, -(dx * travel[li, 0] + dy * travel[li, 1] + dz * travel[li, 2]))
-                    tr = _trilinear(lights[li], i, j, k, fx, fy, fz) * ph
-                    r[0] += tr * rgb[li, 0]
-                    r[1] += tr * rgb[li, 1]
-                    r[2] += tr * rgb[li, 2]
-            out[0] += w * a0 * r[0]
-            out[1] += w * a1 * r[1]
-            out[2] += w * a2 * r[2]
-            out[3] += w * a0 * r[3]
-            out[4] += w * a1 * r[4]
-            out[5] += w * a2 * r[5]
-            T *= math.exp(-sigma * seg)
-        t_prev = t_next
-        t = t_next + h
-    return T if T > _T_MIN else 0.0
+        if mode == _EVALUATE:
+            out[0, ray], out[1, ray], out[2, ray], out[3, ray], out[4, ray], out[5, ray] = l0, l1, l2, l3, l4, l5
+        elif mode == _COUNT:
+            first[ray] = q
+        trans[ray] = T if T > _T_MIN else 0.0
 
 
 @njit(cache=True, parallel=True)
 def _march(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, g: float,
-           o: np.ndarray, d: np.ndarray, tmax: np.ndarray, states: np.ndarray,
-           h: float) -> tuple[np.ndarray, np.ndarray]:
+           o: np.ndarray, d: np.ndarray, tmax: np.ndarray, states: np.ndarray, h: float, skip: bool, mode: int,
+           first: np.ndarray, pos: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All camera rays (:func:`_march_items`): (out (6, n) (zeros unless _EVALUATE), transmittance (n,))."""
     n = o.shape[1]
     out = np.zeros((6, n))
     trans = np.ones(n)
-    for i in prange(n):
-        states[i], jitter = next_float(states[i])
-        acc = np.zeros(6)
-        trans[i] = _march_ray(m, rad, lights, travel, rgb, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i],
-                              tmax[i], jitter, h, acc)
-        for c in range(6):
-            out[c, i] = acc[c]
+    tasks = (n + TASK_ITEMS - 1) // TASK_ITEMS
+    stride = task_stride(tasks)
+    for task in prange(tasks):
+        b = (task * stride) % tasks  # blocks spread over the image (task_stride)
+        _march_items(m, rad, lights, travel, rgb, g, o, d, tmax, states, h, skip, mode, out, trans, first, pos,
+                     weight, b * TASK_ITEMS, min(n, (b + 1) * TASK_ITEMS))
     return out, trans
+
+
+@njit(cache=True)
+def _sum_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, g: float,
+               d: np.ndarray, first: np.ndarray, pos: np.ndarray, weight: np.ndarray, out: np.ndarray, lo: int,
+               hi: int) -> None:
+    """Rays lo..hi-1 of :func:`_sum_kept`: out[0:6, ray] = the sum over the ray's kept samples (from first[ray] to
+    first[ray + 1]) of their weight times :func:`_sample_radiance`, as :func:`_march_items` adds them."""
+    ph = np.empty(travel.shape[0])
+    box = _box(m)
+    for ray in range(lo, hi):
+        _phases(g, travel, d[0, ray], d[1, ray], d[2, ray], ph)
+        l0 = l1 = l2 = l3 = l4 = l5 = 0.0
+        for q in range(first[ray], first[ray + 1]):
+            r0, r1, r2, r3, r4, r5 = _sample_radiance(box, rad, lights, ph, rgb, pos[0, q], pos[1, q], pos[2, q])
+            w0, w1, w2 = weight[0, q], weight[1, q], weight[2, q]
+            l0 += w0 * r0
+            l1 += w1 * r1
+            l2 += w2 * r2
+            l3 += w0 * r3
+            l4 += w1 * r4
+            l5 += w2 * r5
+        out[0, ray], out[1, ray], out[2, ray], out[3, ray], out[4, ray], out[5, ray] = l0, l1, l2, l3, l4, l5
+
+
+@njit(cache=True, parallel=True)
+def _sum_kept(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, g: float,
+              d: np.ndarray, first: np.ndarray, pos: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    n = d.shape[1]
+    out = np.empty((6, n))
+    tasks = (n + TASK_ITEMS - 1) // TASK_ITEMS
+    stride = task_stride(tasks)
+    for task in prange(tasks):
+        b = (task * stride) % tasks
+        _sum_items(m, rad, lights, travel, rgb, g, d, first, pos, weight, out, b * TASK_ITEMS,
+                   min(n, (b + 1) * TASK_ITEMS))
+    return out
+
+
+@njit(cache=True)
+def _read_cells(m: Medium, pos: np.ndarray, gx: int, gy: int, gz: int) -> np.ndarray:
+    """The cells of a (gx, gy, gz) grid whose values samples at ``pos`` (3, n) read (their trilinear stencils)."""
+    out = np.zeros((gx, gy, gz), dtype=np.bool_)
+    box = _box(m)
+    for q in range(pos.shape[1]):
+        i, j, k, _, _, _ = _stencil(box, pos[0, q], pos[1, q], pos[2, q], gx, gy, gz)
+        for corner in range(8):
+            out[i + (corner & 1), j + ((corner >> 1) & 1), k + (corner >> 2)] = True
+    return out
+
+
+class _Frame:
+    """What one frame's lighting gives the camera: the lighting's projection, the radiance volume towards the eye,
+    the light volumes (of ``cells``, a mask of the light grid, when given; ``previous``'s when a frame of the same
+    view had the same directional lights), and the sky along view directions."""
+
+    def __init__(self, scene: Scene, lights: tuple, transfer: Transfer, timer: StageTimer, *, sky, direct: str,  # noqa: ANN001
+                 rotation: np.ndarray | None, light_grid: int, skip_empty: bool, cells: np.ndarray | None = None,
+                 previous: _Frame | None = None):
+        m = scene.medium()
+        with timer("project_lighting"):
+            self.lighting = scene_lighting(lights, transfer.basis, sky=sky, direct=direct, rotation=rotation)
+        with timer("radiance_volume"):
+            self.rad = radiance_volume(transfer, self.lighting, scene.camera.eye, scene.g)
+        with timer("light_volumes"):
+            if previous is not None and np.array_equal(previous.lighting.nee_directions,
+                                                       self.lighting.nee_directions):
+                self.lights = previous.lights  # only the sky, a colour or a power changed: the same shadows
+            else:
+                self.lights = light_volumes(m, self.lighting.nee_directions, light_grid,
+                                            float(scene.volume.voxel_size), skip_empty, cells)
+        self.travel = np.ascontiguousarray(self.lighting.nee_directions, dtype=np.float64)
+        self.rgb = np.ascontiguousarray(self.lighting.nee_rgb, dtype=np.float64)
+        self.see_sky = self.lighting.sky is not None or bool(np.any(self.lighting.constant_sky > 0))
+
+    def sky_at(self, dirs: np.ndarray) -> np.ndarray:
+        """(3, n) view directions -> (3, n) the radiance they see from the sky."""
+        if self.lighting.sky is not None:
+            return self.lighting.sky(np.ascontiguousarray(dirs.T)).T
+        return np.broadcast_to(self.lighting.constant_sky[:, None], dirs.shape).astype(np.float64)
+
+    def splat(self, film: Film, pixel: np.ndarray, d: np.ndarray, out: np.ndarray, trans: np.ndarray,
+              distinct: bool) -> None:
+        """Add the camera rays' layers: L_d and L_i from ``out``, L_e as the sky through ``trans`` (1 for the rays
+        that miss the box) (``distinct``: no pixel repeats among the rays, :meth:`Film.splat`)."""
+        film.splat("L_d", pixel, out[:3], distinct)
+        film.splat("L_i", pixel, out[3:], distinct)
+        if self.see_sky:
+            film.splat("L_e", pixel, trans[None, :] * self.sky_at(d), distinct)
+
+
+_NO_SAMPLES = (np.zeros(1, dtype=np.int64), np.zeros((3, 0), dtype=np.float32), np.zeros((3, 0), dtype=np.float32))
 
 
 def render_pvrt(scene: Scene, *, transfer: Transfer, spp: int = 1, seed: int = 0, batch_size: int = 1 << 18,
                 progress: bool = True, step: float = 1.0, direct: str = "nee", light_grid: int = DEFAULT_LIGHT_GRID,
-                sky=None, rotation: np.ndarray | None = None) -> RenderResult:  # noqa: ANN001  (sky: SkyFunction)
+                sky=None, rotation: np.ndarray | None = None,  # noqa: ANN001  (sky: SkyFunction)
+                skip_empty: bool = True) -> RenderResult:
     """Render ``scene`` (its lights, plus ``sky``) from ``transfer`` (module docstring). ``stats`` records the
-    notes of the lighting's projection (e.g. the NEE fall-back of a directional light)."""
+    notes of the lighting's projection (e.g. the NEE fall-back of a directional light). ``skip_empty``: camera
+    and shadow rays look nothing up in empty macrocells and the light volumes march only the cells a camera sample
+    in the medium can read (the same image, sooner; False: every sample and cell, the reference of the tests).
+    Frames of one view under changing lights: :class:`Relighting`."""
     timer = StageTimer()
     t_start = time.perf_counter()
     transfer.check_scene(scene)
     m = scene.medium()
-    with timer("project_lighting"):
-        lighting = scene_lighting(scene.lights, transfer.basis, sky=sky, direct=direct, rotation=rotation)
-    with timer("radiance_volume"):
-        rad = radiance_volume(transfer, lighting, scene.camera.eye, scene.g)
-    with timer("light_volumes"):
-        lights = light_volumes(m, lighting.nee_directions, light_grid, float(scene.volume.voxel_size))
+    frame = _Frame(scene, scene.lights, transfer, timer, sky=sky, direct=direct, rotation=rotation,
+                   light_grid=light_grid, skip_empty=skip_empty)
     cam = scene.camera
     film = Film(cam.width, cam.height)
     h = step * scene.volume.voxel_size
     n_pixels = cam.width * cam.height
-    travel = np.ascontiguousarray(lighting.nee_directions, dtype=np.float64)
-    rgb = np.ascontiguousarray(lighting.nee_rgb, dtype=np.float64)
-
-    def sky_at(dirs: np.ndarray) -> np.ndarray:  # (3, n) view directions -> (3, n) what they see
-        v = np.broadcast_to(lighting.constant_sky[:, None], dirs.shape).astype(np.float64)
-        if lighting.sky is not None:
-            v = lighting.sky(np.ascontiguousarray(dirs.T)).T
-        return v
-
-    see_sky = lighting.sky is not None or np.any(lighting.constant_sky > 0)
     for start in range(0, n_pixels * spp, batch_size):
         work = np.arange(start, min(start + batch_size, n_pixels * spp), dtype=np.int64)
-        with timer("generate_camera_rays"):
+        with timer("generate_camera_rays"):  # a ray that misses the box gets tmax 0: nothing to march, T = 1
             rays = generate_camera_rays(cam, work, seed)
-            hit = clip_rays_to_volume(m, rays)
-        if see_sky and not np.all(hit):
-            film.splat("L_e", rays.pixel[~hit], sky_at(rays.d[:, ~hit]))
-        rays = rays.compact(hit)
+            clip_rays_to_volume(m, rays)
         with timer("march"):
-            out, trans = _march(m, rad, lights, travel, rgb, float(scene.g), rays.o, rays.d, rays.tmax, rays.rng, h)
-        film.splat("L_d", rays.pixel, out[:3])
-        film.splat("L_i", rays.pixel, out[3:])
-        if see_sky:
-            film.splat("L_e", rays.pixel, trans[None, :] * sky_at(rays.d))
+            out, trans = _march(m, frame.rad, frame.lights, frame.travel, frame.rgb, float(scene.g), rays.o, rays.d,
+                                rays.tmax, rays.rng, h, skip_empty, _EVALUATE, *_NO_SAMPLES)
+        frame.splat(film, rays.pixel, rays.d, out, trans, distinct=len(work) <= n_pixels)
     result = finish(film, timer, spp, t_start, {})
-    result.stats["notes"] = "; ".join(lighting.notes)  # type: ignore[assignment]
+    result.stats["notes"] = "; ".join(frame.lighting.notes)  # type: ignore[assignment]
     return result
+
+
+#: Samples a :class:`Relighting` keeps at most (24 bytes each: 400 MB); beyond, it marches every frame.
+MAX_KEPT_SAMPLES = 1 << 24
+
+
+class Relighting:
+    """PVRT frames of one view (scene, camera, g) under changing lights: the paper's relighting.
+
+    A light change leaves the camera rays' samples in the medium as they were: their positions and weights
+    T_s (1 - exp(-sigma_s dt)) albedo_s depend on the medium and the camera only. The constructor marches the
+    camera rays twice (counting, then recording the samples: 24 bytes each, float32) and notes which light-volume
+    cells they read; each :meth:`render` then projects the lighting, evaluates the radiance volume, marches the
+    light volumes at those cells only (or reuses the last frame's when the directional lights did not move: an
+    environment turned, a colour or power changed) and sums the kept samples (:func:`_sum_kept`): the same sums as
+    :func:`render_pvrt` with the same ``seed``, up to the float32 positions and weights (relative 1e-6), without
+    the walk through the medium. More than ``max_samples`` samples are not kept; every frame then marches."""
+
+    def __init__(self, scene: Scene, transfer: Transfer, *, spp: int = 1, seed: int = 0,
+                 batch_size: int = 1 << 18, step: float = 1.0, light_grid: int = DEFAULT_LIGHT_GRID,
+                 max_samples: int = MAX_KEPT_SAMPLES) -> None:
+        transfer.check_scene(scene)
+        self.scene, self.transfer = scene, transfer
+        self.spp, self.seed, self.batch_size, self.step, self.light_grid = spp, seed, batch_size, step, light_grid
+        self.timings_ms: dict[str, float] = {}
+        self.kept = False
+        self._previous: _Frame | None = None  # the last frame: its light volumes serve a frame with the same lights
+        t0 = time.perf_counter()
+        m = scene.medium()
+        cam = scene.camera
+        h = step * scene.volume.voxel_size
+        parts: dict[str, list[np.ndarray]] = {k: [] for k in ("pixel", "d", "first", "trans")}
+        samples: list[tuple[np.ndarray, np.ndarray]] = []
+        total = 0
+        for start in range(0, cam.width * cam.height * spp, batch_size):
+            rays = generate_camera_rays(cam, np.arange(start, min(start + batch_size, cam.width * cam.height * spp),
+                                                       dtype=np.int64), seed)
+            clip_rays_to_volume(m, rays)  # misses: tmax 0, no samples, T = 1
+            count = np.zeros(len(rays) + 1, dtype=np.int64)
+            _, trans = _march(m, *_empty_lighting(), float(scene.g), rays.o, rays.d, rays.tmax, rays.rng.copy(), h,
+                              True, _COUNT, count, *_NO_SAMPLES[1:])
+            total += int(count.sum())
+            if total > max_samples:
+                return  # too many to keep: render() marches
+            first = np.zeros(len(rays) + 1, dtype=np.int64)
+            np.cumsum(count[:-1], out=first[1:])
+            pos = np.empty((3, int(first[-1])), dtype=np.float32)
+            weight = np.empty_like(pos)
+            _march(m, *_empty_lighting(), float(scene.g), rays.o, rays.d, rays.tmax, rays.rng.copy(), h, True,
+                   _RECORD, first, pos, weight)
+            samples.append((pos, weight))
+            parts["pixel"].append(rays.pixel)
+            parts["d"].append(rays.d)
+            parts["first"].append(first[:-1] + sum(p.shape[1] for p, _ in samples[:-1]))
+            parts["trans"].append(trans)
+        self.pixel = np.concatenate(parts["pixel"])
+        self.d = np.ascontiguousarray(np.concatenate(parts["d"], axis=1))
+        self.first = np.append(np.concatenate(parts["first"]), total).astype(np.int64)
+        self.trans = np.concatenate(parts["trans"])
+        self.pos = np.ascontiguousarray(np.concatenate([p for p, _ in samples], axis=1))
+        self.weight = np.ascontiguousarray(np.concatenate([w for _, w in samples], axis=1))
+        self.cells = _read_cells(m, self.pos, *grid_shape(m.bsize, light_grid))  # a subset of the needed cells
+        self.kept = True
+        self.timings_ms["keep_samples"] = (time.perf_counter() - t0) * 1e3
+
+    @property
+    def samples(self) -> int:
+        """How many camera samples are kept (0 when there were too many)."""
+        return self.pos.shape[1] if self.kept else 0
+
+    def render(self, lights: tuple, *, sky=None, direct: str = "nee",  # noqa: ANN001  (sky: SkyFunction)
+               rotation: np.ndarray | None = None) -> RenderResult:
+        """The frame under ``lights`` (a scene's lights tuple), ``sky`` and ``rotation`` (as :func:`render_pvrt`)."""
+        scene = replace(self.scene, lights=tuple(lights), _cache={})  # checks the lights as a scene does
+        scene._cache["medium"] = self.scene.medium()  # the medium ignores the lights
+        if not self.kept:
+            return render_pvrt(scene, transfer=self.transfer, spp=self.spp, seed=self.seed,
+                               batch_size=self.batch_size, progress=False, step=self.step, direct=direct,
+                               light_grid=self.light_grid, sky=sky, rotation=rotation)
+        timer = StageTimer()
+        t_start = time.perf_counter()
+        frame = _Frame(scene, scene.lights, self.transfer, timer, sky=sky, direct=direct, rotation=rotation,
+                       light_grid=self.light_grid, skip_empty=True, cells=self.cells, previous=self._previous)
+        self._previous = frame
+        film = Film(scene.camera.width, scene.camera.height)
+        with timer("sum_samples"):
+            out = _sum_kept(scene.medium(), frame.rad, frame.lights, frame.travel, frame.rgb, float(scene.g), self.d,
+                            self.first, self.pos, self.weight)
+        frame.splat(film, self.pixel, self.d, out, self.trans, self.spp == 1)
+        result = finish(film, timer, self.spp, t_start, {})
+        result.stats["notes"] = "; ".join(frame.lighting.notes)  # type: ignore[assignment]
+        return result
+
+
+def _empty_lighting() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(rad, lights, travel, rgb) placeholders for the marches that only count or record samples."""
+    return (np.zeros((2, 2, 2, CHANNELS), dtype=np.float32), np.zeros((0, 2, 2, 2), dtype=np.float32), np.zeros((0, 3)),
+            np.zeros((0, 3)))

@@ -47,13 +47,16 @@ from photon_fields.runtime.wavefront.batches import (
 from photon_fields.runtime.wavefront.film import Film
 
 _T_MIN = 1e-4  # stop marching once the camera ray is this opaque: the rest cannot contribute
+_TAU_MAX = 20.0  # a shadow ray this deep is dark (transmittance 2e-9)
 
 
 @njit(cache=True, inline="always")
 def march_transmittance(m: Medium, px: float, py: float, pz: float, lx: float, ly: float, lz: float, tend: float,
-                        h: float, skip: bool) -> float:
+                        h: float, skip: bool, tau_max: float = _TAU_MAX) -> float:
     """exp(-integral of sigma_t) from p towards l over [0, min(tend, box exit)], midpoint rule; ``skip``: no
-    lookups at the midpoints that lie in empty macrocells (:func:`empty_run`; the same sum)."""
+    lookups at the midpoints that lie in empty macrocells (:func:`empty_run`; the same sum): the walk jumps to the
+    first midpoint past the empty run instead of stepping over each, so empty space costs one step per run.
+    0 once the optical depth passes ``tau_max`` (the rest of the ray is not marched)."""
     t0, t1 = intersect_box(m, px, py, pz, lx, ly, lz)
     if t0 >= t1:
         return 1.0
@@ -62,10 +65,15 @@ def march_transmittance(m: Medium, px: float, py: float, pz: float, lx: float, l
     hh = (t1 - t0) / n
     tau = 0.0
     empty_until = -math.inf
-    for k in range(n):
+    k = 0
+    while k < n:
         t = t0 + (k + 0.5) * hh
         if t < empty_until:
+            # floor() never passes the first midpoint >= empty_until, and the test above is repeated there:
+            # the same midpoints are summed as stepping one by one would, bit for bit
+            k = max(k + 1, int(min(math.floor((empty_until - t0) / hh - 0.5), n)))
             continue
+        k += 1
         x, y, z = px + t * lx, py + t * ly, pz + t * lz
         if skip:
             run = empty_run(m, x, y, z, lx, ly, lz)
@@ -73,7 +81,7 @@ def march_transmittance(m: Medium, px: float, py: float, pz: float, lx: float, l
                 empty_until = t + run
                 continue
         tau += extinction_at(m, x, y, z) * hh
-        if tau > 20.0:
+        if tau > tau_max:
             return 0.0
     return math.exp(-tau)
 

@@ -242,25 +242,60 @@ def _lut_pos(lut_n: int, s: float) -> tuple[int, float]:
     return i, f - i
 
 
+# The table lookups take the tables, not the medium, and the callers below read the medium's fields before any
+# branch: an inlined kernel that passes ``m`` on and then branches on ``m.categorical`` left numba's reference-count
+# pruning unable to pair the increments of the medium's seven arrays with their decrements, six calls each way per
+# lookup (measured: 55 ns per extinction lookup against 21 ns written this way; the same arithmetic).
+
+
+@njit(cache=True, inline="always")
+def _extinction_of(lut: np.ndarray, categorical: bool, s: float) -> float:
+    """sigma_t of the scalar ``s`` that :func:`scalar_at` returned (``lut``: the medium's ext_lut)."""
+    if categorical:  # s is an exact label index
+        v = lut[int(s)]
+    else:
+        i, f = _lut_pos(lut.shape[0], s)
+        v = lut[i] * (1.0 - f) + lut[i + 1] * f
+    return v
+
+
+@njit(cache=True, inline="always")
+def _albedo_of(a: np.ndarray, categorical: bool, s: float) -> tuple[float, float, float]:
+    """The albedo of the scalar ``s`` that :func:`scalar_at` returned (``a``: the medium's albedo_lut)."""
+    if categorical:  # s is an exact label index
+        k = int(s)
+        rgb = (a[k, 0], a[k, 1], a[k, 2])
+    else:
+        i, f = _lut_pos(a.shape[0], s)
+        rgb = (a[i, 0] * (1.0 - f) + a[i + 1, 0] * f, a[i, 1] * (1.0 - f) + a[i + 1, 1] * f,
+               a[i, 2] * (1.0 - f) + a[i + 1, 2] * f)
+    return rgb
+
+
 @njit(cache=True, inline="always")
 def extinction_at(m: Medium, x: float, y: float, z: float) -> float:
-    s = scalar_at(m, x, y, z)
-    if m.categorical:  # s is an exact label index
-        return m.ext_lut[int(s)]
-    i, f = _lut_pos(m.ext_lut.shape[0], s)
-    return m.ext_lut[i] * (1.0 - f) + m.ext_lut[i + 1] * f
+    lut = m.ext_lut
+    categorical = m.categorical
+    return _extinction_of(lut, categorical, scalar_at(m, x, y, z))
 
 
 @njit(cache=True, inline="always")
 def albedo_at(m: Medium, x: float, y: float, z: float) -> tuple[float, float, float]:
-    s = scalar_at(m, x, y, z)
     a = m.albedo_lut
-    if m.categorical:  # s is an exact label index
-        k = int(s)
-        return a[k, 0], a[k, 1], a[k, 2]
-    i, f = _lut_pos(m.albedo_lut.shape[0], s)
-    return (a[i, 0] * (1.0 - f) + a[i + 1, 0] * f, a[i, 1] * (1.0 - f) + a[i + 1, 1] * f,
-            a[i, 2] * (1.0 - f) + a[i + 1, 2] * f)
+    categorical = m.categorical
+    return _albedo_of(a, categorical, scalar_at(m, x, y, z))
+
+
+@njit(cache=True, inline="always")
+def extinction_albedo_at(m: Medium, x: float, y: float, z: float) -> tuple[float, float, float, float]:
+    """(sigma_t, albedo RGB) from one interpolation of the scalar: for a march that needs both at each sample
+    (the albedo is only meaningful where sigma_t > 0)."""
+    lut = m.ext_lut
+    a = m.albedo_lut
+    categorical = m.categorical
+    s = scalar_at(m, x, y, z)
+    a0, a1, a2 = _albedo_of(a, categorical, s)
+    return _extinction_of(lut, categorical, s), a0, a1, a2
 
 
 @njit(cache=True, inline="always")

@@ -53,6 +53,22 @@ RR_THRESHOLD = 0.05
 #: and each task calls a serial kernel over its items. numba's parfor passes then see a loop body of one call,
 #: not the inlined walk, which cuts those kernels' compile time several-fold; the call costs nothing per item.
 TASK_ITEMS = 256
+_GOLDEN = 0.6180339887498949
+
+
+@njit(cache=True)
+def task_stride(tasks: int) -> int:
+    """A stride coprime with ``tasks``, near ``tasks`` / golden ratio: task t of a ``prange`` over ``tasks`` then
+    works on block ``(t * stride) % tasks`` of the items (a permutation of the blocks). numba's threading layer
+    gives each thread one contiguous range of the ``prange`` (a static schedule), so when the costly items sit
+    together (the rays through the dense half of an image) one thread gets them all; the golden-ratio stride
+    spreads every contiguous range of tasks evenly over the items."""
+    if tasks <= 2:
+        return 1
+    s = max(1, int(tasks * _GOLDEN))
+    while math.gcd(s, tasks) != 1:
+        s += 1
+    return s
 _DELTA, _RATIO, _RESAMPLE = 0, 1, 2
 
 

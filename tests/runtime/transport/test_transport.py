@@ -11,7 +11,7 @@ from conftest import constant_tf, smooth_field
 from photon_fields.runtime.scene.volume import make_volume
 from photon_fields.runtime.transport.medium import _sparse_max_table, build_medium, extinction_batch, range_max
 from photon_fields.runtime.transport.rng import stream_states
-from photon_fields.runtime.transport.tracking import delta_track_batch, ratio_track_batch
+from photon_fields.runtime.transport.tracking import delta_track_batch, ratio_track_batch, task_stride
 
 
 def _rays_through(m, n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # noqa: ANN001
@@ -134,3 +134,15 @@ def test_escape_probability_independent_of_macrocell_size(smooth_volume) -> None
 def test_smooth_field_is_heterogeneous() -> None:
     f = smooth_field()
     assert f.min() > 0.09 and f.max() <= 1.0 and f.std() > 0.1
+
+
+@pytest.mark.parametrize("tasks", [1, 2, 3, 4, 10, 97, 256, 1024, 1025])
+def test_task_stride_permutes_the_blocks_and_spreads_each_half(tasks: int) -> None:
+    """(t * stride) % tasks visits every block once, and either half of the tasks (what each of two threads gets)
+    takes blocks from both halves of the items."""
+    s = task_stride(tasks)
+    blocks = [(t * s) % tasks for t in range(tasks)]
+    assert sorted(blocks) == list(range(tasks))
+    if tasks >= 10:
+        first = np.array(blocks[: tasks // 2])
+        assert 0.3 < np.mean(first < tasks // 2) < 0.7
