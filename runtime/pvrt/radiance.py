@@ -113,12 +113,18 @@ def radiance_volume(transfer: Transfer, lighting: Lighting, eye: np.ndarray, g: 
                            np.asarray(box["size"], np.float64), gx, gy, gz)
 
 
+def mass_volume(transfer: Transfer) -> np.ndarray:
+    """D_v per cell, (gx, gy, gz) float32: the radiance volume's channel 6, which does not depend on the lighting."""
+    return np.maximum(transfer.mass, 0.0).astype(np.float32).reshape(transfer.grid)
+
+
 @njit(cache=True, inline="always")
-def grid_coord(p: float, lo: float, size: float, n: int) -> tuple[int, float]:
-    """Lower index and fraction of the trilinear stencil along one axis of a cell-centred grid of ``n`` cells over
-    [lo, lo + size] at coordinate ``p`` (clamped at the border): the camera's lookups of the radiance and light
-    volumes, and :func:`_needed_cells`, which must agree with them."""
-    u = min(max((p - lo) / size * n - 0.5, 0.0), n - 1.0)
+def grid_coord(p: float, lo: float, scale: float, n: int) -> tuple[int, float]:
+    """Lower index and fraction of the trilinear stencil along one axis of a cell-centred grid of ``n`` cells from
+    ``lo`` on, ``scale`` cells per unit length (n / the box's size), at coordinate ``p`` (clamped at the border):
+    the camera's lookups of the radiance and light volumes, and :func:`_needed_cells`, which must agree with them.
+    (A multiplication: the camera samples' stencils divided three times each before.)"""
+    u = min(max((p - lo) * scale - 0.5, 0.0), n - 1.0)
     i = min(int(u), n - 2)
     return i, u - i
 
@@ -140,8 +146,8 @@ def _needed_cells(m: Medium, gx: int, gy: int, gz: int) -> np.ndarray:
                 for ax, (j, cells, n) in enumerate(((a, cx, gx), (b, cy, gy), (c, cz, gz))):
                     x0 = m.bmin[ax] + j / cells * m.bsize[ax]
                     x1 = m.bmin[ax] + (j + 1) / cells * m.bsize[ax]
-                    lo[ax] = grid_coord(x0, m.bmin[ax], m.bsize[ax], n)[0]
-                    hi[ax] = grid_coord(x1, m.bmin[ax], m.bsize[ax], n)[0] + 1  # the stencil's upper corner
+                    lo[ax] = grid_coord(x0, m.bmin[ax], n / m.bsize[ax], n)[0]
+                    hi[ax] = grid_coord(x1, m.bmin[ax], n / m.bsize[ax], n)[0] + 1  # the stencil's upper corner
                 out[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1] = True
     return out
 

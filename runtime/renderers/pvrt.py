@@ -37,7 +37,7 @@ from numba import njit, prange
 from photon_fields.runtime.pvrt.constants import DEFAULT_LIGHT_GRID
 from photon_fields.runtime.pvrt.lighting import scene_lighting
 from photon_fields.runtime.pvrt.precompute import grid_shape
-from photon_fields.runtime.pvrt.radiance import CHANNELS, grid_coord, light_volumes, radiance_volume
+from photon_fields.runtime.pvrt.radiance import CHANNELS, grid_coord, light_volumes, mass_volume, radiance_volume
 from photon_fields.runtime.pvrt.transfer import Transfer
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
@@ -51,24 +51,24 @@ from photon_fields.runtime.wavefront.rays import clip_rays_to_volume, generate_c
 _T_MIN = 1e-4  # as the ray marcher: stop once the camera ray is this opaque
 
 
-#: The world box as 6 floats (min xyz, size xyz), for the kernels below: an inlined kernel that is handed the medium
-#: and loops took and released a reference to each of its 7 arrays per call (numba's pruning of reference counts
-#: missed them), which cost a third of the time of summing a sample; floats carry no reference.
-Box = tuple[float, float, float, float, float, float]
+#: A cell-centred grid over the world box, for the kernels below: its origin (xyz), cells per unit length (xyz) and
+#: cells (xyz). Plain numbers: an inlined kernel that was handed the medium and looped took and released a reference
+#: to each of its 7 arrays per call (numba's pruning of reference counts missed them), a third of the time of
+#: summing a sample; numbers carry no reference.
+Grid = tuple[float, float, float, float, float, float, int, int, int]
 
 
 @njit(cache=True, inline="always")
-def _box(m: Medium) -> Box:
-    return m.bmin[0], m.bmin[1], m.bmin[2], m.bsize[0], m.bsize[1], m.bsize[2]
+def _grid(m: Medium, gx: int, gy: int, gz: int) -> Grid:
+    return m.bmin[0], m.bmin[1], m.bmin[2], gx / m.bsize[0], gy / m.bsize[1], gz / m.bsize[2], gx, gy, gz
 
 
 @njit(cache=True, inline="always")
-def _stencil(box: Box, x: float, y: float, z: float, gx: int, gy: int,
-             gz: int) -> tuple[int, int, int, float, float, float]:
-    """Lower corner and fractions of the trilinear stencil of a cell-centred (gx, gy, gz) grid over the box at x."""
-    i, fx = grid_coord(x, box[0], box[3], gx)
-    j, fy = grid_coord(y, box[1], box[4], gy)
-    k, fz = grid_coord(z, box[2], box[5], gz)
+def _stencil(grid: Grid, x: float, y: float, z: float) -> tuple[int, int, int, float, float, float]:
+    """Lower corner and fractions of the trilinear stencil of ``grid`` at x (:func:`grid_coord`)."""
+    i, fx = grid_coord(x, grid[0], grid[3], grid[6])
+    j, fy = grid_coord(y, grid[1], grid[4], grid[7])
+    k, fz = grid_coord(z, grid[2], grid[5], grid[8])
     return i, j, k, fx, fy, fz
 
 
@@ -82,13 +82,13 @@ def _trilinear(vol: np.ndarray, i: int, j: int, k: int, fx: float, fy: float, fz
 
 
 @njit(cache=True, inline="always")
-def _radiance_at(rad: np.ndarray, i: int, j: int, k: int, fx: float, fy: float,
-                 fz: float) -> tuple[float, float, float, float, float, float]:
-    """The D_v-weighted trilinear radiance (radiance.CHANNELS), direct RGB then multiple-scattering RGB: the
-    interpolated photon energy of each channel over the interpolated D_v (channel 6), 0 where D_v interpolates to
-    0. A corner's 8 channels are 32 adjacent bytes and all share the stencil's weight: summed in float32 (the
-    volume's precision) as 8 scalars, which fit one vector register, not in an array the kernel would have to
-    allocate or be handed."""
+def _radiance_sums(rad: np.ndarray, grid: Grid, x: float, y: float,
+                   z: float) -> tuple[float, float, float, float, float, float, float]:
+    """The trilinear interpolations at x of the radiance volume's photon energy (direct RGB, multiple-scattering
+    RGB) and of D_v (radiance.CHANNELS); the radiance is their quotient (D_v-weighted interpolation). A corner's 8
+    channels are 32 adjacent bytes and all share the stencil's weight: summed in float32 (the volume's precision)
+    as 8 scalars, which fit one vector register, not in an array the kernel would have to allocate or be handed."""
+    i, j, k, fx, fy, fz = _stencil(grid, x, y, z)
     r0 = r1 = r2 = r3 = r4 = r5 = r6 = r7 = np.float32(0.0)
     for corner in range(8):
         a, b, e = corner & 1, (corner >> 1) & 1, corner >> 2
@@ -102,28 +102,23 @@ def _radiance_at(rad: np.ndarray, i: int, j: int, k: int, fx: float, fy: float,
         r5 += w * v[5]
         r6 += w * v[6]
         r7 += w * v[7]
-    if r6 <= 0.0:
-        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    inv = 1.0 / float(r6)
-    return r0 * inv, r1 * inv, r2 * inv, r3 * inv, r4 * inv, r5 * inv
+    return r0, r1, r2, r3, r4, r5, r6
 
 
 @njit(cache=True, inline="always")
-def _sample_radiance(box: Box, rad: np.ndarray, lights: np.ndarray, ph: np.ndarray, rgb: np.ndarray, x: float,
-                     y: float, z: float) -> tuple[float, float, float, float, float, float]:
-    """What the sample at x sends towards the camera per unit albedo, direct RGB then multiple-scattering RGB: the
-    radiance volume's (:func:`_radiance_at`) plus, in the direct part, each light's NEE (``ph``: its phase value
-    along this camera ray, ``rgb``: its irradiance) through the light volumes."""
-    i, j, k, fx, fy, fz = _stencil(box, x, y, z, rad.shape[0], rad.shape[1], rad.shape[2])
-    r0, r1, r2, r3, r4, r5 = _radiance_at(rad, i, j, k, fx, fy, fz)
+def _nee(lights: np.ndarray, grid: Grid, ph: np.ndarray, rgb: np.ndarray, x: float, y: float,
+         z: float) -> tuple[float, float, float]:
+    """The directional lights' direct term at x per unit albedo: each light's transmittance (its light volume,
+    trilinear) times its phase value along the camera ray (``ph``) and its irradiance (``rgb``)."""
+    n0 = n1 = n2 = 0.0
     if lights.shape[0] > 0:
-        i, j, k, fx, fy, fz = _stencil(box, x, y, z, lights.shape[1], lights.shape[2], lights.shape[3])
+        i, j, k, fx, fy, fz = _stencil(grid, x, y, z)
         for li in range(lights.shape[0]):
             tr = _trilinear(lights[li], i, j, k, fx, fy, fz) * ph[li]
-            r0 += tr * rgb[li, 0]
-            r1 += tr * rgb[li, 1]
-            r2 += tr * rgb[li, 2]
-    return r0, r1, r2, r3, r4, r5
+            n0 += tr * rgb[li, 0]
+            n1 += tr * rgb[li, 1]
+            n2 += tr * rgb[li, 2]
+    return n0, n1, n2
 
 
 @njit(cache=True, inline="always")
@@ -144,9 +139,10 @@ def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndar
                  hi: int) -> None:
     """Camera rays lo..hi-1 of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why). Per
     sample with sigma_t > 0 (its weight w = T_s (1 - exp(-sigma_s dt)) albedo_s, RGB), by ``mode``: _EVALUATE adds
-    w times :func:`_sample_radiance` to out[0:3] (L_d) and out[3:6] (L_i); _COUNT counts the ray's samples into
-    ``first[ray]``; _RECORD writes their positions and weights to ``pos`` and ``weight`` from index ``first[ray]``
-    on. Every mode writes the transmittance into ``trans``.
+    w times what it sends towards the camera per unit albedo (the radiance volume's D_v-weighted interpolation,
+    :func:`_radiance_sums`, plus the lights' NEE, :func:`_nee`) to out[0:3] (L_d) and out[3:6] (L_i); _COUNT counts
+    the ray's samples into ``first[ray]``; _RECORD writes their positions and weights to ``pos`` and ``weight[0:3]``
+    from index ``first[ray]`` on. Every mode writes the transmittance into ``trans``.
 
     Segment s of a ray spans [t_{s-1}, t_s] with t_s = (jitter + s) h (t_{-1} = 0), sampled at its midpoint; over
     an empty run (:func:`empty_run`) the walk jumps to the first segment whose midpoint is past it (the midpoints
@@ -154,7 +150,8 @@ def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndar
     (``skip`` False: every midpoint looked up, the same sums). (The rays are not a kernel of their own: an inlined
     call per ray took and released a reference to each of its 13 arrays.)"""
     ph = np.empty(travel.shape[0])  # each light's phase along the ray
-    box = _box(m)
+    rg = _grid(m, rad.shape[0], rad.shape[1], rad.shape[2])
+    lg = _grid(m, lights.shape[1], lights.shape[2], lights.shape[3])
     for ray in range(lo, hi):
         states[ray], jitter = next_float(states[ray])
         ox, oy, oz, dx, dy, dz = o[0, ray], o[1, ray], o[2, ray], d[0, ray], d[1, ray], d[2, ray]
@@ -184,13 +181,15 @@ def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndar
                 e = math.exp(-sigma * seg)
                 w = T * (1.0 - e)
                 if mode == _EVALUATE:
-                    r0, r1, r2, r3, r4, r5 = _sample_radiance(box, rad, lights, ph, rgb, x, y, z)
-                    l0 += w * a0 * r0
-                    l1 += w * a1 * r1
-                    l2 += w * a2 * r2
-                    l3 += w * a0 * r3
-                    l4 += w * a1 * r4
-                    l5 += w * a2 * r5
+                    r0, r1, r2, r3, r4, r5, dv = _radiance_sums(rad, rg, x, y, z)
+                    inv = 1.0 / dv if dv > 0.0 else 0.0  # no medium in reach: no transfer
+                    n0, n1, n2 = _nee(lights, lg, ph, rgb, x, y, z)
+                    l0 += w * a0 * (r0 * inv + n0)
+                    l1 += w * a1 * (r1 * inv + n1)
+                    l2 += w * a2 * (r2 * inv + n2)
+                    l3 += w * a0 * (r3 * inv)
+                    l4 += w * a1 * (r4 * inv)
+                    l5 += w * a2 * (r5 * inv)
                 elif mode == _RECORD and q < pos.shape[1]:  # the same walk as _COUNT's: never false
                     pos[0, q], pos[1, q], pos[2, q] = x, y, z
                     weight[0, q], weight[1, q], weight[2, q] = w * a0, w * a1, w * a2
@@ -227,21 +226,24 @@ def _sum_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarra
                d: np.ndarray, first: np.ndarray, pos: np.ndarray, weight: np.ndarray, out: np.ndarray, lo: int,
                hi: int) -> None:
     """Rays lo..hi-1 of :func:`_sum_kept`: out[0:6, ray] = the sum over the ray's kept samples (from first[ray] to
-    first[ray + 1]) of their weight times :func:`_sample_radiance`, as :func:`_march_items` adds them."""
+    first[ray + 1]) of what :func:`_march_items` adds for them, with their D_v's reciprocal kept in weight[3]."""
     ph = np.empty(travel.shape[0])
-    box = _box(m)
+    rg = _grid(m, rad.shape[0], rad.shape[1], rad.shape[2])
+    lg = _grid(m, lights.shape[1], lights.shape[2], lights.shape[3])
     for ray in range(lo, hi):
         _phases(g, travel, d[0, ray], d[1, ray], d[2, ray], ph)
         l0 = l1 = l2 = l3 = l4 = l5 = 0.0
         for q in range(first[ray], first[ray + 1]):
-            r0, r1, r2, r3, r4, r5 = _sample_radiance(box, rad, lights, ph, rgb, pos[0, q], pos[1, q], pos[2, q])
-            w0, w1, w2 = weight[0, q], weight[1, q], weight[2, q]
-            l0 += w0 * r0
-            l1 += w1 * r1
-            l2 += w2 * r2
-            l3 += w0 * r3
-            l4 += w1 * r4
-            l5 += w2 * r5
+            x, y, z = pos[0, q], pos[1, q], pos[2, q]
+            r0, r1, r2, r3, r4, r5, _ = _radiance_sums(rad, rg, x, y, z)
+            n0, n1, n2 = _nee(lights, lg, ph, rgb, x, y, z)
+            w0, w1, w2, inv = weight[0, q], weight[1, q], weight[2, q], weight[3, q]
+            l0 += w0 * (r0 * inv + n0)
+            l1 += w1 * (r1 * inv + n1)
+            l2 += w2 * (r2 * inv + n2)
+            l3 += w0 * (r3 * inv)
+            l4 += w1 * (r4 * inv)
+            l5 += w2 * (r5 * inv)
         out[0, ray], out[1, ray], out[2, ray], out[3, ray], out[4, ray], out[5, ray] = l0, l1, l2, l3, l4, l5
 
 
@@ -260,12 +262,19 @@ def _sum_kept(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray
 
 
 @njit(cache=True)
-def _read_cells(m: Medium, pos: np.ndarray, gx: int, gy: int, gz: int) -> np.ndarray:
-    """The cells of a (gx, gy, gz) grid whose values samples at ``pos`` (3, n) read (their trilinear stencils)."""
+def _kept_cells(m: Medium, pos: np.ndarray, weight: np.ndarray, dv: np.ndarray, gx: int, gy: int,
+                gz: int) -> np.ndarray:
+    """For kept samples at ``pos`` (3, n): weight[3] = 1 / D_v at each (``dv``: the transfer grid's D_v, trilinear;
+    0 where it is 0, as the march divides), and the cells of a (gx, gy, gz) light grid their stencils read."""
     out = np.zeros((gx, gy, gz), dtype=np.bool_)
-    box = _box(m)
+    rg = _grid(m, dv.shape[0], dv.shape[1], dv.shape[2])
+    lg = _grid(m, gx, gy, gz)
     for q in range(pos.shape[1]):
-        i, j, k, _, _, _ = _stencil(box, pos[0, q], pos[1, q], pos[2, q], gx, gy, gz)
+        x, y, z = pos[0, q], pos[1, q], pos[2, q]
+        i, j, k, fx, fy, fz = _stencil(rg, x, y, z)
+        v = _trilinear(dv, i, j, k, fx, fy, fz)
+        weight[3, q] = 1.0 / v if v > 0.0 else 0.0
+        i, j, k, _, _, _ = _stencil(lg, x, y, z)
         for corner in range(8):
             out[i + (corner & 1), j + ((corner >> 1) & 1), k + (corner >> 2)] = True
     return out
@@ -347,7 +356,7 @@ def render_pvrt(scene: Scene, *, transfer: Transfer, spp: int = 1, seed: int = 0
     return result
 
 
-#: Samples a :class:`Relighting` keeps at most (24 bytes each: 400 MB); beyond, it marches every frame.
+#: Samples a :class:`Relighting` keeps at most (28 bytes each: 470 MB); beyond, it marches every frame.
 MAX_KEPT_SAMPLES = 1 << 24
 
 
@@ -356,7 +365,7 @@ class Relighting:
 
     A light change leaves the camera rays' samples in the medium as they were: their positions and weights
     T_s (1 - exp(-sigma_s dt)) albedo_s depend on the medium and the camera only. The constructor marches the
-    camera rays twice (counting, then recording the samples: 24 bytes each, float32) and notes which light-volume
+    camera rays twice (counting, then recording the samples: 28 bytes each, float32) and notes which light-volume
     cells they read; each :meth:`render` then projects the lighting, evaluates the radiance volume, marches the
     light volumes at those cells only (or reuses the last frame's when the directional lights did not move: an
     environment turned, a colour or power changed) and sums the kept samples (:func:`_sum_kept`): the same sums as
@@ -392,7 +401,7 @@ class Relighting:
             first = np.zeros(len(rays) + 1, dtype=np.int64)
             np.cumsum(count[:-1], out=first[1:])
             pos = np.empty((3, int(first[-1])), dtype=np.float32)
-            weight = np.empty_like(pos)
+            weight = np.empty((4, pos.shape[1]), dtype=np.float32)  # w albedo (RGB), then 1 / D_v (_kept_cells)
             _march(m, *_empty_lighting(), float(scene.g), rays.o, rays.d, rays.tmax, rays.rng.copy(), h, True,
                    _RECORD, first, pos, weight)
             samples.append((pos, weight))
@@ -406,7 +415,8 @@ class Relighting:
         self.trans = np.concatenate(parts["trans"])
         self.pos = np.ascontiguousarray(np.concatenate([p for p, _ in samples], axis=1))
         self.weight = np.ascontiguousarray(np.concatenate([w for _, w in samples], axis=1))
-        self.cells = _read_cells(m, self.pos, *grid_shape(m.bsize, light_grid))  # a subset of the needed cells
+        # 1 / D_v of each sample into weight[3]; the light cells they read (a subset of the needed ones)
+        self.cells = _kept_cells(m, self.pos, self.weight, mass_volume(transfer), *grid_shape(m.bsize, light_grid))
         self.kept = True
         self.timings_ms["keep_samples"] = (time.perf_counter() - t0) * 1e3
 

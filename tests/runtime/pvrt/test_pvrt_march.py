@@ -71,7 +71,7 @@ def test_light_volume_marches_every_cell_a_sample_in_the_medium_reads(sparse: Sc
     p = p[:, extinction_batch(m, p) > 0.0]
     assert p.shape[1] > 300
     for x in p.T:
-        lower = [grid_coord(x[a], m.bmin[a], m.bsize[a], shape[a])[0] for a in range(3)]
+        lower = [grid_coord(x[a], m.bmin[a], shape[a] / m.bsize[a], shape[a])[0] for a in range(3)]
         corners = needed[lower[0]:lower[0] + 2, lower[1]:lower[1] + 2, lower[2]:lower[2] + 2]
         assert corners.all(), f"a stencil corner at {x} was not marched"
 
