@@ -8,11 +8,17 @@ from pathlib import Path
 
 import numpy as np  # noqa: E402
 import pytest
+from hypothesis import settings
 
 from photon_fields.runtime.scene.camera import Camera
 from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.scene.volume import make_volume
 from photon_fields.runtime.transport.medium import build_medium
+
+# No deadline for any property test: a deadline is a timed assertion, and on a busy 2-core machine one example's
+# first call (numba dispatch, imports) took 393 ms against hypothesis's default 200 ms.
+settings.register_profile("photon-fields", deadline=None)
+settings.load_profile("photon-fields")
 
 #: The repository's root (the tests live in tests/<package>/...).
 REPO = Path(__file__).resolve().parents[1]
