@@ -81,7 +81,7 @@ from photon_fields.runtime.photons.knn import indexed_radiance
 from photon_fields.runtime.photons.phase_window import PHASE_WINDOW, check_window, window_range
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.transport.medium import Medium, extinction_at
-from photon_fields.train.fit.visible_points import visible_points
+from photon_fields.train.fit.visible_points import uniform_directions, visible_points
 
 SAMPLING_MODES = ("box", "support", "visible")
 #: ``sampling="visible"``: the share of samples at the first collisions of rays from outside the volume
@@ -140,14 +140,6 @@ def check_map_for_sampling(pmap: PhotonMap, g_sampling: str) -> None:
             window_range(pmap.phases, PHASE_WINDOW)
         except InputError as exc:
             raise InputError(exc.what, f"{exc.problem}; or fit this map with --g-sampling discrete") from None
-
-
-def uniform_directions(rng: np.random.Generator, n: int) -> np.ndarray:
-    """(n, 3) uniform unit vectors: z uniform in [-1, 1], azimuth uniform (Archimedes)."""
-    z = 1.0 - 2.0 * rng.random(n)
-    phi = 2.0 * np.pi * rng.random(n)
-    s = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    return np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=1)
 
 
 class TargetSampler:

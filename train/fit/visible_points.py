@@ -26,7 +26,8 @@ from photon_fields.runtime.transport.tracking import delta_track_batch
 _MAX_RAYS = 1 << 26  # rays before giving up on a medium that (almost) nothing collides with
 
 
-def _unit_sphere(rng: np.random.Generator, n: int) -> np.ndarray:
+def uniform_directions(rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n, 3) uniform unit vectors: z uniform in [-1, 1], azimuth uniform (Archimedes)."""
     z = 1.0 - 2.0 * rng.random(n)
     phi = 2.0 * np.pi * rng.random(n)
     s = np.sqrt(np.maximum(0.0, 1.0 - z * z))
@@ -65,7 +66,7 @@ def visible_points(m: Medium, rng: np.random.Generator, n: int) -> tuple[np.ndar
     rate = 0.5
     while have < n:
         chunk = int(min(max(1.2 * (n - have) / rate, 1024), 1 << 20))
-        d = _unit_sphere(rng, chunk)
+        d = uniform_directions(rng, chunk)
         u, v = _orthonormal_frame(d)
         r = radius * np.sqrt(rng.random(chunk))[:, None]
         phi = 2.0 * np.pi * rng.random(chunk)[:, None]

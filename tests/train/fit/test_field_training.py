@@ -26,7 +26,8 @@ from photon_fields.train.fit.checkpoint import load_checkpoint  # noqa: E402
 from photon_fields.train.fit.loop import TrainingDivergedError, fit, train_step  # noqa: E402
 from photon_fields.train.fit.optimizer import TcnnAdam, lr_at  # noqa: E402
 from photon_fields.train.fit.settings import FitSettings  # noqa: E402
-from photon_fields.train.fit.targets import TargetSampler, uniform_directions  # noqa: E402
+from photon_fields.train.fit.targets import TargetSampler  # noqa: E402
+from photon_fields.train.fit.visible_points import uniform_directions  # noqa: E402
 from photon_fields.train.photons.tracing import trace_photons  # noqa: E402
 
 PHASES = (-0.75, 0.0, 0.75)
