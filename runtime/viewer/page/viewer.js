@@ -17,6 +17,7 @@ let pendingTransfer = null;     // the transfer-function editor's newest state, 
 let pendingLabels = {};         // a label scene's panel: label -> what changed, merged, sent once per animation frame
 let maxLabelEdits = 32;         // labels one message may change (the server's, from its state message)
 let lastRetrain = null;         // the last retrain status message
+let pvrtG = null;               // the g a PVRT transfer was precomputed for (the only one it renders), or null
 const sentAt = new Map();       // seq -> time sent (input-to-image latency)
 let lastLatency = null;
 const times = [];               // arrival times of the last frames (frame rate)
@@ -153,9 +154,19 @@ function showStatus(h) {
     `${h.width}x${h.height}` + (h.view_size && (h.view_size[0] !== h.width || h.view_size[1] !== h.height) ?
       ` of ${h.view_size[0]}x${h.view_size[1]}` : "") + `  spp ${h.spp}${h.denoised ? " (denoised)" : ""}${h.gathered ? ` (${h.gathered} with final gather)` : ""}\n` +
     `frame ${h.total_ms.toFixed(0)} ms  render ${(h.render_ms || 0).toFixed(0)} ms\n` +
-    `${fps.toFixed(1)} frames/s` + (lastLatency !== null ? `  input->image ${lastLatency.toFixed(0)} ms` : "");
+    `${fps.toFixed(1)} frames/s` + (lastLatency !== null ? `  input->image ${lastLatency.toFixed(0)} ms` : "") +
+    (h.pvrt ? (h.pvrt.relit ? `\nrelit from ${h.pvrt.kept_samples} kept samples` : "\ncamera rays marched") : "");
   $("message").textContent = h.warnings.length ? h.warnings.join("; ") : $("message").textContent;
   $("stale").style.display = h.stale ? "block" : "none";
+  fixG(h.renderer);
+}
+
+function fixG(renderer) {
+  // A PVRT transfer answers the g its photons scattered with only: the slider shows it and cannot move.
+  const fixed = renderer === "pvrt" && pvrtG !== null;
+  $("g").disabled = fixed;
+  $("g_note").textContent = fixed ? "(fixed by the PVRT transfer)" : "";
+  if (fixed) { $("g").value = pvrtG; $("g_value").textContent = Number(pvrtG).toFixed(2); }
 }
 
 function onRetrain(m) {
@@ -168,9 +179,11 @@ function onRetrain(m) {
 }
 
 function setRenderers(list, current) {
-  const names = {neural: "neural (photon field)", pt: "path tracer", photonmap: "photon map"};
+  const names = {neural: "neural (photon field)", pt: "path tracer", photonmap: "photon map",
+                 pvrt: "PVRT (relighting)"};
   $("renderer").innerHTML = list.map((r) => `<option value="${r}">${names[r] || r}</option>`).join("");
   $("renderer").value = current;
+  fixG(current);
 }
 
 function onText(msg) {
@@ -182,6 +195,7 @@ function onText(msg) {
 
 function buildControls(s) {
   $("title").textContent = `pfn-view: ${s.scene}`;
+  pvrtG = s.pvrt ? s.pvrt.g : null;
   setRenderers(s.renderers, s.renderer);
   // A label scene gets the label panel, a scalar one the control-point editor over its histogram.
   $("tf_box").classList.toggle("hidden", Boolean(s.labels));
@@ -247,7 +261,12 @@ canvas.addEventListener("pointermove", (e) => {
 });
 canvas.addEventListener("wheel", (e) => { e.preventDefault(); pendingZoom *= Math.exp(e.deltaY * 0.001); }, {passive: false});
 
-$("renderer").addEventListener("change", (e) => setControl("renderer", e.target.value));
+$("renderer").addEventListener("change", (e) => {
+  // PVRT renders its transfer's g only: selecting it sets g to that first (else the server refuses the switch)
+  if (e.target.value === "pvrt" && pvrtG !== null && Number($("g").value) !== pvrtG) setControl("g", pvrtG);
+  fixG(e.target.value);
+  setControl("renderer", e.target.value);
+});
 $("layer").addEventListener("change", (e) => setControl("layer", e.target.value));
 $("g").addEventListener("input", (e) => { $("g_value").textContent = Number(e.target.value).toFixed(2); setControl("g", Number(e.target.value)); });
 $("exposure").addEventListener("input", (e) => { $("exposure_value").textContent = (e.target.value >= 0 ? "+" : "") + Number(e.target.value).toFixed(1); setControl("exposure", Number(e.target.value)); });
