@@ -72,10 +72,14 @@ def marches(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     return calls
 
 
+#: Seconds to wait for a frame: with a fresh numba cache (bench/mutants.py) the first one compiles PVRT's kernels.
+FRAME_TIMEOUT = 600.0
+
+
 def frame_of(ws: ClientConnection, seq: int) -> dict:
     """The header of the first frame that includes input ``seq``."""
     while True:
-        header, _ = next_frame(ws)
+        header, _ = next_frame(ws, FRAME_TIMEOUT)
         if header["seq"] is not None and header["seq"] >= seq:
             return header
 
@@ -87,7 +91,7 @@ def test_light_change_is_render_pvrts_frame_relit_without_a_march(server: Viewer
         state = next_text(ws)
         assert state["renderers"] == ["neural", "pt", "pvrt"] and state["renderer"] == "pvrt"
         assert state["pvrt"] == {"g": pytest.approx(scene.g)}
-        header, _ = next_frame(ws)
+        header, _ = next_frame(ws, FRAME_TIMEOUT)
         assert header["renderer"] == "pvrt" and header["spp"] == 1 and not header["denoised"]
         with pytest.raises(TimeoutError):  # a resting view is one frame: nothing refines it
             ws.recv(timeout=0.5)
@@ -125,7 +129,7 @@ def test_what_the_transfer_cannot_render_is_refused_and_serving_goes_on(server: 
                                                                         needle: str) -> None:
     with connect(ws_url(server), max_size=None) as ws:
         next_text(ws)
-        next_frame(ws)
+        next_frame(ws, FRAME_TIMEOUT)
         ws.send(json.dumps(message))
         error = next_text(ws)
         assert error["type"] == "error" and needle in error["message"] and "\n" not in error["message"]
