@@ -146,7 +146,7 @@ class FieldInUse:
         """How L_i, made for the trained lights, follows the page's ``lights``: 1 without edits; with a single
         light whose only edit is its power, the ratio of the powers (exact); None otherwise (stale)."""
         def where(c: LightControl) -> tuple[Any, ...]:
-            return c.kind, c.azimuth, c.elevation, c.distance, tuple(np.asarray(c.color).tolist())
+            return c.kind, c.azimuth, c.elevation, c.distance, c.yaw, tuple(np.asarray(c.color).tolist())
 
         trained = self.lights
         if [(where(a), a.power) for a in lights] == [(where(b), b.power) for b in trained]:

@@ -23,8 +23,9 @@ report the last ``seq`` they include, which is how the page and the bench measur
 - ``{"type": "zoom", "factor": f}``: multiply the distance to the target by ``f``;
 - ``{"type": "reset_camera"}``: back to the scene's camera;
 - ``{"type": "set", "control": NAME, "value": V}``: one of :data:`CONTROLS`;
-- ``{"type": "light", "index": i, "azimuth": deg, "elevation": deg, "power": p}``: light ``i``'s direction
-  (where the light comes from) and power; ``azimuth`` / ``elevation`` / ``power`` each optional;
+- ``{"type": "light", "index": i, "azimuth": deg, "elevation": deg, "power": p, "yaw": deg}``: light ``i``'s
+  direction (where the light comes from) and power, or an environment map's rotation about the vertical axis
+  (``yaw``); each optional;
 - ``{"type": "view", "width": w, "height": h}``: the size the page shows frames at;
 - ``{"type": "screenshot"}`` (``"name"`` optional: a plain file stem): PNG + EXR + JSON into the output folder;
 - ``{"type": "transfer", "points": [{"s": f, "opacity": f, "albedo": [r, g, b]}, ...], "density_scale": f}``:
@@ -237,7 +238,7 @@ SCHEMAS: dict[str, tuple[dict[str, Check], dict[str, Check]]] = {
     "reset_camera": ({}, {}),
     "set": ({"control": choice(tuple(CONTROLS)), "value": lambda key, value: value}, {}),
     "light": ({"index": integer(0, 63)}, {"azimuth": number(-360.0, 360.0), "elevation": number(-90.0, 90.0),
-                                          "power": number(0.0, 1e6)}),
+                                          "power": number(0.0, 1e6), "yaw": number(-360.0, 360.0)}),
     "view": ({"width": integer(MIN_SIDE, MAX_SIDE), "height": integer(MIN_SIDE, MAX_SIDE)}, {}),
     "screenshot": ({}, {"name": name}),
     "transfer": ({"points": tf_points, "density_scale": number(1e-3, 1e5)}, {}),

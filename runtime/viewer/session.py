@@ -257,7 +257,9 @@ class ViewerSession:
         light = replace(s.lights[i])
         if light.kind == "environment" and ("azimuth" in f or "elevation" in f):
             raise MessageError(f"light: light {i} is an environment light: it has a power but no direction")
-        for key in ("azimuth", "elevation", "power"):
+        if "yaw" in f and light.source is None:
+            raise MessageError(f"light: light {i} is not an environment map: it has no yaw (an image to turn)")
+        for key in ("azimuth", "elevation", "power", "yaw"):
             if key in f:
                 setattr(light, key, f[key])
         lights = [*s.lights[:i], light, *s.lights[i + 1:]]
@@ -329,6 +331,9 @@ class ViewerSession:
             else:  # a new transfer function: a new medium, and the depth it gives the denoisers
                 self._denoisers.forget_medium()
             self.scene, self._scene_lights_version = scene, self._lights_version
+        # Built on the session's scene, not on the copy below, so that every frame's copy and the next light edit
+        # share it (else each light edit rebuilt the medium, the denoisers' depth and PVRT's kept samples).
+        self.scene.medium()
         return self.scene.with_overrides(g=s.g, camera=s.view.camera(width, height))
 
     def next_frame(self) -> Frame | None:

@@ -225,6 +225,10 @@ function buildControls(s) {
         `<label>elevation <span id="el${i}v">${lt.elevation.toFixed(0)}</span>&deg;</label>` +
         `<input id="el${i}" type="range" min="-90" max="90" step="1" value="${lt.elevation}">`;
     }
+    if (lt.yaw !== null && lt.yaw !== undefined) {  // an environment map: it turns about the vertical axis
+      html += `<label>rotation <span id="yw${i}v">${lt.yaw.toFixed(0)}</span>&deg;</label>` +
+        `<input id="yw${i}" type="range" min="-180" max="180" step="1" value="${lt.yaw}">`;
+    }
     const maxPower = Math.max(10, 4 * lt.power);
     html += `<label>power <span id="pw${i}v">${lt.power.toFixed(2)}</span></label>` +
       `<input id="pw${i}" type="range" min="0" max="${maxPower}" step="${maxPower / 200}" value="${lt.power}">`;
@@ -238,7 +242,7 @@ function buildControls(s) {
         send({type: "light", index: i, [key]: Number(el.value)});
       });
     };
-    hook(`az${i}`, "azimuth"); hook(`el${i}`, "elevation"); hook(`pw${i}`, "power");
+    hook(`az${i}`, "azimuth"); hook(`el${i}`, "elevation"); hook(`pw${i}`, "power"); hook(`yw${i}`, "yaw");
   });
 }
 

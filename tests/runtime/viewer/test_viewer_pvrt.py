@@ -33,7 +33,7 @@ from photon_fields.runtime.io.images import read_exr  # noqa: E402
 from photon_fields.runtime.pvrt.transfer import load_transfer, save_transfer  # noqa: E402
 from photon_fields.runtime.renderers import pvrt as pvrt_renderer  # noqa: E402
 from photon_fields.runtime.scene.camera import Camera  # noqa: E402
-from photon_fields.runtime.scene.lights import light_from_dict  # noqa: E402
+from photon_fields.runtime.scene.lights import EnvironmentMap, light_from_dict  # noqa: E402
 from photon_fields.runtime.scene.scene import Scene  # noqa: E402
 from photon_fields.runtime.viewer.cli import _main  # noqa: E402
 from photon_fields.runtime.viewer.launch import ViewerServer  # noqa: E402
@@ -124,6 +124,7 @@ def test_light_change_is_render_pvrts_frame_relit_without_a_march(server: Viewer
     ({"type": "set", "control": "g", "value": 0.5}, "precomputed for g = 0"),
     ({"type": "transfer", "points": [{"s": 0.0, "opacity": 0.5, "albedo": [1, 1, 1]}], "density_scale": 1.0},
      "transfer function"),
+    ({"type": "light", "index": 0, "yaw": 30.0}, "no yaw"),  # a directional light: no map to turn
 ])
 def test_what_the_transfer_cannot_render_is_refused_and_serving_goes_on(server: ViewerServer, message: dict,
                                                                         needle: str) -> None:
@@ -136,6 +137,31 @@ def test_what_the_transfer_cannot_render_is_refused_and_serving_goes_on(server: 
         ws.send(json.dumps({"type": "light", "index": 0, "power": 2.0, "seq": 9}))
         header = frame_of(ws, 9)
         assert header["renderer"] == "pvrt" and header["g"] == 0.0  # the refused message changed nothing
+
+
+def test_turning_an_environment_map_relights_as_render_pvrt(made: tuple[Scene, Path], tmp_path: Path,
+                                                            marches: list[int]) -> None:
+    """The page's rotation slider of an environment map (``yaw``) relights the kept samples: render_pvrt's frame of
+    the turned map, no march."""
+    scene, path = made
+    sky = np.full((8, 16, 3), 0.1)
+    sky[2:4, 3:6] = 6.0  # a bright patch, so that turning the map moves the light
+    sky_scene = replace(scene, lights=(EnvironmentMap("patch", image=sky, rotation=(10.0, 5.0, 0.0)),), _cache={})
+    session = make_session(tmp_path, renderer="pvrt", scene=sky_scene, transfer=load_transfer(path, scene))
+    before = session.next_frame().header
+    assert session.describe()["lights"][0]["yaw"] == 10.0 and not before["pvrt"]["relit"]
+    first = session._acc["L"].copy()
+    kept = len(marches)
+    session.apply(msg("light", index=0, yaw=130.0))
+    header = session.next_frame().header
+    assert header["pvrt"]["relit"] and len(marches) == kept
+    turned = replace(sky_scene, lights=(EnvironmentMap("patch", image=sky, rotation=(130.0, 5.0, 0.0)),), _cache={})
+    turned = turned.with_overrides(camera=session.state.view.camera(SIZE, SIZE))
+    expected = pvrt_renderer.render_pvrt(turned, transfer=load_transfer(path, scene), seed=5, progress=False).layers
+    for layer in ("L", "L_i", "L_e"):
+        np.testing.assert_allclose(session._acc[layer], expected[layer], rtol=1e-5,
+                                   atol=1e-6 * expected[layer].max(), err_msg=layer)
+    assert np.abs(session._acc["L"] - first).mean() > 0.05 * first.mean()  # the turn is visible
 
 
 def test_session_refuses_pvrt_at_another_g_or_transfer_function(made: tuple[Scene, Path], tmp_path: Path) -> None:
