@@ -31,12 +31,14 @@ report the last ``seq`` they include, which is how the page and the bench measur
 - ``{"type": "transfer", "points": [{"s": f, "opacity": f, "albedo": [r, g, b]}, ...], "density_scale": f}``:
   the transfer function (1 to :data:`MAX_TF_POINTS` points, ``s`` strictly increasing in [0, 1], opacity and
   albedo in [0, 1]; the model is :class:`photon_fields.runtime.scene.transfer.TransferFunction`);
-- ``{"type": "labels", "labels": {"3": {"albedo": [r, g, b], "opacity": o, "visible": true}, ...}}``: a label
-  scene's label panel (1 to :data:`MAX_LABEL_EDITS` labels, each a decimal integer string with at least one of
-  ``albedo`` (three numbers in [0, 1]), ``opacity`` (in [0, 1]) and ``visible`` (a boolean)); labels it does not
-  list keep their settings, so "show all" on a volume of many labels is several messages. Whether the labels
-  are in the volume is the session's check (:class:`photon_fields.runtime.viewer.transfer_edit.LabelPanel`);
-  the model is :class:`photon_fields.runtime.scene.labels.LabelTransfer`;
+- ``{"type": "labels", "labels": {"3": {"albedo": [r, g, b], "opacity": o, "visible": true}, ...},
+  "density_scale": f}``: a label scene's label panel (1 to :data:`MAX_LABEL_EDITS` labels, each a decimal integer
+  string with at least one of ``albedo`` (three numbers in [0, 1]), ``opacity`` (in [0, 1]) and ``visible`` (a
+  boolean); ``density_scale``, the extinction of opacity 1, in the ``transfer`` message's range; either key may be
+  left out, not both); labels it does not list keep their settings, so "show all" on a volume of many labels is
+  several messages. Whether the labels are in the volume is the session's check
+  (:class:`photon_fields.runtime.viewer.transfer_edit.LabelPanel`); the model is
+  :class:`photon_fields.runtime.scene.labels.LabelTransfer`;
 - ``{"type": "retrain", "action": "start" | "cancel"}``: start a background retrain of the field for the
   scene as edited now, or cancel the running one.
 """
@@ -230,6 +232,8 @@ def label_edits(key: str, value: Any) -> list[dict[str, Any]]:
     return edits
 
 
+#: A transfer function's density scale (the extinction of opacity 1), in a ``transfer`` or a ``labels`` message.
+DENSITY_SCALE = number(1e-3, 1e5)
 #: Per message type: (required keys, optional keys), each key -> check. ``seq`` is optional everywhere.
 SCHEMAS: dict[str, tuple[dict[str, Check], dict[str, Check]]] = {
     "orbit": ({"dx": number(-360.0, 360.0), "dy": number(-180.0, 180.0)}, {}),
@@ -241,8 +245,8 @@ SCHEMAS: dict[str, tuple[dict[str, Check], dict[str, Check]]] = {
                                           "power": number(0.0, 1e6), "yaw": number(-360.0, 360.0)}),
     "view": ({"width": integer(MIN_SIDE, MAX_SIDE), "height": integer(MIN_SIDE, MAX_SIDE)}, {}),
     "screenshot": ({}, {"name": name}),
-    "transfer": ({"points": tf_points, "density_scale": number(1e-3, 1e5)}, {}),
-    "labels": ({"labels": label_edits}, {}),
+    "transfer": ({"points": tf_points, "density_scale": DENSITY_SCALE}, {}),
+    "labels": ({}, {"labels": label_edits, "density_scale": DENSITY_SCALE}),
     "retrain": ({"action": choice(("start", "cancel"))}, {}),
 }
 SEQ = integer(0, (1 << 53) - 1)
@@ -298,6 +302,8 @@ def validate(data: Any) -> Message:
     fields = {key: check(key, data[key]) for key, check in {**required, **optional}.items() if key in data}
     if kind == "set":
         fields["value"] = CONTROLS[fields["control"]](fields["control"], data["value"])
+    if kind == "labels" and not fields:
+        raise MessageError("labels: missing 'labels' or 'density_scale' (at least one)")
     if kind == "view" and fields["width"] * fields["height"] > MAX_PIXELS:
         raise MessageError(f"view: {fields['width']}x{fields['height']} is more than {MAX_PIXELS} pixels")
     seq = SEQ("seq", data["seq"]) if "seq" in data else None

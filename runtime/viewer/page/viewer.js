@@ -15,6 +15,7 @@ let pendingPan = null;
 let pendingZoom = 1.0;
 let pendingTransfer = null;     // the transfer-function editor's newest state, sent once per animation frame
 let pendingLabels = {};         // a label scene's panel: label -> what changed, merged, sent once per animation frame
+let pendingLabelDensity = null; // a label scene's density scale, sent once per animation frame
 let maxLabelEdits = 32;         // labels one message may change (the server's, from its state message)
 let lastRetrain = null;         // the last retrain status message
 let pvrtG = null;               // the g a PVRT transfer was precomputed for (the only one it renders), or null
@@ -51,6 +52,7 @@ function flushInput() {
     send({type: "labels", labels: Object.fromEntries(labels.slice(i, i + maxLabelEdits).map((k) => [k, pendingLabels[k]]))});
   }
   pendingLabels = {};
+  if (pendingLabelDensity !== null) { send({type: "labels", density_scale: pendingLabelDensity}); pendingLabelDensity = null; }
   requestAnimationFrame(flushInput);
 }
 
@@ -203,6 +205,7 @@ function buildControls(s) {
   if (s.labels) {
     labelPanel.load(s.labels);
     maxLabelEdits = s.labels.max_edits;
+    $("label_density").value = 0; $("label_density_value").textContent = s.labels.density_scale.toPrecision(3);
   } else {
     tfEditor.load(s.transfer, s.histogram);
     $("density").value = 0; $("density_value").textContent = s.transfer.density_scale.toPrecision(3);
@@ -292,6 +295,9 @@ $("density").addEventListener("input", (e) => {
 });
 const labelPanel = createLabelPanel($("label_rows"), (changes) => {
   for (const [label, edit] of Object.entries(changes)) pendingLabels[label] = {...(pendingLabels[label] || {}), ...edit};
+}, (density) => { pendingLabelDensity = density; });
+$("label_density").addEventListener("input", (e) => {
+  $("label_density_value").textContent = labelPanel.setDensityFactor(Math.pow(10, Number(e.target.value))).toPrecision(3);
 });
 $("labels_show_all").addEventListener("click", () => labelPanel.showAll());
 $("labels_hide_all").addEventListener("click", () => labelPanel.hideAll());
