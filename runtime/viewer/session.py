@@ -331,9 +331,6 @@ class ViewerSession:
             else:  # a new transfer function: a new medium, and the depth it gives the denoisers
                 self._denoisers.forget_medium()
             self.scene, self._scene_lights_version = scene, self._lights_version
-        # Built on the session's scene, not on the copy below, so that every frame's copy and the next light edit
-        # share it (else each light edit rebuilt the medium, the denoisers' depth and PVRT's kept samples).
-        self.scene.medium()
         return self.scene.with_overrides(g=s.g, camera=s.view.camera(width, height))
 
     def next_frame(self) -> Frame | None:
@@ -363,6 +360,11 @@ class ViewerSession:
                 self._acc, self._samples, self._gathered = {}, 0, 0
             self._acc_size = size
             scene = self._scene_for(s, *size)
+            source = self.scene  # replaced by this thread only
+        # The medium, built (outside the lock: tens of ms and more) for this frame's copy, is kept on the session's
+        # scene too, so that later frames and the next light edit share it (else each light edit rebuilt the medium,
+        # the denoisers' depth and PVRT's kept samples when the scene's medium was not built before the first frame).
+        source._cache.setdefault("medium", scene.medium())
         timings: dict[str, float] = {}
         warnings = self.field.warnings(s.renderer, s.transfer, s.lights, self.updater)
         # Deterministic frames are never denoised: no denoiser (nor its depth estimator) is built for them; a switch
