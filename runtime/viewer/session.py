@@ -382,10 +382,13 @@ class ViewerSession:
             timings["render_ms"] = (time.perf_counter() - t) * 1e3
             with self.lock:
                 if self._acc_generation == generation:
-                    if not self._acc:
-                        self._acc = {k: np.zeros(layers[k].shape, np.float64) for k in ACCUMULATED_LAYERS}
-                    for k in ACCUMULATED_LAYERS:
-                        self._acc[k] += layers[k]
+                    if not progressive(s.renderer):  # the one frame of the view is its image: kept as it is
+                        self._acc = {k: layers[k] for k in ACCUMULATED_LAYERS}  # no float64 copies to sum
+                    else:
+                        if not self._acc:
+                            self._acc = {k: np.zeros(layers[k].shape, np.float64) for k in ACCUMULATED_LAYERS}
+                        for k in ACCUMULATED_LAYERS:
+                            self._acc[k] += layers[k]
                     self._samples += 1
                     self._gathered += int(gather)
         with self.lock:
