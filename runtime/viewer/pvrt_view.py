@@ -14,6 +14,7 @@ The transfer answers one medium and one g only (:meth:`photon_fields.runtime.pvr
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -55,6 +56,10 @@ class PvrtView:
         not the kept one, else relit from the kept samples."""
         from photon_fields.runtime.renderers.pvrt import Relighting, render_pvrt
 
+        if scene.tf is not self.tf:  # an edit undone (check() passed it): the scene's medium, named otherwise
+            # (a label panel's function names every label present, the scene's only some: another fingerprint, which
+            # the transfer's scene check would refuse); rendered as the scene's function, on the same medium
+            scene = replace(scene, tf=self.tf, _cache={"medium": scene.medium()})
         kept = self._relighting
         if moving:
             self._relighting = None  # the view is on its way elsewhere: its samples would not be read again

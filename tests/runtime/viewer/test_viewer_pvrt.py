@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pytest
 from conftest import tiny_scene_dict
-from viewer_helpers import SIZE, inputs, make_session, msg, tiny_scene, tiny_transfer
+from viewer_helpers import BALL, CUBE, SIZE, inputs, label_scene_file, make_session, msg, tiny_scene, tiny_transfer
 
 pytest.importorskip("uvicorn")
 pytest.importorskip("starlette")
@@ -34,7 +34,7 @@ from photon_fields.runtime.pvrt.transfer import load_transfer, save_transfer  # 
 from photon_fields.runtime.renderers import pvrt as pvrt_renderer  # noqa: E402
 from photon_fields.runtime.scene.camera import Camera  # noqa: E402
 from photon_fields.runtime.scene.lights import EnvironmentMap, light_from_dict  # noqa: E402
-from photon_fields.runtime.scene.scene import Scene  # noqa: E402
+from photon_fields.runtime.scene.scene import Scene, load_scene  # noqa: E402
 from photon_fields.runtime.viewer.cli import _main  # noqa: E402
 from photon_fields.runtime.viewer.launch import ViewerServer  # noqa: E402
 from photon_fields.runtime.viewer.messages import MessageError  # noqa: E402
@@ -176,6 +176,27 @@ def test_session_refuses_pvrt_at_another_g_or_transfer_function(made: tuple[Scen
     with pytest.raises(MessageError, match="edited"):
         session.apply(msg("set", control="renderer", value="pvrt"))
     assert session.state.renderer == "pt"
+
+
+def test_a_label_edit_undone_renders_with_pvrt(tmp_path: Path) -> None:
+    """Hiding a label and showing it again gives the scene's medium back, as the panel's function, which names every
+    label present (here the background too, which the scene's function leaves out: another fingerprint): pvrt is
+    allowed again and renders it, as the scene's own function."""
+    path = label_scene_file(tmp_path / "labels")
+    spec = json.loads(path.read_text())
+    spec["transfer_function"] = {"labels": {str(BALL): {"albedo": [0.9, 0.3, 0.2], "opacity": 1.0},
+                                            str(CUBE): {"albedo": [0.2, 0.5, 0.9], "opacity": 0.8}}}
+    path.write_text(json.dumps(spec))
+    scene = load_scene(path)
+    session = make_session(tmp_path, renderer="pt", scene=scene, transfer=tiny_transfer(scene))
+    session.apply(msg("labels", labels={str(CUBE): {"visible": False}}))
+    with pytest.raises(MessageError, match="edited"):
+        session.apply(msg("set", control="renderer", value="pvrt"))
+    session.apply(msg("labels", labels={str(CUBE): {"visible": True}}))
+    session.apply(msg("set", control="renderer", value="pvrt"))
+    header = session.next_frame().header
+    assert header["renderer"] == "pvrt" and header["pvrt"]["kept_samples"] > 0
+    assert session._acc["L"].max() > 0
 
 
 def test_a_resting_pvrt_view_is_one_frame_without_a_denoiser(made: tuple[Scene, Path], tmp_path: Path) -> None:
