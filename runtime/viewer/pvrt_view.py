@@ -28,11 +28,10 @@ from photon_fields.runtime.viewer.updater import same_transfer
 
 class PvrtView:
     """A session's PVRT transfer and the kept samples of its resting view (module docstring). Used by the render
-    thread only; ``marches`` counts the frames that marched the camera rays (the rest were relit)."""
+    thread only; :attr:`last` says how the last frame was made (relit from kept samples or marched)."""
 
     def __init__(self, transfer: Any, tf: TransferFunction | LabelTransfer) -> None:
         self.transfer, self.tf = transfer, tf  # tf: the scene's transfer function, which the transfer was made for
-        self.marches = 0
         self._relighting: Any = None  # Relighting of the resting view, or None
         self.last: dict[str, Any] = {}  # how the last frame was made, for its header
 
@@ -63,7 +62,6 @@ class PvrtView:
         kept = self._relighting
         if moving:
             self._relighting = None  # the view is on its way elsewhere: its samples would not be read again
-            self.marches += 1
             self.last = {"relit": False, "kept_samples": 0}
             return render_pvrt(scene, transfer=self.transfer, seed=seed, progress=False).layers
         if kept is None or not _same_view(kept.scene, scene):
@@ -72,7 +70,6 @@ class PvrtView:
         else:
             fresh = False
         marched = fresh or not kept.kept  # a view with too many samples to keep marches every frame
-        self.marches += int(marched)
         self.last = {"relit": not marched, "kept_samples": kept.samples}
         return kept.render(scene.lights).layers
 
