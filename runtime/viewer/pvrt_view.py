@@ -5,8 +5,8 @@ lighting gives (:mod:`photon_fields.runtime.renderers.pvrt`). Its camera samples
 and g only, so while the camera rests a light change needs no march: :class:`PvrtView` keeps a
 :class:`photon_fields.runtime.renderers.pvrt.Relighting` of the resting view and relights it. A moving frame is
 one plain :func:`photon_fields.runtime.renderers.pvrt.render_pvrt` (one march; keeping samples costs two, and the
-next frame has another camera anyway); the first resting frame of a new view keeps its samples, and so does the
-first light change after a move that left no resting frame.
+next frame has another camera anyway); the resting frame of a view keeps its samples (the session renders one
+after a moving frame of a deterministic renderer, :class:`photon_fields.runtime.viewer.session.ViewerSession`).
 
 The transfer answers one medium and one g only (:meth:`photon_fields.runtime.pvrt.transfer.Transfer.check_scene`):
 :meth:`PvrtView.check` refuses, as one message line, a g or a transfer-function edit it cannot render.

@@ -35,7 +35,8 @@ Frame headers carry the frame's size and the view it is for (``view_size``): the
 
 Deterministic renderers (the renderer table's ``progressive`` is False: PVRT, ``pfn-view --transfer``): a frame of
 theirs is the same image whatever its sample index, so a resting view takes one frame, and it is neither accumulated
-further nor denoised. PVRT keeps the resting view's camera samples, so that a light change is only a relit frame
+further nor denoised. A moving frame of theirs is followed, once the camera rests, by the resting view's own frame:
+PVRT keeps that view's camera samples, so that a light change is only a relit frame
 (:class:`photon_fields.runtime.viewer.pvrt_view.PvrtView`).
 
 Final gather at rest: from sample :attr:`ViewerSession.gather_after` of a resting view on, neural frames take one
@@ -157,6 +158,9 @@ class ViewerSession:
         self._samples = 0
         self._gathered = 0  # samples of the accumulation that took the final gather
         self._acc_size: tuple[int, int] = (0, 0)  # (width, height) of the accumulation
+        # The accumulation is a deterministic renderer's moving frame: the view, once at rest, takes a frame of its
+        # own (the one PVRT keeps its camera samples in, so that the next light change is only a relit frame).
+        self._unrested = False
         self._auto_stops: float | None = None
         self._denoisers = FrameDenoisers()
         self._last_header: dict[str, Any] = {}
@@ -307,8 +311,8 @@ class ViewerSession:
         """Whether :meth:`next_frame` has anything to do (call with :attr:`lock` held)."""
         if self.redisplay or self.generation != self._acc_generation:
             return True
-        if self._acc_size != (self.state.width, self.state.height):
-            return True  # the last frame was a reduced moving frame: the resting view needs a full-size one
+        if self._acc_size != (self.state.width, self.state.height) or self._unrested:
+            return True  # the last frame was a (reduced) moving frame: the resting view needs its own
         return self._samples < self.target_spp(self.state)
 
     def wait_for_work(self, stop: threading.Event, timeout: float = 0.5) -> bool:
@@ -345,7 +349,7 @@ class ViewerSession:
             generation, cut, seq, reexpose = self.generation, self.cut, self.last_seq, self.reexpose
             full = (s.width, s.height)
             render = (generation != self._acc_generation or self._samples < self.target_spp(s)
-                      or self._acc_size != full)
+                      or self._acc_size != full or self._unrested)
             self.cut = self.redisplay = self.reexpose = False
             if generation != self._acc_generation:
                 moved_only = not cut
@@ -356,9 +360,13 @@ class ViewerSession:
             scale = DRAG_LEVELS[self.drag_level] if s.drag_scale == "auto" else float(s.drag_scale)
             if moved_only and scale < 1.0:
                 size = (max(MIN_SIDE, round(s.width * scale)), max(MIN_SIDE, round(s.height * scale)))
-            if render and self._acc_size != size:  # a reduced moving frame before: rest starts a full-size one
+            # the resting frame of a view whose deterministic moving frame is shown already: the same image, so it is
+            # dropped, as a refinement is, when the view changes while it renders
+            settling = render and self._unrested and not moved_only
+            if render and (self._acc_size != size or self._unrested):  # a moving frame before: rest starts anew
                 self._acc, self._samples, self._gathered = {}, 0, 0
             self._acc_size = size
+            self._unrested = render and moved_only and not progressive(s.renderer)
             scene = self._scene_for(s, *size)
             source = self.scene  # replaced by this thread only
         # The medium, built (outside the lock: tens of ms and more) for this frame's copy, is kept on the session's
@@ -373,7 +381,7 @@ class ViewerSession:
         denoiser = self._denoisers.for_frame(scene, size, full, cut) if denoise else None
         if reexpose:
             self._auto_stops = None
-        refining = render and self._samples > 0
+        refining = render and (self._samples > 0 or settling)
         gather = render and not moved_only and self.gathers(s.renderer, self._samples)
         if render:
             t = time.perf_counter()
@@ -463,7 +471,7 @@ class ViewerSession:
         with self.lock:
             self._acc_generation = self.generation
             self._samples = max(self._samples, self.state.max_spp)
-            self.redisplay = False
+            self.redisplay = self._unrested = False
 
     def _render(self, scene: Scene, s: ViewState, n: int, gather: bool, moving: bool) -> dict[str, np.ndarray]:
         """Frame ``n`` of the accumulation of state ``s`` (module docstring for the seeds), with the final gather

@@ -199,6 +199,29 @@ def test_a_label_edit_undone_renders_with_pvrt(tmp_path: Path) -> None:
     assert session._acc["L"].max() > 0
 
 
+def test_a_camera_move_marches_and_the_view_at_rest_keeps_its_samples(made: tuple[Scene, Path], tmp_path: Path,
+                                                                      marches: list[int]) -> None:
+    """A moving pvrt frame is one march; once the camera rests, one more frame keeps the view's samples (the same
+    image), so that the first light change after a move is relit too."""
+    scene, path = made
+    session = make_session(tmp_path, renderer="pvrt", scene=scene, transfer=load_transfer(path, scene))
+    session.next_frame()
+    session.apply(msg("orbit", dx=15.0, dy=0.0))
+    count = len(marches)
+    moving = session.next_frame()
+    assert moving.header["moving"] and moving.header["pvrt"] == {"relit": False, "kept_samples": 0}
+    assert len(marches) == count + 1  # render_pvrt: one march
+    image = session._acc["L"].copy()
+    assert session.wants_frame()
+    rest = session.next_frame().header
+    assert not rest["moving"] and rest["pvrt"]["kept_samples"] > 0 and rest["spp"] == 1
+    np.testing.assert_allclose(session._acc["L"], image, rtol=1e-5, atol=1e-6 * image.max())
+    assert not session.wants_frame()
+    session.apply(msg("light", index=0, azimuth=75.0))
+    count = len(marches)
+    assert session.next_frame().header["pvrt"]["relit"] and len(marches) == count
+
+
 def test_a_resting_pvrt_view_is_one_frame_without_a_denoiser(made: tuple[Scene, Path], tmp_path: Path) -> None:
     scene, path = made
     session = make_session(tmp_path, renderer="pvrt", scene=scene, transfer=load_transfer(path, scene))
