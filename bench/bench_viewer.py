@@ -26,6 +26,13 @@ processes than the bench and the viewer; another busy process on the machine hal
     .venv/bin/python bench/bench_viewer.py --renderers pt --drag-seconds 4              # no bundle
     .venv/bin/python bench/bench_viewer.py --bundle RUN/field.pfn --renderers neural --drag-scales 1,auto --retrain 0.7
 
+``--transfer NAME.pvrt`` adds the pvrt renderer (``pfn-view --transfer``): after its camera phases above, the same two
+phases with the light instead of the camera (issue 18: relighting): a drag of light 0's azimuth slider (``light``
+messages at ``--input-hz``) and single light changes from rest, each timed to the first frame that includes it;
+the share of those frames relit from the kept camera samples (no march) is reported.
+
+    .venv/bin/python bench/bench_viewer.py --transfer vortex.pvrt --renderers pvrt --drag-seconds 4 --moves 14
+
 ``--retrain SCALE`` (last): a transfer-function edit (every opacity times SCALE) as the page's editor sends it;
 frames/s while dragging (at the last of ``--drag-scales``) during the background retrain, and the time from the
 edit to the swapped-in field (issue 15: >= 4 frames/s at 512x512 while a retrain runs). A bundle inside its run
@@ -49,6 +56,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -152,15 +160,36 @@ def p90(xs: list[float]) -> float | None:
     return round(sorted(xs)[int(0.9 * (len(xs) - 1))], 2) if xs else None
 
 
-def drag(client: Client, seconds: float, hz: float, pid: int) -> dict[str, Any]:
-    """Orbit messages at ``hz`` for ``seconds``; frames/s and per-frame latency (arrival - newest input sent)."""
+Input = Callable[[int], dict[str, Any]]
+
+
+def orbit(step: float) -> Input:
+    """The ``i``-th input of a camera drag: an orbit by ``step`` degrees."""
+    return lambda i: {"type": "orbit", "dx": step, "dy": 0.0}
+
+
+DRAG_ORBIT, MOVE_ORBIT = orbit(0.5), orbit(2.0)  # a mouse drag's step, a single move's
+
+
+def turn_light(step: float) -> Input:
+    """The ``i``-th input of a light drag: light 0's azimuth slider, ``step`` degrees a message from where the scene
+    has it (wrapping at 180, as the page's slider cannot but the message allows)."""
+    base = STATE["lights"][0]["azimuth"]
+    return lambda i: {"type": "light", "index": 0, "azimuth": round((base + step * (i + 1) + 180) % 360 - 180, 3)}
+
+
+def drag(client: Client, seconds: float, hz: float, pid: int, make: Input = DRAG_ORBIT) -> dict[str, Any]:
+    """Inputs (``make(i)``; default: orbit messages) at ``hz`` for ``seconds``; frames/s and per-frame latency
+    (arrival - newest input sent)."""
     stop = threading.Event()
 
     def sender() -> None:
         period = 1.0 / hz
         nxt = time.perf_counter()
+        i = 0
         while not stop.is_set():
-            client.send({"type": "orbit", "dx": 0.5, "dy": 0.0})
+            client.send(make(i))
+            i += 1
             nxt += period
             time.sleep(max(0.0, nxt - time.perf_counter()))
 
@@ -185,27 +214,36 @@ def drag(client: Client, seconds: float, hz: float, pid: int) -> dict[str, Any]:
     span = arrivals[-1] - arrivals[0] if len(arrivals) > 1 else float("nan")
     return {"frames_per_s": round((len(arrivals) - 1) / span, 2) if len(arrivals) > 1 else 0.0,
             "frames": len(arrivals), "latency_ms_median": median(lat), "latency_ms_p90": p90(lat),
-            "spp_max": max((h["spp"] for h in headers), default=None),
+            "spp_max": max((h["spp"] for h in headers), default=None), **relit_share(headers),
             "server_ms_median": {k: median([h[k] for h in headers if k in h])
                                  for k in ("render_ms", "denoise_ms", "encode_ms", "total_ms")},
             "other_cores": load.other_cores, "viewer_cores": load.viewer_cores}
 
 
-def first_after_move(client: Client, moves: int, rest: float, pid: int) -> dict[str, Any]:
-    """From rest: one orbit message, then the time to the first frame that includes it."""
-    lat = []
+def relit_share(headers: list[dict[str, Any]]) -> dict[str, Any]:
+    """For pvrt frames: how many were relit from kept camera samples (no march); nothing for other renderers."""
+    pvrt = [h["pvrt"] for h in headers if h.get("pvrt")]
+    return {"relit_frames": sum(p["relit"] for p in pvrt), "pvrt_frames": len(pvrt)} if pvrt else {}
+
+
+def first_after_move(client: Client, moves: int, rest: float, pid: int, make: Input = MOVE_ORBIT) -> dict[str, Any]:
+    """From rest: one input (``make(i)``; default: an orbit message), then the time to the first frame that
+    includes it."""
+    lat, headers = [], []
     rng = random.Random(1)
     with Foreign(pid) as load:
-        for _ in range(moves):
+        for i in range(moves):
             # A random rest in [rest, 2 rest]: a fixed one would send every move at the same phase of the frame
             # in flight, and the latency would depend on that phase rather than on the viewer.
             time.sleep(rest * (1.0 + rng.random()))
             client.drain()
-            seq = client.send({"type": "orbit", "dx": 2.0, "dy": 0.0})
-            t, _ = client.wait_frame(lambda h, s=seq: h["seq"] is not None and h["seq"] >= s)
+            seq = client.send(make(i))
+            t, h = client.wait_frame(lambda h, s=seq: h["seq"] is not None and h["seq"] >= s)
             lat.append((t - client.sent[seq]) * 1e3)
+            headers.append(h)
     return {"latency_ms": [round(x, 1) for x in lat], "latency_ms_median": median(lat), "latency_ms_p90": p90(lat),
-            "other_cores": load.other_cores, "viewer_cores": load.viewer_cores}
+            "server_ms_median": {k: median([h[k] for h in headers if k in h]) for k in ("render_ms", "total_ms")},
+            **relit_share(headers), "other_cores": load.other_cores, "viewer_cores": load.viewer_cores}
 
 
 def retrain_cycle(client: Client, scale: float, seconds: float, hz: float, pid: int) -> dict[str, Any]:
@@ -290,6 +328,8 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--scene", default="vortex")
     p.add_argument("--bundle", default=None, help="a bundle of the scene (enables the neural renderer)")
+    p.add_argument("--transfer", default=None, help="a PVRT transfer of the scene (enables the pvrt renderer and its "
+                   "light phases)")
     p.add_argument("--renderers", default=None, help="comma list of neural, pt (default: neural if --bundle, pt)")
     p.add_argument("--size", default="512x512")
     p.add_argument("--drag-scales", default="1",
@@ -308,15 +348,20 @@ def main() -> int:
                    help="last: a long session of drags, zooms and control changes; the viewer's memory over it")
     p.add_argument("--out", default=str(REPO / "bench" / "results" / "viewer.json"))
     args = p.parse_args()
-    renderers = args.renderers.split(",") if args.renderers else (["neural"] if args.bundle else []) + ["pt"]
+    renderers = args.renderers.split(",") if args.renderers else ((["neural"] if args.bundle else []) + ["pt"]
+                                                                   + (["pvrt"] if args.transfer else []))
     scales: list[float | str] = [x if x == "auto" else float(x) for x in args.drag_scales.split(",")]
     if "neural" in renderers and not args.bundle:
         raise SystemExit("the neural renderer needs --bundle")
+    if "pvrt" in renderers and not args.transfer:
+        raise SystemExit("the pvrt renderer needs --transfer")
     info = machine_info()
     view = [sys.executable, "-m", "photon_fields.runtime.viewer.cli", args.scene, "--size", args.size, "--no-browser",
             "--quiet", "--drag-scale", "1", "--out", tempfile.mkdtemp(prefix="bench_viewer_")]
     if args.bundle:
         view += ["--bundle", args.bundle]
+    if args.transfer:
+        view += ["--transfer", args.transfer]
     if args.threads:
         view += ["--threads", str(args.threads)]
     view += ["--retrain-photons", args.retrain_photons]
@@ -337,7 +382,7 @@ def main() -> int:
               f"{startup['first_frame_s']} s")
         for name in renderers:
             client.send({"type": "set", "control": "renderer", "value": name})
-            client.wait_frame(lambda h, n=name: h["renderer"] == n and h["spp"] >= 2)
+            client.wait_frame(lambda h, n=name: h["renderer"] == n and h["spp"] >= (1 if n == "pvrt" else 2))
             d = drag(client, args.drag_seconds, args.input_hz, proc.pid)
             m = first_after_move(client, args.moves, args.rest, proc.pid)
             results[name] = {"drag": d, "first_frame_after_move": m}
@@ -358,6 +403,18 @@ def main() -> int:
                   f"{d['server_ms_median']}; other cores {d['other_cores']})")
             print(f"{name:7s} first frame after a move: median {m['latency_ms_median']} ms, p90 "
                   f"{m['latency_ms_p90']} ms (other cores {m['other_cores']})")
+            if name == "pvrt":  # relighting: the light moves, the camera rests
+                results[name]["light_drag"] = ld = drag(client, args.drag_seconds, args.input_hz, proc.pid,
+                                                        turn_light(1.0))
+                results[name]["first_frame_after_light_change"] = lm = first_after_move(
+                    client, args.moves, args.rest, proc.pid, turn_light(15.0))
+                print(f"pvrt    dragging the light: {ld['frames_per_s']:5.1f} frames/s (input->image median "
+                      f"{ld['latency_ms_median']} ms, p90 {ld['latency_ms_p90']} ms; server per frame "
+                      f"{ld['server_ms_median']}; relit {ld.get('relit_frames')} of {ld.get('pvrt_frames')}; other "
+                      f"cores {ld['other_cores']})")
+                print(f"pvrt    first frame after a light change: median {lm['latency_ms_median']} ms, p90 "
+                      f"{lm['latency_ms_p90']} ms (server {lm['server_ms_median']}; relit {lm.get('relit_frames')} of "
+                      f"{lm.get('pvrt_frames')}; other cores {lm['other_cores']})")
         if args.retrain is not None:
             client.send({"type": "set", "control": "renderer", "value": renderers[0]})
             client.send({"type": "set", "control": "drag_scale", "value": scales[-1]})  # the last one measured
@@ -377,7 +434,8 @@ def main() -> int:
     finally:
         proc.terminate()
         proc.wait(30)
-    config = {"scene": args.scene, "bundle": args.bundle, "size": args.size, "renderers": renderers,
+    config = {"scene": args.scene, "bundle": args.bundle, "transfer": args.transfer, "size": args.size,
+              "renderers": renderers,
               "drag_seconds": args.drag_seconds, "input_hz": args.input_hz, "moves": args.moves, "rest_s": args.rest,
               "threads": args.threads, "drag_scales": scales, "retrain": args.retrain,
               "retrain_photons": args.retrain_photons, "soak_s": args.soak}

@@ -62,6 +62,7 @@ ENVRENDER = "tests/runtime/renderers/test_environment_map_render.py"
 PVRT_CLI = "tests/train/cli/test_pvrt_cli.py"
 PVRT_PT = "tests/runtime/pvrt/test_pvrt_vs_path_tracer.py"
 PVRT_MARCH = "tests/runtime/pvrt/test_pvrt_march.py"
+VPVRT = "tests/runtime/viewer/test_viewer_pvrt.py"
 
 
 @dataclass(frozen=True)
@@ -463,6 +464,11 @@ MUTANTS: tuple[Mutant, ...] = (
            (f"{PVRT_MARCH}::test_relighting_gives_render_pvrts_frames",),
            "a relit frame takes the last frame's light volumes when the directional lights' colours are unchanged, "
            "although they moved"),
+    Mutant("pvrt_view_relights_stale_lights", "runtime/viewer/pvrt_view.py",
+           "return kept.render(scene.lights).layers", "return kept.render(kept.scene.lights).layers",
+           (f"{VPVRT}::test_light_change_is_render_pvrts_frame_relit_without_a_march",),
+           "the viewer relights its kept samples with the lights they were marched under, not the page's edited "
+           "ones (a light change shows the old light)"),
 )
 
 

@@ -103,6 +103,10 @@ class Renderer:
     """Its own settings."""
     input: str | None = None
     """What the command line loads for it: a key of :data:`INPUTS`, or None."""
+    progressive: bool = True
+    """Whether its frames are noisy estimates that average to the image (another seed, another frame). False for a
+    renderer whose frame is the same for every sample index of one seed (a fixed jittered march): a viewer then
+    renders one frame per view and neither accumulates nor denoises it."""
 
     def render_function(self) -> Callable[..., Any]:
         """The render function itself."""
@@ -148,5 +152,5 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
                      one_of(("nee", "transfer"))),
               Option("--light-grid", "light_grid", "pvrt --direct nee: light-volume cells along the box's longest "
                      "side", int, 64, int_in(4, 512))),
-             input="transfer"),
+             input="transfer", progressive=False),
 )}

@@ -2,6 +2,7 @@
 
     pfn-view vortex --bundle runs/vortex/field.pfn   # the neural renderer; prints the page's address
     pfn-view my_scene.json                            # no bundle: the path tracer
+    pfn-view vortex --transfer vortex.pvrt            # adds PVRT relighting (pfn-train pvrt vortex --out ...)
 
 Binds to 127.0.0.1 unless ``--host`` says otherwise (with a warning: the page can drive renders and write
 screenshots). Bad input is refused in one ``error:`` line with exit status 2, before anything is served.
@@ -30,7 +31,11 @@ def build_parser() -> OneLineArgumentParser:
                    help="builtin scene (vortex, blobs, shell, head) or a scene JSON file (default: the bundle's)")
     p.add_argument("--bundle", default=None, help="photon-field bundle (NAME.pfn): enables the neural renderer")
     p.add_argument("--map", default=None, help="photon map (.npz): enables the photon-map renderer")
-    p.add_argument("--renderer", default=None, choices=["neural", "pt", "photonmap"],
+    p.add_argument("--transfer", default=None,
+                   help="PVRT transfer (NAME.pvrt, from pfn-train pvrt): enables the pvrt renderer, which relights "
+                        "the resting view at once when a light moves; it must match the scene's volume, transfer "
+                        "function and g")
+    p.add_argument("--renderer", default=None, choices=["neural", "pt", "photonmap", "pvrt"],
                    help="renderer to start with (default: neural with --bundle, else pt)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=int, default=0, help="port (default 0: any free port)")
@@ -99,7 +104,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
     server = start(args.scene, bundle=args.bundle, map=args.map, out=args.out, size=size, host=args.host,
                    port=args.port, seed=args.seed, threads=args.threads, force=args.force, renderer=args.renderer,
                    max_spp=args.max_spp, drag_scale=args.drag_scale, retrain=retrain,
-                   gather_after=args.final_gather_after)
+                   gather_after=args.final_gather_after, transfer=args.transfer)
     if not is_loopback(args.host):
         print(f"warning: listening on {args.host}: anyone who can reach it can drive renders and write screenshots "
               f"into {args.out}", file=sys.stderr)

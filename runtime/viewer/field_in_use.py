@@ -7,6 +7,11 @@ both; :class:`FieldInUse` says what follows from an edit:
 - anything else (another transfer function, a moved light, a power edit among several lights): L_i is *stale*.
   Frames say so, and the session's :class:`photon_fields.runtime.viewer.updater.FieldUpdater` retrains in the
   background; :meth:`FieldInUse.from_job` loads the result, which the session swaps in.
+
+A PVRT transfer (:class:`photon_fields.runtime.viewer.pvrt_view.PvrtView`, ``pfn-view --transfer``) is another
+source of L_i: it follows every edit of a distant light exactly (relighting is what it is for) and cannot follow
+another transfer function or g at all, so those are refused while it renders (:meth:`FieldInUse.check`) rather
+than shown stale. The path tracer and PVRT are :data:`FOLLOWS_EDITS`: their frames are never stale.
 """
 
 from __future__ import annotations
@@ -20,18 +25,32 @@ from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.viewer.light_control import LightControl
-from photon_fields.runtime.viewer.messages import RENDERER_NAMES
+from photon_fields.runtime.viewer.messages import RENDERER_NAMES, MessageError
+from photon_fields.runtime.viewer.pvrt_view import PvrtView
 from photon_fields.runtime.viewer.retrain import RetrainJob
 from photon_fields.runtime.viewer.transfer_edit import shows_something
 from photon_fields.runtime.viewer.updater import FieldUpdater, same_transfer
 
+#: Renderers (page names) whose L_i is computed for the scene as edited, so their frames are never stale.
+FOLLOWS_EDITS = ("pt", "pvrt")
+
+
+def progressive(renderer: str) -> bool:
+    """Whether ``renderer``'s (a page name) frames are noisy samples to accumulate and denoise, or one
+    deterministic image per view (the renderer table's ``progressive``)."""
+    from photon_fields.runtime.renderers.registry import RENDERERS
+
+    return RENDERERS[RENDERER_NAMES[renderer]].progressive
+
 
 class FieldInUse:
     """``estimator``: a photon field's estimator (the neural renderer) or None; ``pmap``: a photon map (the
-    photon-map renderer) or None; ``scene``: what both were made for (its transfer function and lights)."""
+    photon-map renderer) or None; ``scene``: what both were made for (its transfer function and lights); ``pvrt``:
+    a PVRT transfer's view (the pvrt renderer) or None, which a retrained field does not replace."""
 
-    def __init__(self, scene: Scene, estimator: Any = None, pmap: Any = None, run_dir: Path | None = None) -> None:
-        self.estimator, self.pmap = estimator, pmap
+    def __init__(self, scene: Scene, estimator: Any = None, pmap: Any = None, run_dir: Path | None = None,
+                 pvrt: PvrtView | None = None) -> None:
+        self.estimator, self.pmap, self.pvrt = estimator, pmap, pvrt
         self.run_dir = run_dir  # the field's run folder, when it has one: retraining then fine-tunes it
         self.tf: TransferFunction | LabelTransfer = scene.tf
         self.lights = [LightControl.from_light(lt) for lt in scene.lights]
@@ -65,22 +84,42 @@ class FieldInUse:
 
     def has(self, renderer: str) -> bool:
         """Whether ``renderer`` (a page name) has its input here; the path tracer needs none."""
-        return {"neural": self.estimator is not None, "pt": True, "photonmap": self.pmap is not None}[renderer]
+        return {"neural": self.estimator is not None, "pt": True, "photonmap": self.pmap is not None,
+                "pvrt": self.pvrt is not None}[renderer]
 
     @property
     def available(self) -> list[str]:
         return [name for name in RENDERER_NAMES if self.has(name)]
 
+    def check(self, renderer: str, g: float, transfer: TransferFunction | LabelTransfer | None) -> None:
+        """Refuse (:class:`MessageError`, one line) rendering ``renderer`` at phase ``g`` with the transfer function
+        ``transfer`` (None: the scene's) where its input cannot answer them: a photon map's g outside its phases, a
+        PVRT transfer's other g or transfer function."""
+        if renderer == "photonmap":
+            from photon_fields.runtime.errors import InputError
+            from photon_fields.runtime.photons.phase_window import answerable, map_window
+
+            try:
+                answerable(self.pmap.phases, g, map_window(self.pmap.phases), "g")
+            except InputError as err:
+                raise MessageError(f"the photon map cannot render this g: {err}") from None
+        elif renderer == "pvrt" and self.pvrt is not None:
+            self.pvrt.check(g, transfer)
+
     def render(self, scene: Scene, renderer: str, *, seed: int, n: int, lights: list[LightControl],
-               threads: int | None = None, final_gather: bool = False) -> dict[str, np.ndarray]:
+               threads: int | None = None, final_gather: bool = False, moving: bool = False) -> dict[str, np.ndarray]:
         """Frame ``n`` of a session's accumulation with ``renderer``: 1 sample per pixel; the neural renderer draws
         samples ``first_sample = n`` of ``seed``, the others use seed ``seed + n``. L_i follows the page's
         ``lights`` where it can (:meth:`indirect_scale`; L_d, from NEE with the edited lights, is right anyway).
         ``threads``: numba workers (None: as set). ``final_gather``: the neural renderer takes one real bounce
         before the field (:mod:`photon_fields.runtime.wavefront.final_gather`); its NEE at the bounce already sees
-        the edited lights, so the field's part alone is rescaled, inside the estimator."""
+        the edited lights, so the field's part alone is rescaled, inside the estimator. ``moving``: the camera
+        is moving (PVRT keeps no samples of a moving view, :class:`PvrtView`)."""
         from photon_fields.runtime.threads import numba_threads
 
+        if renderer == "pvrt":  # L_i from the transfer under the edited lights: nothing to rescale
+            with numba_threads(threads):
+                return self.pvrt.render(scene, seed=seed, moving=moving)
         scale = self.indirect_scale(lights)
         scale = 1.0 if scale is None else scale
         with numba_threads(threads):
@@ -107,7 +146,7 @@ class FieldInUse:
         """How L_i, made for the trained lights, follows the page's ``lights``: 1 without edits; with a single
         light whose only edit is its power, the ratio of the powers (exact); None otherwise (stale)."""
         def where(c: LightControl) -> tuple[Any, ...]:
-            return c.kind, c.azimuth, c.elevation, c.distance, tuple(np.asarray(c.color).tolist())
+            return c.kind, c.azimuth, c.elevation, c.distance, c.yaw, tuple(np.asarray(c.color).tolist())
 
         trained = self.lights
         if [(where(a), a.power) for a in lights] == [(where(b), b.power) for b in trained]:
@@ -121,10 +160,15 @@ class FieldInUse:
         :meth:`indirect_scale` cannot follow."""
         return not same_transfer(transfer, self.tf) or self.indirect_scale(lights) is None
 
+    def stale_for(self, renderer: str, transfer: TransferFunction | LabelTransfer | None,
+                  lights: list[LightControl]) -> bool:
+        """Whether a frame of ``renderer`` shows a stale L_i (:meth:`stale`; never for :data:`FOLLOWS_EDITS`)."""
+        return renderer not in FOLLOWS_EDITS and self.stale(transfer, lights)
+
     def warnings(self, renderer: str, transfer: TransferFunction | LabelTransfer | None, lights: list[LightControl],
                  updater: FieldUpdater) -> list[str]:
         """What a frame of ``renderer`` tells the page about its L_i (nothing when it is right)."""
-        if renderer == "pt" or not self.stale(transfer, lights):
+        if not self.stale_for(renderer, transfer, lights):
             return []
         what = "field was trained" if renderer == "neural" else "photon map was traced"
         if not same_transfer(transfer, self.tf):

@@ -27,7 +27,8 @@ log = logging.getLogger("photon_fields.viewer")
 
 @dataclass
 class ViewerInputs:
-    """What every page's session shares: the scene, the field's estimator, the photon map, the options."""
+    """What every page's session shares: the scene, the field's estimator, the photon map, the PVRT transfer, the
+    options."""
 
     scene: Any
     estimator: Any
@@ -39,11 +40,13 @@ class ViewerInputs:
     renderer: str | None
     info: dict[str, Any]
     threads: int | None = None
+    transfer: Any = None  # a PVRT transfer checked against the scene (pfn-view --transfer), or None
 
 
 def load_inputs(scene: str | None, *, bundle: str | None = None, map_path: str | None = None,
                 out_dir: str | Path = "pfn_view_out", size: tuple[int, int] | None = None, seed: int = 0,
-                threads: int | None = None, force: bool = False, renderer: str | None = None) -> ViewerInputs:
+                threads: int | None = None, force: bool = False, renderer: str | None = None,
+                transfer_path: str | None = None) -> ViewerInputs:
     """Load and check everything a viewer needs (one-line :class:`InputError` for anything wrong)."""
     from photon_fields.runtime.scene.scene import load_scene
 
@@ -89,16 +92,37 @@ def load_inputs(scene: str | None, *, bundle: str | None = None, map_path: str |
         if warning:
             log.warning("%s", warning)
         info["map"] = str(Path(map_path).resolve())
+    transfer = None
+    if transfer_path is not None:
+        transfer = load_pvrt_transfer(transfer_path, sc)
+        info["transfer"] = str(Path(transfer_path).resolve())
     from photon_fields.runtime.viewer.messages import RENDERER_NAMES
 
-    has = {"neural": estimator is not None, "pt": True, "photonmap": pmap is not None}
+    has = {"neural": estimator is not None, "pt": True, "photonmap": pmap is not None, "pvrt": transfer is not None}
     if renderer is not None and (renderer not in RENDERER_NAMES or not has[renderer]):
         raise InputError("--renderer", f"must be one of {', '.join(n for n in RENDERER_NAMES if has[n])} here "
-                         f"(neural needs --bundle, photonmap --map), got {renderer!r}")
+                         f"(neural needs --bundle, photonmap --map, pvrt --transfer), got {renderer!r}")
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError("--out", f"{str(out)!r} exists and is not a folder")
-    return ViewerInputs(sc, estimator, pmap, out, seed, sc.camera.width, sc.camera.height, renderer, info, threads)
+    return ViewerInputs(sc, estimator, pmap, out, seed, sc.camera.width, sc.camera.height, renderer, info, threads,
+                        transfer)
+
+
+def load_pvrt_transfer(path: str, scene: Any) -> Any:
+    """The PVRT transfer at ``path``, checked as ``pfn-render --method pvrt`` checks it: made for the scene's volume,
+    transfer function, g and box (one-line :class:`InputError` otherwise); and the scene's lights must be distant,
+    since the page moves them but never changes their kind (a point light is refused here, not on the first
+    frame)."""
+    from photon_fields.runtime.pvrt.transfer import load_transfer
+    from photon_fields.runtime.scene.lights import PointLight
+
+    transfer = load_transfer(path, scene)
+    for i, light in enumerate(scene.lights):
+        if isinstance(light, PointLight):
+            raise InputError("--transfer", f"the scene's light {i} is a point light: PVRT relights distant lights "
+                             "only (directional, environment)")
+    return transfer
 
 
 def check_size(size: tuple[int, int]) -> tuple[int, int]:
@@ -127,8 +151,8 @@ def warm_kernels(inputs: ViewerInputs) -> None:
 
     t = time.perf_counter()
     session = ViewerSession(inputs.scene.with_overrides(width=16, height=16), estimator=inputs.estimator,
-                            pmap=inputs.pmap, out_dir=inputs.out_dir, seed=inputs.seed, width=16, height=16,
-                            renderer=inputs.renderer)
+                            pmap=inputs.pmap, transfer=inputs.transfer, out_dir=inputs.out_dir, seed=inputs.seed,
+                            width=16, height=16, renderer=inputs.renderer)
     for name in session.available:
         if name != session.state.renderer:
             try:
@@ -173,8 +197,8 @@ class ViewerServer:
 
         def make_session() -> ViewerSession:
             session = ViewerSession(inputs.scene, estimator=inputs.estimator, pmap=inputs.pmap,
-                                    out_dir=inputs.out_dir, seed=inputs.seed, width=inputs.width,
-                                    height=inputs.height, renderer=inputs.renderer,
+                                    transfer=inputs.transfer, out_dir=inputs.out_dir, seed=inputs.seed,
+                                    width=inputs.width, height=inputs.height, renderer=inputs.renderer,
                                     max_spp=max_spp or DEFAULT_MAX_SPP, info=inputs.info, drag_scale=drag_scale,
                                     retrain=retrain,
                                     gather_after=gather_after)
@@ -210,13 +234,14 @@ def start(scene: str | None = None, *, bundle: str | None = None, map: str | Non
           port: int = 0, seed: int = 0, threads: int | None = None, force: bool = False,
           renderer: str | None = None, warm: bool = True, max_spp: int | None = None,
           drag_scale: float | str = "auto", retrain: RetrainSettings | None = None,
-          gather_after: int | None = DEFAULT_GATHER_AFTER) -> ViewerServer:
-    """Load the inputs and serve the viewer (module docstring); returns the running :class:`ViewerServer`."""
+          gather_after: int | None = DEFAULT_GATHER_AFTER, transfer: str | None = None) -> ViewerServer:
+    """Load the inputs and serve the viewer (module docstring); returns the running :class:`ViewerServer`.
+    ``transfer``: a PVRT transfer file (NAME.pvrt) of the scene: enables the pvrt renderer."""
     if drag_scale != "auto" and (isinstance(drag_scale, bool) or not isinstance(drag_scale, (int, float))
                                  or not 0.25 <= drag_scale <= 1.0):
         raise InputError("--drag-scale", f"must be auto or a number in [0.25, 1], got {drag_scale!r}")
     inputs = load_inputs(scene, bundle=bundle, map_path=map, out_dir=out, size=size, seed=seed, threads=threads,
-                         force=force, renderer=renderer)
+                         force=force, renderer=renderer, transfer_path=transfer)
     return ViewerServer(inputs, host=host, port=port, warm=warm, max_spp=max_spp,
                         drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale), retrain=retrain,
                         gather_after=gather_after)

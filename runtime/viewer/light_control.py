@@ -16,8 +16,9 @@ from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLigh
 class LightControl:
     """A light as the page edits it: where it comes from (azimuth, elevation in degrees about the scene's
     vertical axis, y) and its power. Point lights keep their distance from the origin; an environment light
-    has a power only. An environment map is shown as an environment (a power only) and keeps its image and
-    rotation in ``source``, so that editing its power never turns it into a constant environment."""
+    has a power only. An environment map is shown as an environment (a power) with a ``yaw`` (its rotation about
+    the vertical axis, degrees) and keeps its image and the rest of its rotation in ``source``, so that editing it
+    never turns it into a constant environment."""
 
     kind: str
     azimuth: float
@@ -26,6 +27,7 @@ class LightControl:
     distance: float
     color: np.ndarray
     source: EnvironmentMap | None = field(default=None, repr=False)
+    yaw: float = 0.0
 
     @classmethod
     def from_light(cls, light: Any) -> LightControl:
@@ -37,7 +39,8 @@ class LightControl:
             toward = light.position / dist if dist > 0 else np.array([0.0, 1.0, 0.0])
         else:
             source = light if isinstance(light, EnvironmentMap) else None
-            return cls("environment", 0.0, 90.0, float(light.power), 0.0, light.color, source)
+            yaw = float(source.rotation[0]) if source is not None else 0.0
+            return cls("environment", 0.0, 90.0, float(light.power), 0.0, light.color, source, yaw)
         az = math.degrees(math.atan2(float(toward[2]), float(toward[0])))
         el = math.degrees(math.asin(max(-1.0, min(1.0, float(toward[1])))))
         kind = "directional" if isinstance(light, DirectionalLight) else "point"
@@ -54,9 +57,10 @@ class LightControl:
             return PointLight(self.toward() * self.distance, self.color, self.power)
         if self.source is not None:
             src = self.source
-            return EnvironmentMap(src.path, self.color, self.power, src.rotation, src.image)
+            return EnvironmentMap(src.path, self.color, self.power, (self.yaw, *src.rotation[1:]), src.image)
         return EnvironmentLight(self.color, self.power)
 
     def to_dict(self) -> dict[str, Any]:
+        """What the page builds the light's controls from (``yaw``: an environment map's, else None)."""
         return {"kind": self.kind, "azimuth": round(self.azimuth, 4), "elevation": round(self.elevation, 4),
-                "power": self.power}
+                "power": self.power, "yaw": round(self.yaw, 4) if self.source is not None else None}

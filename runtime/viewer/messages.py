@@ -23,19 +23,22 @@ report the last ``seq`` they include, which is how the page and the bench measur
 - ``{"type": "zoom", "factor": f}``: multiply the distance to the target by ``f``;
 - ``{"type": "reset_camera"}``: back to the scene's camera;
 - ``{"type": "set", "control": NAME, "value": V}``: one of :data:`CONTROLS`;
-- ``{"type": "light", "index": i, "azimuth": deg, "elevation": deg, "power": p}``: light ``i``'s direction
-  (where the light comes from) and power; ``azimuth`` / ``elevation`` / ``power`` each optional;
+- ``{"type": "light", "index": i, "azimuth": deg, "elevation": deg, "power": p, "yaw": deg}``: light ``i``'s
+  direction (where the light comes from) and power, or an environment map's rotation about the vertical axis
+  (``yaw``); each optional;
 - ``{"type": "view", "width": w, "height": h}``: the size the page shows frames at;
 - ``{"type": "screenshot"}`` (``"name"`` optional: a plain file stem): PNG + EXR + JSON into the output folder;
 - ``{"type": "transfer", "points": [{"s": f, "opacity": f, "albedo": [r, g, b]}, ...], "density_scale": f}``:
   the transfer function (1 to :data:`MAX_TF_POINTS` points, ``s`` strictly increasing in [0, 1], opacity and
   albedo in [0, 1]; the model is :class:`photon_fields.runtime.scene.transfer.TransferFunction`);
-- ``{"type": "labels", "labels": {"3": {"albedo": [r, g, b], "opacity": o, "visible": true}, ...}}``: a label
-  scene's label panel (1 to :data:`MAX_LABEL_EDITS` labels, each a decimal integer string with at least one of
-  ``albedo`` (three numbers in [0, 1]), ``opacity`` (in [0, 1]) and ``visible`` (a boolean)); labels it does not
-  list keep their settings, so "show all" on a volume of many labels is several messages. Whether the labels
-  are in the volume is the session's check (:class:`photon_fields.runtime.viewer.transfer_edit.LabelPanel`);
-  the model is :class:`photon_fields.runtime.scene.labels.LabelTransfer`;
+- ``{"type": "labels", "labels": {"3": {"albedo": [r, g, b], "opacity": o, "visible": true}, ...},
+  "density_scale": f}``: a label scene's label panel (1 to :data:`MAX_LABEL_EDITS` labels, each a decimal integer
+  string with at least one of ``albedo`` (three numbers in [0, 1]), ``opacity`` (in [0, 1]) and ``visible`` (a
+  boolean); ``density_scale``, the extinction of opacity 1, in the ``transfer`` message's range; either key may be
+  left out, not both); labels it does not list keep their settings, so "show all" on a volume of many labels is
+  several messages. Whether the labels are in the volume is the session's check
+  (:class:`photon_fields.runtime.viewer.transfer_edit.LabelPanel`); the model is
+  :class:`photon_fields.runtime.scene.labels.LabelTransfer`;
 - ``{"type": "retrain", "action": "start" | "cancel"}``: start a background retrain of the field for the
   scene as edited now, or cancel the running one.
 """
@@ -63,7 +66,7 @@ MAX_LABEL_EDITS = 32
 #: "03", "+3" or " 3", so two keys never name one label), at most 10 digits.
 LABEL_PATTERN = re.compile(r"-?(0|[1-9][0-9]{0,9})")
 #: Renderers by the names the page uses, and what each is called in the renderer table.
-RENDERER_NAMES = {"neural": "field", "pt": "pt", "photonmap": "photonmap"}
+RENDERER_NAMES = {"neural": "field", "pt": "pt", "photonmap": "photonmap", "pvrt": "pvrt"}
 LAYERS = ("L", "L_d", "L_i")
 FORMATS = ("jpeg", "png")
 #: A screenshot's file stem: letters, digits, ``-``, ``_``, ``.`` (not first), at most 64 characters; no path.
@@ -229,6 +232,8 @@ def label_edits(key: str, value: Any) -> list[dict[str, Any]]:
     return edits
 
 
+#: A transfer function's density scale (the extinction of opacity 1), in a ``transfer`` or a ``labels`` message.
+DENSITY_SCALE = number(1e-3, 1e5)
 #: Per message type: (required keys, optional keys), each key -> check. ``seq`` is optional everywhere.
 SCHEMAS: dict[str, tuple[dict[str, Check], dict[str, Check]]] = {
     "orbit": ({"dx": number(-360.0, 360.0), "dy": number(-180.0, 180.0)}, {}),
@@ -237,11 +242,11 @@ SCHEMAS: dict[str, tuple[dict[str, Check], dict[str, Check]]] = {
     "reset_camera": ({}, {}),
     "set": ({"control": choice(tuple(CONTROLS)), "value": lambda key, value: value}, {}),
     "light": ({"index": integer(0, 63)}, {"azimuth": number(-360.0, 360.0), "elevation": number(-90.0, 90.0),
-                                          "power": number(0.0, 1e6)}),
+                                          "power": number(0.0, 1e6), "yaw": number(-360.0, 360.0)}),
     "view": ({"width": integer(MIN_SIDE, MAX_SIDE), "height": integer(MIN_SIDE, MAX_SIDE)}, {}),
     "screenshot": ({}, {"name": name}),
-    "transfer": ({"points": tf_points, "density_scale": number(1e-3, 1e5)}, {}),
-    "labels": ({"labels": label_edits}, {}),
+    "transfer": ({"points": tf_points, "density_scale": DENSITY_SCALE}, {}),
+    "labels": ({}, {"labels": label_edits, "density_scale": DENSITY_SCALE}),
     "retrain": ({"action": choice(("start", "cancel"))}, {}),
 }
 SEQ = integer(0, (1 << 53) - 1)
@@ -297,6 +302,8 @@ def validate(data: Any) -> Message:
     fields = {key: check(key, data[key]) for key, check in {**required, **optional}.items() if key in data}
     if kind == "set":
         fields["value"] = CONTROLS[fields["control"]](fields["control"], data["value"])
+    if kind == "labels" and not fields:
+        raise MessageError("labels: missing 'labels' or 'density_scale' (at least one)")
     if kind == "view" and fields["width"] * fields["height"] > MAX_PIXELS:
         raise MessageError(f"view: {fields['width']}x{fields['height']} is more than {MAX_PIXELS} pixels")
     seq = SEQ("seq", data["seq"]) if "seq" in data else None

@@ -33,6 +33,12 @@ Frame size: :attr:`ViewerSession.max_size` (``pfn-view --size``) until the page 
 then that size, scaled down to ``max_size``'s pixel count (:func:`photon_fields.runtime.viewer.frame_size.fit_view`).
 Frame headers carry the frame's size and the view it is for (``view_size``): the page scales it to the box.
 
+Deterministic renderers (the renderer table's ``progressive`` is False: PVRT, ``pfn-view --transfer``): a frame of
+theirs is the same image whatever its sample index, so a resting view takes one frame, and it is neither accumulated
+further nor denoised. A moving frame of theirs is followed, once the camera rests, by the resting view's own frame:
+PVRT keeps that view's camera samples, so that a light change is only a relit frame
+(:class:`photon_fields.runtime.viewer.pvrt_view.PvrtView`).
+
 Final gather at rest: from sample :attr:`ViewerSession.gather_after` of a resting view on, neural frames take one
 real bounce before the field (:mod:`photon_fields.runtime.wavefront.final_gather`): noisier, slower, less biased
 samples, worth it once many have averaged (``bench_final_gather.py``); headers count them (``gathered``).
@@ -65,11 +71,12 @@ from photon_fields.runtime.viewer import screenshot
 from photon_fields.runtime.viewer.camera import OrbitView
 from photon_fields.runtime.viewer.drag_levels import DRAG_LEVELS, next_drag_level
 from photon_fields.runtime.viewer.encode import encode, tonemap
-from photon_fields.runtime.viewer.field_in_use import FieldInUse
+from photon_fields.runtime.viewer.field_in_use import FieldInUse, progressive
 from photon_fields.runtime.viewer.frame_denoisers import FrameDenoisers
 from photon_fields.runtime.viewer.frame_size import fit_view
 from photon_fields.runtime.viewer.light_control import LightControl
 from photon_fields.runtime.viewer.messages import MAX_PIXELS, MAX_SIDE, MIN_SIDE, Message, MessageError
+from photon_fields.runtime.viewer.pvrt_view import PvrtView
 from photon_fields.runtime.viewer.retrain import RetrainSettings
 from photon_fields.runtime.viewer.transfer_edit import (
     edited_transfer,
@@ -99,19 +106,21 @@ _FIELD_CONTROLS: dict[str, tuple[bool, bool, bool, bool]] = {
 
 class ViewerSession:
     """The render state of one page (module docstring). ``estimator``: a photon field's estimator (enables the
-    neural renderer), ``pmap``: a photon map (the photon-map renderer); the path tracer is always there.
+    neural renderer), ``pmap``: a photon map (the photon-map renderer), ``transfer``: a PVRT transfer checked
+    against ``scene`` (the pvrt renderer); the path tracer is always there.
     ``out_dir``: the only folder screenshots are written to. ``width`` x ``height`` (default: the scene camera's)
     is the largest frame (``pfn-view --size``): frames are rendered at it until the page sends its view's size,
     then at that size scaled down to its pixel count (:func:`photon_fields.runtime.viewer.frame_size.fit_view`)."""
 
-    def __init__(self, scene: Scene, *, estimator: Any = None, pmap: Any = None, out_dir: Path,
+    def __init__(self, scene: Scene, *, estimator: Any = None, pmap: Any = None, transfer: Any = None, out_dir: Path,
                  seed: int = 0, width: int | None = None, height: int | None = None,
                  renderer: str | None = None, max_spp: int = DEFAULT_MAX_SPP,
                  denoise_frames: int = DEFAULT_DENOISE_FRAMES, info: dict[str, Any] | None = None,
                  drag_scale: float | str = 1.0, retrain: RetrainSettings | None = None,
                  gather_after: int | None = DEFAULT_GATHER_AFTER) -> None:
         self.base_scene = scene
-        self.field = FieldInUse(scene, estimator, pmap, FieldInUse.run_folder_of((info or {}).get("bundle")))
+        self.field = FieldInUse(scene, estimator, pmap, FieldInUse.run_folder_of((info or {}).get("bundle")),
+                                PvrtView(transfer, scene.tf) if transfer is not None else None)
         self.out_dir = Path(out_dir)
         self.seed = int(seed)
         self.denoise_frames = int(denoise_frames)
@@ -120,7 +129,8 @@ class ViewerSession:
         if renderer is None:
             renderer = "neural" if estimator is not None else "pt"
         if renderer not in self.available:
-            raise InputError("renderer", f"'{renderer}' needs its input (neural: --bundle, photonmap: --map)")
+            raise InputError("renderer", f"'{renderer}' needs its input (neural: --bundle, photonmap: --map, pvrt: "
+                                         "--transfer)")
         cam = scene.camera
         self.state = ViewState(OrbitView.from_camera(cam), renderer, g=scene.g,
                                lights=[LightControl.from_light(lt) for lt in scene.lights], max_spp=int(max_spp),
@@ -148,6 +158,9 @@ class ViewerSession:
         self._samples = 0
         self._gathered = 0  # samples of the accumulation that took the final gather
         self._acc_size: tuple[int, int] = (0, 0)  # (width, height) of the accumulation
+        # The accumulation is a deterministic renderer's moving frame: the view, once at rest, takes a frame of its
+        # own (the one PVRT keeps its camera samples in, so that the next light change is only a relit frame).
+        self._unrested = False
         self._auto_stops: float | None = None
         self._denoisers = FrameDenoisers()
         self._last_header: dict[str, Any] = {}
@@ -201,7 +214,9 @@ class ViewerSession:
             elif msg.type == "screenshot":
                 restart = False
             elif msg.type in ("transfer", "labels"):  # control points, or a label scene's panel
-                s.transfer, s.labels = edited_transfer(msg.type, f, self.base_scene.tf, s.labels)
+                transfer, labels = edited_transfer(msg.type, f, self.base_scene.tf, s.labels)
+                self.field.check(s.renderer, s.g, transfer)
+                s.transfer, s.labels = transfer, labels
                 self._lights_version += 1  # the scene is rebuilt (its medium too) for the next frame
                 cut = True
             elif msg.type == "retrain":
@@ -246,7 +261,9 @@ class ViewerSession:
         light = replace(s.lights[i])
         if light.kind == "environment" and ("azimuth" in f or "elevation" in f):
             raise MessageError(f"light: light {i} is an environment light: it has a power but no direction")
-        for key in ("azimuth", "elevation", "power"):
+        if "yaw" in f and light.source is None:
+            raise MessageError(f"light: light {i} is not an environment map: it has no yaw (an image to turn)")
+        for key in ("azimuth", "elevation", "power", "yaw"):
             if key in f:
                 setattr(light, key, f[key])
         lights = [*s.lights[:i], light, *s.lights[i + 1:]]
@@ -262,12 +279,12 @@ class ViewerSession:
         if control == "renderer":
             if not self.field.has(value):
                 raise MessageError(f"renderer '{value}' is not available here (neural needs --bundle, photonmap "
-                                   f"--map); available: {', '.join(self.available)}")
-            self._check_g(value, s.g)
+                                   f"--map, pvrt --transfer); available: {', '.join(self.available)}")
+            self.field.check(value, s.g, s.transfer)
             s.renderer = value
             return True, True, True, True
         if control == "g":
-            self._check_g(s.renderer, value)
+            self.field.check(s.renderer, value, s.transfer)
             s.g = value
             return True, True, True, False
         if control == "exposure":
@@ -281,26 +298,22 @@ class ViewerSession:
             return _FIELD_CONTROLS[control]
         raise MessageError(f"set: control {control!r} is not handled")
 
-    def _check_g(self, renderer: str, g: float) -> None:
-        if renderer != "photonmap":
-            return
-        from photon_fields.runtime.photons.phase_window import answerable, map_window
-
-        try:
-            answerable(self.pmap.phases, g, map_window(self.pmap.phases), "g")
-        except InputError as err:
-            raise MessageError(f"the photon map cannot render this g: {err}") from None
-
     # ------------------------------------------------------------------------------------------------
     # rendering (render thread)
+
+    @staticmethod
+    def target_spp(s: ViewState) -> int:
+        """The samples a resting view of state ``s`` accumulates: ``max_spp``, or 1 with a deterministic
+        renderer (module docstring)."""
+        return s.max_spp if progressive(s.renderer) else 1
 
     def wants_frame(self) -> bool:
         """Whether :meth:`next_frame` has anything to do (call with :attr:`lock` held)."""
         if self.redisplay or self.generation != self._acc_generation:
             return True
-        if self._acc_size != (self.state.width, self.state.height):
-            return True  # the last frame was a reduced moving frame: the resting view needs a full-size one
-        return self._samples < self.state.max_spp
+        if self._acc_size != (self.state.width, self.state.height) or self._unrested:
+            return True  # the last frame was a (reduced) moving frame: the resting view needs its own
+        return self._samples < self.target_spp(self.state)
 
     def wait_for_work(self, stop: threading.Event, timeout: float = 0.5) -> bool:
         """Block until there is a frame to render (True) or ``timeout`` passes / ``stop`` is set (False)."""
@@ -335,8 +348,8 @@ class ViewerSession:
             s = replace(self.state)
             generation, cut, seq, reexpose = self.generation, self.cut, self.last_seq, self.reexpose
             full = (s.width, s.height)
-            render = (generation != self._acc_generation or self._samples < s.max_spp
-                      or self._acc_size != full)
+            render = (generation != self._acc_generation or self._samples < self.target_spp(s)
+                      or self._acc_size != full or self._unrested)
             self.cut = self.redisplay = self.reexpose = False
             if generation != self._acc_generation:
                 moved_only = not cut
@@ -347,28 +360,43 @@ class ViewerSession:
             scale = DRAG_LEVELS[self.drag_level] if s.drag_scale == "auto" else float(s.drag_scale)
             if moved_only and scale < 1.0:
                 size = (max(MIN_SIDE, round(s.width * scale)), max(MIN_SIDE, round(s.height * scale)))
-            if render and self._acc_size != size:  # a reduced moving frame before: rest starts a full-size one
+            # the resting frame of a view whose deterministic moving frame is shown already: the same image, so it is
+            # dropped, as a refinement is, when the view changes while it renders
+            settling = render and self._unrested and not moved_only
+            if render and (self._acc_size != size or self._unrested):  # a moving frame before: rest starts anew
                 self._acc, self._samples, self._gathered = {}, 0, 0
             self._acc_size = size
+            self._unrested = render and moved_only and not progressive(s.renderer)
             scene = self._scene_for(s, *size)
+            source = self.scene  # replaced by this thread only
+        # The medium, built (outside the lock: tens of ms and more) for this frame's copy, is kept on the session's
+        # scene too, so that later frames and the next light edit share it (else each light edit rebuilt the medium,
+        # the denoisers' depth and PVRT's kept samples when the scene's medium was not built before the first frame).
+        source._cache.setdefault("medium", scene.medium())
         timings: dict[str, float] = {}
         warnings = self.field.warnings(s.renderer, s.transfer, s.lights, self.updater)
-        denoiser = self._denoisers.for_frame(scene, size, full, cut)
+        # Deterministic frames are never denoised: no denoiser (nor its depth estimator) is built for them; a switch
+        # back to a progressive renderer is a cut, which resets the denoisers' history then.
+        denoise = s.denoise and progressive(s.renderer)
+        denoiser = self._denoisers.for_frame(scene, size, full, cut) if denoise else None
         if reexpose:
             self._auto_stops = None
-        refining = render and self._samples > 0
+        refining = render and (self._samples > 0 or settling)
         gather = render and not moved_only and self.gathers(s.renderer, self._samples)
         if render:
             t = time.perf_counter()
             with RENDER_LOCK:
-                layers = self._render(scene, s, self._samples, gather)
+                layers = self._render(scene, s, self._samples, gather, moved_only)
             timings["render_ms"] = (time.perf_counter() - t) * 1e3
             with self.lock:
                 if self._acc_generation == generation:
-                    if not self._acc:
-                        self._acc = {k: np.zeros(layers[k].shape, np.float64) for k in ACCUMULATED_LAYERS}
-                    for k in ACCUMULATED_LAYERS:
-                        self._acc[k] += layers[k]
+                    if not progressive(s.renderer):  # the one frame of the view is its image: kept as it is
+                        self._acc = {k: layers[k] for k in ACCUMULATED_LAYERS}  # no float64 copies to sum
+                    else:
+                        if not self._acc:
+                            self._acc = {k: np.zeros(layers[k].shape, np.float64) for k in ACCUMULATED_LAYERS}
+                        for k in ACCUMULATED_LAYERS:
+                            self._acc[k] += layers[k]
                     self._samples += 1
                     self._gathered += int(gather)
         with self.lock:
@@ -381,7 +409,7 @@ class ViewerSession:
         if mean is None:  # nothing rendered yet for this state (only possible on a redisplay race): black
             mean = np.zeros((size[1], size[0], 3), np.float32)
         shown, denoised = mean, False
-        if s.denoise and 0 < n <= self.denoise_frames:
+        if denoiser is not None and 0 < n <= self.denoise_frames:
             t = time.perf_counter()
             shown = denoiser.denoise(mean, camera=scene.camera)
             timings["denoise_ms"] = (time.perf_counter() - t) * 1e3
@@ -399,11 +427,13 @@ class ViewerSession:
             self.drag_level = next_drag_level(self.drag_level, timings["total_ms"] * 1e-3)
         self.frames += 1
         header = {"type": "frame", "frame": self.frames, "seq": seq, "generation": generation, "spp": n,
-                  "stale": s.renderer != "pt" and self.field_stale(s),
+                  "stale": self.field.stale_for(s.renderer, s.transfer, s.lights),
                   "renderer": s.renderer, "layer": s.layer, "g": s.g, "width": size[0], "height": size[1],
                   "view_size": list(s.view_size) if s.view_size else None, "format": s.format, "exposure": stops,
                   "denoised": denoised, "moving": moved_only, "gathered": gathered,
-                  "rendered": render, "warnings": warnings, **{k: round(v, 2) for k, v in timings.items()}}
+                  "rendered": render, "warnings": warnings,
+                  "pvrt": dict(self.field.pvrt.last) if s.renderer == "pvrt" and self.field.pvrt else None,
+                  **{k: round(v, 2) for k, v in timings.items()}}
         self._last_header = header
         return Frame(data, header)
 
@@ -417,6 +447,7 @@ class ViewerSession:
             field = FieldInUse.from_job(finished, self.field_threads)
         except (InputError, OSError, ValueError) as exc:
             return self.updater.failed(f"the new field could not be loaded: {exc}")
+        field.pvrt = self.field.pvrt  # a PVRT transfer is not retrained: it stays
         with self.lock:
             first = self.field.estimator is None
             self.field = field
@@ -440,16 +471,16 @@ class ViewerSession:
         with self.lock:
             self._acc_generation = self.generation
             self._samples = max(self._samples, self.state.max_spp)
-            self.redisplay = False
+            self.redisplay = self._unrested = False
 
-    def _render(self, scene: Scene, s: ViewState, n: int, gather: bool) -> dict[str, np.ndarray]:
+    def _render(self, scene: Scene, s: ViewState, n: int, gather: bool, moving: bool) -> dict[str, np.ndarray]:
         """Frame ``n`` of the accumulation of state ``s`` (module docstring for the seeds), with the final gather
-        or not; while a background job trains, with the cores it leaves."""
+        or not, of a moving camera or not; while a background job trains, with the cores it leaves."""
         from photon_fields.runtime.threads import max_threads
 
         threads = max(1, max_threads() - self.updater.settings.threads) if self.updater.busy else None
         return self.field.render(scene, s.renderer, seed=self.seed, n=n, lights=s.lights, threads=threads,
-                                 final_gather=gather)
+                                 final_gather=gather, moving=moving)
 
     def gathers(self, renderer: str, n: int) -> bool:
         """Whether resting frame ``n`` of an accumulation with ``renderer`` takes the final gather (moving frames
@@ -470,6 +501,8 @@ class ViewerSession:
                     "view_limits": {"min_side": MIN_SIDE, "max_side": MAX_SIDE, "max_pixels": MAX_PIXELS},
                     "drag_scale": s.drag_scale, "lights": [lt.to_dict() for lt in s.lights],
                     "out_dir": str(self.out_dir),
+                    # a PVRT transfer renders the g it was precomputed for only: the page fixes its g slider
+                    "pvrt": {"g": self.field.pvrt.g} if self.field.pvrt else None,
                     # the editor the page shows: control points over the histogram, or a label scene's panel
                     "transfer": None if s.labels else transfer_message(s.transfer or self.base_scene.tf),
                     "histogram": None if s.labels else self.histogram(),
@@ -502,7 +535,7 @@ class ViewerSession:
                       "spp": samples, "seed": self.seed, "exposure_stops": header.get("exposure"),
                       "camera": cam.to_dict(), "lights": [lt.light().to_dict() for lt in s.lights],
                       "transfer_function": (s.transfer or self.base_scene.tf).to_dict(),
-                      "stale_indirect": s.renderer != "pt" and self.field_stale(s),
+                      "stale_indirect": self.field.stale_for(s.renderer, s.transfer, s.lights),
                       "final_gather_samples": gathered,
                       "frame_timings_ms": {k: v for k, v in header.items() if k.endswith("_ms")}, **self.info}
             return screenshot.write(self.out_dir, stem, layers, report, png_layer=s.layer,

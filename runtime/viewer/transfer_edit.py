@@ -88,9 +88,10 @@ class LabelPanel:
         visible[pos] = tf.opacity > 0
         return cls(grid.values.copy(), grid.counts.copy(), albedo, opacity, visible, tf.density_scale, tf.name)
 
-    def edited(self, edits: list[dict[str, Any]]) -> LabelPanel:
-        """The panel after a validated ``labels`` message's edits (:func:`messages.label_edits`); a
-        :class:`MessageError` naming the labels that are not in the volume (nothing is changed then)."""
+    def edited(self, edits: list[dict[str, Any]], density_scale: float | None = None) -> LabelPanel:
+        """The panel after a validated ``labels`` message's edits (:func:`messages.label_edits`; none: []) and
+        density scale (None: kept); a :class:`MessageError` naming the labels that are not in the volume (nothing
+        is changed then)."""
         wanted = np.array([e["label"] for e in edits], dtype=np.int64)
         pos = np.minimum(np.searchsorted(self.values, wanted), self.values.size - 1)
         missing = wanted[self.values[pos] != wanted]
@@ -107,7 +108,8 @@ class LabelPanel:
                 opacity[i] = e["opacity"]
             if "visible" in e:
                 visible[i] = e["visible"]
-        return LabelPanel(self.values, self.counts, albedo, opacity, visible, self.density_scale, self.name)
+        density = self.density_scale if density_scale is None else float(density_scale)
+        return LabelPanel(self.values, self.counts, albedo, opacity, visible, density, self.name)
 
     def transfer(self) -> LabelTransfer:
         """The label transfer function the panel shows: every label present, a hidden one at opacity 0."""
@@ -139,7 +141,7 @@ def edited_transfer(kind: str, fields: dict[str, Any], base: TransferFunction | 
         if panel is None:
             raise MessageError("labels: this scene's transfer function is scalar (control points), not labels: "
                                "edit it with a 'transfer' message")
-        panel = panel.edited(fields["labels"])
+        panel = panel.edited(fields.get("labels", []), fields.get("density_scale"))
         return panel.transfer(), panel
     if panel is not None or not isinstance(base, TransferFunction):
         raise MessageError("transfer: this scene has a label transfer function, which has no control points: "

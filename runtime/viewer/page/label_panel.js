@@ -2,10 +2,12 @@
 // in the volume (its value and voxel count) with a visibility checkbox, a colour (the albedo) and an opacity
 // slider, and "show all" / "hide all". Every change calls onChange({label: {key: value, ...}, ...}) with only what
 // changed; the page merges the changes of one animation frame and sends them as `labels` messages. Visibility is
-// kept apart from opacity (as on the server): a label shown again comes back at the opacity it had.
+// kept apart from opacity (as on the server): a label shown again comes back at the opacity it had. The density
+// scale (the extinction of opacity 1, for every label) is set as a factor of the scene's: onDensity(scale).
 "use strict";
-function createLabelPanel(container, onChange) {
+function createLabelPanel(container, onChange, onDensity) {
   let rows = [];
+  let baseDensity = 1;
   const round4 = (v) => Math.round(v * 1e4) / 1e4;
   const hex = (a) => "#" + a.map((v) => Math.round(v * 255).toString(16).padStart(2, "0")).join("");
   const rgb = (h) => [1, 3, 5].map((i) => round4(parseInt(h.slice(i, i + 2), 16) / 255));
@@ -61,7 +63,14 @@ function createLabelPanel(container, onChange) {
     load(panel) {
       rows = panel.rows.map((r) => ({label: r.label, voxels: r.voxels, albedo: r.albedo.slice(), opacity: r.opacity,
                                      visible: r.visible}));
+      baseDensity = panel.density_scale;
       build();
+    },
+    // The density scale as a factor of the scene's (the page's slider is log10 of it), within the message's range.
+    setDensityFactor(f) {
+      const d = Math.min(1e5, Math.max(1e-3, Number((baseDensity * f).toPrecision(6))));
+      onDensity(d);
+      return d;
     },
     showAll() { setAll(true); },
     hideAll() { setAll(false); },

@@ -15,8 +15,10 @@ let pendingPan = null;
 let pendingZoom = 1.0;
 let pendingTransfer = null;     // the transfer-function editor's newest state, sent once per animation frame
 let pendingLabels = {};         // a label scene's panel: label -> what changed, merged, sent once per animation frame
+let pendingLabelDensity = null; // a label scene's density scale, sent once per animation frame
 let maxLabelEdits = 32;         // labels one message may change (the server's, from its state message)
 let lastRetrain = null;         // the last retrain status message
+let pvrtG = null;               // the g a PVRT transfer was precomputed for (the only one it renders), or null
 const sentAt = new Map();       // seq -> time sent (input-to-image latency)
 let lastLatency = null;
 const times = [];               // arrival times of the last frames (frame rate)
@@ -50,6 +52,7 @@ function flushInput() {
     send({type: "labels", labels: Object.fromEntries(labels.slice(i, i + maxLabelEdits).map((k) => [k, pendingLabels[k]]))});
   }
   pendingLabels = {};
+  if (pendingLabelDensity !== null) { send({type: "labels", density_scale: pendingLabelDensity}); pendingLabelDensity = null; }
   requestAnimationFrame(flushInput);
 }
 
@@ -153,9 +156,19 @@ function showStatus(h) {
     `${h.width}x${h.height}` + (h.view_size && (h.view_size[0] !== h.width || h.view_size[1] !== h.height) ?
       ` of ${h.view_size[0]}x${h.view_size[1]}` : "") + `  spp ${h.spp}${h.denoised ? " (denoised)" : ""}${h.gathered ? ` (${h.gathered} with final gather)` : ""}\n` +
     `frame ${h.total_ms.toFixed(0)} ms  render ${(h.render_ms || 0).toFixed(0)} ms\n` +
-    `${fps.toFixed(1)} frames/s` + (lastLatency !== null ? `  input->image ${lastLatency.toFixed(0)} ms` : "");
+    `${fps.toFixed(1)} frames/s` + (lastLatency !== null ? `  input->image ${lastLatency.toFixed(0)} ms` : "") +
+    (h.pvrt ? (h.pvrt.relit ? `\nrelit from ${h.pvrt.kept_samples} kept samples` : "\ncamera rays marched") : "");
   $("message").textContent = h.warnings.length ? h.warnings.join("; ") : $("message").textContent;
   $("stale").style.display = h.stale ? "block" : "none";
+  fixG(h.renderer);
+}
+
+function fixG(renderer) {
+  // A PVRT transfer answers the g its photons scattered with only: the slider shows it and cannot move.
+  const fixed = renderer === "pvrt" && pvrtG !== null;
+  $("g").disabled = fixed;
+  $("g_note").textContent = fixed ? "(fixed by the PVRT transfer)" : "";
+  if (fixed) { $("g").value = pvrtG; $("g_value").textContent = Number(pvrtG).toFixed(2); }
 }
 
 function onRetrain(m) {
@@ -168,9 +181,11 @@ function onRetrain(m) {
 }
 
 function setRenderers(list, current) {
-  const names = {neural: "neural (photon field)", pt: "path tracer", photonmap: "photon map"};
+  const names = {neural: "neural (photon field)", pt: "path tracer", photonmap: "photon map",
+                 pvrt: "PVRT (relighting)"};
   $("renderer").innerHTML = list.map((r) => `<option value="${r}">${names[r] || r}</option>`).join("");
   $("renderer").value = current;
+  fixG(current);
 }
 
 function onText(msg) {
@@ -182,6 +197,7 @@ function onText(msg) {
 
 function buildControls(s) {
   $("title").textContent = `pfn-view: ${s.scene}`;
+  pvrtG = s.pvrt ? s.pvrt.g : null;
   setRenderers(s.renderers, s.renderer);
   // A label scene gets the label panel, a scalar one the control-point editor over its histogram.
   $("tf_box").classList.toggle("hidden", Boolean(s.labels));
@@ -189,6 +205,7 @@ function buildControls(s) {
   if (s.labels) {
     labelPanel.load(s.labels);
     maxLabelEdits = s.labels.max_edits;
+    $("label_density").value = 0; $("label_density_value").textContent = s.labels.density_scale.toPrecision(3);
   } else {
     tfEditor.load(s.transfer, s.histogram);
     $("density").value = 0; $("density_value").textContent = s.transfer.density_scale.toPrecision(3);
@@ -211,6 +228,10 @@ function buildControls(s) {
         `<label>elevation <span id="el${i}v">${lt.elevation.toFixed(0)}</span>&deg;</label>` +
         `<input id="el${i}" type="range" min="-90" max="90" step="1" value="${lt.elevation}">`;
     }
+    if (lt.yaw !== null && lt.yaw !== undefined) {  // an environment map: it turns about the vertical axis
+      html += `<label>rotation <span id="yw${i}v">${lt.yaw.toFixed(0)}</span>&deg;</label>` +
+        `<input id="yw${i}" type="range" min="-180" max="180" step="1" value="${lt.yaw}">`;
+    }
     const maxPower = Math.max(10, 4 * lt.power);
     html += `<label>power <span id="pw${i}v">${lt.power.toFixed(2)}</span></label>` +
       `<input id="pw${i}" type="range" min="0" max="${maxPower}" step="${maxPower / 200}" value="${lt.power}">`;
@@ -224,7 +245,7 @@ function buildControls(s) {
         send({type: "light", index: i, [key]: Number(el.value)});
       });
     };
-    hook(`az${i}`, "azimuth"); hook(`el${i}`, "elevation"); hook(`pw${i}`, "power");
+    hook(`az${i}`, "azimuth"); hook(`el${i}`, "elevation"); hook(`pw${i}`, "power"); hook(`yw${i}`, "yaw");
   });
 }
 
@@ -247,7 +268,12 @@ canvas.addEventListener("pointermove", (e) => {
 });
 canvas.addEventListener("wheel", (e) => { e.preventDefault(); pendingZoom *= Math.exp(e.deltaY * 0.001); }, {passive: false});
 
-$("renderer").addEventListener("change", (e) => setControl("renderer", e.target.value));
+$("renderer").addEventListener("change", (e) => {
+  // PVRT renders its transfer's g only: selecting it sets g to that first (else the server refuses the switch)
+  if (e.target.value === "pvrt" && pvrtG !== null && Number($("g").value) !== pvrtG) setControl("g", pvrtG);
+  fixG(e.target.value);
+  setControl("renderer", e.target.value);
+});
 $("layer").addEventListener("change", (e) => setControl("layer", e.target.value));
 $("g").addEventListener("input", (e) => { $("g_value").textContent = Number(e.target.value).toFixed(2); setControl("g", Number(e.target.value)); });
 $("exposure").addEventListener("input", (e) => { $("exposure_value").textContent = (e.target.value >= 0 ? "+" : "") + Number(e.target.value).toFixed(1); setControl("exposure", Number(e.target.value)); });
@@ -269,6 +295,9 @@ $("density").addEventListener("input", (e) => {
 });
 const labelPanel = createLabelPanel($("label_rows"), (changes) => {
   for (const [label, edit] of Object.entries(changes)) pendingLabels[label] = {...(pendingLabels[label] || {}), ...edit};
+}, (density) => { pendingLabelDensity = density; });
+$("label_density").addEventListener("input", (e) => {
+  $("label_density_value").textContent = labelPanel.setDensityFactor(Math.pow(10, Number(e.target.value))).toPrecision(3);
 });
 $("labels_show_all").addEventListener("click", () => labelPanel.showAll());
 $("labels_hide_all").addEventListener("click", () => labelPanel.hideAll());

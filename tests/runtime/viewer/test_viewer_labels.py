@@ -111,6 +111,27 @@ def test_colour_and_opacity_reach_the_medium_and_a_shown_label_keeps_its_opacity
     assert rows[CUBE]["opacity"] == 0.25 and rows[CUBE]["visible"] and rows[CUBE]["albedo"] == [0.0, 1.0, 0.0]
 
 
+def test_the_density_scale_reaches_the_medium_and_keeps_the_rows(scene_dir: Path, tmp_path: Path) -> None:
+    """The label panel's density slider: a ``labels`` message with only ``density_scale`` scales every label's
+    extinction, keeps each row's colour, opacity and visibility, and makes the field's L_i stale until undone."""
+    s = session(scene_dir, tmp_path, renderer="neural")
+    base = s.state.transfer.density_scale
+    rows = s.describe()["labels"]["rows"]
+    s.next_frame()
+    s.apply(msg("labels", density_scale=base * 4))
+    h = s.next_frame().header
+    assert h["stale"] and any("transfer function" in w for w in h["warnings"])
+    tf, m = s.state.transfer, s.scene.medium()
+    k = int(np.searchsorted(volume_labels(s.base_scene.volume).values, BALL))
+    assert tf.density_scale == base * 4 and m.ext_lut[k] == pytest.approx(tf.opacity[k] * base * 4)
+    panel = s.describe()["labels"]
+    assert panel["density_scale"] == base * 4 and panel["rows"] == rows
+    s.apply(msg("labels", **labels(l7={"opacity": 0.5}), density_scale=base))  # both in one message
+    assert s.state.transfer.density_scale == base
+    s.apply(msg("labels", **labels(l7={"opacity": 1.0})))
+    assert not s.next_frame().header["stale"]  # undone: the medium the field was trained for
+
+
 def test_a_label_edit_marks_the_fields_indirect_light_stale_until_undone(scene_dir: Path, tmp_path: Path) -> None:
     s = session(scene_dir, tmp_path, renderer="neural")
     h = s.next_frame().header

@@ -22,6 +22,7 @@ from viewer_helpers import BACKGROUND, BALL, CUBE, inputs, label_scene
 require_browser()
 
 from selenium.webdriver.common.by import By  # noqa: E402
+from selenium.webdriver.common.keys import Keys  # noqa: E402
 
 from photon_fields.runtime.scene.labels import LabelTransfer  # noqa: E402
 from photon_fields.runtime.viewer import transfer_edit  # noqa: E402
@@ -103,6 +104,27 @@ def test_hide_all_empties_the_view_and_show_all_shows_the_objects(page: Any) -> 
     click(driver, driver.find_element(By.ID, "labels_show_all"))
     assert (pixels(driver).sum(axis=2) > 30).mean() > 0.1
     assert [checkbox(driver, v).is_selected() for v in (BACKGROUND, BALL, CUBE)] == [False, True, True]
+
+
+def test_the_density_slider_thins_every_label_and_comes_back(page: Any) -> None:
+    driver = page
+    settled(driver)
+    before = pixels(driver)
+    shown = float(driver.find_element(By.ID, "label_density_value").text)
+    slider = driver.find_element(By.ID, "label_density")
+    slider.click()  # focus (the click itself may move it to the middle: x1)
+    for key, thinner in ((Keys.ARROW_LEFT, True), (Keys.ARROW_RIGHT, False)):
+        sent = driver.execute_script("return window.pfnView.lastSeq();")
+        slider.send_keys(*([key] * 80))
+        wait_for(lambda s=sent: driver.execute_script("return window.pfnView.lastSeq();") > s, "the slider's message",
+                 timeout=30.0)
+        settled(driver)
+        density = float(driver.find_element(By.ID, "label_density_value").text)
+        change = np.abs(pixels(driver) - before).mean()
+        if thinner:
+            assert density < 0.3 * shown and change > 2.0, (density, change)
+        else:
+            assert density == pytest.approx(shown, rel=1e-3) and change < 2.0, (density, change)
 
 
 def test_a_screenshot_of_a_label_view_records_the_label_function(served: tuple[Any, Any]) -> None:

@@ -276,9 +276,9 @@ def test_stale_refinement_frames_are_dropped_but_first_frames_never(tmp_path: Pa
     s = make_session(tmp_path)
     real = s._render
 
-    def render_while_input_arrives(scene, state, n, gather):  # noqa: ANN001, ANN202
+    def render_while_input_arrives(scene, state, n, gather, moving):  # noqa: ANN001, ANN202
         s.apply(msg("orbit", dx=1.0, dy=0.0))  # input arriving during every render
-        return real(scene, state, n, gather)
+        return real(scene, state, n, gather, moving)
 
     assert s.next_frame() is not None  # first frame of the scene camera
     s.apply(msg("orbit", dx=1.0, dy=0.0))

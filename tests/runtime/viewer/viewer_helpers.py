@@ -63,6 +63,14 @@ class AnalyticField:
         return (np.stack([base, 0.8 * base, 0.6 * base]) * 0.5).astype(np.float32)
 
 
+def tiny_transfer(scene: Scene) -> Any:
+    """A PVRT transfer of ``scene`` that takes a fraction of a second: 12 basis lights, an 8^3 grid, 500 paths each,
+    2 CPCA clusters (coarse L_i, but every frame of it is as exact a function of the lights as a real one's)."""
+    from photon_fields.runtime.pvrt.transfer import precompute_transfer
+
+    return precompute_transfer(scene, order=0, grid=8, paths=500, clusters=2, seed=0, progress=False)
+
+
 def msg(kind: str, **fields: Any) -> Message:
     return validate({"type": kind, **fields})
 
@@ -74,10 +82,13 @@ def make_session(out_dir: Path, renderer: str = "neural", size: int = SIZE, scen
                          height=size, renderer=renderer, **kw)
 
 
-def inputs(out_dir: Path, size: int = SIZE, renderer: str | None = "pt", scene: Scene | None = None) -> ViewerInputs:
-    """What ``pfn-view`` would load for ``scene`` (default: :func:`tiny_scene`) with the analytic field."""
+def inputs(out_dir: Path, size: int = SIZE, renderer: str | None = "pt", scene: Scene | None = None,
+           transfer: Any = None) -> ViewerInputs:
+    """What ``pfn-view`` would load for ``scene`` (default: :func:`tiny_scene`) with the analytic field (and a PVRT
+    ``transfer`` of it, if given)."""
     sc = scene or tiny_scene(size)
-    return ViewerInputs(sc, AnalyticField(), None, out_dir, 5, size, size, renderer, {"bundle": None, "map": None})
+    return ViewerInputs(sc, AnalyticField(), None, out_dir, 5, size, size, renderer, {"bundle": None, "map": None},
+                        transfer=transfer)
 
 
 def split_frame(data: bytes) -> tuple[dict[str, Any], bytes]:
