@@ -39,6 +39,7 @@ from photon_fields.runtime.denoise.reprojection import EYE, HEIGHT, WIDTH, pack_
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.scene.camera import Camera
 from photon_fields.runtime.transport.medium import Medium, leap_distances, voxel_extinction
+from photon_fields.runtime.transport.tracking import task_stride
 
 DEFAULT_BLOCK = 2  # voxels per coarse cell edge
 DEFAULT_MIN_OPACITY = 1e-3  # collision probability below which a pixel sees the background at infinity
@@ -192,10 +193,13 @@ def _walk(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, per_unit: np.nda
 def _depth_image(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, per_unit: np.ndarray,
                  view: np.ndarray, min_opacity: float, quantile: float, stride: int, out: np.ndarray) -> None:
     """One depth per ``stride`` x ``stride`` block of pixels (``out`` has a cell per block), along the ray
-    through the centre of the pixels the block covers (module docstring)."""
+    through the centre of the pixels the block covers (module docstring). Rows are spread over the threads
+    (``task_stride``): the rows through the medium cost the most and sit together."""
     h, w = out.shape
     ox, oy, oz = view[EYE], view[EYE + 1], view[EYE + 2]
-    for py in prange(h):
+    spread = task_stride(h)
+    for row in prange(h):
+        py = (row * spread) % h
         cy = 0.5 * (stride * py + min(stride * (py + 1), view[HEIGHT]))
         for px in range(w):
             cx = 0.5 * (stride * px + min(stride * (px + 1), view[WIDTH]))
