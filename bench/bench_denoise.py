@@ -318,7 +318,7 @@ def print_timing(t: dict[str, Any]) -> None:
                           if k.startswith("render.") and k != "render.total" and v >= 0.5)
         print(f"{size}x{size} {t['scene']} {label} (median ms): neural 1 spp {m['neural_render']:.1f} ({split}), "
               f"depth {m['depth']:.1f}, denoise {m['denoise']:.1f} (back to back {m['denoise_back_to_back']:.1f}; "
-              f"prepare {m['denoise.prepare']:.1f}, temporal {m['denoise.temporal']:.1f}, spatial "
+              f"prepare {m.get('denoise.prepare', 0.0):.1f}, temporal {m['denoise.temporal']:.1f}, spatial "
               f"{m['denoise.spatial']:.1f}); frame with denoising {m['frame_with_denoising']:.1f}")
     if "ratio_new_over_base" in t:
         keys = ("neural_render", "render.sample_first_interactions", "render.estimate_indirect",
