@@ -40,7 +40,6 @@ from photon_fields.runtime.denoise.reprojection import EYE, HEIGHT, WIDTH, pack_
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.scene.camera import Camera
 from photon_fields.runtime.transport.medium import Medium, leap_distances, voxel_extinction
-from photon_fields.runtime.transport.tracking import task_stride
 
 DEFAULT_BLOCK = 2  # voxels per coarse cell edge
 DEFAULT_MIN_OPACITY = 1e-3  # collision probability below which a pixel sees the background at infinity
@@ -216,13 +215,10 @@ def _replay(segs: np.ndarray, n: int, tau_stop: float) -> float:
 def _depth_image(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, per_unit: np.ndarray,
                  view: np.ndarray, min_opacity: float, quantile: float, stride: int, out: np.ndarray) -> None:
     """One depth per ``stride`` x ``stride`` block of pixels (``out`` has a cell per block), along the ray
-    through the centre of the pixels the block covers (module docstring). Rows are spread over the threads
-    (``task_stride``): the rows through the medium cost the most and sit together."""
+    through the centre of the pixels the block covers (module docstring)."""
     h, w = out.shape
     ox, oy, oz = view[EYE], view[EYE + 1], view[EYE + 2]
-    spread = task_stride(h)
-    for row in prange(h):
-        py = (row * spread) % h
+    for py in prange(h):
         # A ray crosses at most nx + ny + nz cells: room for every segment of its walk.
         segs = np.empty((grid.shape[0] + grid.shape[1] + grid.shape[2] + 4, 4))
         cy = 0.5 * (stride * py + min(stride * (py + 1), view[HEIGHT]))

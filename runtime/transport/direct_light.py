@@ -27,7 +27,7 @@ from photon_fields.runtime.transport.emitters import sample_light_direction
 from photon_fields.runtime.transport.environment_map import EnvMap
 from photon_fields.runtime.transport.medium import Medium, intersect_box
 from photon_fields.runtime.transport.phase import hg_eval
-from photon_fields.runtime.transport.tracking import TASK_ITEMS, ratio_track, task_stride
+from photon_fields.runtime.transport.tracking import TASK_ITEMS, ratio_track
 
 
 @njit(cache=True, inline="always")
@@ -87,14 +87,10 @@ def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.nda
     """Stage: NEE at every vertex of a SoA batch; returns radiance (3, n) (times throughput later). ``env`` is
     the scene's environment map (``Scene.packed_environment_map()``, a placeholder when it has none).
     ``env_mis=False`` gives the environment's NEE full weight, for estimators that never reach the
-    environment by phase sampling (the first-interaction renderers). The tasks are spread over the batch
-    (``task_stride``): the costly shadow rays, through dense medium, sit together in it."""
+    environment by phase sampling (the first-interaction renderers)."""
     n = o.shape[1]
     out = np.empty((3, n))
-    tasks = (n + TASK_ITEMS - 1) // TASK_ITEMS
-    stride = task_stride(tasks)
-    for task in prange(tasks):
-        b = (task * stride) % tasks
-        _direct_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, out, b * TASK_ITEMS,
-                            min(n, (b + 1) * TASK_ITEMS))
+    for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
+        _direct_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, out, task * TASK_ITEMS,
+                            min(n, (task + 1) * TASK_ITEMS))
     return out

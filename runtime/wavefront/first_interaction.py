@@ -59,7 +59,7 @@ from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.direct_light import direct_light_batch
 from photon_fields.runtime.transport.medium import Medium, albedo_at
-from photon_fields.runtime.transport.tracking import camera_collision, task_stride
+from photon_fields.runtime.transport.tracking import camera_collision
 from photon_fields.runtime.wavefront.batches import (
     DEFAULT_BATCH,
     Environment,
@@ -170,15 +170,11 @@ def _first_interactions(m: Medium, eye: np.ndarray, origin: np.ndarray, du: np.n
     with weight W (:func:`resampled_collision`), kept with probability min(1, W / w_min) and then weighted
     max(W, w_min); ``transmit`` gets each item's estimate of the transmittance to the box exit (1 for a
     miss). Task k packs its interacting items at ``k * block``; returns per task (interacting items, items
-    inside the box). The tasks are spread over the image (``task_stride``: numba gives each thread one contiguous
-    range of the ``prange``, and the rays through the medium sit together); each writes only its own slots, so
-    the result does not depend on the order."""
+    inside the box)."""
     nblocks = (count + block - 1) // block
     counts = np.zeros((nblocks, 2), np.int64)
     s0 = np.uint64(seed)
-    stride = task_stride(nblocks)
-    for task in prange(nblocks):
-        b = (task * stride) % nblocks
+    for b in prange(nblocks):
         _first_interactions_block(m, eye, origin, du, dv, width, n_pixels, start, count, s0, block, b, forced, w_min,
                                   pixel, x, d, albedo, rng, weight, status, transmit, counts)
     return counts
