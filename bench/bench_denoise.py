@@ -27,10 +27,14 @@ Static camera (``--progressive-frames``, default 32; the scene camera, a referen
 the 1-spp neural frames (what ``ProgressiveRender`` shows), WRLS fed that running mean, and WRLS fed each frame
 alone, rel. L2 after 4, 8, 16 and 32 frames.
 
-Timing (``--timing-size``, default 512x512, on ``--timing-scene``): ``--timing-frames`` neural 1-spp frames of an
-orbit, rendered, their depth maps computed and denoised; median milliseconds of each (the denoiser's own stages
-too), with the CPU model and the foreign load (:class:`common.Contention`). Goals: denoiser <= 30 ms per
-512x512 frame on 2 cores; neural frame + denoising <= 100 ms.
+Timing (``--timing-size``, default 512x512, on ``--timing-scene``, one scene or several comma-separated):
+``--timing-frames`` neural 1-spp frames of an orbit, rendered, their depth maps computed and denoised; median
+milliseconds of each (the renderer's stages and the denoiser's too), with the CPU model and the foreign load
+(:class:`common.Contention`); then the denoiser alone on the recorded frames, ``--alternations`` sequences.
+``--base COMMIT`` times that commit's code too (extracted as package ``pf_base``, as ``ab_tracking.py`` does),
+alternating with the working tree frame by frame, and reports new / base ratios and whether the renders and
+the denoised frames are identical: on a shared machine only such same-run ratios compare code versions.
+Goals: denoiser <= 30 ms per 512x512 frame on 2 cores; neural frame + denoising <= 100 ms.
 
 Bundles: ``--bundle SCENE=PATH``, else ``/tmp/bundles/<scene>/field.pfn`` when present, else those of
 ``bench_render.py`` (trained there when missing). Output: a table on stdout and JSON (default
@@ -53,7 +57,6 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np  # noqa: E402
 from common import Contention, finish_info, machine_info, parse_scenes, write_report  # noqa: E402
 
-from photon_fields.runtime.denoise.depth import DepthEstimator  # noqa: E402
 from photon_fields.runtime.denoise.wrls import WRLSDenoiser, WRLSParams  # noqa: E402
 from photon_fields.runtime.field.field import PhotonField  # noqa: E402
 from photon_fields.runtime.renderers.neural import render_neural  # noqa: E402
@@ -188,47 +191,143 @@ def run_progressive(name: str, args: argparse.Namespace, params: dict[str, Any],
     return rows
 
 
-def run_timing(args: argparse.Namespace, params: dict[str, Any], given: dict[str, str]) -> dict[str, Any]:
-    """Milliseconds per ``--timing-size`` frame: neural 1-spp render, depth map, denoiser (and its stages)."""
-    name = args.timing_scene
+class Side:
+    """One code version's entry points for the timing: the working tree's, or ``--base``'s (``pf_base``)."""
+
+    def __init__(self, label: str, package: str) -> None:
+        import importlib
+
+        self.label = label
+
+        def mod(name: str) -> Any:
+            return importlib.import_module(f"{package}.{name}")
+
+        self.builtin_scene = mod("runtime.scene.scene").builtin_scene
+        self.orbit_camera = mod("runtime.scene.camera").orbit_camera
+        self.PhotonField = mod("runtime.field.field").PhotonField
+        self.render_neural = mod("runtime.renderers.neural").render_neural
+        self.DepthEstimator = mod("runtime.denoise.depth").DepthEstimator
+        self.WRLSDenoiser = mod("runtime.denoise.wrls").WRLSDenoiser
+
+
+def base_side(commit: str) -> Side:
+    """``commit``'s code as package ``pf_base`` (``ab_tracking.extract_base``), extracted once per commit into
+    ``/tmp/pfn_ab_base/<sha>`` so that numba's on-disk cache of the base's kernels survives between runs."""
+    import subprocess
+    import sys
+
+    from ab_tracking import extract_base
+
+    sha = subprocess.run(["git", "-C", str(HERE.parent), "rev-parse", commit], check=True, capture_output=True,
+                         text=True).stdout.strip()
+    into = Path("/tmp/pfn_ab_base") / sha
+    if not (into / "pf_base").exists():
+        tmp = into.with_name(sha + ".partial")
+        tmp.mkdir(parents=True, exist_ok=True)
+        extract_base(sha, tmp)
+        tmp.rename(into)
+    sys.path.insert(0, str(into))
+    return Side(f"base {commit} ({sha[:8]})", "pf_base")
+
+
+def _ms(stages: dict[str, list[float]], key: str, value: float) -> None:
+    stages.setdefault(key, []).append(value)
+
+
+def run_timing(args: argparse.Namespace, params: dict[str, Any], given: dict[str, str], name: str,
+               sides: list[Side]) -> dict[str, Any]:
+    """Milliseconds per ``--timing-size`` frame of scene ``name``: neural 1-spp render (per stage), depth map,
+    denoiser (and its stages), for each code version in ``sides``, alternating frame by frame (the order
+    swapped every frame), so that a shared machine's drift hits every side alike. With two sides, their renders
+    and denoised frames are compared (``identical``: bit for bit; ``max_rel_diff``: the largest difference of a
+    denoised pixel over the frame's mean), and the denoisers are also timed back to back on the first side's
+    recorded frames (the same input for every side), alternating whole sequences."""
     size = args.timing_size
-    scene = builtin_scene(name).with_overrides(width=size, height=size)
-    est = PhotonField.load(bundle_path(name, scene, given)).estimator()
-    render_neural(scene.with_overrides(width=16, height=16), est, spp=1, progress=False)
-    depth_of = DepthEstimator(scene.medium())
-    dn = WRLSDenoiser(size, size, **params)
-    stages: dict[str, list[float]] = {}
-    recorded = []
+    st: dict[str, dict[str, Any]] = {}
+    for side in sides:
+        scene = side.builtin_scene(name).with_overrides(width=size, height=size)
+        est = side.PhotonField.load(bundle_path(name, builtin_scene(name), given)).estimator()
+        side.render_neural(scene.with_overrides(width=16, height=16), est, spp=1, progress=False)
+        st[side.label] = {"scene": scene, "est": est, "depth_of": side.DepthEstimator(scene.medium()),
+                          "dn": side.WRLSDenoiser(size, size, **params), "stages": {}, "recorded": []}
+    same_render, same_denoised, max_rel = True, True, 0.0
     with Contention() as busy:
         for i in range(args.timing_frames):
-            cam = orbit_camera(scene.camera, args.degrees_per_frame * i)
-            t0 = time.perf_counter()
-            frame = render_neural(scene.with_overrides(camera=cam), est, spp=1, seed=i, progress=False).layers["L"]
-            t1 = time.perf_counter()
-            depth = depth_of.depth(cam)
-            t2 = time.perf_counter()
-            dn.denoise(frame, camera=cam, depth=depth)
-            t3 = time.perf_counter()
-            recorded.append((frame, cam, depth))
-            if i < 2:  # compilation / cache loading, first-frame allocations
-                continue
-            for k, v in (("neural_render", t1 - t0), ("depth", t2 - t1), ("denoise", t3 - t2)):
-                stages.setdefault(k, []).append(v * 1e3)
-            for k, v in dn.timings_ms.items():
-                if k not in ("depth", "total"):
-                    stages.setdefault(f"denoise.{k}", []).append(v)
+            outputs = {}
+            for side in sides if i % 2 == 0 else sides[::-1]:
+                s = st[side.label]
+                cam = side.orbit_camera(s["scene"].camera, args.degrees_per_frame * i)
+                t0 = time.perf_counter()
+                result = side.render_neural(s["scene"].with_overrides(camera=cam), s["est"], spp=1, seed=i,
+                                            progress=False)
+                t1 = time.perf_counter()
+                depth = s["depth_of"].depth(cam)
+                t2 = time.perf_counter()
+                out = s["dn"].denoise(result.layers["L"], camera=cam, depth=depth)
+                t3 = time.perf_counter()
+                outputs[side.label] = (result.layers["L"], out)
+                s["recorded"].append((result.layers["L"], cam, depth))
+                if i < 2:  # compilation / cache loading, first-frame allocations
+                    continue
+                stages = s["stages"]
+                for k, v in (("neural_render", t1 - t0), ("depth", t2 - t1), ("denoise", t3 - t2)):
+                    _ms(stages, k, v * 1e3)
+                for k, v in result.timings_ms.items():
+                    _ms(stages, f"render.{k}", v)
+                for k, v in s["dn"].timings_ms.items():
+                    if k not in ("depth", "total"):
+                        _ms(stages, f"denoise.{k}", v)
+            if len(sides) > 1:
+                (r0, d0), (r1, d1) = outputs[sides[0].label], outputs[sides[1].label]
+                same_render &= bool(np.array_equal(r0, r1))
+                same_denoised &= bool(np.array_equal(d0, d1))
+                max_rel = max(max_rel, float(np.max(np.abs(d0.astype(np.float64) - d1)) / max(float(d0.mean()),
+                                                                                               1e-30)))
         # The same frames again, denoised back to back (no render in between: the denoiser alone).
-        again = WRLSDenoiser(size, size, **params)
-        for i, (frame, cam, depth) in enumerate(recorded):
-            t0 = time.perf_counter()
-            again.denoise(frame, camera=cam, depth=depth)
-            if i >= 2:
-                stages.setdefault("denoise_back_to_back", []).append((time.perf_counter() - t0) * 1e3)
-    med = {k: float(np.median(v)) for k, v in stages.items()}
-    med["frame_with_denoising"] = med["neural_render"] + med["depth"] + med["denoise"]
-    return {"scene": name, "size": [size, size], "frames_timed": args.timing_frames - 2,
-            "median_ms": med, "min_ms": {k: float(np.min(v)) for k, v in stages.items()},
-            "other_cores": busy.other_cores}
+        recorded = st[sides[0].label]["recorded"]
+        for rep in range(args.alternations):
+            for side in sides if rep % 2 == 0 else sides[::-1]:
+                again = side.WRLSDenoiser(size, size, **params)
+                for i, ((frame, _, depth), (_, cam, _)) in enumerate(zip(recorded, st[side.label]["recorded"],
+                                                                         strict=True)):
+                    t0 = time.perf_counter()
+                    again.denoise(frame, camera=cam, depth=depth)
+                    if i >= 2:
+                        _ms(st[side.label]["stages"], "denoise_back_to_back", (time.perf_counter() - t0) * 1e3)
+    result: dict[str, Any] = {"scene": name, "size": [size, size], "frames_timed": args.timing_frames - 2,
+                              "other_cores": busy.other_cores, "sides": {}}
+    for side in sides:
+        stages = st[side.label]["stages"]
+        med = {k: float(np.median(v)) for k, v in stages.items()}
+        med["frame_with_denoising"] = med["neural_render"] + med["depth"] + med["denoise"]
+        result["sides"][side.label] = {"median_ms": med, "min_ms": {k: float(np.min(v)) for k, v in stages.items()}}
+    if len(sides) > 1:
+        a, b = (result["sides"][s.label]["median_ms"] for s in sides)
+        result["ratio_new_over_base"] = {k: b[k] / a[k] for k in a if k in b and a[k] > 0}
+        result["identical_renders"] = same_render
+        result["identical_denoised"] = same_denoised
+        result["denoised_max_rel_diff"] = max_rel
+    return result
+
+
+def print_timing(t: dict[str, Any]) -> None:
+    size = t["size"][0]
+    for label, r in t["sides"].items():
+        m = r["median_ms"]
+        split = ", ".join(f"{k.removeprefix('render.')} {v:.1f}" for k, v in m.items()
+                          if k.startswith("render.") and k != "render.total" and v >= 0.5)
+        print(f"{size}x{size} {t['scene']} {label} (median ms): neural 1 spp {m['neural_render']:.1f} ({split}), "
+              f"depth {m['depth']:.1f}, denoise {m['denoise']:.1f} (back to back {m['denoise_back_to_back']:.1f}; "
+              f"prepare {m.get('denoise.prepare', 0.0):.1f}, temporal {m['denoise.temporal']:.1f}, spatial "
+              f"{m['denoise.spatial']:.1f}); frame with denoising {m['frame_with_denoising']:.1f}")
+    if "ratio_new_over_base" in t:
+        keys = ("neural_render", "render.sample_first_interactions", "render.estimate_indirect",
+                "render.estimate_direct", "depth", "denoise", "denoise_back_to_back", "frame_with_denoising")
+        ratios = ", ".join(f"{k.removeprefix('render.')} {t['ratio_new_over_base'][k]:.2f}" for k in keys
+                           if k in t["ratio_new_over_base"])
+        print(f"  new / base: {ratios}; renders identical: {t['identical_renders']}, denoised identical: "
+              f"{t['identical_denoised']} (max diff / mean {t['denoised_max_rel_diff']:.2e})")
+    print(f"  other cores busy: {t['other_cores']}", flush=True)
 
 
 def parse_params(text: str | None) -> dict[str, Any]:
@@ -257,7 +356,9 @@ def main() -> None:
     ap.add_argument("--progressive-frames", type=int, default=32, help="static-camera frames (0: skip)")
     ap.add_argument("--timing-size", type=int, default=512)
     ap.add_argument("--timing-frames", type=int, default=12)
-    ap.add_argument("--timing-scene", default="vortex")
+    ap.add_argument("--timing-scene", default="vortex", help="scene(s) of the timing, comma-separated")
+    ap.add_argument("--base", default=None, help="also time this commit's code (as pf_base), alternating")
+    ap.add_argument("--alternations", type=int, default=4, help="back-to-back denoiser sequences per side")
     ap.add_argument("--no-timing", action="store_true")
     ap.add_argument("--timing-only", action="store_true", help="only the timing part (no orbits, no references)")
     ap.add_argument("--bundle", action="append", default=[], help="SCENE=PATH")
@@ -292,23 +393,25 @@ def main() -> None:
             print(f"         static camera, frames {'  '.join(cells)}   (running mean / WRLS of it / WRLS of each "
                   "frame)", flush=True)
     timing = None
+    timings: dict[str, Any] = {}
     if not args.no_timing:
-        timing = run_timing(args, params, given)
-        m = timing["median_ms"]
-        print(f"\n{args.timing_size}x{args.timing_size} {timing['scene']} (median ms): neural 1 spp "
-              f"{m['neural_render']:.1f}, depth {m['depth']:.1f}, denoise {m['denoise']:.1f} (back to back "
-              f"{m['denoise_back_to_back']:.1f}; prepare "
-              f"{m['denoise.prepare']:.1f}, temporal {m['denoise.temporal']:.1f}, spatial {m['denoise.spatial']:.1f})"
-              f"; frame with denoising {m['frame_with_denoising']:.1f}; other cores busy: {timing['other_cores']}")
-        results["_timing"] = {"other_cores": timing["other_cores"]}
+        sides = [Side("new", "photon_fields")]
+        if args.base:
+            sides.insert(0, base_side(args.base))
+        for name in parse_scenes(args.timing_scene.split(",")):
+            timings[name] = run_timing(args, params, given, name, sides)
+            print_timing(timings[name])
+            results[f"_timing_{name}"] = {"other_cores": timings[name]["other_cores"]}
+        timing = next(iter(timings.values()))
     info = finish_info(info, results)
-    results.pop("_timing", None)
+    for name in timings:
+        results.pop(f"_timing_{name}", None)
     config = {"size": args.size, "frames": args.frames, "warmup": args.warmup,
               "degrees_per_frame": args.degrees_per_frame, "ref_spp": args.ref_spp, "pt_spp": PT_SPP,
               "params": asdict(WRLSParams(**params)), "progressive_frames": args.progressive_frames,
-              "timing_size": args.timing_size,
+              "timing_size": args.timing_size, "timing_scenes": list(timings), "base": args.base,
               "timing_frames": args.timing_frames}
-    write_report(args.out, "denoise", info, config, scenes=results, timing=timing)
+    write_report(args.out, "denoise", info, config, scenes=results, timing=timing, timing_scenes=timings)
 
 
 if __name__ == "__main__":

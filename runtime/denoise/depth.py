@@ -21,8 +21,9 @@ Cost: the march runs on a coarse copy of the extinction, the mean of ``sigma_t``
 ``block``^3 block (``block = 2``: a 96^3 volume becomes 48^3 cells), with a 3-D DDA (Amanatides & Woo 1987)
 over its cells, inside which ``sigma_t`` is constant and ``tau`` grows linearly, so ``t*`` is exact for the
 coarse grid; from an empty cell the walk leaps over the largest empty cube of cells ahead of it
-(:func:`photon_fields.runtime.transport.medium.leap_distances` on the coarse grid). Two walks per ray (the first
-for ``T_exit``, ending once the ray is opaque), one parallel region.
+(:func:`photon_fields.runtime.transport.medium.leap_distances` on the coarse grid). One walk per ray, for
+``T_exit``, ending once the ray is opaque; it records its segments of medium, and ``t*`` is found among them
+(the same arithmetic as a second walk to ``tau(t*)``, which it replaced); one parallel region.
 ``stride = 2`` (default) marches one ray per 2x2 pixels, through the block's centre, and gives the block's
 pixels its depth: 4x cheaper, with no measurable change in the denoised orbits (development runs, vortex and
 shell). Milliseconds per 512x512 frame: bench/README.md (``bench/bench_denoise.py``).
@@ -134,12 +135,17 @@ def _axis(o: float, d: float, bmin: float, per_unit: float, n: int, t: float) ->
     return c, 0, math.inf, math.inf
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _walk(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, per_unit: np.ndarray, ox: float, oy: float,
-          oz: float, dx: float, dy: float, dz: float, t0: float, t1: float, tau_stop: float) -> tuple[float, float]:
+          oz: float, dx: float, dy: float, dz: float, t0: float, t1: float, tau_stop: float,
+          segs: np.ndarray) -> tuple[float, float, int]:
     """3-D DDA over the coarse cells from ``t0`` to ``t1``: (optical depth reached, distance where it reached
-    ``tau_stop``, or inf if it never did). From an empty cell it jumps to where the ray leaves the empty cube
-    ``leap`` holds for its direction octant, and sets the DDA up again there."""
+    ``tau_stop``, or inf if it never did, segments recorded). From an empty cell it jumps to where the ray leaves
+    the empty cube ``leap`` holds for its direction octant, and sets the DDA up again there.
+
+    Every segment of medium it crosses (up to ``segs.shape[0]``; -1: more than that) is recorded in ``segs`` as
+    (distance where it starts, optical depth before it, its optical depth, sigma_t), so that
+    :func:`_replay` finds where the walk reaches a smaller optical depth without walking again."""
     nx, ny, nz = grid.shape
     nudge = 1e-9 * (t1 - t0)  # a set-up at distance t finds the cell the ray enters, not the one behind it
     cx, sx, nxt, dtx = _axis(ox, dx, bmin[0], per_unit[0], nx, t0 + nudge)
@@ -148,6 +154,7 @@ def _walk(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, per_unit: np.nda
     octant = (sx >= 0) + 2 * (sy >= 0) + 4 * (sz >= 0)
     tau = 0.0
     t = t0
+    n = 0
     while t < t1:
         sigma = grid[cx, cy, cz]
         r = int(leap[octant, cx, cy, cz])
@@ -166,8 +173,13 @@ def _walk(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, per_unit: np.nda
         t_end = min(nxt, nyt, nzt, t1)
         if sigma > 0.0 and t_end > t:
             seg = sigma * (t_end - t)
+            if 0 <= n < segs.shape[0]:
+                segs[n, 0], segs[n, 1], segs[n, 2], segs[n, 3] = t, tau, seg, sigma
+                n += 1
+            else:
+                n = -1
             if tau + seg >= tau_stop:
-                return tau_stop, t + (tau_stop - tau) / sigma
+                return tau_stop, t + (tau_stop - tau) / sigma, n
             tau += seg
         t = t_end
         if nxt <= nyt and nxt <= nzt:
@@ -185,7 +197,18 @@ def _walk(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, per_unit: np.nda
             nzt += dtz
             if cz < 0 or cz >= nz:
                 break
-    return tau, math.inf
+    return tau, math.inf, n
+
+
+@njit(cache=True, inline="always")
+def _replay(segs: np.ndarray, n: int, tau_stop: float) -> float:
+    """Where the walk that recorded ``n`` segments reached optical depth ``tau_stop`` (inf if it never did): the
+    same comparisons and arithmetic as :func:`_walk`'s, on its recorded values, so the same distance."""
+    for k in range(n):
+        t, tau, seg, sigma = segs[k, 0], segs[k, 1], segs[k, 2], segs[k, 3]
+        if tau + seg >= tau_stop:
+            return t + (tau_stop - tau) / sigma
+    return math.inf
 
 
 @njit(cache=True, parallel=True)
@@ -196,6 +219,8 @@ def _depth_image(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, bsize: np
     h, w = out.shape
     ox, oy, oz = view[EYE], view[EYE + 1], view[EYE + 2]
     for py in prange(h):
+        # A ray crosses at most nx + ny + nz cells: room for every segment of its walk.
+        segs = np.empty((grid.shape[0] + grid.shape[1] + grid.shape[2] + 4, 4))
         cy = 0.5 * (stride * py + min(stride * (py + 1), view[HEIGHT]))
         for px in range(w):
             cx = 0.5 * (stride * px + min(stride * (px + 1), view[WIDTH]))
@@ -203,10 +228,15 @@ def _depth_image(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, bsize: np
             t0, t1 = _box(bmin, bsize, ox, oy, oz, dx, dy, dz)
             depth = math.inf
             if t0 < t1:
-                tau_exit, _ = _walk(grid, leap, bmin, per_unit, ox, oy, oz, dx, dy, dz, t0, t1, _TAU_OPAQUE)
+                tau_exit, _, n = _walk(grid, leap, bmin, per_unit, ox, oy, oz, dx, dy, dz, t0, t1, _TAU_OPAQUE,
+                                       segs)
                 opacity = 1.0 - math.exp(-tau_exit)
                 if opacity >= min_opacity:
                     tau_half = -math.log(1.0 - quantile * opacity)
-                    _, t_half = _walk(grid, leap, bmin, per_unit, ox, oy, oz, dx, dy, dz, t0, t1, tau_half)
+                    if n >= 0:  # the quantile lies on the walk so far (tau_half < tau_exit): no second walk
+                        t_half = _replay(segs, n, tau_half)
+                    else:
+                        _, t_half, _ = _walk(grid, leap, bmin, per_unit, ox, oy, oz, dx, dy, dz, t0, t1, tau_half,
+                                             segs[:0])
                     depth = t_half if t_half < math.inf else t1
             out[py, px] = depth

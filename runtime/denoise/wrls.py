@@ -78,9 +78,11 @@ Use:
 Any renderer's (H, W, 3) float layer works; the depth map is the renderer-independent scene depth.
 Deterministic (no random numbers; each pixel is computed by one thread from the previous frame's state, so
 thread counts do not change results, which the tests check). Bounded memory, allocated once: two (H, W, 25)
-float32 states, the (29, H, W) planes the spatial filter reads, the (9, H, W) reconstructed frame and clamp
-bounds, depth and history weight: ~360 bytes per pixel. Three parallel regions per frame (the kernels of
-:mod:`photon_fields.runtime.denoise.wrls_kernels`), compiled with fastmath. Milliseconds: bench/README.md.
+float32 states, the (29, H, W) planes the spatial filter reads (padded by a few columns), depth and history
+weight: ~320 bytes per pixel. Two parallel regions per frame (the kernels of
+:mod:`photon_fields.runtime.denoise.wrls_kernels`; the reconstructed frame and Psi's bounds are computed row by row
+inside the first, never stored), compiled with fastmath; ``tests/runtime/denoise/test_wrls_reference.py`` holds
+them to a float64 reference of the equations. Milliseconds: bench/README.md.
 """
 
 from __future__ import annotations
@@ -94,7 +96,7 @@ import numpy as np
 
 from photon_fields.runtime.denoise.depth import DepthEstimator
 from photon_fields.runtime.denoise.reprojection import VIEW_SIZE, pack_view
-from photon_fields.runtime.denoise.wrls_kernels import PLANES, STATE, prepare, spatial, temporal
+from photon_fields.runtime.denoise.wrls_kernels import PLANES, STATE, spatial, temporal
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.scene.camera import Camera
 from photon_fields.runtime.transport.medium import Medium
@@ -156,7 +158,7 @@ class WRLSDenoiser:
     camera comes without one; or ``depth_estimator``, one already made for it (depth maps do not depend on the
     frame size, so denoisers of several sizes can share one). :meth:`denoise` keeps the per-pixel state between
     calls; :meth:`reset` forgets it (a cut). ``timings_ms`` holds the last call's stage times (depth,
-    reconstruct, temporal, spatial)."""
+    temporal: stages 1-4, spatial)."""
 
     def __init__(self, width: int, height: int, params: WRLSParams | None = None, *, medium: Medium | None = None,
                  depth_estimator: DepthEstimator | None = None, **overrides: Any) -> None:
@@ -176,13 +178,14 @@ class WRLSDenoiser:
         shape = (self.height, self.width)
         self._prev = np.zeros((*shape, STATE), np.float32)
         self._cur = np.zeros((*shape, STATE), np.float32)
-        self._planes = np.zeros((PLANES, *shape), np.float32)
-        self._prep = np.zeros((9, *shape), np.float32)
+        p = self.params
+        # Padded by the window radius (at least 2 columns: the spatial kernel's default path reads 2 each side).
+        pad = max(p.window_radius, 2)
+        self._planes = np.zeros((PLANES, self.height, self.width + 2 * pad), np.float32)
         #: (H, W) float32 after each frame: the bilinear weight of the history each pixel found (1: all four
         #: pixels around q; 0: it restarted: first frame, off-screen, disoccluded).
         self.history_weight = np.zeros(shape, np.float32)
         self._prev_depth = np.full(shape, -1.0, np.float32)  # kernel format: -1 is background
-        p = self.params
         r = max(1, math.floor(3.0 * p.reconstruction_sigma)) if p.reconstruction_sigma > 0 else 0
         taps = np.exp(-0.5 * (np.arange(-r, r + 1) / p.reconstruction_sigma) ** 2) if r else np.ones(1)
         self._taps = (taps / taps.sum()).astype(np.float32)
@@ -232,19 +235,16 @@ class WRLSDenoiser:
         p = self.params
         timings = {"depth": t_depth * 1e3}
         t = time.perf_counter()
-        prepare(frame, self._taps, np.float32(1.0 / self.scale), p.clamp_radius, self._prep)
-        timings["prepare"] = (time.perf_counter() - t) * 1e3
-        t = time.perf_counter()
         blank = np.zeros(VIEW_SIZE)
-        temporal(self._prep, self._prev, self._cur, self._planes, self.history_weight, self.frames > 0, moving,
-                  view if view is not None else blank, self._view if self._view is not None else blank, kdepth,
-                  self._prev_depth, p.alpha, p.forgetting, p.bandwidth, p.epsilon, p.prior,
-                  p.predictor == "history", p.depth_tolerance)
+        temporal(frame, self._taps, np.float32(1.0 / self.scale), p.clamp_radius, self._prev, self._cur,
+                 self._planes, self.history_weight, self.frames > 0, moving, view if view is not None else blank,
+                 self._view if self._view is not None else blank, kdepth, self._prev_depth, p.alpha, p.forgetting,
+                 p.bandwidth, p.epsilon, p.prior, p.predictor == "history", p.depth_tolerance)
         timings["temporal"] = (time.perf_counter() - t) * 1e3
         t = time.perf_counter()
         out = np.empty((self.height, self.width, 3), np.float32)
         spatial(self._planes, self._spatial_w, np.float32(1.0 / (3.0 * p.spatial_bandwidth**2)),
-                 np.float32(p.epsilon), self.scale, out)
+                np.float32(p.epsilon), self.scale, out)
         timings["spatial"] = (time.perf_counter() - t) * 1e3
         self._prev, self._cur = self._cur, self._prev
         if kdepth is not self._prev_depth:

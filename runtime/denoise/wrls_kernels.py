@@ -1,7 +1,8 @@
-"""The WRLS denoiser's numba kernels, one per stage of a frame (:mod:`photon_fields.runtime.denoise.wrls` says what
-each computes and why, with the paper's equation numbers): :func:`prepare` (pixel reconstruction filter and Psi's
-bounds), :func:`temporal` (reprojection, Eq. 12 feature, Eq. 13 weight, wRLS update Eq. 8-11 / 14) and
-:func:`spatial` (the 5x5 blend of the neighbours' models). The state layout they share is defined here.
+"""The WRLS denoiser's numba kernels, two parallel regions per frame (:mod:`photon_fields.runtime.denoise.wrls`
+says what each stage computes and why, with the paper's equation numbers): :func:`temporal` (per row, the pixel
+reconstruction filter and Psi's bounds of :func:`_prepare_row`, then reprojection, Eq. 12 feature, Eq. 13 weight,
+wRLS update Eq. 8-11 / 14) and :func:`spatial` (the 5x5 blend of the neighbours' models). The state layout they
+share is defined here.
 """
 
 from __future__ import annotations
@@ -15,8 +16,9 @@ from photon_fields.runtime.denoise.reprojection import reproject_pixel
 
 # Per-pixel state (float32, (H, W, STATE), the last axis contiguous for the bilinear reads of the reprojection):
 # the feature z (3), the coefficients beta (3 channels x 4: intercept, slopes on the predictor's three colours)
-# and the upper triangle of the symmetric 4x4 P, row by row (10). The spatial filter reads planes ((PLANES, H, W):
-# its loops over x vectorize): z and beta at the same indices, |z| and the predictor's colours.
+# and the upper triangle of the symmetric 4x4 P, row by row (10). The spatial filter reads planes ((PLANES, H,
+# W + 2 pad), padded by ``pad`` >= the window radius zero columns on each side: its loops over x vectorize, with no
+# edge cases): z and beta at the same indices, |z| and the predictor's colours.
 _Z, _B, _P = 0, 3, 15
 STATE = 25
 _N, _F = 25, 26
@@ -31,65 +33,62 @@ P_MAX_TRACE = 1e6  # the cap on trace(P) against covariance wind-up (in temporal
 # --- kernels -------------------------------------------------------------------------------------------
 
 
-@njit(cache=True, parallel=True, fastmath=_FAST)
-def prepare(frame: np.ndarray, taps: np.ndarray, inv_scale: np.float32, clamp_r: int, prep: np.ndarray) -> None:
-    """Stage 1 and Psi's bounds, as planes: ``prep[c]`` the frame through the separable Gaussian pixel
-    reconstruction filter (weights ``taps``, summing to 1, the image extended by its edge pixels) in units of
-    the first frame's mean radiance, ``prep[3 + c]`` / ``prep[6 + c]`` the min / max of ``prep[c]`` over the
-    ``(2 clamp_r + 1)^2`` neighbourhood. One output row at a time: the rows it needs are deinterleaved into
-    padded buffers, after which every loop runs over contiguous x and vectorizes."""
+@njit(cache=True, inline="always")
+def _prepare_row(frame: np.ndarray, taps: np.ndarray, inv_scale: np.float32, clamp_r: int, y: int,
+                 rows: np.ndarray, filt: np.ndarray, hrow: np.ndarray, hmin: np.ndarray, hmax: np.ndarray,
+                 tmp: np.ndarray, prep: np.ndarray) -> None:
+    """Stage 1 and Psi's bounds for row ``y``, as planes: ``prep[c]`` the frame through the separable Gaussian
+    pixel reconstruction filter (weights ``taps``, summing to 1, the image extended by its edge pixels) in units
+    of the first frame's mean radiance, ``prep[3 + c]`` / ``prep[6 + c]`` the min / max of ``prep[c]`` over the
+    ``(2 clamp_r + 1)^2`` neighbourhood (rows beyond the image: the filter of the edge-extended frame; columns:
+    the edge-extended filter). The rows it needs are deinterleaved into padded buffers (``rows`` (2 (clamp_r +
+    r) + 1, W + 2 r), ``filt`` (2 clamp_r + 1, W + 2 clamp_r), ``hrow``, ``hmin``, ``hmax``, ``tmp``: scratch
+    of the caller's thread), after which every loop runs over contiguous x and vectorizes."""
     height, width, _ = frame.shape
     r = taps.shape[0] // 2
     nrow = 2 * (clamp_r + r) + 1
-    for y in prange(height):
-        rows = np.empty((nrow, width + 2 * r), dtype=np.float32)  # input rows y - clamp_r - r ..., padded
-        filt = np.empty((2 * clamp_r + 1, width + 2 * clamp_r), dtype=np.float32)  # filtered rows, padded
-        hrow = np.empty((nrow, width), dtype=np.float32)
-        hmin = np.empty((2 * clamp_r + 1, width), dtype=np.float32)
-        hmax = np.empty((2 * clamp_r + 1, width), dtype=np.float32)
-        tmp = np.empty(width, dtype=np.float32)
-        for c in range(3):
-            for j in range(nrow):
-                yi = min(max(y - clamp_r - r + j, 0), height - 1)
-                row = rows[j]
-                for x in range(width):
-                    row[r + x] = frame[yi, x, c] * inv_scale
-                for k in range(r):
-                    row[k] = row[r]
-                    row[r + width + k] = row[r + width - 1]
-                h = hrow[j]
-                for x in range(width):
-                    h[x] = 0.0
-                for k in range(2 * r + 1):
-                    tk = taps[k]
-                    src = row[k:k + width]
-                    for x in range(width):
-                        h[x] += tk * src[x]
-            for j in range(2 * clamp_r + 1):
-                f = filt[j, clamp_r:clamp_r + width]
-                for x in range(width):
-                    f[x] = 0.0
-                for k in range(2 * r + 1):
-                    tk = taps[k]
-                    src = hrow[j + k]
-                    for x in range(width):
-                        f[x] += tk * src[x]
-                fr = filt[j]
-                for k in range(clamp_r):
-                    fr[k] = fr[clamp_r]
-                    fr[clamp_r + width + k] = fr[clamp_r + width - 1]
-            centre = filt[clamp_r, clamp_r:clamp_r + width]
-            out = prep[c, y]
+    for c in range(3):
+        for j in range(nrow):
+            yi = min(max(y - clamp_r - r + j, 0), height - 1)
+            row = rows[j]
             for x in range(width):
-                out[x] = centre[x]
-            # Psi's bounds, separably: per filtered row the min / max over the horizontal window, then over the
-            # rows. Every loop writes one array from two others (a form LLVM vectorizes: an in-place
-            # lo[x] = min(lo[x], v) does not), ping-ponging between buffers.
-            for j in range(2 * clamp_r + 1):
-                _window_extreme(filt[j], clamp_r, width, hmin[j], tmp, True)
-                _window_extreme(filt[j], clamp_r, width, hmax[j], tmp, False)
-            _rows_extreme(hmin, prep[3 + c, y], tmp, True)
-            _rows_extreme(hmax, prep[6 + c, y], tmp, False)
+                row[r + x] = frame[yi, x, c] * inv_scale
+            for k in range(r):
+                row[k] = row[r]
+                row[r + width + k] = row[r + width - 1]
+            h = hrow[j]
+            for x in range(width):
+                h[x] = 0.0
+            for k in range(2 * r + 1):
+                tk = taps[k]
+                src = row[k:k + width]
+                for x in range(width):
+                    h[x] += tk * src[x]
+        for j in range(2 * clamp_r + 1):
+            f = filt[j, clamp_r:clamp_r + width]
+            for x in range(width):
+                f[x] = 0.0
+            for k in range(2 * r + 1):
+                tk = taps[k]
+                src = hrow[j + k]
+                for x in range(width):
+                    f[x] += tk * src[x]
+            fr = filt[j]
+            for k in range(clamp_r):
+                fr[k] = fr[clamp_r]
+                fr[clamp_r + width + k] = fr[clamp_r + width - 1]
+        centre = filt[clamp_r, clamp_r:clamp_r + width]
+        out = prep[c]
+        for x in range(width):
+            out[x] = centre[x]
+        # Psi's bounds, separably: per filtered row the min / max over the horizontal window, then over the
+        # rows. Every loop writes one array from two others (a form LLVM vectorizes: an in-place
+        # lo[x] = min(lo[x], v) does not), ping-ponging between buffers.
+        for j in range(2 * clamp_r + 1):
+            _window_extreme(filt[j], clamp_r, width, hmin[j], tmp, True)
+            _window_extreme(filt[j], clamp_r, width, hmax[j], tmp, False)
+        _rows_extreme(hmin, prep[3 + c], tmp, True)
+        _rows_extreme(hmax, prep[6 + c], tmp, False)
 
 
 @njit(cache=True, inline="always")
@@ -168,21 +167,35 @@ def _gather(prev: np.ndarray, prev_depth: np.ndarray, qx: float, qy: float, dist
 
 
 @njit(cache=True, parallel=True, fastmath=_FAST)
-def temporal(prep: np.ndarray, prev: np.ndarray, cur: np.ndarray, planes: np.ndarray, found_out: np.ndarray,
-              have_prev: bool, moving: bool, view_cur: np.ndarray, view_prev: np.ndarray, depth: np.ndarray,
-              prev_depth: np.ndarray, alpha: float, lam: float, h: float, eps: float, prior: float,
-              history_pred: bool, depth_tol: float) -> None:
-    """Stages 2-4 for every pixel: reproject, Eq. 12, Eq. 13, Eq. 14 / 8 / 9 / 11; writes the new state
-    ``cur``, the spatial filter's ``planes`` and the history weight found (0: restarted) into ``found_out``."""
-    _, height, width = prep.shape
+def temporal(frame: np.ndarray, taps: np.ndarray, inv_scale: np.float32, clamp_r: int, prev: np.ndarray,
+             cur: np.ndarray, planes: np.ndarray, found_out: np.ndarray, have_prev: bool, moving: bool,
+             view_cur: np.ndarray, view_prev: np.ndarray, depth: np.ndarray, prev_depth: np.ndarray, alpha: float,
+             lam: float, h: float, eps: float, prior: float, history_pred: bool, depth_tol: float) -> None:
+    """Stages 1-4 for every pixel, one row at a time: the row's reconstructed frame and Psi's bounds
+    (:func:`_prepare_row`), then reproject, Eq. 12, Eq. 13, Eq. 14 / 8 / 9 / 11; writes the new state ``cur``,
+    the spatial filter's ``planes`` (columns offset by their padding, which stays 0) and the history weight
+    found (0: restarted) into ``found_out``. One parallel region: the reconstructed frame never goes to
+    memory."""
+    height, width, _ = frame.shape
+    pad = (planes.shape[2] - width) // 2
+    r = taps.shape[0] // 2
+    nrow = 2 * (clamp_r + r) + 1
     inv_h2 = 1.0 / (h * h)
     inv_lam = 1.0 / lam
     for y in prange(height):
         hist = np.empty(STATE)
+        rows = np.empty((nrow, width + 2 * r), dtype=np.float32)
+        filt = np.empty((2 * clamp_r + 1, width + 2 * clamp_r), dtype=np.float32)
+        hrow = np.empty((nrow, width), dtype=np.float32)
+        hmin = np.empty((2 * clamp_r + 1, width), dtype=np.float32)
+        hmax = np.empty((2 * clamp_r + 1, width), dtype=np.float32)
+        tmp = np.empty(width, dtype=np.float32)
+        prep = np.empty((9, width), dtype=np.float32)
+        _prepare_row(frame, taps, inv_scale, clamp_r, y, rows, filt, hrow, hmin, hmax, tmp, prep)
         for x in range(width):
-            i0 = prep[0, y, x]
-            i1 = prep[1, y, x]
-            i2 = prep[2, y, x]
+            i0 = prep[0, x]
+            i1 = prep[1, x]
+            i2 = prep[2, x]
             # Stage 2: reprojection, q = pi(v_j).
             found = 0.0
             if have_prev:
@@ -197,9 +210,9 @@ def temporal(prep: np.ndarray, prev: np.ndarray, cur: np.ndarray, planes: np.nda
             found_out[y, x] = found
             # Stage 3: the temporal feature, Eq. 12, with the clamped history Psi[z_q(t-1), I~_j(t)].
             if found > 0.0:
-                c0 = min(max(hist[_Z], prep[3, y, x]), prep[6, y, x])
-                c1 = min(max(hist[_Z + 1], prep[4, y, x]), prep[7, y, x])
-                c2 = min(max(hist[_Z + 2], prep[5, y, x]), prep[8, y, x])
+                c0 = min(max(hist[_Z], prep[3, x]), prep[6, x])
+                c1 = min(max(hist[_Z + 1], prep[4, x]), prep[7, x])
+                c2 = min(max(hist[_Z + 2], prep[5, x]), prep[8, x])
                 z0 = alpha * c0 + (1.0 - alpha) * i0
                 z1 = alpha * c1 + (1.0 - alpha) * i1
                 z2 = alpha * c2 + (1.0 - alpha) * i2
@@ -250,10 +263,10 @@ def temporal(prep: np.ndarray, prev: np.ndarray, cur: np.ndarray, planes: np.nda
                 cur[y, x, b + 1] = b1
                 cur[y, x, b + 2] = b2
                 cur[y, x, b + 3] = b3
-                planes[_B + 4 * c, y, x] = b0
-                planes[_B + 4 * c + 1, y, x] = b1
-                planes[_B + 4 * c + 2, y, x] = b2
-                planes[_B + 4 * c + 3, y, x] = b3
+                planes[_B + 4 * c, y, pad + x] = b0
+                planes[_B + 4 * c + 1, y, pad + x] = b1
+                planes[_B + 4 * c + 2, y, pad + x] = b2
+                planes[_B + 4 * c + 3, y, pad + x] = b3
             # Eq. 11: P(t) = (P - q p P) / lambda; q p P = q v^T is symmetric. A pixel whose samples all get w ~ 0
             # would see P grow as lambda^-t without bound (RLS "covariance wind-up", float32 overflow after ~40k
             # frames): P is scaled back to a trace of P_MAX_TRACE, which keeps it positive definite.
@@ -278,69 +291,95 @@ def temporal(prep: np.ndarray, prev: np.ndarray, cur: np.ndarray, planes: np.nda
             cur[y, x, _Z] = z0
             cur[y, x, _Z + 1] = z1
             cur[y, x, _Z + 2] = z2
-            planes[_Z, y, x] = z0
-            planes[_Z + 1, y, x] = z1
-            planes[_Z + 2, y, x] = z2
-            planes[_N, y, x] = nz
-            planes[_F, y, x] = p1
-            planes[_F + 1, y, x] = p2
-            planes[_F + 2, y, x] = p3
+            planes[_Z, y, pad + x] = z0
+            planes[_Z + 1, y, pad + x] = z1
+            planes[_Z + 2, y, pad + x] = z2
+            planes[_N, y, pad + x] = nz
+            planes[_F, y, pad + x] = p1
+            planes[_F + 1, y, pad + x] = p2
+            planes[_F + 2, y, pad + x] = p3
 
 
 @njit(cache=True, parallel=True, fastmath=_FAST)
-def spatial(state: np.ndarray, spatial_w: np.ndarray, inv_3hs2: np.float32, eps: np.float32, scale: float,
-             out: np.ndarray) -> None:
+def spatial(planes: np.ndarray, spatial_w: np.ndarray, inv_3hs2: np.float32, eps: np.float32, scale: float,
+            out: np.ndarray) -> None:
     """Stage 5: ``I^_i = sum_k W_ik p_i beta_k^T / sum_k W_ik`` over the window, computed as
-    ``p_i (sum_k W_ik beta_k^T) / sum_k W_ik``; one row at a time, window offset by window offset, so that
-    every inner loop runs over contiguous x and vectorizes."""
-    _, height, width = state.shape
+    ``p_i (sum_k W_ik beta_k^T) / sum_k W_ik``; one row at a time. Per window row, the weights of its
+    ``2 r + 1`` offsets are computed first (a weight row each, 0 where the neighbour is off the image); then each
+    of the 13 sums takes that window row's offsets in one pass over x (for the default r = 2: five products per
+    load and store of the sum). The planes are padded by at least r columns on each side (zeros), so that
+    every neighbour's view is in bounds and every inner loop runs over contiguous x and vectorizes."""
+    _, height, padded = planes.shape
+    width = out.shape[1]
+    pad = (padded - width) // 2
     r = spatial_w.shape[0] // 2
+    nw = 2 * r + 1
     one = np.float32(1.0)
     zero = np.float32(0.0)
     for y in prange(height):
         acc = np.zeros((13, width), dtype=np.float32)
-        wrow = np.empty(width, dtype=np.float32)
-        a0 = state[_Z, y]
-        a1 = state[_Z + 1, y]
-        a2 = state[_Z + 2, y]
-        an = state[_N, y]
+        wts = np.empty((nw, width), dtype=np.float32)
+        a0 = planes[_Z, y, pad:pad + width]
+        a1 = planes[_Z + 1, y, pad:pad + width]
+        a2 = planes[_Z + 2, y, pad:pad + width]
+        an = planes[_N, y, pad:pad + width]
         for dy in range(-r, r + 1):
             yy = y + dy
             if yy < 0 or yy >= height:
                 continue
-            b0 = state[_Z, yy]
-            b1 = state[_Z + 1, yy]
-            b2 = state[_Z + 2, yy]
-            bn = state[_N, yy]
-            for dx in range(-r, r + 1):
-                ws = spatial_w[dy + r, dx + r]
-                x0 = max(0, -dx)
-                n = min(width, width - dx) - x0
-                # Views aligned so that element i is pixel x0 + i and its neighbour x0 + i + dx: the loops
-                # index from 0, which lets numba drop its negative-index checks and LLVM vectorize.
-                c0, c1, c2, cn = a0[x0:x0 + n], a1[x0:x0 + n], a2[x0:x0 + n], an[x0:x0 + n]
-                e0, e1, e2 = b0[x0 + dx:x0 + dx + n], b1[x0 + dx:x0 + dx + n], b2[x0 + dx:x0 + dx + n]
-                en = bn[x0 + dx:x0 + dx + n]
-                wv = wrow[:n]
-                for i in range(n):
-                    d0 = c0[i] - e0[i]
-                    d1 = c1[i] - e1[i]
-                    d2 = c2[i] - e2[i]
-                    den = (cn[i] if cn[i] < en[i] else en[i]) + eps
+            for j in range(nw):
+                dx = j - r
+                ws = spatial_w[dy + r, j]
+                # Views aligned so that element i is pixel i and its neighbour i + dx (in the padding off the
+                # image): the loops index from 0, which lets numba drop its negative-index checks and LLVM
+                # vectorize.
+                e0 = planes[_Z, yy, pad + dx:pad + dx + width]
+                e1 = planes[_Z + 1, yy, pad + dx:pad + dx + width]
+                e2 = planes[_Z + 2, yy, pad + dx:pad + dx + width]
+                en = planes[_N, yy, pad + dx:pad + dx + width]
+                wv = wts[j]
+                for i in range(width):
+                    d0 = a0[i] - e0[i]
+                    d1 = a1[i] - e1[i]
+                    d2 = a2[i] - e2[i]
+                    den = (an[i] if an[i] < en[i] else en[i]) + eps
                     t = one - (d0 * d0 + d1 * d1 + d2 * d2) * inv_3hs2 / (den * den)
                     t = t if t > zero else zero
                     wv[i] = ws * t * t * t
-                dst = acc[0, x0:x0 + n]
-                for i in range(n):
-                    dst[i] += wv[i]
+                for i in range(max(0, -dx)):  # neighbours off the image's left or right edge weigh nothing
+                    wv[i] = zero
+                for i in range(width - max(0, dx), width):
+                    wv[i] = zero
+            if r == 2:
+                w0, w1, w2, w3, w4 = wts[0], wts[1], wts[2], wts[3], wts[4]
+                dst = acc[0]
+                for i in range(width):
+                    dst[i] += (w0[i] + w1[i]) + (w2[i] + w3[i]) + w4[i]
                 for k in range(12):
-                    dst = acc[1 + k, x0:x0 + n]
-                    src = state[_B + k, yy, x0 + dx:x0 + dx + n]
-                    for i in range(n):
-                        dst[i] += wv[i] * src[i]
-        f0 = state[_F, y]
-        f1 = state[_F + 1, y]
-        f2 = state[_F + 2, y]
+                    row = planes[_B + k, yy]
+                    s0 = row[pad - 2:pad - 2 + width]
+                    s1 = row[pad - 1:pad - 1 + width]
+                    s2 = row[pad:pad + width]
+                    s3 = row[pad + 1:pad + 1 + width]
+                    s4 = row[pad + 2:pad + 2 + width]
+                    dst = acc[1 + k]
+                    for i in range(width):
+                        dst[i] += (w0[i] * s0[i] + w1[i] * s1[i]) + (w2[i] * s2[i] + w3[i] * s3[i]) + w4[i] * s4[i]
+            else:
+                for j in range(nw):
+                    dx = j - r
+                    wv = wts[j]
+                    dst = acc[0]
+                    for i in range(width):
+                        dst[i] += wv[i]
+                    for k in range(12):
+                        src = planes[_B + k, yy, pad + dx:pad + dx + width]
+                        dst = acc[1 + k]
+                        for i in range(width):
+                            dst[i] += wv[i] * src[i]
+        f0 = planes[_F, y, pad:pad + width]
+        f1 = planes[_F + 1, y, pad:pad + width]
+        f2 = planes[_F + 2, y, pad:pad + width]
         for x in range(width):
             s = scale / acc[0, x]
             for c in range(3):
