@@ -71,6 +71,8 @@ HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "results" / "fidelity.json"
 DEFAULT_WORK = HERE / "results" / "fidelity"
 BETWEEN = (-0.6, -0.35, 0.35, 0.6)
+#: The phase bins of the default map before 2026-11-25 (windows whole over [-0.75, 0.75]).
+NARROW_BINS = tuple(round(-0.9 + 0.05 * i, 6) for i in range(37))
 
 
 @dataclass(frozen=True)
@@ -92,10 +94,15 @@ class Config:
 
 CONFIGS: dict[str, Config] = {
     "default": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", g_window=PHASE_WINDOW,
-                      about="the product's defaults: 37 phase bins, any g from a kernel in g, spline features, anneal, "
-                            "half the samples where cameras see the medium"),
+                      about="the product's defaults: 39 phase bins (any g of [-0.8, 0.8] from a kernel in g), K = 32, "
+                            "spline features, anneal, half the samples where cameras see the medium"),
     "support": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", {"sampling": "support"}, g_window=PHASE_WINDOW,
                       about="the default before 2026-11-25: every training sample uniform over the support"),
+    "narrow-K64": Config(DEFAULT_PHOTONS, NARROW_BINS, "cpu", {"k": 64}, g_window=PHASE_WINDOW,
+                         about="the default before 2026-11-25 10:00: 37 bins over [-0.9, 0.9] (g trained over "
+                               "[-0.75, 0.75]) and K = 64"),
+    **{f"K{k}-bins": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", {"k": k}, g_window=PHASE_WINDOW,
+                            about=f"the default with K = {k} photons per target") for k in (16, 64)},
     "phases": Config(DEFAULT_PHOTONS, about="the defaults before the kernel in g: five phases, 1M photons each, "
                                             "the field trained at the phases (cpu-phases)"),
     "paper-like": Config(1_000_000, PAPER_PHASES, overrides={"loss": "log", "k": 1024},

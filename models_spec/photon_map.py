@@ -36,13 +36,16 @@ PAPER_PHASES: tuple[float, ...] = (-0.75, 0.0, 0.75)
 #: seen three g values is 25-50 % off between them; with five it stays within ~15 % on the embedded scenes
 #: (bench/README.md, ``bench_fidelity.py``). Also the tent nodes of a field trained from a kernel in g.
 DEFAULT_PHASES: tuple[float, ...] = (-0.75, -0.375, 0.0, 0.375, 0.75)
-#: Photon records a map holds by default: a million per phase of DEFAULT_PHASES, or ~135k per bin of PHASE_BINS
-#: (a window of the kernel in g then holds ~680k). More photons per phase (or window) shrink the KNN ball at the
+#: Photon records a map holds by default: a million per phase of DEFAULT_PHASES, or ~128k per bin of PHASE_BINS
+#: (a window of the kernel in g then holds ~640k). More photons per phase (or window) shrink the KNN ball at the
 #: same K, and with it the density estimate's bias at dense surfaces.
 DEFAULT_PHOTONS = 1_000_000 * len(DEFAULT_PHASES)
-#: Narrow phase bins for a kernel in g (:mod:`photon_fields.runtime.photons.phase_window`): 37 bins 0.05 apart over
-#: [-0.9, 0.9], so that the window of every g in [-0.75, 0.75] (DEFAULT_PHASES' range) lies whole inside them.
-PHASE_BINS: tuple[float, ...] = tuple(round(-0.9 + 0.05 * i, 6) for i in range(37))
+#: Narrow phase bins for a kernel in g (:mod:`photon_fields.runtime.photons.phase_window`): 39 bins 0.05 apart over
+#: [-0.95, 0.95], so that the window of every g in [-0.8, 0.8] lies whole inside them. That range reaches past
+#: DEFAULT_PHASES' [-0.75, 0.75] on purpose: a field is worst at the ends of the g range it is trained on (it is
+#: held from one side only), and with bins over [-0.9, 0.9] the end was g = -0.75, where shell's field was 9 % dark
+#: (docs/training.md, "The ends of the g range").
+PHASE_BINS: tuple[float, ...] = tuple(round(-0.95 + 0.05 * i, 6) for i in range(39))
 #: Half-width h of the triangular kernel in g over PHASE_BINS: a window holds 5 bins with weight, ~14 % of the
 #: map's photons, about as many as one phase of a DEFAULT_PHASES map of the same size.
 PHASE_WINDOW = 0.15

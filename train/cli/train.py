@@ -130,8 +130,8 @@ def _add_trace_options(t: argparse.ArgumentParser) -> None:
     t.add_argument("--photons", default=f"{DEFAULT_PHOTONS // 1_000_000}M",
                    help="records to store, e.g. 1M, 250k")
     t.add_argument("--phases", type=float, nargs="+", default=None,
-                   help="the phase set G (default: 37 narrow bins over [-0.9, 0.9], from which the cpu preset trains "
-                        "any g in [-0.75, 0.75]; a few phases, e.g. -0.75 0 0.75, need --preset cpu-phases)")
+                   help="the phase set G (default: 39 narrow bins over [-0.95, 0.95], from which the cpu preset "
+                        "trains any g in [-0.8, 0.8]; a few phases, e.g. -0.75 0 0.75, need --preset cpu-phases)")
     t.add_argument("--max-bounces", type=int, default=16, help="max collisions per photon path")
 
 

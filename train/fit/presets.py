@@ -6,10 +6,12 @@
 - ``cpu``: the default, chosen for useful targets per second on 2 cores: samples in the medium's support (the renderer
   never queries empty space), half of them where cameras around the volume see it, with the direction they see it from
   (``sampling="visible"``: the renderer's queries), the final radius from the start, small batches and many steps, a
-  richer network than its cost suggests because targets, not the network, dominate a step; any g of [-0.75, 0.75]
-  trained from a kernel in g over a map traced in narrow phase bins (``g_sampling="window"``,
-  :mod:`photon_fields.runtime.photons.phase_window`), g itself and its cubic B-spline weights on 16 nodes (0.1 apart:
-  five nodes could not follow shell's dip in g at -0.6), and a harder learning-rate anneal. Needs a map of
+  richer network than its cost suggests because targets, not the network, dominate a step; any g of [-0.8, 0.8]
+  (past the paper's [-0.75, 0.75]: a field is worst at the ends of its g range) trained from a kernel in g over a map
+  traced in narrow phase bins (``g_sampling="window"``, :mod:`photon_fields.runtime.photons.phase_window`), g itself
+  and its cubic B-spline weights on 16 nodes (~0.1 apart: five nodes could not follow shell's dip in g at -0.6),
+  K = 32 photons per target (K = 64's ball reached from lit surfaces into the darker inside: its maps were 2-3 % dark
+  on shell and head), and a harder learning-rate anneal. Needs a map of
   :data:`photon_fields.models_spec.photon_map.PHASE_BINS` (what ``pfn-train trace`` makes by default).
 - ``cpu-phases``: ``cpu`` as it was before the kernel in g: trains at the map's phases only (the paper's way,
   any map of a few phases), scalar g, the paper's anneal.
@@ -92,7 +94,7 @@ PRESETS: dict[str, Preset] = {
                     schedule="staggered", sampling="box", loss="log",
                     about="Sec. 3.4/3.5 as published (hours on 2 CPU cores)"),
     "cpu": replace(_CPU_PHASES, phase_encoding="spline", g_sampling="window", phase_nodes=16, lr_decay_start=0.5,
-                   lr_decay_every=10, sampling="visible",
+                   lr_decay_every=10, sampling="visible", k=32,
                    about="the default: any g from a kernel in g over a map in narrow phase bins; ~1.5 min on 2 cores"),
     "cpu-phases": _CPU_PHASES,
     "cpu-tent": replace(_CPU_PHASES, phase_encoding="tent", g_sampling="continuous",

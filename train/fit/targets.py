@@ -20,7 +20,7 @@ Every training step draws a fresh batch (Sec. 3.3: "regenerate a new batch ... f
   |g| = 0.75); and the field sees every g it will be asked for, not only the phases; ``"mixed"``: half the
   samples continuous, half at the phases (where the targets interpolate nothing); or ``"window"``, for a map
   traced in narrow phase bins (:data:`photon_fields.models_spec.photon_map.PHASE_BINS`): g over the range whose
-  kernel in g is whole (:func:`photon_fields.runtime.photons.phase_window.window_range`, [-0.75, 0.75] for
+  kernel in g is whole (:func:`photon_fields.runtime.photons.phase_window.window_range`, [-0.8, 0.8] for
   PHASE_BINS) with the arcsine density 1 / (pi sqrt((g - lo)(hi - g))) (Chebyshev's, g = lo + (hi - lo)
   (1 - cos(pi u)) / 2: the ends, where L_i changes fastest with g and a fit is held from one side only, get
   more samples; uniform g left the field 11-15 % off at g = -0.75 on blobs, docs/training.md), the photons

@@ -6,7 +6,7 @@ photons : int >= 1
     Target number of stored records ("photons in the map", as in the paper's Table 3). Photon paths are
     traced in fixed-size chunks until each phase holds at least ``ceil(photons / |G|)`` records; the map
     keeps every record of a phase's paths up to the one that reaches its quota.
-phases : sequence of g in [-1, 1] (default ``models_spec.DEFAULT_MAP_PHASES``: 37 narrow bins over [-0.9, 0.9],
+phases : sequence of g in [-1, 1] (default ``models_spec.DEFAULT_MAP_PHASES``: 39 narrow bins over [-0.95, 0.95],
     read with a kernel in g, :mod:`photon_fields.runtime.photons.phase_window`; or a few phases such as
     ``models_spec.DEFAULT_PHASES``, the paper's G = {-0.75, 0, 0.75} with the midpoints)
     Each photon path scatters with one g of G at every vertex. Paths are assigned to the phases

@@ -53,8 +53,9 @@ def test_auto_window_reads_binned_maps_only() -> None:
 
 
 def test_window_range_and_refusals() -> None:
-    assert window_range(PHASE_BINS, PHASE_WINDOW) == pytest.approx((-0.75, 0.75))
-    assert window_range(PHASE_BINS, PHASE_WINDOW) == pytest.approx((min(DEFAULT_PHASES), max(DEFAULT_PHASES)))
+    assert window_range(PHASE_BINS, PHASE_WINDOW) == pytest.approx((-0.8, 0.8))
+    lo, hi = window_range(PHASE_BINS, PHASE_WINDOW)  # past the paper's G on both sides: its ends are not the field's
+    assert lo < min(DEFAULT_PHASES) and hi > max(DEFAULT_PHASES)
     with pytest.raises(InputError, match="too sparse"):
         check_window(DEFAULT_PHASES, PHASE_WINDOW)  # 0.375 apart: a window would hold one phase
     with pytest.raises(InputError, match="half-width"):
