@@ -95,7 +95,7 @@ PRESETS: dict[str, Preset] = {
                     about="Sec. 3.4/3.5 as published (hours on 2 CPU cores)"),
     "cpu": replace(_CPU_PHASES, phase_encoding="spline", g_sampling="window", phase_nodes=16, lr_decay_start=0.5,
                    lr_decay_every=10, sampling="visible", k=32,
-                   about="the default: any g from a kernel in g over a map in narrow phase bins; ~1.5 min on 2 cores"),
+                   about="the default: any g from a kernel in g over a map in narrow phase bins; ~1 min on 2 cores"),
     "cpu-phases": _CPU_PHASES,
     "cpu-tent": replace(_CPU_PHASES, phase_encoding="tent", g_sampling="continuous",
                         about="experimental: cpu-phases with tent phase features and continuous g (bench/README.md)"),
