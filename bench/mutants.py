@@ -469,6 +469,12 @@ MUTANTS: tuple[Mutant, ...] = (
            (f"{VPVRT}::test_light_change_is_render_pvrts_frame_relit_without_a_march",),
            "the viewer relights its kept samples with the lights they were marched under, not the page's edited "
            "ones (a light change shows the old light)"),
+    Mutant("update_budget_ignores_outputs", "train/fit/update.py",
+           "deadline = t0 + float(budget_s) - min(UPDATE_OUTPUT_RESERVE_S, 0.5 * float(budget_s))",
+           "deadline = t0 + float(budget_s) - 0.0 * min(UPDATE_OUTPUT_RESERVE_S, 0.5 * float(budget_s))",
+           ("tests/train/fit/test_update.py::test_training_stops_early_enough_for_the_outputs_to_fit_the_budget",),
+           "an update trains until the whole budget is spent, and its log, plot and export come after it (a 15 s "
+           "budget gave 15.4-16.4 s)"),
 )
 
 

@@ -25,8 +25,9 @@ field is a good start for the new one. :func:`update_run`:
    ``domain.json``, ``field.pfn``); the bundle's training summary records the validation error reached, and
    NEWRUN can itself be updated.
 
-RUN is only read. The budget counts the wall time from the call to the end of training (retrace included);
-the export comes after it. NEWRUN's ``log.json`` splits the time by stage (``update_time``: reading RUN, the
+RUN is only read. The budget counts the wall time from the call to the written bundle: training stops
+:data:`photon_fields.train.fit.presets.UPDATE_OUTPUT_RESERVE_S` before it (at most half the budget) to leave time
+for the log, the plot and the export. NEWRUN's ``log.json`` splits the time by stage (``update_time``: reading RUN, the
 retrace, saving the map, then the fine-tune's stages).
 """
 
@@ -56,6 +57,7 @@ from photon_fields.train.fit.presets import (
     UPDATE_BUDGET_S,
     UPDATE_LR_SHARE,
     UPDATE_MAX_STEPS,
+    UPDATE_OUTPUT_RESERVE_S,
     UPDATE_PHOTONS,
     UPDATE_VAL_EVERY,
 )
@@ -227,7 +229,8 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
     spent = {"budget_s": float(budget_s), "read_run_s": read_s, "trace_s": t2 - t1, "save_map_s": t_fit - t2}
     warm = {"run": str(src), "scene": record.scene_name, "scene_fingerprint": record.fingerprint,
             "steps": record.steps, "map_seed": record.map_seed}
-    result = fine_tune(model, scene, pmap, dest, settings, max_steps=max_steps, deadline=t0 + float(budget_s),
+    deadline = t0 + float(budget_s) - min(UPDATE_OUTPUT_RESERVE_S, 0.5 * float(budget_s))
+    result = fine_tune(model, scene, pmap, dest, settings, max_steps=max_steps, deadline=deadline,
                        stop=PlateauStop(min_improvement, patience), warm_start_from=warm, progress=progress,
                        on_progress=stage("fit"), spent=spent)
     t3 = time.perf_counter()

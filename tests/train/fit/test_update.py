@@ -202,6 +202,35 @@ def test_stops_on_a_plateau_and_at_the_budget(runs: dict[str, Path], tmp_path: P
     assert (budget.out / "field.pfn" / "manifest.json").is_file()
 
 
+def test_training_stops_early_enough_for_the_outputs_to_fit_the_budget(runs: dict[str, Path], tmp_path: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The budget covers the written bundle, not only training: the fine-tune's deadline is the call's start plus
+    the budget less the outputs' reserve (at most half the budget). A clock that stands still makes it exact."""
+    from photon_fields.train.fit.presets import UPDATE_OUTPUT_RESERVE_S
+
+    class StopHereError(Exception):
+        pass
+
+    class StillClock:
+        @staticmethod
+        def perf_counter() -> float:
+            return 100.0
+
+    deadlines: list[float] = []
+
+    def capture(*args: object, deadline: float, **kwargs: object) -> None:
+        deadlines.append(deadline)
+        raise StopHereError
+
+    monkeypatch.setattr(update_module, "time", StillClock)
+    monkeypatch.setattr(update_module, "fine_tune", capture)
+    new = load_scene(runs["denser"])
+    for budget in (15.0, 2.0):
+        with pytest.raises(StopHereError):
+            update_run(runs["run"], new, tmp_path / f"d{budget:g}", budget_s=budget, progress=False)
+    assert deadlines == pytest.approx([100.0 + 15.0 - UPDATE_OUTPUT_RESERVE_S, 100.0 + 1.0])
+
+
 def test_run_is_read_without_its_photons(runs: dict[str, Path], tmp_path: Path,
                                          monkeypatch: pytest.MonkeyPatch) -> None:
     """RUN's map is read for its metadata only (a full load of a 5M map took ~2 s of the 15 s budget)."""
