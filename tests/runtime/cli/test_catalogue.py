@@ -511,6 +511,8 @@ CASES += [
     (V, lambda a, d, o: [str(a["scene"]), "--bundle", str(d / "none.pfn"), *VIEW, "--out", str(o / "shots")],
      "none.pfn"),
     (V, lambda a, d, o: [str(a["other"]), "--map", str(a["map"]), *VIEW, "--out", str(o / "shots")], "another scene"),
+    (V, lambda a, d, o: [str(a["scene"]), "--transfer", str(d / "none.pvrt"), *VIEW, "--out", str(o / "shots")],
+     "transfer"),
     (V, lambda a, d, o: [str(a["scene"]), *VIEW, "--out", (d / "f").write_text("x") and str(d / "f")], "--out"),
     (V, lambda a, d, o: [str(a["scene"]), "--renderer", "neural", *VIEW, "--out", str(o / "shots")], "--renderer"),
     (V, lambda a, d, o: [str(a["scene"]), "--host", "999.1.1.1", *VIEW, "--out", str(o / "shots")], "--host"),
