@@ -1,7 +1,8 @@
 """``--progress-file``, the option of every long ``pfn-train`` job: the job's progress as one JSON object that
 ``pfn-view`` reads (format: :mod:`photon_fields.runtime.io.progress`).
 
-:func:`add_progress_option` adds the option to a subcommand's parser, :func:`open_progress` opens the file when it
+:func:`add_progress_option` adds the option to a subcommand's parser (:func:`add_job_options` adds it with the
+other options every long job shares), :func:`open_progress` opens the file when it
 is given (written at once, so a reader sees the job start), :func:`stage_callback` turns one stage into the
 ``on_progress(done, total)`` callback the tracing, fitting and precomputation take, and :func:`record_failure`
 marks the file failed with the error's line when a job stops on an exception.
@@ -15,6 +16,15 @@ from pathlib import Path
 
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.io.progress import Progress, ProgressFile, read_progress
+
+
+def add_job_options(p: argparse.ArgumentParser, *, replaces: str) -> None:
+    """The options every long ``pfn-train`` job shares: ``--threads``, ``--quiet``, ``--force`` (whose help says
+    what it replaces: ``replaces``) and ``--progress-file``."""
+    p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--force", action="store_true", help=f"replace {replaces}")
+    add_progress_option(p)
 
 
 def add_progress_option(p: argparse.ArgumentParser) -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 from photon_fields.runtime.cli.common import check_seed, parse_count, prepare_output
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.threads import set_threads
-from photon_fields.train.cli.progress_option import add_progress_option, open_progress, stage_callback
+from photon_fields.train.cli.progress_option import add_job_options, open_progress, stage_callback
 
 
 def add_pvrt_parser(sub: argparse._SubParsersAction) -> None:
@@ -42,10 +42,7 @@ def add_pvrt_parser(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--g", type=float, default=None, help="Henyey-Greenstein g the photons scatter with (default: "
                                                          "the scene's; the renderer refuses another)")
     v.add_argument("--seed", type=int, default=0, help="random seed: same seed, same transfer bytes")
-    v.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
-    v.add_argument("--quiet", action="store_true", help="no progress bar")
-    v.add_argument("--force", action="store_true", help="replace an existing transfer file")
-    add_progress_option(v)
+    add_job_options(v, replaces="an existing transfer file")
 
 
 def cmd_pvrt(args: argparse.Namespace) -> int:

@@ -49,7 +49,7 @@ from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.io.progress import ProgressFile
 from photon_fields.runtime.threads import set_threads
 from photon_fields.train.cli.progress_option import (
-    add_progress_option,
+    add_job_options,
     open_progress,
     record_failure,
     stage_callback,
@@ -64,11 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     _add_trace_options(t)
     t.add_argument("--seed", type=int, default=0, help="random seed: same seed, same map")
-    t.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
-    t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.add_argument("--out", required=True, help="output photon map (.npz)")
-    t.add_argument("--force", action="store_true", help="replace an existing photon map")
-    add_progress_option(t)
+    add_job_options(t, replaces="an existing photon map")
 
     f = sub.add_parser("fit", help="fit a photon field to a photon map (Sec. 3.5)",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -118,10 +115,7 @@ def _add_update_parser(sub: argparse._SubParsersAction) -> None:
                         "new map correlated with it)")
     u.add_argument("--tables-dtype", choices=["float32", "float16"], default="float32",
                    help="hash-table precision in the exported bundle")
-    u.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
-    u.add_argument("--quiet", action="store_true", help="no progress bar")
-    u.add_argument("--force", action="store_true", help="replace the results of an earlier run in --out")
-    add_progress_option(u)
+    add_job_options(u, replaces="the results of an earlier run in --out")
 
 
 def _add_trace_options(t: argparse.ArgumentParser) -> None:
@@ -161,10 +155,7 @@ def _add_fit_options(f: argparse.ArgumentParser) -> None:
                         "step's (default: the preset's)")
     f.add_argument("--checkpoint-every", type=int, default=500, help="save checkpoint.pt every N steps")
     f.add_argument("--seed", type=int, default=0, help="random seed: same seed, same field")
-    f.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
-    f.add_argument("--quiet", action="store_true", help="no progress bar")
-    f.add_argument("--force", action="store_true", help="replace the results of an earlier run in --out")
-    add_progress_option(f)
+    add_job_options(f, replaces="the results of an earlier run in --out")
 
 
 def cmd_trace(args: argparse.Namespace) -> int:
