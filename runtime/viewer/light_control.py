@@ -1,15 +1,17 @@
 """A light as the viewer's page edits it (:class:`LightControl`): where it comes from, as azimuth and elevation
-about the scene's vertical axis, and its power; converted from and to the scene's lights."""
+about the scene's vertical axis, and its power; converted from and to the scene's lights. :func:`edited_lights`
+applies the page's ``light`` message to them."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, EnvironmentMap, PointLight
+from photon_fields.runtime.viewer.messages import MessageError
 
 
 @dataclass
@@ -64,3 +66,24 @@ class LightControl:
         """What the page builds the light's controls from (``yaw``: an environment map's, else None)."""
         return {"kind": self.kind, "azimuth": round(self.azimuth, 4), "elevation": round(self.elevation, 4),
                 "power": self.power, "yaw": round(self.yaw, 4) if self.source is not None else None}
+
+
+def edited_lights(lights: list[LightControl], f: dict[str, Any]) -> list[LightControl]:
+    """The lights after a validated ``light`` message's fields ``f`` (the light ``index``, and any of azimuth,
+    elevation, power, yaw); a :class:`MessageError` for a light that does not exist, a direction or yaw it does not
+    have, or all lights off. ``lights`` is left as it is."""
+    i = f["index"]
+    if i >= len(lights):
+        raise MessageError(f"light: index {i} but the scene has {len(lights)} light(s)")
+    light = replace(lights[i])
+    if light.kind == "environment" and ("azimuth" in f or "elevation" in f):
+        raise MessageError(f"light: light {i} is an environment light: it has a power but no direction")
+    if "yaw" in f and light.source is None:
+        raise MessageError(f"light: light {i} is not an environment map: it has no yaw (an image to turn)")
+    for key in ("azimuth", "elevation", "power", "yaw"):
+        if key in f:
+            setattr(light, key, f[key])
+    edited = [*lights[:i], light, *lights[i + 1:]]
+    if not any(float(np.max(lt.color)) * lt.power > 0 for lt in edited):
+        raise MessageError("light: at least one light must keep a power above 0")
+    return edited

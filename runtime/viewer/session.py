@@ -74,10 +74,11 @@ from photon_fields.runtime.viewer.encode import encode, tonemap
 from photon_fields.runtime.viewer.field_in_use import FieldInUse, progressive
 from photon_fields.runtime.viewer.frame_denoisers import FrameDenoisers
 from photon_fields.runtime.viewer.frame_size import fit_view
-from photon_fields.runtime.viewer.light_control import LightControl
+from photon_fields.runtime.viewer.light_control import LightControl, edited_lights
 from photon_fields.runtime.viewer.messages import MAX_PIXELS, MAX_SIDE, MIN_SIDE, Message, MessageError
 from photon_fields.runtime.viewer.pvrt_view import PvrtView
 from photon_fields.runtime.viewer.retrain import RetrainSettings
+from photon_fields.runtime.viewer.set_controls import apply_set
 from photon_fields.runtime.viewer.transfer_edit import (
     edited_transfer,
     label_panel,
@@ -93,15 +94,6 @@ from photon_fields.runtime.viewer.view_state import DEFAULT_GATHER_AFTER, DEFAUL
 RENDER_LOCK = threading.Lock()
 DEFAULT_DENOISE_FRAMES = 16
 ACCUMULATED_LAYERS = ("L", "L_d", "L_i", "L_e")
-#: ``set`` controls that only set the :class:`ViewState` field of their name, and what each then does:
-#: (restart the accumulation, cut the denoiser's history, redisplay, measure the exposure again).
-_FIELD_CONTROLS: dict[str, tuple[bool, bool, bool, bool]] = {
-    "layer": (False, True, True, True),
-    "format": (False, False, True, False),
-    "denoise": (False, True, True, False),
-    "max_spp": (False, False, True, False),
-    "drag_scale": (False, False, False, False),
-}
 
 
 class ViewerSession:
@@ -207,10 +199,11 @@ class ViewerSession:
                 s.width, s.height = size
                 s.view_size = (f["width"], f["height"])
             elif msg.type == "light":
-                self._apply_light(s, f)
+                s.lights = edited_lights(s.lights, f)
+                self._lights_version += 1
                 cut = True
             elif msg.type == "set":
-                restart, cut, redisplay, reexpose = self._apply_set(s, f["control"], f["value"])
+                restart, cut, redisplay, reexpose = apply_set(s, self.field, f["control"], f["value"])
             elif msg.type == "screenshot":
                 restart = False
             elif msg.type in ("transfer", "labels"):  # control points, or a label scene's panel
@@ -253,50 +246,6 @@ class ViewerSession:
         """Whether the field's (and the map's) L_i is not the edited scene's: another transfer function, or a
         light edit that :meth:`indirect_scale` cannot follow."""
         return self.field.stale(s.transfer, s.lights)
-
-    def _apply_light(self, s: ViewState, f: dict[str, Any]) -> None:
-        i = f["index"]
-        if i >= len(s.lights):
-            raise MessageError(f"light: index {i} but the scene has {len(s.lights)} light(s)")
-        light = replace(s.lights[i])
-        if light.kind == "environment" and ("azimuth" in f or "elevation" in f):
-            raise MessageError(f"light: light {i} is an environment light: it has a power but no direction")
-        if "yaw" in f and light.source is None:
-            raise MessageError(f"light: light {i} is not an environment map: it has no yaw (an image to turn)")
-        for key in ("azimuth", "elevation", "power", "yaw"):
-            if key in f:
-                setattr(light, key, f[key])
-        lights = [*s.lights[:i], light, *s.lights[i + 1:]]
-        if not any(float(np.max(lt.color)) * lt.power > 0 for lt in lights):
-            raise MessageError("light: at least one light must keep a power above 0")
-        s.lights = lights
-        self._lights_version += 1
-
-    def _apply_set(self, s: ViewState, control: str, value: Any) -> tuple[bool, bool, bool, bool]:
-        """Returns (restart the accumulation, cut the denoiser, redisplay, measure the exposure again). The
-        exposure is measured again when what is shown changes kind (renderer, layer), not when g moves: the
-        page should show g's effect, not have it normalized away."""
-        if control == "renderer":
-            if not self.field.has(value):
-                raise MessageError(f"renderer '{value}' is not available here (neural needs --bundle, photonmap "
-                                   f"--map, pvrt --transfer); available: {', '.join(self.available)}")
-            self.field.check(value, s.g, s.transfer)
-            s.renderer = value
-            return True, True, True, True
-        if control == "g":
-            self.field.check(s.renderer, value, s.transfer)
-            s.g = value
-            return True, True, True, False
-        if control == "exposure":
-            if value is None:
-                s.exposure_offset = 0.0
-                return False, False, True, True
-            s.exposure_offset = value
-            return False, False, True, False
-        if control in _FIELD_CONTROLS:
-            setattr(s, control, value)
-            return _FIELD_CONTROLS[control]
-        raise MessageError(f"set: control {control!r} is not handled")
 
     # ------------------------------------------------------------------------------------------------
     # rendering (render thread)
