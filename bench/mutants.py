@@ -299,7 +299,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "            if restart and msg.type != \"orbit\":\n                self.generation += 1",
            (f"{VSESSION}::test_camera_move_restarts_at_one_sample_and_newest_camera_wins",),
            "an orbit does not restart the accumulation: old views' samples smear into the new one"),
-    Mutant("viewer_g_ignored", "runtime/viewer/session.py", "            s.g = value", "            pass",
+    Mutant("viewer_g_ignored", "runtime/viewer/set_controls.py", "        s.g = value", "        pass",
            (f"{VSESSION}::test_g_changes_the_indirect_layer_and_restarts",),
            "the g control is acknowledged but never reaches the renderer"),
     Mutant("viewer_screenshot_replaces", "runtime/viewer/screenshot.py",
