@@ -95,6 +95,32 @@ def test_a_field_with_its_run_folder_is_fine_tuned_and_one_without_is_trained_af
             s.close()
 
 
+def test_under_pvrt_a_light_edit_waits_for_the_page_to_leave_pvrt(tmp_path: Path) -> None:
+    """PVRT relights from its own transfer: a light drag must not start a retrain that takes a core from it; the
+    stale field is retrained once the page switches to a renderer that shows it."""
+    from viewer_helpers import tiny_scene, tiny_transfer
+
+    scene = tiny_scene()
+    out = tmp_path / "out"
+    s = make_session(out, renderer="pvrt", scene=scene, transfer=tiny_transfer(scene),
+                     retrain=stand_in_trainer(tmp_path, "slow"))
+    try:
+        for azimuth in (20.0, 40.0, 60.0):  # a light drag
+            s.apply(msg("light", index=0, azimuth=azimuth))
+        assert s.field_stale(s.state)
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            assert s.poll_updates() is None
+            time.sleep(0.05)
+        assert s.updater.job is None and jobs(out) == []
+        s.apply(msg("set", control="renderer", value="neural"))
+        poll_until(s, {"running"})
+        assert len(jobs(out)) == 1
+        assert s.updater.job.scene.lights[0].direction.tolist() == s.edited_scene(s.state).lights[0].direction.tolist()
+    finally:
+        s.close()
+
+
 def test_cancel_stops_the_job_and_closing_the_page_stops_it_too(tmp_path: Path) -> None:
     s = make_session(tmp_path / "out", retrain=stand_in_trainer(tmp_path, "slow"))
     edit(s, 0.5)
