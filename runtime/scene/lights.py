@@ -183,8 +183,19 @@ class EnvironmentMap:
     def rotated(self, yaw: float, pitch: float = 0.0, roll: float = 0.0) -> EnvironmentMap:
         """The same map with another rotation (degrees), sharing the image: nothing is validated or hashed again,
         and a scene with it reuses the sampling tables (``Scene.packed_environment_map``)."""
+        return self.adjusted(rotation=(yaw, pitch, roll))
+
+    def adjusted(self, *, rotation: Any = None, color: Any = None, power: float | None = None) -> EnvironmentMap:
+        """The same image with another rotation, colour or power (each validated as in the constructor; None keeps
+        it): the image is neither checked nor hashed again (the viewer's light edits, every frame of a drag)."""
         new = copy.copy(self)
-        object.__setattr__(new, "rotation", _rotation([yaw, pitch, roll], "environment map rotation"))
+        if rotation is not None:
+            object.__setattr__(new, "rotation", _rotation(rotation, "environment map rotation"))
+        if color is not None or power is not None:
+            c, p = _color_power(self.color if color is None else color, self.power if power is None else power,
+                                "environment map")
+            object.__setattr__(new, "color", c)
+            object.__setattr__(new, "power", p)
         return new
 
     def radiance(self) -> np.ndarray:

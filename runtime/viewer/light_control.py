@@ -58,8 +58,8 @@ class LightControl:
         if self.kind == "point":
             return PointLight(self.toward() * self.distance, self.color, self.power)
         if self.source is not None:
-            src = self.source
-            return EnvironmentMap(src.path, self.color, self.power, (self.yaw, *src.rotation[1:]), src.image)
+            return self.source.adjusted(rotation=(self.yaw, *self.source.rotation[1:]), color=self.color,
+                                        power=self.power)
         return EnvironmentLight(self.color, self.power)
 
     def to_dict(self) -> dict[str, Any]:

@@ -161,3 +161,26 @@ def test_the_viewers_light_control_keeps_a_map_a_map() -> None:
     back = control.light()
     assert isinstance(back, EnvironmentMap) and back.power == 3.0 and back.rotation == m.rotation
     assert back.sha256 == m.sha256 and back.color.tolist() == m.color.tolist()
+
+
+def test_an_adjusted_map_is_the_constructed_one_without_checking_or_hashing_the_image_again(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The viewer's light edits (a yaw drag, a power slider) make a map per frame: ``adjusted`` must give what the
+    constructor gives (the same fingerprint, rotation, colour and power), share the image, and refuse what the
+    constructor refuses, in one line."""
+    import photon_fields.runtime.scene.lights as lights_module
+
+    base = EnvironmentMap(None, [1.0, 0.5, 0.25], 2.0, (10.0, 5.0, 0.0), sky())
+    built = EnvironmentMap(None, [0.2, 0.4, 0.6], 3.5, (40.0, 5.0, 0.0), base.image)
+
+    def no_hash(*args: object) -> None:
+        raise AssertionError("the image was hashed again")
+
+    monkeypatch.setattr(lights_module.hashlib, "sha256", no_hash)
+    adjusted = base.adjusted(rotation=(40.0, 5.0, 0.0), color=[0.2, 0.4, 0.6], power=3.5)
+    assert adjusted.image is base.image and adjusted.identity() == built.identity()
+    assert base.adjusted(power=3.5).rotation == base.rotation and base.adjusted(power=3.5).power == 3.5
+    assert base.rotation == (10.0, 5.0, 0.0) and base.power == 2.0  # the source is left as it was
+    for kw in ({"power": -1.0}, {"color": [1.0, float("nan"), 0.0]}, {"rotation": (0.0, 0.0)}):
+        with pytest.raises(InputError):
+            base.adjusted(**kw)
