@@ -35,6 +35,11 @@ def build_parser() -> OneLineArgumentParser:
                    help="PVRT transfer (NAME.pvrt, from pfn-train pvrt): enables the pvrt renderer, which relights "
                         "the resting view at once when a light moves; it must match the scene's volume, transfer "
                         "function and g")
+    p.add_argument("--direct", default=None, choices=["nee", "transfer"],
+                   help="pvrt: directional lights' direct term: nee (a light volume of their transmittance, sharp "
+                        "shadows; the default) or transfer (from the lighting basis, blurred)")
+    p.add_argument("--light-grid", type=int, default=None, metavar="CELLS",
+                   help="pvrt --direct nee: light-volume cells along the box's longest side (default 64)")
     p.add_argument("--renderer", default=None, choices=["neural", "pt", "photonmap", "pvrt"],
                    help="renderer to start with (default: neural with --bundle, else pt)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
@@ -99,12 +104,21 @@ def _main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="pfn-view: %(message)s")
     from photon_fields.runtime.viewer.retrain import RetrainSettings
 
+    pvrt_options = None
+    if args.direct is not None or args.light_grid is not None:
+        from photon_fields.runtime.viewer.pvrt_view import LIGHT_GRID_RANGE, PvrtOptions
+
+        lo, hi = LIGHT_GRID_RANGE
+        if args.light_grid is not None and not lo <= args.light_grid <= hi:
+            raise InputError("--light-grid", f"must be an integer in [{lo}, {hi}], got {args.light_grid}")
+        defaults = PvrtOptions()
+        pvrt_options = PvrtOptions(args.direct or defaults.direct, args.light_grid or defaults.light_grid)
     retrain = RetrainSettings(photons=str(parse_count(args.retrain_photons, "--retrain-photons")),
                               auto=not args.no_auto_retrain)
     server = start(args.scene, bundle=args.bundle, map=args.map, out=args.out, size=size, host=args.host,
                    port=args.port, seed=args.seed, threads=args.threads, force=args.force, renderer=args.renderer,
                    max_spp=args.max_spp, drag_scale=args.drag_scale, retrain=retrain,
-                   gather_after=args.final_gather_after, transfer=args.transfer)
+                   gather_after=args.final_gather_after, transfer=args.transfer, pvrt_options=pvrt_options)
     if not is_loopback(args.host):
         print(f"warning: listening on {args.host}: anyone who can reach it can drive renders and write screenshots "
               f"into {args.out}", file=sys.stderr)

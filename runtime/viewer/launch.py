@@ -41,6 +41,7 @@ class ViewerInputs:
     info: dict[str, Any]
     threads: int | None = None
     transfer: Any = None  # a PVRT transfer checked against the scene (pfn-view --transfer), or None
+    pvrt_options: Any = None  # PvrtOptions of its frames (pfn-view --direct, --light-grid), None: the defaults
 
 
 def load_inputs(scene: str | None, *, bundle: str | None = None, map_path: str | None = None,
@@ -152,7 +153,7 @@ def warm_kernels(inputs: ViewerInputs) -> None:
     t = time.perf_counter()
     session = ViewerSession(inputs.scene.with_overrides(width=16, height=16), estimator=inputs.estimator,
                             pmap=inputs.pmap, transfer=inputs.transfer, out_dir=inputs.out_dir, seed=inputs.seed,
-                            width=16, height=16, renderer=inputs.renderer)
+                            width=16, height=16, renderer=inputs.renderer, pvrt_options=inputs.pvrt_options)
     for name in session.available:
         if name != session.state.renderer:
             try:
@@ -200,8 +201,7 @@ class ViewerServer:
                                     transfer=inputs.transfer, out_dir=inputs.out_dir, seed=inputs.seed,
                                     width=inputs.width, height=inputs.height, renderer=inputs.renderer,
                                     max_spp=max_spp or DEFAULT_MAX_SPP, info=inputs.info, drag_scale=drag_scale,
-                                    retrain=retrain,
-                                    gather_after=gather_after)
+                                    retrain=retrain, gather_after=gather_after, pvrt_options=inputs.pvrt_options)
             session.field_threads = inputs.threads
             return session
 
@@ -234,14 +234,19 @@ def start(scene: str | None = None, *, bundle: str | None = None, map: str | Non
           port: int = 0, seed: int = 0, threads: int | None = None, force: bool = False,
           renderer: str | None = None, warm: bool = True, max_spp: int | None = None,
           drag_scale: float | str = "auto", retrain: RetrainSettings | None = None,
-          gather_after: int | None = DEFAULT_GATHER_AFTER, transfer: str | None = None) -> ViewerServer:
+          gather_after: int | None = DEFAULT_GATHER_AFTER, transfer: str | None = None,
+          pvrt_options: Any = None) -> ViewerServer:
     """Load the inputs and serve the viewer (module docstring); returns the running :class:`ViewerServer`.
-    ``transfer``: a PVRT transfer file (NAME.pvrt) of the scene: enables the pvrt renderer."""
+    ``transfer``: a PVRT transfer file (NAME.pvrt) of the scene: enables the pvrt renderer, whose frames are made
+    as ``pvrt_options`` (:class:`photon_fields.runtime.viewer.pvrt_view.PvrtOptions`; None: its defaults) say."""
     if drag_scale != "auto" and (isinstance(drag_scale, bool) or not isinstance(drag_scale, (int, float))
                                  or not 0.25 <= drag_scale <= 1.0):
         raise InputError("--drag-scale", f"must be auto or a number in [0.25, 1], got {drag_scale!r}")
     inputs = load_inputs(scene, bundle=bundle, map_path=map, out_dir=out, size=size, seed=seed, threads=threads,
                          force=force, renderer=renderer, transfer_path=transfer)
+    if pvrt_options is not None and inputs.transfer is None:
+        raise InputError("--direct/--light-grid", "apply to the pvrt renderer only, which needs --transfer")
+    inputs.pvrt_options = pvrt_options
     return ViewerServer(inputs, host=host, port=port, warm=warm, max_spp=max_spp,
                         drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale), retrain=retrain,
                         gather_after=gather_after)

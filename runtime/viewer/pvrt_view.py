@@ -14,24 +14,37 @@ The transfer answers one medium and one g only (:meth:`photon_fields.runtime.pvr
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
+from photon_fields.runtime.pvrt.constants import DEFAULT_LIGHT_GRID
 from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.viewer.messages import MessageError
 from photon_fields.runtime.viewer.updater import same_transfer
 
+#: ``pfn-view --light-grid``'s range (``pfn-render --method pvrt``'s).
+LIGHT_GRID_RANGE = (4, 512)
+
+
+@dataclass(frozen=True)
+class PvrtOptions:
+    """How the viewer makes PVRT frames (``pfn-view --direct``, ``--light-grid``; as ``pfn-render --method pvrt``)."""
+
+    direct: str = "nee"  #: directional lights' direct term: "nee" (a light volume, sharp shadows) or "transfer"
+    light_grid: int = DEFAULT_LIGHT_GRID  #: "nee": light-volume cells along the box's longest side
+
 
 class PvrtView:
     """A session's PVRT transfer and the kept samples of its resting view (module docstring). Used by the render
     thread only; :attr:`last` says how the last frame was made (relit from kept samples or marched)."""
 
-    def __init__(self, transfer: Any, tf: TransferFunction | LabelTransfer) -> None:
+    def __init__(self, transfer: Any, tf: TransferFunction | LabelTransfer, options: PvrtOptions | None = None) -> None:
         self.transfer, self.tf = transfer, tf  # tf: the scene's transfer function, which the transfer was made for
+        self.options = options or PvrtOptions()
         self._relighting: Any = None  # Relighting of the resting view, or None
         self.last: dict[str, Any] = {}  # how the last frame was made, for its header
 
@@ -63,15 +76,16 @@ class PvrtView:
         if moving:
             self._relighting = None  # the view is on its way elsewhere: its samples would not be read again
             self.last = {"relit": False, "kept_samples": 0}
-            return render_pvrt(scene, transfer=self.transfer, seed=seed, progress=False).layers
+            return render_pvrt(scene, transfer=self.transfer, seed=seed, progress=False, direct=self.options.direct,
+                               light_grid=self.options.light_grid).layers
         if kept is None or not _same_view(kept.scene, scene):
-            kept = self._relighting = Relighting(scene, self.transfer, seed=seed)
+            kept = self._relighting = Relighting(scene, self.transfer, seed=seed, light_grid=self.options.light_grid)
             fresh = True
         else:
             fresh = False
         marched = fresh or not kept.kept  # a view with too many samples to keep marches every frame
         self.last = {"relit": not marched, "kept_samples": kept.samples}
-        return kept.render(scene.lights).layers
+        return kept.render(scene.lights, direct=self.options.direct).layers
 
 
 def _same_view(a: Scene, b: Scene) -> bool:

@@ -76,7 +76,7 @@ from photon_fields.runtime.viewer.frame_denoisers import FrameDenoisers
 from photon_fields.runtime.viewer.frame_size import fit_view
 from photon_fields.runtime.viewer.light_control import LightControl, edited_lights
 from photon_fields.runtime.viewer.messages import MAX_PIXELS, MAX_SIDE, MIN_SIDE, Message, MessageError
-from photon_fields.runtime.viewer.pvrt_view import PvrtView
+from photon_fields.runtime.viewer.pvrt_view import PvrtOptions, PvrtView
 from photon_fields.runtime.viewer.retrain import RetrainSettings
 from photon_fields.runtime.viewer.set_controls import apply_set
 from photon_fields.runtime.viewer.transfer_edit import (
@@ -99,7 +99,7 @@ ACCUMULATED_LAYERS = ("L", "L_d", "L_i", "L_e")
 class ViewerSession:
     """The render state of one page (module docstring). ``estimator``: a photon field's estimator (enables the
     neural renderer), ``pmap``: a photon map (the photon-map renderer), ``transfer``: a PVRT transfer checked
-    against ``scene`` (the pvrt renderer); the path tracer is always there.
+    against ``scene`` (the pvrt renderer, made as ``pvrt_options`` say); the path tracer is always there.
     ``out_dir``: the only folder screenshots are written to. ``width`` x ``height`` (default: the scene camera's)
     is the largest frame (``pfn-view --size``): frames are rendered at it until the page sends its view's size,
     then at that size scaled down to its pixel count (:func:`photon_fields.runtime.viewer.frame_size.fit_view`)."""
@@ -109,10 +109,10 @@ class ViewerSession:
                  renderer: str | None = None, max_spp: int = DEFAULT_MAX_SPP,
                  denoise_frames: int = DEFAULT_DENOISE_FRAMES, info: dict[str, Any] | None = None,
                  drag_scale: float | str = 1.0, retrain: RetrainSettings | None = None,
-                 gather_after: int | None = DEFAULT_GATHER_AFTER) -> None:
+                 gather_after: int | None = DEFAULT_GATHER_AFTER, pvrt_options: PvrtOptions | None = None) -> None:
         self.base_scene = scene
         self.field = FieldInUse(scene, estimator, pmap, FieldInUse.run_folder_of((info or {}).get("bundle")),
-                                PvrtView(transfer, scene.tf) if transfer is not None else None)
+                                PvrtView(transfer, scene.tf, pvrt_options) if transfer is not None else None)
         self.out_dir = Path(out_dir)
         self.seed = int(seed)
         self.denoise_frames = int(denoise_frames)

@@ -232,6 +232,27 @@ def test_a_resting_pvrt_view_is_one_frame_without_a_denoiser(made: tuple[Scene, 
     assert len(session._denoisers) == 0 and session._denoisers.depth is None
 
 
+def test_pvrt_options_make_the_frames_as_render_pvrt_with_them(made: tuple[Scene, Path], tmp_path: Path) -> None:
+    """``pfn-view --direct transfer --light-grid N`` reach the frames: the session's resting and relit frames are
+    render_pvrt's with the same options (and not the default's)."""
+    from photon_fields.runtime.viewer.pvrt_view import PvrtOptions
+
+    scene, path = made
+    transfer = load_transfer(path, scene)
+    for options in (PvrtOptions("transfer", 64), PvrtOptions("nee", 6)):
+        session = make_session(tmp_path / options.direct, renderer="pvrt", scene=scene, transfer=transfer,
+                               pvrt_options=options)
+        session.next_frame()
+        session.apply(msg("light", index=0, azimuth=75.0))
+        assert session.next_frame().header["pvrt"]["relit"]
+        lit = replace(scene, lights=tuple(lt.light() for lt in session.state.lights), _cache={})
+        kw = {"transfer": transfer, "seed": session.seed, "progress": False}
+        want = pvrt_renderer.render_pvrt(lit, direct=options.direct, light_grid=options.light_grid, **kw).layers["L"]
+        default = pvrt_renderer.render_pvrt(lit, **kw).layers["L"]
+        np.testing.assert_allclose(session._acc["L"], want, rtol=1e-4, atol=1e-5 * want.max())
+        assert np.abs(default - want).max() > 1e-3 * want.max()
+
+
 @pytest.fixture
 def cli_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Callable[..., str]:
     """``pfn-view ARGV --no-browser``: asserts exit status 2 and returns the one error line."""
@@ -258,3 +279,5 @@ def test_command_line_refuses_a_transfer_it_cannot_use(made: tuple[Scene, Path],
     point = {**tiny_scene_dict("blobs"), "lights": [{"type": "point", "position": [0.0, 2.0, 0.0], "power": 3.0}]}
     scene_file.write_text(json.dumps(point))
     assert "point light" in cli_run(str(scene_file), "--transfer", str(path))
+    scene_file.write_text(json.dumps(tiny_scene_dict("blobs")))
+    assert "needs --transfer" in cli_run(str(scene_file), "--direct", "transfer")  # pvrt options without pvrt
