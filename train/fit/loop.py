@@ -104,11 +104,22 @@ def deterministic_torch() -> Iterator[None]:
     # Every op of the field has a deterministic CPU kernel (the hash-grid scatter is deterministic by
     # construction); the flag makes torch refuse a nondeterministic one instead of silently using it.
     previous = torch.are_deterministic_algorithms_enabled()
-    torch.use_deterministic_algorithms(True)
+    _set_deterministic(True)
     try:
         yield
     finally:
-        torch.use_deterministic_algorithms(previous)
+        _set_deterministic(previous)
+
+
+def _set_deterministic(mode: bool) -> None:
+    """``torch.use_deterministic_algorithms(mode)`` for eager torch, without its first call's import of
+    ``torch._inductor`` (1.6 s of every fit and update, for a compiler setting: nothing here is compiled).
+    torch is pinned (pyproject.toml); should the private setter go, the public call does the same."""
+    setter = getattr(torch._C, "_set_deterministic_algorithms", None)
+    if setter is None:
+        torch.use_deterministic_algorithms(mode)
+    else:
+        setter(mode, warn_only=False)
 
 
 @dataclass
