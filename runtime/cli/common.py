@@ -4,8 +4,10 @@ checks, output paths that are never replaced without ``--force``."""
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import sys
+import time
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
@@ -98,3 +100,15 @@ def parse_count(text: str, what: str = "--photons") -> int:
     if value < 1 or value != int(value):
         raise InputError(what, f"must be a positive whole number, got {text!r}")
     return int(value)
+
+
+def process_started() -> float:
+    """The ``time.perf_counter()`` at which this process started (Linux: ``/proc/self/stat``; elsewhere now): a
+    command's own start-up (the interpreter, its imports) then counts against a time budget the user gave it."""
+    now = time.perf_counter()
+    try:
+        ticks = int(Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()[19])  # field 22, starttime
+        age = time.clock_gettime(time.CLOCK_BOOTTIME) - ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, AttributeError):
+        return now
+    return now - min(max(age, 0.0), 3600.0)

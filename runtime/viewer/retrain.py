@@ -142,13 +142,18 @@ class RetrainJob:
 
     def poll(self) -> tuple[str, Progress | None, str | None]:
         """(state, progress, message): state is ``"running"``, ``"done"``, ``"failed"`` or ``"cancelled"``;
-        message is a failed job's one-line error."""
+        message is a failed job's one-line error. A job is done once its progress file says so and its bundle is
+        there (written atomically and verified before that): the trainer's own exit (the interpreter tearing torch
+        and its thread pools down, ~1 s) is not waited for; :meth:`exited` tells when it has gone."""
         code = self.process.poll()
         try:
             progress = read_progress(self.progress_file)
         except InputError:
             progress = None
         if code is None:
+            if not self.cancelled and progress is not None and progress.status == "done" and self.bundle.exists():
+                self._close()
+                return "done", progress, None
             return "running", progress, None
         self._close()
         if self.cancelled:
@@ -157,6 +162,10 @@ class RetrainJob:
             return "done", progress, None
         message = progress.message if progress is not None and progress.status == "failed" else None
         return "failed", progress, message or self._last_log_line() or f"the trainer exited with status {code}"
+
+    def exited(self) -> bool:
+        """Whether the trainer's process has ended (a done job's may still be exiting)."""
+        return self.process.poll() is not None
 
     def cancel(self) -> None:
         """Stop the job (its process group) and wait for it; its folder stays for inspection."""

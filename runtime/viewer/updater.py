@@ -11,6 +11,7 @@ to the finished job.
 
 from __future__ import annotations
 
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -63,6 +64,7 @@ class FieldUpdater:
         self.reason = unavailable_reason(settings)
         self.lock = threading.Lock()
         self.job: RetrainJob | None = None
+        self._exiting: list[RetrainJob] = []  # done jobs whose trainers are still exiting
         self._wanted: Scene | None = None
         self._warm_from: Path | None = None
         self._wanted_at = 0.0
@@ -126,6 +128,7 @@ class FieldUpdater:
                 return self.emit(status_message("failed", message=f"cannot start retraining: {exc}")), None
             return self.emit(status_message("running", folder=str(self.job.folder),
                                              warm_start=warm_from is not None)), None
+        self._exiting = [j for j in self._exiting if not j.exited()]
         if self.job is None:
             return None, None
         state, progress, message = self.job.poll()
@@ -136,6 +139,8 @@ class FieldUpdater:
             return (self.emit(status_message("running", progress, folder=str(self.job.folder))) if news
                     else None), None
         job, self.job = self.job, None
+        if not job.exited():
+            self._exiting.append(job)  # done, its trainer still exiting: reaped by a later poll or close()
         if state == "done":
             with self.lock:
                 self._edited_at = None
@@ -149,10 +154,16 @@ class FieldUpdater:
         return self.emit(status_message("failed", message=message))
 
     def close(self) -> None:
-        """Stop a running job (the page went away)."""
+        """Stop a running job (the page went away); wait for done jobs' trainers still exiting."""
         if self.job is not None:
             self.job.cancel()
             self.job = None
+        for job in self._exiting:
+            try:
+                job.process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                job.cancel()
+        self._exiting = []
 
     def emit(self, status: dict[str, Any]) -> dict[str, Any]:
         """Record ``status`` as the last one sent to the page (what :meth:`status` returns) and return it."""

@@ -25,10 +25,11 @@ field is a good start for the new one. :func:`update_run`:
    ``domain.json``, ``field.pfn``); the bundle's training summary records the validation error reached, and
    NEWRUN can itself be updated.
 
-RUN is only read. The budget counts the wall time from the call to the written bundle: training stops
+RUN is only read. The budget counts the wall time from the call (``pfn-train update``: from the process's start) to
+the written bundle: training stops
 :data:`photon_fields.train.fit.presets.UPDATE_OUTPUT_RESERVE_S` before it (at most half the budget) to leave time
 for the log, the plot and the export. NEWRUN's ``log.json`` splits the time by stage (``update_time``: reading RUN, the
-retrace, saving the map, then the fine-tune's stages).
+retrace, saving the map, then the fine-tune's stages; ``startup_s``: the process's start before the call).
 """
 
 from __future__ import annotations
@@ -187,14 +188,17 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
                max_steps: int = UPDATE_MAX_STEPS, seed: int | None = None, photons: int | None = None,
                force: bool = False, scene_source: str | None = None, tables_dtype: str = "float32",
                min_improvement: float = DEFAULT_MIN_IMPROVEMENT, patience: int = DEFAULT_PATIENCE,
-               progress: bool = True,
-               on_progress: Callable[[str, int, int], None] | None = None) -> UpdateResult:
+               progress: bool = True, on_progress: Callable[[str, int, int], None] | None = None,
+               started: float | None = None) -> UpdateResult:
     """Update RUN's field to ``scene`` into the run folder ``out`` (module docstring). ``seed`` (default: RUN's
     map's) seeds the retrace and the fine-tune; ``photons`` (default: RUN's map's count, at most
     :data:`photon_fields.train.fit.presets.UPDATE_PHOTONS`) the new map's size.
     ``on_progress(stage, done, total)``: stages ``trace``, ``fit``, ``export``. Bad input: one-line
-    :class:`InputError`, raised before anything is written."""
-    t0 = time.perf_counter()
+    :class:`InputError`, raised before anything is written. ``started``: the ``time.perf_counter()`` the budget
+    counts from, if earlier than the call (``pfn-train update`` passes its process's start, so that ``--budget``
+    bounds the command's wall time, its imports included: the viewer's retrain runs it as a process)."""
+    t_call = time.perf_counter()
+    t0 = t_call if started is None else min(float(started), t_call)
     check_budget(budget_s, max_steps)
     src, dest = Path(run), Path(out)
     if dest.exists() and src.exists() and dest.resolve() == src.resolve():
@@ -213,7 +217,7 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
         dest.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError("--out", f"cannot create the folder {str(dest)!r}: {exc.strerror or exc}") from None
-    read_s = time.perf_counter() - t0
+    read_s = time.perf_counter() - t_call
 
     def stage(name: str) -> Callable[[int, int], None] | None:
         return None if on_progress is None else (lambda done, total: on_progress(name, done, total))
@@ -223,10 +227,11 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
                          progress=progress, on_progress=stage("trace"))
     t2 = time.perf_counter()
     pmap.save(dest / "map.npz")
-    trace_s = time.perf_counter() - t0
+    trace_s = time.perf_counter() - t_call
     write_run_domain(dest, scene, scene_source)
     t_fit = time.perf_counter()
-    spent = {"budget_s": float(budget_s), "read_run_s": read_s, "trace_s": t2 - t1, "save_map_s": t_fit - t2}
+    spent = {"budget_s": float(budget_s), "startup_s": t_call - t0, "read_run_s": read_s,
+             "trace_s": t2 - t1, "save_map_s": t_fit - t2}
     warm = {"run": str(src), "scene": record.scene_name, "scene_fingerprint": record.fingerprint,
             "steps": record.steps, "map_seed": record.map_seed}
     deadline = t0 + float(budget_s) - min(UPDATE_OUTPUT_RESERVE_S, 0.5 * float(budget_s))

@@ -121,6 +121,28 @@ def test_under_pvrt_a_light_edit_waits_for_the_page_to_leave_pvrt(tmp_path: Path
         s.close()
 
 
+def test_a_job_is_done_once_its_bundle_is_written_not_when_its_trainer_has_exited(tmp_path: Path) -> None:
+    """The trainer's interpreter takes ~1 s to exit after writing the bundle: the swap must not wait for it. The
+    exiting process is reaped later (by a poll, or by close())."""
+    from viewer_helpers import tiny_scene
+
+    from photon_fields.runtime.viewer.updater import FieldUpdater
+
+    updater = FieldUpdater(tmp_path / "out", stand_in_trainer(tmp_path, "linger"))
+    updater.want(tiny_scene(), now=True)
+    updater.poll()  # starts the job
+    job = updater.job
+    end = time.monotonic() + 60
+    status, done = None, None
+    while done is None and time.monotonic() < end:
+        status, done = updater.poll()
+        time.sleep(0.05)
+    assert done is job and status["state"] == "done"
+    assert not job.exited()  # the stand-in sleeps 4 s after it is done
+    updater.close()
+    assert job.exited()
+
+
 def test_cancel_stops_the_job_and_closing_the_page_stops_it_too(tmp_path: Path) -> None:
     s = make_session(tmp_path / "out", retrain=stand_in_trainer(tmp_path, "slow"))
     edit(s, 0.5)

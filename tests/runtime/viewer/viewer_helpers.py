@@ -112,6 +112,11 @@ if mode == "fail":
     print("error: --photons: too few photons for this scene", flush=True)
     pf.finish("failed", "error: --photons: too few photons for this scene")
     sys.exit(2)
+if mode == "linger":  # done (a bundle folder and a done progress file), then a slow exit
+    (Path(opt("--out")) / "field.pfn").mkdir(parents=True)
+    pf.finish("done", "bundle written")
+    time.sleep(4)
+    sys.exit(0)
 if mode == "crash":
     print("Segmentation fault (pretend)", flush=True)
     sys.exit(3)
@@ -122,7 +127,8 @@ time.sleep(120)
 
 def stand_in_trainer(tmp_path: Path, mode: str, delay_s: float = 0.0) -> RetrainSettings:
     """Retrain settings whose trainer is :data:`STAND_IN` in ``mode``: slow (reports trace, then fit at 50 %, then
-    sleeps), fail (a one-line error, exit 2) or crash (exit 3 with nothing in the progress file). It writes the
+    sleeps), fail (a one-line error, exit 2), crash (exit 3 with nothing in the progress file) or linger (done, then 4 s
+    before it exits). It writes the
     arguments it was given to ``argv.json`` beside its progress file (``pfn-train update`` takes no ``--mode``:
     slow)."""
     script = tmp_path / "trainer.py"

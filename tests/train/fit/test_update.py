@@ -228,7 +228,30 @@ def test_training_stops_early_enough_for_the_outputs_to_fit_the_budget(runs: dic
     for budget in (15.0, 2.0):
         with pytest.raises(StopHereError):
             update_run(runs["run"], new, tmp_path / f"d{budget:g}", budget_s=budget, progress=False)
-    assert deadlines == pytest.approx([100.0 + 15.0 - UPDATE_OUTPUT_RESERVE_S, 100.0 + 1.0])
+    # pfn-train update's clock starts with its process: the start-up before the call is part of the budget
+    for started in (96.0, 130.0):  # a start 4 s before the call; a "start" after it counts from the call
+        with pytest.raises(StopHereError):
+            update_run(runs["run"], new, tmp_path / f"s{started:g}", budget_s=15.0, progress=False, started=started)
+    assert deadlines == pytest.approx([100.0 + 15.0 - UPDATE_OUTPUT_RESERVE_S, 100.0 + 1.0,
+                                       96.0 + 15.0 - UPDATE_OUTPUT_RESERVE_S, 100.0 + 15.0 - UPDATE_OUTPUT_RESERVE_S])
+
+
+def test_process_started_is_when_the_process_started() -> None:
+    """``pfn-train update`` counts its budget from :func:`process_started`: a process that slept 1 s before asking
+    must be told it started >= 1 s earlier (and not before the test launched it)."""
+    import subprocess
+    import sys
+    import time
+
+    code = ("import time\ntime.sleep(1.0)\nfrom photon_fields.runtime.cli.common import process_started\n"
+            "print(time.perf_counter() - process_started())")
+    t0 = time.perf_counter()
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    wall = time.perf_counter() - t0
+    age = float(out.stdout)
+    if sys.platform != "linux":
+        pytest.skip("process_started reads /proc: elsewhere the budget counts from the call")
+    assert 1.0 <= age <= wall + 0.05
 
 
 def test_run_is_read_without_its_photons(runs: dict[str, Path], tmp_path: Path,
