@@ -465,7 +465,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "a relit frame takes the last frame's light volumes when the directional lights' colours are unchanged, "
            "although they moved"),
     Mutant("pvrt_view_relights_stale_lights", "runtime/viewer/pvrt_view.py",
-           "return kept.render(scene.lights).layers", "return kept.render(kept.scene.lights).layers",
+           "return kept.render(scene.lights, direct=self.options.direct).layers",
+           "return kept.render(kept.scene.lights, direct=self.options.direct).layers",
            (f"{VPVRT}::test_light_change_is_render_pvrts_frame_relit_without_a_march",),
            "the viewer relights its kept samples with the lights they were marched under, not the page's edited "
            "ones (a light change shows the old light)"),
@@ -480,6 +481,18 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/viewer/test_viewer_retrain.py::test_under_pvrt_a_light_edit_waits_for_the_page_to_leave_pvrt",),
            "a light drag under PVRT starts a background retrain of the neural field, which takes a core from the "
            "relighting"),
+    Mutant("update_budget_from_the_call", "train/cli/train.py",
+           'started=_COMMAND_CLOCK["started"])', "started=None)",
+           ("tests/train/fit/test_update.py::test_the_command_counts_its_budget_from_its_process_start",),
+           "pfn-train update counts --budget from the call, not the process's start: the command's imports (2-3 s) "
+           "come on top of the budget the user gave"),
+    Mutant("retrain_waits_for_the_trainer_to_exit", "runtime/viewer/retrain.py",
+           'if not self.cancelled and progress is not None and progress.status == "done" and self.bundle.exists():',
+           "if False:",
+           ("tests/runtime/viewer/test_viewer_retrain.py::"
+            "test_a_job_is_done_once_its_bundle_is_written_not_when_its_trainer_has_exited",),
+           "the viewer swaps a retrained field in only after the trainer's interpreter has exited (~1 s after the "
+           "bundle was written)"),
 )
 
 

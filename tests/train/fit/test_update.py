@@ -236,6 +236,23 @@ def test_training_stops_early_enough_for_the_outputs_to_fit_the_budget(runs: dic
                                        96.0 + 15.0 - UPDATE_OUTPUT_RESERVE_S, 100.0 + 15.0 - UPDATE_OUTPUT_RESERVE_S])
 
 
+def test_the_command_counts_its_budget_from_its_process_start(runs: dict[str, Path], tmp_path: Path) -> None:
+    """``pfn-train update`` as a process of its own (as the viewer's retrain runs it): its log records the
+    start-up before the call as part of the budget (0 for an in-process call)."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "cli"
+    argv = [sys.executable, "-m", "photon_fields.train.cli.train",
+            *update_args(runs, "denser", out, "--max-steps", "1")]
+    subprocess.run(argv, check=True, capture_output=True, timeout=600)
+    split = json.loads((out / "log.json").read_text())["update_time"]
+    assert split["startup_s"] > 0.0
+    in_process = tmp_path / "in_process"
+    assert train_main(update_args(runs, "denser", in_process, "--max-steps", "1")) == 0
+    assert json.loads((in_process / "log.json").read_text())["update_time"]["startup_s"] == 0.0
+
+
 def test_process_started_is_when_the_process_started() -> None:
     """``pfn-train update`` counts its budget from :func:`process_started`: a process that slept 1 s before asking
     must be told it started >= 1 s earlier (and not before the test launched it)."""
