@@ -236,6 +236,37 @@ def test_training_stops_early_enough_for_the_outputs_to_fit_the_budget(runs: dic
                                        96.0 + 15.0 - UPDATE_OUTPUT_RESERVE_S, 100.0 + 15.0 - UPDATE_OUTPUT_RESERVE_S])
 
 
+@pytest.mark.parametrize(("errors", "kept"), [
+    ([0.10, 0.20, 0.15, 0.30], 50),  # the earlier field scores lowest: the best trained one is kept all the same
+    ([0.30, 0.20, 0.10, 0.15], 50),  # the lowest trained one
+    ([0.30, 0.20, 0.25, 0.22], 25),
+])
+def test_an_update_keeps_a_trained_field_not_the_earlier_one(runs: dict[str, Path], tmp_path: Path,
+                                                             monkeypatch: pytest.MonkeyPatch, errors: list[float],
+                                                             kept: int) -> None:
+    """The earlier field answers another scene; after a small edit the noisy validation cannot tell it from the
+    trained fields, and keeping it whenever it scored lowest left a chain of small edits unfollowed. The kept
+    field is the lowest-scoring *trained* one, and it is the field the checkpoint holds."""
+    from photon_fields.train.fit import fine_tune as fine_tune_module
+
+    scores = iter(errors)
+    snapshots: dict[int, list[np.ndarray]] = {}
+    real = fine_tune_module.validate_field
+
+    def scripted(model: TorchPhotonField, val: object, **kw: object) -> dict[str, float]:
+        out = real(model, val, **kw)
+        snapshots[25 * len(snapshots)] = [p.detach().numpy().copy() for p in model.parameters()]
+        return {**out, "val_rel_l1": next(scores)}
+
+    monkeypatch.setattr(fine_tune_module, "validate_field", scripted)
+    res = update_run(runs["run"], load_scene(runs["denser"]), tmp_path / "new", max_steps=75, budget_s=1e6,
+                     patience=10, progress=False)
+    assert res.fit.log["stop"]["kept_step"] == kept and res.fit.log["stop"]["steps"] == 75
+    model, _ = load_checkpoint(res.out / "checkpoint.pt", None)
+    for p, want in zip(model.parameters(), snapshots[kept], strict=True):
+        np.testing.assert_array_equal(p.detach().numpy(), want)
+
+
 def test_the_command_counts_its_budget_from_its_process_start(runs: dict[str, Path], tmp_path: Path) -> None:
     """``pfn-train update`` as a process of its own (as the viewer's retrain runs it): its log records the
     start-up before the call as part of the budget (0 for an in-process call)."""
