@@ -118,6 +118,11 @@ UPDATE_OUTPUT_RESERVE_S = 1.5
 #: search structures and the validation targets scale with it: 5M (``pfn-train all``'s default) took 16-18 s to
 #: retrace alone, more than the budget.
 UPDATE_PHOTONS = 1_000_000
+#: The retrace stops once it has used this share of the budget left when it starts, if it holds at least
+#: :data:`UPDATE_MIN_PHOTONS` records by then (whole chunks of paths: the map is a prefix of the full one's paths).
+#: On sparse media a record costs many paths: vortex's 1M took 6-12 s of the 15 s, leaving 1-86 steps.
+UPDATE_TRACE_SHARE = 0.4
+UPDATE_MIN_PHOTONS = 250_000
 #: Step limit (a cold ``cpu`` fit takes 800).
 UPDATE_MAX_STEPS = 400
 #: The update's constant learning rate as a share of the preset's.

@@ -13,7 +13,9 @@ field is a good start for the new one. :func:`update_run`:
    earlier run (without ``force``);
 3. retraces the photon map for NEW with RUN's map settings and seed, with at most
    :data:`photon_fields.train.fit.presets.UPDATE_PHOTONS` records (the retrace, the map's search structures and
-   the validation targets all scale with the count; docs/training.md "Updates" has the measurements) (Alg. 1,
+   the validation targets all scale with the count; docs/training.md "Updates" has the measurements), and for at
+   most :data:`photon_fields.train.fit.presets.UPDATE_TRACE_SHARE` of the budget left (once it holds
+   :data:`photon_fields.train.fit.presets.UPDATE_MIN_PHOTONS`: on sparse media a record costs many paths) (Alg. 1,
    :func:`photon_fields.train.photons.tracing.trace_photons`): path i uses random stream i of the seed, so
    every path of the new map starts like the old map's path i and departs from it only where the edit
    changes what it meets: the new map is correlated with the old one, and the field is asked to learn the
@@ -58,8 +60,10 @@ from photon_fields.train.fit.presets import (
     UPDATE_BUDGET_S,
     UPDATE_LR_SHARE,
     UPDATE_MAX_STEPS,
+    UPDATE_MIN_PHOTONS,
     UPDATE_OUTPUT_RESERVE_S,
     UPDATE_PHOTONS,
+    UPDATE_TRACE_SHARE,
     UPDATE_VAL_EVERY,
 )
 from photon_fields.train.fit.schedule import naive_schedule
@@ -223,8 +227,10 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
         return None if on_progress is None else (lambda done, total: on_progress(name, done, total))
 
     t1 = time.perf_counter()
+    trace_deadline = t1 + UPDATE_TRACE_SHARE * max(t0 + float(budget_s) - t1, 0.0)
     pmap = trace_photons(scene, photons, phases=record.phases, max_bounces=record.max_bounces, seed=seed,
-                         progress=progress, on_progress=stage("trace"))
+                         progress=progress, on_progress=stage("trace"), deadline=trace_deadline,
+                         min_photons=min(photons, UPDATE_MIN_PHOTONS))
     t2 = time.perf_counter()
     pmap.save(dest / "map.npz")
     trace_s = time.perf_counter() - t_call

@@ -152,10 +152,14 @@ def check_phases(phases: Sequence[float], what: str = "phases") -> tuple[float, 
 
 def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAULT_MAP_PHASES, max_bounces: int = 16,
                   seed: int = 0, progress: bool = True,
-                  on_progress: Callable[[int, int], None] | None = None) -> PhotonMap:
+                  on_progress: Callable[[int, int], None] | None = None, deadline: float | None = None,
+                  min_photons: int = 0) -> PhotonMap:
     """Alg. 1: trace photon paths until the map holds at least ``photons`` records. ``on_progress(done, total)``
     is called after every chunk with the records stored so far (e.g. a
-    :class:`photon_fields.runtime.io.progress.ProgressFile`'s update)."""
+    :class:`photon_fields.runtime.io.progress.ProgressFile`'s update). ``deadline`` (a ``time.perf_counter()``
+    value): stop after the chunk that passes it, once the map holds ``min_photons`` records (a time budget's
+    retrace, ``pfn-train update``): the map is then the first chunks' paths, each phase normalized by its own
+    emitted paths as always, and how many there are depends on the machine's speed."""
     if isinstance(photons, bool) or not isinstance(photons, (int, np.integer)) or photons < 1:
         raise InputError("photons", f"must be a positive integer, got {photons!r}")
     if not 2 <= max_bounces <= 1024:
@@ -209,6 +213,8 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
             if on_progress is not None:
                 on_progress(int(np.minimum(stored, quota).sum()), quota * len(gs))
             _check_progress(scene, stored, emitted_per_phase, quota)
+            if deadline is not None and time.perf_counter() >= deadline and stored.sum() >= min_photons:
+                break
     pos = np.concatenate([p[0] for ph_parts in parts for p in ph_parts])
     dirs = np.concatenate([p[1] for ph_parts in parts for p in ph_parts])
     ph_idx = np.concatenate([p[3] for ph_parts in parts for p in ph_parts])

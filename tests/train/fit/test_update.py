@@ -236,6 +236,39 @@ def test_training_stops_early_enough_for_the_outputs_to_fit_the_budget(runs: dic
                                        96.0 + 15.0 - UPDATE_OUTPUT_RESERVE_S, 100.0 + 15.0 - UPDATE_OUTPUT_RESERVE_S])
 
 
+def test_the_retrace_gets_a_share_of_the_budget_left(runs: dict[str, Path], tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """On sparse media a photon record costs many paths (vortex's 1M took 6-12 s of the 15 s): the retrace stops
+    at UPDATE_TRACE_SHARE of the budget left when it starts, once it holds UPDATE_MIN_PHOTONS records."""
+    from photon_fields.train.fit.presets import UPDATE_MIN_PHOTONS, UPDATE_TRACE_SHARE
+
+    class StopHereError(Exception):
+        pass
+
+    class StillClock:
+        @staticmethod
+        def perf_counter() -> float:
+            return 100.0
+
+    seen: list[dict[str, object]] = []
+
+    def capture(*args: object, **kwargs: object) -> None:
+        seen.append(kwargs)
+        raise StopHereError
+
+    monkeypatch.setattr(update_module, "time", StillClock)
+    monkeypatch.setattr(update_module, "trace_photons", capture)
+    new = load_scene(runs["denser"])
+    for started, photons in ((None, 2_000_000), (96.0, 3_000)):
+        with pytest.raises(StopHereError):
+            update_run(runs["run"], new, tmp_path / f"t{photons}", budget_s=15.0, photons=photons, progress=False,
+                       started=started)
+    assert seen[0]["deadline"] == pytest.approx(100.0 + UPDATE_TRACE_SHARE * 15.0)
+    assert seen[0]["min_photons"] == UPDATE_MIN_PHOTONS
+    assert seen[1]["deadline"] == pytest.approx(100.0 + UPDATE_TRACE_SHARE * 11.0)  # 4 s of start-up spent
+    assert seen[1]["min_photons"] == 3_000
+
+
 @pytest.mark.parametrize(("errors", "kept"), [
     ([0.10, 0.20, 0.15, 0.30], 50),  # the earlier field scores lowest: the best trained one is kept all the same
     ([0.30, 0.20, 0.10, 0.15], 50),  # the lowest trained one

@@ -219,3 +219,27 @@ def test_environment_map_photons_keep_the_colour_of_their_direction() -> None:
     red, blue = pw[:, 0] > 0, pw[:, 2] > 0
     assert not np.any(red & blue) and np.all(red | blue)
     assert 0.2 < red.mean() < 0.8
+
+
+def test_a_trace_past_its_deadline_is_the_full_traces_first_paths() -> None:
+    """``deadline`` (the update's time-capped retrace) stops after the chunk that passes it once ``min_photons``
+    records are held: every phase's records are then the first ones of the full trace with the same seed (the
+    same paths' random streams), and each phase's power is normalized by its own emitted paths (unbiased)."""
+    scene = builtin_scene("blobs", resolution=32)
+    full = trace_photons(scene, 60_000, phases=PAPER_PHASES, seed=5, progress=False)
+    capped = trace_photons(scene, 60_000, phases=PAPER_PHASES, seed=5, progress=False, deadline=0.0,
+                           min_photons=2_000)
+    assert 2_000 <= len(capped) < len(full)
+    assert sum(capped.meta["emitted_per_phase"]) == CHUNK  # one chunk of paths, over the three phases
+    for ph in range(3):
+        a, b = capped.phase == ph, full.phase == ph
+        n = int(a.sum())
+        assert n > 0
+        np.testing.assert_array_equal(capped.position[a], full.position[b][:n])
+        np.testing.assert_array_equal(capped.direction[a], full.direction[b][:n])
+        rescale = capped.meta["emitted_per_phase"][ph] / full.meta["emitted_per_phase"][ph]
+        np.testing.assert_allclose(capped.power[a] * rescale, full.power[b][:n], rtol=1e-6)
+    # not before min_photons: a deadline long past still traces on until they are there
+    floor = trace_photons(scene, 60_000, phases=PAPER_PHASES, seed=5, progress=False, deadline=0.0,
+                          min_photons=len(capped) + 1)
+    assert len(floor) > len(capped)
