@@ -482,7 +482,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "a light drag under PVRT starts a background retrain of the neural field, which takes a core from the "
            "relighting"),
     Mutant("update_budget_from_the_call", "train/cli/train.py",
-           'started=_COMMAND_CLOCK["started"])', "started=None)",
+           'started=_COMMAND_CLOCK["started"], on_bundle=bundle_written)', "started=None, on_bundle=bundle_written)",
            ("tests/train/fit/test_update.py::test_the_command_counts_its_budget_from_its_process_start",),
            "pfn-train update counts --budget from the call, not the process's start: the command's imports (2-3 s) "
            "come on top of the budget the user gave"),
@@ -499,6 +499,11 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/train/fit/test_update.py::test_an_update_keeps_a_trained_field_not_the_earlier_one",),
            "an update keeps the earlier field whenever the noisy validation scores it lowest, so a chain of small "
            "edits is never followed (shell: 9 of 10, L_i 2.3 % behind)"),
+    Mutant("update_done_after_the_plot", "train/cli/train.py",
+           "started=_COMMAND_CLOCK[\"started\"], on_bundle=bundle_written)", "started=_COMMAND_CLOCK[\"started\"])",
+           ("tests/train/fit/test_update.py::test_the_progress_file_says_done_before_the_loss_plot",),
+           "pfn-train update marks its progress file done only after the loss plot: the viewer waits for the plot "
+           "(1-3.6 s) before swapping the field in"),
 )
 
 

@@ -77,13 +77,14 @@ STOP_REASONS = ("plateau", "max_steps", "budget")
 def fine_tune(model: TorchPhotonField, scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSettings, *,
               max_steps: int, deadline: float, stop: PlateauStop, warm_start_from: dict[str, Any],
               progress: bool = True, on_progress: Callable[[int, int], None] | None = None,
-              spent: dict[str, float] | None = None) -> FitResult:
+              spent: dict[str, float] | None = None, plot: bool = True) -> FitResult:
     """Continue training ``model`` on ``pmap`` (traced for ``scene``) with ``settings`` (its ``lr``, ``batch``,
     ``k``, ``sampling``, ``g_sampling``, ``loss``, ``seed``, ``val_points`` and ``val_every``; ``steps`` is not
     used) for at most ``max_steps`` steps (0: validate and save the field as it is) and until ``deadline``
     (a :func:`time.perf_counter` value); see the module docstring. Writes checkpoint, log and plot to ``out_dir``
     (which must exist). ``on_progress(done, max_steps)`` is called after every step. ``spent``: seconds the
-    caller spent on the same budget before the call, by stage (recorded first in the log's ``update_time``)."""
+    caller spent on the same budget before the call, by stage (recorded first in the log's ``update_time``).
+    ``plot`` False: the finished run's loss plot is left to the caller (``update_run`` writes it after the bundle)."""
     settings.validate()
     if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 0:
         raise InputError("--max-steps", f"must be an integer >= 0, got {max_steps!r}")
@@ -146,7 +147,8 @@ def fine_tune(model: TorchPhotonField, scene: Scene, pmap: PhotonMap, out_dir: s
         log["totals"] = summary(done)
         log["update_time"] = time_split(done)
         atomic_write_text(log_path, json.dumps(log, indent=1) + "\n")
-        plot_loss(log, png)
+        if plot or status != "done":
+            plot_loss(log, png)
 
     def check(done: int) -> bool:
         """Validate the field after ``done`` steps; keep it if it is the best trained one so far (module docstring,

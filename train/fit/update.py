@@ -55,6 +55,7 @@ from photon_fields.train.fit.checkpoint import load_checkpoint
 from photon_fields.train.fit.early_stop import DEFAULT_MIN_IMPROVEMENT, DEFAULT_PATIENCE, PlateauStop
 from photon_fields.train.fit.fine_tune import fine_tune
 from photon_fields.train.fit.loop import LOG_KEYS, FitResult
+from photon_fields.train.fit.plots import plot_loss
 from photon_fields.train.fit.presets import (
     PRESETS,
     UPDATE_BUDGET_S,
@@ -193,14 +194,17 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
                force: bool = False, scene_source: str | None = None, tables_dtype: str = "float32",
                min_improvement: float = DEFAULT_MIN_IMPROVEMENT, patience: int = DEFAULT_PATIENCE,
                progress: bool = True, on_progress: Callable[[str, int, int], None] | None = None,
-               started: float | None = None) -> UpdateResult:
+               started: float | None = None,
+               on_bundle: Callable[[ExportResult], None] | None = None) -> UpdateResult:
     """Update RUN's field to ``scene`` into the run folder ``out`` (module docstring). ``seed`` (default: RUN's
     map's) seeds the retrace and the fine-tune; ``photons`` (default: RUN's map's count, at most
     :data:`photon_fields.train.fit.presets.UPDATE_PHOTONS`) the new map's size.
     ``on_progress(stage, done, total)``: stages ``trace``, ``fit``, ``export``. Bad input: one-line
     :class:`InputError`, raised before anything is written. ``started``: the ``time.perf_counter()`` the budget
     counts from, if earlier than the call (``pfn-train update`` passes its process's start, so that ``--budget``
-    bounds the command's wall time, its imports included: the viewer's retrain runs it as a process)."""
+    bounds the command's wall time, its imports included: the viewer's retrain runs it as a process).
+    ``on_bundle(export)`` is called once the bundle is written, before the loss plot (``pfn-train update`` marks its
+    progress file done there: the viewer swaps the field in while the plot is drawn)."""
     t_call = time.perf_counter()
     t0 = t_call if started is None else min(float(started), t_call)
     check_budget(budget_s, max_steps)
@@ -243,13 +247,17 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
     deadline = t0 + float(budget_s) - min(UPDATE_OUTPUT_RESERVE_S, 0.5 * float(budget_s))
     result = fine_tune(model, scene, pmap, dest, settings, max_steps=max_steps, deadline=deadline,
                        stop=PlateauStop(min_improvement, patience), warm_start_from=warm, progress=progress,
-                       on_progress=stage("fit"), spent=spent)
+                       on_progress=stage("fit"), spent=spent, plot=False)
     t3 = time.perf_counter()
     if on_progress is not None:
         on_progress("export", 0, 1)
     bundle = export_bundle(dest, dest / "field.pfn", tables_dtype=tables_dtype, force=True)
+    t4 = time.perf_counter()
+    if on_bundle is not None:
+        on_bundle(bundle)
+    plot_loss(result.log, dest / "loss.png")
     wall = time.perf_counter() - t0
-    logged = result.log["update_time"]  # up to the log's writing; then the plot, and the export
-    split = {**logged, "outputs_s": t3 - t_fit - logged["fine_tune_s"], "export_s": time.perf_counter() - t3,
-             "wall_s": wall}
+    logged = result.log["update_time"]  # up to the log's writing; then the export, and the plot
+    split = {**logged, "outputs_s": t3 - t_fit - logged["fine_tune_s"], "export_s": t4 - t3,
+             "bundle_s": t4 - t0, "plot_s": time.perf_counter() - t4, "wall_s": wall}
     return UpdateResult(dest, result, bundle, trace_s, wall, split)

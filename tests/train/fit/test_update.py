@@ -362,10 +362,30 @@ def test_default_photons_are_capped(runs: dict[str, Path], tmp_path: Path, monke
     assert old <= kept.fit.log["photons"] < 2 * old  # a smaller earlier map keeps its count
 
 
+def test_the_progress_file_says_done_before_the_loss_plot(runs: dict[str, Path], tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """A viewer waiting on ``--progress-file`` swaps the field in as soon as the bundle is written; the loss plot
+    (1-3.6 s in a fresh process on a busy core) comes after."""
+    progress_path = tmp_path / "progress.json"
+    seen: list[str] = []
+    real = update_module.plot_loss
+
+    def spy(log: dict, png: Path) -> None:
+        seen.append(read_progress(progress_path).status)
+        real(log, png)
+
+    monkeypatch.setattr(update_module, "plot_loss", spy)
+    out = tmp_path / "new"
+    assert train_main(update_args(runs, "denser", out, "--max-steps", "1", "--progress-file",
+                                  str(progress_path))) == 0
+    assert seen == ["done"] and (out / "loss.png").is_file()
+
+
 def test_the_time_split_accounts_for_the_wall_time(runs: dict[str, Path], tmp_path: Path,
                                                    capsys: pytest.CaptureFixture[str]) -> None:
     """log.json's ``update_time`` (and the CLI's ``time:`` line) say where the budget went: the stages before
-    training and the fine-tune's together take the wall time to the end of training, none counted twice."""
+    training and the fine-tune's together take the wall time to the end of training, none counted twice; the
+    export ends the budget's part (``bundle_s``) and the loss plot comes after it."""
     out = tmp_path / "new"
     assert train_main(update_args(runs, "denser", out, "--max-steps", "30", "--budget", "300")) == 0
     line = [s for s in capsys.readouterr().out.splitlines() if s.startswith("time: ")]
@@ -378,5 +398,9 @@ def test_the_time_split_accounts_for_the_wall_time(runs: dict[str, Path], tmp_pa
     res = update_run(runs["run"], load_scene(runs["denser"]), tmp_path / "again", max_steps=30, budget_s=300,
                      progress=False)
     s = res.time_split
-    parts = s["read_run_s"] + s["trace_s"] + s["save_map_s"] + s["fine_tune_s"] + s["outputs_s"] + s["export_s"]
-    assert 0.95 * s["wall_s"] <= parts <= s["wall_s"] + 1e-3
+    parts = (s["startup_s"] + s["read_run_s"] + s["trace_s"] + s["save_map_s"] + s["fine_tune_s"] + s["outputs_s"]
+             + s["export_s"])
+    assert 0.95 * s["bundle_s"] <= parts <= s["bundle_s"] + 1e-3  # the bundle is written before the loss plot
+    assert 0.95 * s["wall_s"] <= parts + s["plot_s"] <= s["wall_s"] + 1e-3
+    assert (res.out / "loss.png").is_file() and (res.out / "loss.png").stat().st_mtime >= (
+        res.out / "field.pfn" / "manifest.json").stat().st_mtime
