@@ -476,8 +476,9 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/train/fit/test_update.py::test_training_stops_early_enough_for_the_outputs_to_fit_the_budget",),
            "an update trains until the whole budget is spent, and its log, plot and export come after it (a 15 s "
            "budget gave 15.4-16.4 s)"),
-    Mutant("viewer_retrains_under_pvrt", "runtime/viewer/session.py",
-           'self._retrain_waits = s.renderer == "pvrt"', "self._retrain_waits = False",
+    Mutant("viewer_retrains_under_pvrt", "runtime/viewer/updater.py",
+           "self._auto_waits = pvrt_shown\n        return not pvrt_shown",
+           "self._auto_waits = pvrt_shown\n        return True",
            ("tests/runtime/viewer/test_viewer_retrain.py::test_under_pvrt_a_light_edit_waits_for_the_page_to_leave_pvrt",),
            "a light drag under PVRT starts a background retrain of the neural field, which takes a core from the "
            "relighting"),

@@ -131,7 +131,6 @@ class ViewerSession:
                                transfer=scene.tf, labels=label_panel(scene.tf, scene.volume))
         self.max_size = (self.state.width, self.state.height)  # the largest frame (pfn-view --size)
         self.updater = FieldUpdater(self.out_dir, retrain or RetrainSettings(), seed=self.seed)
-        self._retrain_waits = False  # an automatic retrain waits for the page to leave PVRT (auto_retrain_due)
         self.drag_level = 0  # drag_scale "auto": the index in DRAG_LEVELS of the next moving frame
         self.lock = threading.Lock()
         self.changed = threading.Condition(self.lock)
@@ -217,7 +216,6 @@ class ViewerSession:
                 restart = False
                 if f["action"] == "cancel":
                     self.updater.cancel()
-                    self._retrain_waits = False
                 elif not shows_something(s.transfer):
                     raise MessageError("retrain: every label is hidden: there is nothing to train a field for")
                 else:
@@ -226,7 +224,12 @@ class ViewerSession:
                 raise MessageError(f"message type {msg.type!r} is not handled")
             if msg.seq is not None:
                 self.last_seq = msg.seq
-            if self.auto_retrain_due(msg.type, f, s):
+            # an edit, or a switch of renderer (a retrain may wait for the page to leave PVRT: FieldUpdater.auto_after);
+            # without a field or map nothing is stale, and nothing is trained while every label is hidden
+            edit = msg.type in ("transfer", "labels", "light")
+            if (edit or (msg.type == "set" and f["control"] == "renderer")) and self.updater.auto_after(
+                    edit, self.field.exists and self.field_stale(s) and shows_something(s.transfer),
+                    s.renderer == "pvrt"):
                 self.updater.want(self.edited_scene(s), warm_from=self.field.run_dir)
             if restart:
                 self.generation += 1
@@ -234,20 +237,6 @@ class ViewerSession:
             self.reexpose = self.reexpose or reexpose
             self.redisplay = self.redisplay or redisplay or restart
             self.changed.notify_all()
-
-    def auto_retrain_due(self, kind: str, f: dict[str, Any], s: ViewState) -> bool:
-        """Whether the message just applied (type ``kind``, fields ``f``) starts an automatic background retrain:
-        an edit (transfer function, labels, a light) that leaves the field stale. While PVRT is shown the retrain
-        waits (it relights from its own transfer, and a job would take a core from its light drags for a field
-        nobody looks at) and starts when the page switches to another renderer. Without a field or map nothing is
-        stale (only the page's retrain button trains one); nothing is trained while every label is hidden."""
-        edit = kind in ("transfer", "labels", "light")
-        switch = kind == "set" and f["control"] == "renderer" and self._retrain_waits
-        if not (edit or switch) or not (self.updater.settings.auto and self.field.exists and self.field_stale(s)
-                                        and shows_something(s.transfer)):
-            return False
-        self._retrain_waits = s.renderer == "pvrt"
-        return not self._retrain_waits
 
     def edited_scene(self, s: ViewState) -> Scene:
         """The scene as the page has edited it (transfer function and lights; camera and g are not part of

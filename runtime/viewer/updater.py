@@ -70,6 +70,7 @@ class FieldUpdater:
         self._wanted_at = 0.0
         self._edited_at: float | None = None  # the first edit since the field in use was made
         self._cancel = False
+        self._auto_waits = False  # an automatic retrain waits for the page to leave PVRT (auto_after)
         self._last_status: dict[str, Any] | None = None
         self._last_sent = 0.0
 
@@ -92,10 +93,21 @@ class FieldUpdater:
             if self._edited_at is None:
                 self._edited_at = t
 
+    def auto_after(self, edit: bool, stale: bool, pvrt_shown: bool) -> bool:
+        """Whether a page message starts an automatic retrain (the caller then calls :meth:`want`): an ``edit``
+        (transfer function, labels, a light) that leaves the field ``stale``, or else (a switch of renderer) a retrain
+        that was waiting. While PVRT is shown (``pvrt_shown``) it waits: PVRT relights from its own transfer, and a
+        job would take a core from its light drags for a field nobody looks at. :meth:`cancel` drops the wait."""
+        if not (edit or self._auto_waits) or not (self.settings.auto and stale):
+            return False
+        self._auto_waits = pvrt_shown
+        return not pvrt_shown
+
     def cancel(self) -> None:
-        """Drop the wish and stop the running job at the next poll."""
+        """Drop the wish (and a retrain waiting for the page to leave PVRT) and stop the running job at the next
+        poll."""
         with self.lock:
-            self._wanted, self._cancel = None, True
+            self._wanted, self._cancel, self._auto_waits = None, True, False
 
     def status(self) -> dict[str, Any] | None:
         """The last status message (None before any job)."""

@@ -202,19 +202,23 @@ def test_stops_on_a_plateau_and_at_the_budget(runs: dict[str, Path], tmp_path: P
     assert (budget.out / "field.pfn" / "manifest.json").is_file()
 
 
+class StopHereError(Exception):
+    """Raised by a stand-in for a stage of update_run once it has recorded what it was called with."""
+
+
+class StillClock:
+    """``time`` for update_run whose ``perf_counter`` stands at 100 s: deadlines become exact."""
+
+    @staticmethod
+    def perf_counter() -> float:
+        return 100.0
+
+
 def test_training_stops_early_enough_for_the_outputs_to_fit_the_budget(runs: dict[str, Path], tmp_path: Path,
                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
     """The budget covers the written bundle, not only training: the fine-tune's deadline is the call's start plus
     the budget less the outputs' reserve (at most half the budget). A clock that stands still makes it exact."""
     from photon_fields.train.fit.presets import UPDATE_OUTPUT_RESERVE_S
-
-    class StopHereError(Exception):
-        pass
-
-    class StillClock:
-        @staticmethod
-        def perf_counter() -> float:
-            return 100.0
 
     deadlines: list[float] = []
 
@@ -241,14 +245,6 @@ def test_the_retrace_gets_a_share_of_the_budget_left(runs: dict[str, Path], tmp_
     """On sparse media a photon record costs many paths (vortex's 1M took 6-12 s of the 15 s): the retrace stops
     at UPDATE_TRACE_SHARE of the budget left when it starts, once it holds UPDATE_MIN_PHOTONS records."""
     from photon_fields.train.fit.presets import UPDATE_MIN_PHOTONS, UPDATE_TRACE_SHARE
-
-    class StopHereError(Exception):
-        pass
-
-    class StillClock:
-        @staticmethod
-        def perf_counter() -> float:
-            return 100.0
 
     seen: list[dict[str, object]] = []
 
