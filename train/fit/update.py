@@ -30,8 +30,9 @@ field is a good start for the new one. :func:`update_run`:
 RUN is only read. The budget counts the wall time from the call (``pfn-train update``: from the process's start) to
 the written bundle: training stops
 :data:`photon_fields.train.fit.presets.UPDATE_OUTPUT_RESERVE_S` before it (at most half the budget) to leave time
-for the log, the plot and the export. NEWRUN's ``log.json`` splits the time by stage (``update_time``: reading RUN, the
-retrace, saving the map, then the fine-tune's stages; ``startup_s``: the process's start before the call).
+for the log and the export; the loss plot is drawn after the bundle, outside the budget. NEWRUN's ``log.json``
+splits the time by stage (``update_time``: reading RUN, the retrace, saving the map, then the fine-tune's stages;
+``startup_s``: the process's start before the call).
 """
 
 from __future__ import annotations
