@@ -16,7 +16,7 @@ Per image: ``mean`` = mean(L_i) / mean(reference L_i) (the bias a scientist sees
 error over scenes, in G and outside G, and the ratio of the mean rel. L2 outside G to inside G.
 
 ``--converged`` adds, per scene and configuration, the neural renderer's full L, plain and with the final gather
-(``final_gather=True``: one real bounce before the field), (two renders at
+(``final_gather_after=0``: one real bounce before the field), (two renders at
 ``--converged-neural-spp``, default 256, with different seeds: their mean, its noise, and the error left without
 the noise of either image; the photon map's L likewise when the scene's g is in G) against the mean of two
 independent path-traced L at ``--converged-spp`` (default 2048 each; half their difference is the reference's own
@@ -198,7 +198,7 @@ def score(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], config:
                                "field": compare(li, ref)}
         if with_map and map_answers(pmap, config, g):
             pm = render_photon_mapped(view, pmap, k=settings["k"], radius=radius, spp=args.spp, seed=7,
-                                      progress=False, g_window=config.g_window).layers["L_i"]
+                                      progress=False, g_window=config.g_window, final_gather_after=None).layers["L_i"]
             row["photon_map"] = compare(pm, ref)
         rows.append(row)
     return rows
@@ -266,11 +266,11 @@ def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], con
                                                                seed=seed, progress=False).layers["L"],
                "neural_final_gather": lambda seed: render_first_interaction(
                    view, estimator, spp=args.converged_neural_spp, seed=seed, progress=False,
-                   final_gather=True).layers["L"]}
+                   final_gather_after=0).layers["L"]}
     if map_answers(pmap, config, scene.g):
         renders["photon_map"] = lambda seed: render_photon_mapped(
             view, pmap, k=settings["k"], radius=final_radius(settings), spp=args.converged_neural_spp, seed=seed,
-            progress=False, g_window=config.g_window).layers["L"]
+            progress=False, g_window=config.g_window, final_gather_after=None).layers["L"]
     for name, render in renders.items():
         t0 = time.perf_counter()
         a, b = render(7), render(8)

@@ -132,16 +132,16 @@ def main(argv: list[str] | None = None) -> None:
         ref, ref_noise = reference_halves(scene, args.ref_spp, args.work)
         renderers: dict[str, Callable[[int, int, bool], np.ndarray]] = {
             "neural": lambda spp, seed, fg, scene=scene, est=est: render_neural(
-                scene, est, spp=spp, seed=seed, progress=False, final_gather=fg).layers["L"]}
+                scene, est, spp=spp, seed=seed, progress=False, final_gather_after=0 if fg else None).layers["L"]}
         if args.photon_map:
             from photon_fields.runtime.photons.photon_map import PhotonMap
             from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 
             pmap = PhotonMap.load(Path(bundle).parent / "map.npz")
             renderers["photon map"] = lambda spp, seed, fg, scene=scene, pmap=pmap: render_photon_mapped(
-                scene, pmap, k=64, spp=spp, seed=seed, progress=False, final_gather=fg).layers["L"]
+                scene, pmap, k=64, spp=spp, seed=seed, progress=False, final_gather_after=0 if fg else None).layers["L"]
         warm = scene.with_overrides(width=16, height=16)
-        render_neural(warm, est, spp=1, progress=False, final_gather=True)
+        render_neural(warm, est, spp=1, progress=False, final_gather_after=0)
         curves: dict[str, list[dict[str, Any]]] = {}
         for rname, render in renderers.items():
             for fg in (False, True):

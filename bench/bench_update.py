@@ -183,7 +183,8 @@ def main(argv: list[str] | None = None) -> None:
             cold_settings = FitSettings.from_preset("cpu", seed=args.seed)
             radius = cold_settings.resolve_schedule(len(pmap)).final_radius
             ref_map = render_photon_mapped(view, pmap, k=cold_settings.k, radius=radius, spp=args.spp, seed=7,
-                                           progress=False, g_window=PHASE_WINDOW).layers["L_i"]
+                                           progress=False, g_window=PHASE_WINDOW,
+                                           final_gather_after=None).layers["L_i"]
             upd_li = field_li(new, res.out, args.size, args.spp)
             cold_li = field_li(new, folder / "cold", args.size, args.spp)
             stop = res.fit.log["stop"]

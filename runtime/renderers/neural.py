@@ -51,6 +51,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.wavefront.batches import DEFAULT_BATCH, RenderResult
 from photon_fields.runtime.wavefront.film import Film
@@ -64,16 +65,19 @@ from photon_fields.runtime.wavefront.first_interaction import (
 def render_neural(scene: Scene, estimator: IndirectEstimator | None, *, spp: int = 1, seed: int = 0,
                   batch_size: int = DEFAULT_BATCH, progress: bool = True, direct: bool = True,
                   film: Film | None = None, first_sample: int = 0,
-                  camera: str = DEFAULT_CAMERA_ESTIMATOR, final_gather: bool = False) -> RenderResult:
+                  camera: str = DEFAULT_CAMERA_ESTIMATOR,
+                  final_gather_after: int | None = DEFAULT_GATHER_AFTER) -> RenderResult:
     """Alg. 2 with ``estimator`` (normally ``PhotonField.estimator()``) for L_i; see the module docstring.
     ``estimator=None`` renders L_d only, ``direct=False`` L_i only (for timing the terms separately).
     ``camera`` picks how first interactions are sampled (``first_interaction.CAMERA_ESTIMATORS``);
-    ``final_gather`` takes one real bounce before the field (:mod:`photon_fields.runtime.wavefront.final_gather`:
-    the field's bias reaches the image attenuated and blurred, at about twice the work per sample)."""
+    Samples from index ``final_gather_after`` on (counting ``first_sample``'s; 0: all, None: none) take one real
+    bounce before the field (:mod:`photon_fields.runtime.wavefront.final_gather`: the field's bias reaches the image
+    attenuated and blurred, at about 1.5x the work per sample): a render of many samples converges to the less
+    biased image while one of few stays plain (its noise is larger than the bias the gather removes)."""
     stats_before = _field_seconds(estimator)
     result = render_first_interaction(scene, estimator, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
                                       desc="neural rendering", direct=direct, film=film, first_sample=first_sample,
-                                      camera=camera, final_gather=final_gather)
+                                      camera=camera, final_gather_after=final_gather_after)
     after = _field_seconds(estimator)
     for key, value in after.items():  # the field's own split of stage 4: encoding / inference / decoding
         result.timings_ms[f"estimate_indirect.{key}"] = (value - stats_before.get(key, 0.0)) * 1e3
@@ -102,9 +106,9 @@ class ProgressiveRender:
 
     def __init__(self, scene: Scene, estimator: IndirectEstimator | None, *, spp: int = 1, seed: int = 0,
                  batch_size: int = DEFAULT_BATCH, camera: str = DEFAULT_CAMERA_ESTIMATOR,
-                 denoiser: Any = None, final_gather: bool = False) -> None:
+                 denoiser: Any = None, final_gather_after: int | None = DEFAULT_GATHER_AFTER) -> None:
         self.scene, self.estimator, self.spp, self.seed, self.batch_size = scene, estimator, int(spp), seed, batch_size
-        self.camera, self.final_gather = camera, final_gather
+        self.camera, self.final_gather_after = camera, final_gather_after
         self.film = Film(scene.camera.width, scene.camera.height)
         self.frames = 0
         self.denoiser = denoiser
@@ -118,7 +122,7 @@ class ProgressiveRender:
     def frame(self) -> RenderResult:
         result = render_neural(self.scene, self.estimator, spp=self.spp, seed=self.seed, batch_size=self.batch_size,
                                progress=False, film=self.film, first_sample=self.film.samples, camera=self.camera,
-                               final_gather=self.final_gather)
+                               final_gather_after=self.final_gather_after)
         self.frames += 1
         if self.denoiser is not None:
             t0 = time.perf_counter()

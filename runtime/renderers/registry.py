@@ -13,6 +13,7 @@ The render functions are imported when a renderer is first used, so building the
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import math
 from collections.abc import Callable
@@ -120,9 +121,31 @@ CAMERA_OPTION = Option("--camera-estimator", "camera", "camera estimator: forced
                        "whole ray, weighted by its collision probability; less noise in thin media) or delta (delta "
                        "tracking, the path tracer's first bounce)", str, "forced", one_of(("forced", "delta")))
 
+#: Samples of a render (or of a viewer's resting view) from which the first-interaction renderers take the final
+#: gather (runtime.wavefront.final_gather): by then the image's noise is below the estimator's bias, which the gather
+#: reduces (measurements: bench/README.md, ``bench_final_gather.py``).
+DEFAULT_GATHER_AFTER = 128
+
+
+def spp_or_never(text: str) -> int | None:
+    """``--final-gather-after``'s argparse type: a sample count, or ``never`` (None)."""
+    if text == "never":
+        return None
+    if not text.isdigit() or int(text) > 1 << 16:
+        raise argparse.ArgumentTypeError(f"expected a sample count in [0, {1 << 16}] or never, got {text!r}")
+    return int(text)
+
+
+def spp_or_none(flag: str, value: Any) -> int | None:
+    """A check for ``final_gather_after``: a sample count in [0, 2^16], or None (never)."""
+    return None if value is None else int_in(0, 1 << 16)(flag, value)
+
+
 #: One real bounce before the first-interaction renderers' L_i estimate (runtime.wavefront.final_gather).
-GATHER_OPTION = Option("--final-gather", "final_gather", "one real bounce (phase sampling, tracking, NEE) before "
-                       "the L_i estimate: less of its bias, more noise, about twice the time per sample")
+GATHER_OPTION = Option("--final-gather-after", "final_gather_after", "samples from index SPP on take one real "
+                       "bounce (phase sampling, tracking, NEE) before the L_i estimate: less of its bias, more noise, "
+                       "about 1.5x the time per sample; 0: every sample, never: none", spp_or_never,
+                       DEFAULT_GATHER_AFTER, spp_or_none)
 
 RENDERERS: dict[str, Renderer] = {r.name: r for r in (
     Renderer("pt", "volumetric path tracer (reference)",

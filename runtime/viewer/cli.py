@@ -10,7 +10,6 @@ screenshots). Bad input is refused in one ``error:`` line with exit status 2, be
 
 from __future__ import annotations
 
-import argparse
 import logging
 import os
 import re
@@ -21,8 +20,8 @@ from collections.abc import Sequence
 
 from photon_fields.runtime.cli.common import OneLineArgumentParser, check_seed, guarded, parse_count
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER, spp_or_never
 from photon_fields.runtime.threads import set_threads
-from photon_fields.runtime.viewer.view_state import DEFAULT_GATHER_AFTER
 
 
 def build_parser() -> OneLineArgumentParser:
@@ -51,7 +50,7 @@ def build_parser() -> OneLineArgumentParser:
                         "ratio (the page scales them up); before the page reports its size, WIDTHxHEIGHT itself")
     p.add_argument("--seed", type=int, default=0, help="random seed: the same inputs give the same frames")
     p.add_argument("--max-spp", type=int, default=1024, help="stop refining a resting view at this many samples")
-    p.add_argument("--final-gather-after", type=_gather_after, default=DEFAULT_GATHER_AFTER, metavar="SPP",
+    p.add_argument("--final-gather-after", type=spp_or_never, default=DEFAULT_GATHER_AFTER, metavar="SPP",
                    help=f"once a resting view has SPP samples (default {DEFAULT_GATHER_AFTER}), the neural renderer's "
                         "further samples take one real bounce before the field: slower and noisier per sample, less "
                         "biased once converged; 0: from the first resting sample, never: not at all")
@@ -68,15 +67,6 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--no-browser", action="store_true", help="only print the address")
     p.add_argument("--quiet", action="store_true", help="log warnings only")
     return p
-
-
-def _gather_after(text: str) -> int | None:
-    """``--final-gather-after``: a sample count, or ``never``."""
-    if text == "never":
-        return None
-    if not text.isdigit() or int(text) > 1 << 16:
-        raise argparse.ArgumentTypeError(f"expected a sample count in [0, {1 << 16}] or never, got {text!r}")
-    return int(text)
 
 
 def _drag_scale(text: str) -> float | str:

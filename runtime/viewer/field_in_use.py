@@ -128,7 +128,7 @@ class FieldInUse:
 
                 est = self.estimator if scale == 1.0 else _Scaled(self.estimator, scale)
                 return render_neural(scene, est, spp=1, seed=seed, progress=False, first_sample=n,
-                                     final_gather=final_gather).layers
+                                     final_gather_after=0 if final_gather else None).layers
             if renderer == "pt":
                 from photon_fields.runtime.renderers.path_tracer import render_path_traced
 
@@ -136,7 +136,8 @@ class FieldInUse:
             from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 
             # force: after an edit the map is stale, which the frame's warnings say (stale)
-            layers = render_photon_mapped(scene, self.pmap, spp=1, seed=seed + n, progress=False, force=True).layers
+            layers = render_photon_mapped(scene, self.pmap, spp=1, seed=seed + n, progress=False, force=True,
+                                          final_gather_after=None).layers
         if scale == 1.0:
             return layers
         li = (layers["L_i"] * np.float32(scale)).astype(np.float32)

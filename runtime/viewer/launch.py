@@ -18,9 +18,9 @@ from pathlib import Path
 from typing import Any
 
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER
 from photon_fields.runtime.viewer.messages import MAX_PIXELS, MAX_SIDE, MIN_SIDE
 from photon_fields.runtime.viewer.retrain import RetrainSettings
-from photon_fields.runtime.viewer.view_state import DEFAULT_GATHER_AFTER
 
 log = logging.getLogger("photon_fields.viewer")
 

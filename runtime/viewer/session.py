@@ -66,6 +66,7 @@ from typing import Any
 import numpy as np
 
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.viewer import screenshot
 from photon_fields.runtime.viewer.camera import OrbitView
@@ -87,7 +88,7 @@ from photon_fields.runtime.viewer.transfer_edit import (
     volume_histogram,
 )
 from photon_fields.runtime.viewer.updater import FieldUpdater
-from photon_fields.runtime.viewer.view_state import DEFAULT_GATHER_AFTER, DEFAULT_MAX_SPP, Frame, ViewState
+from photon_fields.runtime.viewer.view_state import DEFAULT_MAX_SPP, Frame, ViewState
 
 #: Renders of all sessions of a process take turns: two pages rendering at once would each get half the cores
 #: and both miss their frame rate; one at a time keeps each frame as fast as the machine allows.

@@ -12,9 +12,6 @@ from photon_fields.runtime.viewer.light_control import LightControl
 from photon_fields.runtime.viewer.transfer_edit import LabelPanel
 
 DEFAULT_MAX_SPP = 1024
-#: Samples of a resting view after which the neural renderer's frames take the final gather (None: never); the
-#: measurements behind it: bench/README.md (``bench_final_gather.py``).
-DEFAULT_GATHER_AFTER: int | None = 128
 
 
 @dataclass

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -241,11 +242,13 @@ def compact_first_interactions(scratch: FirstInteractions, counts: np.ndarray) -
 def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, *, spp: int = 1, seed: int = 0,
                              batch_size: int = DEFAULT_BATCH, progress: bool = True, desc: str = "rendering",
                              direct: bool = True, film: Film | None = None, first_sample: int = 0,
-                             camera: str = DEFAULT_CAMERA_ESTIMATOR, final_gather: bool = False) -> RenderResult:
+                             camera: str = DEFAULT_CAMERA_ESTIMATOR,
+                             final_gather_after: int | None = None) -> RenderResult:
     """Render ``spp`` samples per pixel (stages in the module docstring) with the ``camera`` estimator.
 
-    ``final_gather``: stage 3 takes one real bounce from x and asks the estimator there
-    (:mod:`photon_fields.runtime.wavefront.final_gather`): less of the estimator's bias, more noise and time.
+    ``final_gather_after``: samples from this index on (counting ``first_sample``'s; 0: all, None: none) take one
+    real bounce from x before asking the estimator (:mod:`photon_fields.runtime.wavefront.final_gather`): less of
+    the estimator's bias, more noise and time per sample. The result's ``stats["final_gather_spp"]`` counts them.
 
     ``estimator`` None skips stage 4 (L_i = 0) and ``direct`` False stage 5 (L_d = 0): the benchmarks time
     L_d and L_i alone this way. ``film`` accumulates into an existing film (its sample count grows by
@@ -269,9 +272,9 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
     scratch, status, transmit = FirstInteractions.empty(batch), np.empty(batch, np.uint8), np.empty(batch)
     distinct = batch <= n_pixels  # consecutive work items: no pixel twice in one batch (Film.splat)
     n_rays = n_samples = 0
+    gather_from = None if final_gather_after is None or estimator is None else final_gather_after * n_pixels
     with progress_bar(total=total, desc=desc, unit="spl", unit_scale=True, enabled=progress) as bar:
-        for start in range(first, first + total, batch):
-            count = min(batch, first + total - start)
+        for start, count in work_batches(first, total, batch, gather_from):
             with timer("sample_first_interactions"):
                 counts = sample_first_interactions(scene, m, start, count, seed, scratch, status, transmit, camera)
             n_rays += int(counts[:, 1].sum())
@@ -287,7 +290,7 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
             throughput = fi.albedo * fi.weight if forced else fi.albedo
             if estimator is not None:
                 with timer("estimate_indirect"):
-                    if final_gather:
+                    if gather_from is not None and start >= gather_from:
                         q = gather_indirect(m, (kind, vec, rgb, env_map), scene.g, fi.x, fi.d, fi.rng, estimator,
                                             forced, FORCED_MIN_WEIGHT, timer)
                     else:
@@ -299,8 +302,21 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
                     nee = direct_light_batch(m, kind, vec, rgb, env_map, scene.g, fi.x, fi.d, fi.rng, False)
                 with timer("compose"):
                     film.splat("L_d", fi.pixel, nee, distinct, weight=throughput)
+    gathered = 0 if final_gather_after is None or estimator is None else \
+        first_sample + spp - min(max(first_sample, final_gather_after), first_sample + spp)
     return finish(film, timer, spp, t_start, {"rays_in_volume": float(n_rays), "samples_in_volume": float(n_samples),
-                                             "compaction_removed": 1.0 - n_samples / max(n_rays, 1)})
+                                             "compaction_removed": 1.0 - n_samples / max(n_rays, 1),
+                                             "final_gather_spp": float(gathered)})
+
+
+def work_batches(first: int, total: int, batch: int, split: int | None = None) -> Iterator[tuple[int, int]]:
+    """``(start, count)`` of the batches of work items ``first .. first + total``, at most ``batch`` each, none
+    straddling work item ``split`` (where the final gather starts), so each batch is gathered or not as a whole."""
+    end = first + total
+    bounds = [first, end] if split is None or not first < split < end else [first, split, end]
+    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        for start in range(lo, hi, batch):
+            yield start, min(batch, hi - start)
 
 
 @njit(cache=True)

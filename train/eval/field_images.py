@@ -138,11 +138,13 @@ def _scores(scene: Scene, model: TorchPhotonField, maps: list[PhotonMap], gs: tu
             key = (id(pmap), v, float(g), cam.width, cam.height, spp, seed, k, radius)
             if key not in cache:
                 t0 = time.perf_counter()
-                ref = render_photon_mapped(sc, pmap, k=k, radius=radius, spp=spp, seed=seed, progress=False)
+                ref = render_photon_mapped(sc, pmap, k=k, radius=radius, spp=spp, seed=seed, progress=False,
+                                           final_gather_after=None)
                 cache[key] = (ref, time.perf_counter() - t0)
             ref, ref_s = cache[key]
             t1 = time.perf_counter()
-            img = render_first_interaction(sc, est, spp=spp, seed=seed, progress=False)
+            img = render_first_interaction(sc, est, spp=spp, seed=seed, progress=False,
+                                           final_gather_after=None)
             t2 = time.perf_counter()
             scores.append(ViewScore(v, float(g), relative_l2(img.layers["L_i"], ref.layers["L_i"]),
                                     ssim(img.layers["L_i"], ref.layers["L_i"]), t2 - t1, ref_s))

@@ -438,6 +438,8 @@ CASES += [
     (R, lambda a, d, o: [*PHOTONMAP(a), "--camera-estimator", "ratio", *SIZE, "--out", str(o / "r.exr")],
      "--camera-estimator"),
     (R, lambda a, d, o: [*PHOTONMAP(a), "--radius", "-1", *SIZE, "--out", str(o / "r.exr")], "--radius"),
+    (R, lambda a, d, o: [*PHOTONMAP(a), "--final-gather-after", "soon", *SIZE, "--out", str(o / "r.exr")],
+     "--final-gather-after"),
     (R, lambda a, d, o: [*FIELD(a), "--precision", "int4", *SIZE, "--out", str(o / "r.exr")], "--precision"),
     (R, lambda a, d, o: [*FIELD(a), "--orbit", "0", *SIZE, "--out", str(o / "r.exr")], "--orbit"),
     (R, lambda a, d, o: [*FIELD(a), "--orbit", "2", "--orbit-degrees", "nan", *SIZE, "--out", str(o / "r.exr")],

@@ -10,7 +10,7 @@ import pytest
 
 from photon_fields.runtime.cli.render import build_parser, renderer_options
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.renderers.registry import INPUTS, RENDERERS
+from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER, INPUTS, RENDERERS
 
 COMMON = ("spp", "seed", "batch_size", "progress")
 INPUT_KEYWORDS = {"map": ("pmap", "force"), "bundle": ("estimator",)}
@@ -52,11 +52,13 @@ def test_options_reach_only_their_renderer_and_are_all_checked() -> None:
     args = parser.parse_args(["--method", "pt", "--max-depth", "3", "--no-nee", "--step", "2"])
     assert renderer_options(args, "pt") == {"max_depth": 3, "nee": False}
     assert renderer_options(args, "raymarch") == {"step": 2.0}
-    assert renderer_options(args, "field") == {"camera": "forced", "final_gather": False}  # shared with photonmap
-    delta = parser.parse_args(["--method", "field", "--camera-estimator", "delta", "--final-gather"])
-    assert renderer_options(delta, "field") == {"camera": "delta", "final_gather": True}
+    assert renderer_options(args, "field") == {"camera": "forced", "final_gather_after": DEFAULT_GATHER_AFTER}
+    delta = parser.parse_args(["--method", "field", "--camera-estimator", "delta", "--final-gather-after", "0"])
+    assert renderer_options(delta, "field") == {"camera": "delta", "final_gather_after": 0}  # shared with photonmap
     assert renderer_options(delta, "photonmap")["camera"] == "delta"
-    assert renderer_options(delta, "photonmap")["final_gather"]
+    assert renderer_options(delta, "photonmap")["final_gather_after"] == 0
+    never = parser.parse_args(["--method", "field", "--final-gather-after", "never"])
+    assert renderer_options(never, "field")["final_gather_after"] is None
     bad = parser.parse_args(["--method", "pt", "--k", "0"])
     with pytest.raises(InputError, match="--k"):
         renderer_options(bad, "pt")

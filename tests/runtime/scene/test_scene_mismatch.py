@@ -258,13 +258,14 @@ def test_final_gather_reaches_the_field_renderer_and_its_report(bundle: Path, tm
     from photon_fields.runtime.io.images import read_exr
 
     images = {}
-    for flags in ([], ["--final-gather"]):
-        out = tmp_path / f"r{len(flags)}.exr"
+    for flags in (["--final-gather-after", "never"], ["--final-gather-after", "0"]):
+        out = tmp_path / f"r{flags[1]}.exr"
         code, err, report = _render(["--method", "field", "--bundle", str(bundle), *RENDER, *flags, "--out",
                                      str(out)], capsys)
         assert code == 0 and err == [], err
-        assert report["options"] == {"camera": "forced", "final_gather": bool(flags)}
-        images[bool(flags)] = read_exr(out)[0]
+        gathers = flags[1] == "0"
+        assert report["options"] == {"camera": "forced", "final_gather_after": 0 if gathers else None}
+        images[gathers] = read_exr(out)[0]
     np.testing.assert_array_equal(images[False]["L_d"], images[True]["L_d"])
     assert not np.array_equal(images[False]["L_i"], images[True]["L_i"])
 

@@ -72,8 +72,8 @@ def test_loopback_hosts() -> None:
 
 
 def test_final_gather_after_takes_a_count_or_never() -> None:
+    from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER
     from photon_fields.runtime.viewer.cli import build_parser
-    from photon_fields.runtime.viewer.view_state import DEFAULT_GATHER_AFTER
 
     parse = build_parser().parse_args
     assert parse(["blobs"]).final_gather_after == DEFAULT_GATHER_AFTER

@@ -36,7 +36,7 @@ def test_resting_samples_after_gather_after_take_the_final_gather(tmp_path: Path
     scene = tiny_scene().with_overrides(camera=s.state.view.camera(24, 24))
     plain = render_neural(scene, AnalyticField(), spp=2, seed=5, progress=False).layers
     gathered = render_neural(scene, AnalyticField(), spp=3, seed=5, progress=False, first_sample=2,
-                             final_gather=True).layers
+                             final_gather_after=0).layers
     for layer in ("L", "L_d", "L_i"):
         np.testing.assert_allclose(accumulated(s, layer), (2 * plain[layer] + 3 * gathered[layer]) / 5, rtol=2e-5,
                                    atol=1e-7)
@@ -68,10 +68,10 @@ def test_a_light_power_edit_scales_only_the_fields_part_of_a_gathered_frame(tmp_
     edited = tiny_scene().with_overrides(camera=s.state.view.camera(24, 24))
     brighter = replace(edited, lights=(replace(edited.lights[0], power=power * 2.5),), _cache={})
     ref = render_neural(brighter, _Times(AnalyticField(), 2.5), spp=1, seed=5, progress=False,
-                        final_gather=True).layers
+                        final_gather_after=0).layers
     np.testing.assert_allclose(accumulated(s, "L_i"), ref["L_i"], rtol=1e-5, atol=1e-8)
     # Rescaling the gathered L_i of the edited scene afterwards (what plain frames do) would count the light's new
     # power twice in NEE at the bounce.
     whole = 2.5 * render_neural(brighter, AnalyticField(), spp=1, seed=5, progress=False,
-                                final_gather=True).layers["L_i"]
+                                final_gather_after=0).layers["L_i"]
     assert np.abs(whole - ref["L_i"]).max() > 1e-3 * np.abs(ref["L_i"]).max()

@@ -64,7 +64,7 @@ def li_two_vertices() -> dict[str, tuple[np.ndarray, np.ndarray]]:
                                  for s in range(12)])}
     for camera in ("delta", "forced"):
         out[camera] = mean_and_error([render_neural(scene, _Zero(), spp=4, seed=100 + s, progress=False, camera=camera,
-                                                    final_gather=True).layers["L_i"] for s in range(12)])
+                                                    final_gather_after=0).layers["L_i"] for s in range(12)])
     return out
 
 
@@ -77,7 +77,7 @@ def test_gather_of_nothing_is_the_path_tracers_second_bounce(li_two_vertices, ca
 def test_estimator_is_asked_at_collisions_in_the_medium_with_the_renders_g() -> None:
     scene = _scene()
     rec = _Recorder()
-    render_neural(scene, rec, spp=8, seed=3, progress=False, final_gather=True)
+    render_neural(scene, rec, spp=8, seed=3, progress=False, final_gather_after=0)
     x2 = np.concatenate([c[0] for c in rec.calls], axis=1)
     w = np.concatenate([c[1] for c in rec.calls], axis=1)
     assert {c[2] for c in rec.calls} == {G}
@@ -116,16 +116,16 @@ def test_gathered_li_is_affine_in_the_estimator() -> None:
     value is used once, linearly, at every bounce that collides."""
     scene = _scene()
     li = {c: render_neural(scene, _Recorder(c) if c else _Zero(), spp=2, seed=5, progress=False,
-                           final_gather=True).layers["L_i"] for c in (0.0, 1.0, 3.0)}
+                           final_gather_after=0).layers["L_i"] for c in (0.0, 1.0, 3.0)}
     assert (li[1.0] - li[0.0]).mean() > 0.0
     np.testing.assert_allclose(li[3.0] - li[0.0], 3.0 * (li[1.0] - li[0.0]), rtol=1e-5, atol=1e-7)  # float32 layers
 
 
 def test_same_seed_same_image_and_progressive_frames_equal_one_render() -> None:
     scene = _scene()
-    one = render_neural(scene, _Recorder(), spp=3, seed=9, progress=False, final_gather=True).layers
-    again = render_neural(scene, _Recorder(), spp=3, seed=9, progress=False, final_gather=True).layers
-    prog = ProgressiveRender(scene, _Recorder(), spp=1, seed=9, final_gather=True)
+    one = render_neural(scene, _Recorder(), spp=3, seed=9, progress=False, final_gather_after=0).layers
+    again = render_neural(scene, _Recorder(), spp=3, seed=9, progress=False, final_gather_after=0).layers
+    prog = ProgressiveRender(scene, _Recorder(), spp=1, seed=9, final_gather_after=0)
     for _ in range(3):
         frames = prog.frame().layers
     for layer in ("L", "L_d", "L_i"):
@@ -141,4 +141,29 @@ def test_command_line_offers_final_gather_for_field_and_photon_map() -> None:
 
     for name in ("field", "photonmap"):
         assert GATHER_OPTION in RENDERERS[name].options
-    assert GATHER_OPTION.keyword == "final_gather" and GATHER_OPTION.type is None
+    assert GATHER_OPTION.keyword == "final_gather_after"
+    assert [GATHER_OPTION.type(t) for t in ("never", "0", "128")] == [None, 0, 128]
+
+
+@pytest.mark.parametrize(("after", "gathered"), [(None, 0), (0, 5), (2, 3), (5, 0), (9, 0)])
+def test_samples_from_final_gather_after_on_are_gathered_and_the_rest_plain(after: int | None, gathered: int) -> None:
+    """A render of 5 samples gathering from sample ``after`` on is, sample for sample, the plain render of the
+    samples before it and the gathered render of the rest into one film (work batches of 2 samples' items straddle
+    the switch when it is odd: the switch must fall between two batches)."""
+    from photon_fields.runtime.wavefront.film import Film
+
+    scene = _scene()
+    n = scene.camera.width * scene.camera.height
+    one = render_neural(scene, _Recorder(), spp=5, seed=4, progress=False, batch_size=2 * n + n // 2,
+                        final_gather_after=after)
+    film = Film(scene.camera.width, scene.camera.height)
+    plain = 5 - gathered
+    if plain:
+        render_neural(scene, _Recorder(), spp=plain, seed=4, progress=False, film=film, final_gather_after=None)
+    if gathered:
+        render_neural(scene, _Recorder(), spp=gathered, seed=4, progress=False, film=film, first_sample=plain,
+                      final_gather_after=0)
+    both = film.layers()
+    assert one.stats["final_gather_spp"] == gathered
+    for layer in ("L", "L_d", "L_i"):
+        np.testing.assert_allclose(one.layers[layer], both[layer], rtol=1e-6, atol=1e-9)
