@@ -28,17 +28,14 @@ class PlateauStop:
     """Feed validation errors with :meth:`add`; it answers whether to stop (module docstring).
 
     An error counts as an improvement when ``error < best * (1 - min_improvement)``; ``best`` is the last such
-    error. Separately, ``lowest`` / ``lowest_index`` is the lowest error seen at all (an improvement too small to
-    reset the patience still gives a better field: the caller keeps that one). A non-finite error is never an
-    improvement."""
+    error. A non-finite error is never an improvement. Which field to keep is the caller's choice (the fine-tune
+    keeps its best *trained* field with its own comparison, :mod:`photon_fields.train.fit.update`)."""
 
     min_improvement: float = DEFAULT_MIN_IMPROVEMENT
     patience: int = DEFAULT_PATIENCE
     best: float = math.inf
     best_index: int = -1
     since_best: int = 0
-    lowest: float = math.inf
-    lowest_index: int = -1
     history: list[float] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -50,15 +47,8 @@ class PlateauStop:
     def add(self, error: float) -> bool:
         """Record one validation error; True when the run should stop now."""
         self.history.append(float(error))
-        if math.isfinite(error) and error < self.lowest:
-            self.lowest, self.lowest_index = float(error), len(self.history) - 1
         if math.isfinite(error) and error < self.best * (1.0 - self.min_improvement):
             self.best, self.best_index, self.since_best = float(error), len(self.history) - 1, 0
         else:
             self.since_best += 1
         return self.since_best >= self.patience
-
-    @property
-    def lowest_is_last(self) -> bool:
-        """Whether the last error added is the lowest so far (the field to keep)."""
-        return self.lowest_index >= 0 and self.lowest_index == len(self.history) - 1
