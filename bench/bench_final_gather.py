@@ -10,6 +10,9 @@ render (the rel. L2 between the two / sqrt 2) and the error left without either 
 (sqrt(e^2 - noise^2 - ref_noise^2): what more samples would not remove). Then, per gathered point, the plain
 renderer's error at the same time (log-log interpolation on its curve): below 1, the gather is the better image
 for that time. ``--photon-map`` adds the photon-map renderer (the field's training targets) the same two ways.
+``--default-spps`` (default 512 2048) adds the neural renderer as ``pfn-render`` runs it by default (plain
+samples, gathered from the ``registry.DEFAULT_GATHER_AFTER``-th on) at those counts: issue 13's converged-L goal
+is judged on it.
 
 Bundles: ``--bundle SCENE=PATH`` (the run folder's ``map.npz`` beside it for ``--photon-map``), else those of
 ``bench_render.py``. Output: a table, JSON (default ``bench/results/final_gather.json``) with the machine record,
@@ -35,6 +38,7 @@ from photon_fields.runtime.eval.metrics import relative_l2  # noqa: E402
 from photon_fields.runtime.field.field import PhotonField  # noqa: E402
 from photon_fields.runtime.renderers.neural import render_neural  # noqa: E402
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
+from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER  # noqa: E402
 from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -117,6 +121,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--ref-spp", type=int, default=2048, help="samples of each of the reference's two halves")
     ap.add_argument("--spps", type=int, nargs="*", default=[1, 4, 16, 64, 256])
     ap.add_argument("--photon-map", action="store_true", help="also the photon-map renderer, with and without")
+    ap.add_argument("--default-spps", type=int, nargs="*", default=[512, 2048],
+                    help="the neural renderer's default (gathered from DEFAULT_GATHER_AFTER on) at these spp")
     ap.add_argument("--bundle", action="append", default=[], metavar="SCENE=PATH")
     ap.add_argument("--work", type=Path, default=DEFAULT_WORK)
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
@@ -130,29 +136,34 @@ def main(argv: list[str] | None = None) -> None:
         bundle = bundle_for(name, base, given)
         est = PhotonField.load(bundle, expected_fingerprint=base.fingerprint()).estimator()
         ref, ref_noise = reference_halves(scene, args.ref_spp, args.work)
-        renderers: dict[str, Callable[[int, int, bool], np.ndarray]] = {
-            "neural": lambda spp, seed, fg, scene=scene, est=est: render_neural(
-                scene, est, spp=spp, seed=seed, progress=False, final_gather_after=0 if fg else None).layers["L"]}
+        # (spp, seed, final_gather_after) -> L
+        renderers: dict[str, Callable[[int, int, int | None], np.ndarray]] = {
+            "neural": lambda spp, seed, after, scene=scene, est=est: render_neural(
+                scene, est, spp=spp, seed=seed, progress=False, final_gather_after=after).layers["L"]}
         if args.photon_map:
             from photon_fields.runtime.photons.photon_map import PhotonMap
             from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 
             pmap = PhotonMap.load(Path(bundle).parent / "map.npz")
-            renderers["photon map"] = lambda spp, seed, fg, scene=scene, pmap=pmap: render_photon_mapped(
-                scene, pmap, k=64, spp=spp, seed=seed, progress=False, final_gather_after=0 if fg else None).layers["L"]
+            renderers["photon map"] = lambda spp, seed, after, scene=scene, pmap=pmap: render_photon_mapped(
+                scene, pmap, k=64, spp=spp, seed=seed, progress=False, final_gather_after=after).layers["L"]
         warm = scene.with_overrides(width=16, height=16)
         render_neural(warm, est, spp=1, progress=False, final_gather_after=0)
         curves: dict[str, list[dict[str, Any]]] = {}
         for rname, render in renderers.items():
-            for fg in (False, True):
-                method = f"{rname}{' + final gather' if fg else ''}"
-                curves[method] = [{"spp": s, **point(lambda seed, s=s, fg=fg, r=render: r(s, seed, fg), ref,
+            for after in (None, 0):
+                method = f"{rname}{'' if after is None else ' + final gather'}"
+                curves[method] = [{"spp": s, **point(lambda seed, s=s, a=after, r=render: r(s, seed, a), ref,
                                                        ref_noise)}
                                   for s in args.spps]
             for row in curves[f"{rname} + final gather"]:
                 plain = error_at_time(curves[rname], row["ms"])
                 row["plain_error_at_equal_time"] = plain
                 row["error_over_plain_at_equal_time"] = row["rel_l2"] / plain if plain else None
+        if args.default_spps:
+            curves[f"neural, default (gather from {DEFAULT_GATHER_AFTER})"] = [
+                {"spp": s, **point(lambda seed, s=s, r=renderers["neural"]: r(s, seed, DEFAULT_GATHER_AFTER), ref,
+                                   ref_noise)} for s in args.default_spps]
         results[name] = {"bundle": str(bundle), "g": scene.g, "reference": {"spp": 2 * args.ref_spp,
                                                                           "noise_rel_l2": ref_noise},
                          "curves": curves}
@@ -168,7 +179,8 @@ def main(argv: list[str] | None = None) -> None:
                       flush=True)
     info = finish_info(info, {})
     write_report(args.out, "final_gather", info, {"size": args.size, "ref_spp": args.ref_spp, "spps": args.spps,
-                                                  "photon_map": args.photon_map}, results=results)
+                                                  "default_spps": args.default_spps, "photon_map": args.photon_map,
+                                                  "default_gather_after": DEFAULT_GATHER_AFTER}, results=results)
     plot(results, args.out.with_suffix(".png"))
     print(f"wrote {args.out} and {args.out.with_suffix('.png')}")
 
