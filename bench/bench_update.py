@@ -46,7 +46,7 @@ from photon_fields.runtime.wavefront.first_interaction import render_first_inter
 from photon_fields.train.eval.field_images import TorchFieldEstimator  # noqa: E402
 from photon_fields.train.export.bundle import export_bundle, write_run_domain  # noqa: E402
 from photon_fields.train.fit.checkpoint import finished_run, load_checkpoint  # noqa: E402
-from photon_fields.train.fit.early_stop import DEFAULT_PATIENCE  # noqa: E402
+from photon_fields.train.fit.early_stop import DEFAULT_MIN_IMPROVEMENT, DEFAULT_PATIENCE  # noqa: E402
 from photon_fields.train.fit.loop import fit  # noqa: E402
 from photon_fields.train.fit.presets import UPDATE_BUDGET_S, UPDATE_MAX_STEPS  # noqa: E402
 from photon_fields.train.fit.settings import FitSettings  # noqa: E402
@@ -140,7 +140,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--budget", type=float, default=UPDATE_BUDGET_S, help="the update's --budget, seconds")
     ap.add_argument("--max-steps", type=int, default=UPDATE_MAX_STEPS, help="the update's --max-steps")
     ap.add_argument("--patience", type=int, default=DEFAULT_PATIENCE,
-                    help="validations without a 1 %% improvement before the update stops (PlateauStop)")
+                    help="validations without an improvement before the update stops (PlateauStop)")
+    ap.add_argument("--min-improvement", type=float, default=DEFAULT_MIN_IMPROVEMENT,
+                    help="the relative improvement of the validation error that counts (PlateauStop)")
     ap.add_argument("--update-photons", type=int, default=None,
                     help="the update's --photons (default: the CLI's, the base map's count capped at UPDATE_PHOTONS)")
     ap.add_argument("--bases", type=Path, default=None,
@@ -178,7 +180,8 @@ def main(argv: list[str] | None = None) -> None:
             load_before = load_average()
             t0 = time.perf_counter()
             res = update_run(base, new, folder / "update", budget_s=args.budget, max_steps=args.max_steps,
-                             photons=args.update_photons, force=True, progress=False, patience=args.patience)
+                             photons=args.update_photons, force=True, progress=False, patience=args.patience,
+                             min_improvement=args.min_improvement)
             update_s = time.perf_counter() - t0
             load_after = load_average()
             pmap, cold = cold_run(new, folder / "cold", args.photons, args.seed, reuse=not args.fresh)
