@@ -62,6 +62,7 @@ ENVRENDER = "tests/runtime/renderers/test_environment_map_render.py"
 PVRT_CLI = "tests/train/cli/test_pvrt_cli.py"
 PVRT_PT = "tests/runtime/pvrt/test_pvrt_vs_path_tracer.py"
 PVRT_MARCH = "tests/runtime/pvrt/test_pvrt_march.py"
+PVRT_DIRECT = "tests/runtime/pvrt/test_pvrt_direct.py"
 VPVRT = "tests/runtime/viewer/test_viewer_pvrt.py"
 
 
@@ -447,6 +448,21 @@ MUTANTS: tuple[Mutant, ...] = (
            "out[ix, iy, iz, resp.shape[2]] = 1.0",
            (f"{PVRT_PT}::test_pvrt_matches_path_tracer_under_its_light",),
            "the radiance volume is the photon energy, not divided by the cell's kernel-weighted extinction D_v"),
+    Mutant("pvrt_mass_one_point", "runtime/pvrt/constants.py", "MASS_POINTS = 8", "MASS_POINTS = 1",
+           (f"{PVRT_DIRECT}::test_transfer_denominators_integrate_the_extinction",),
+           "the transfer's denominators D_v integrated with the kernel's few points per voxel (aliasing: +7 % on the "
+           "vortex at 32^3)"),
+    Mutant("pvrt_direct_dark", "runtime/pvrt/direct.py",
+           "            t = math.exp(-tau[active[a]]) * ph[a]",
+           "            t = math.exp(-tau[active[a]]) * ph[a] * 0.8",
+           (f"{PVRT_DIRECT}::test_direct_term_of_a_constant_sky_is_the_closed_form_at_the_camera_samples",
+            f"{PVRT_MARCH}::test_relighting_gives_render_pvrts_frames"),
+           "the marched frames' basis direct term 20 % dark (the photon splat's bias before issue 18's fix); the "
+           "closed-form test reads the kept samples' transmittances, the relit-equals-marched test this path"),
+    Mutant("pvrt_kept_direct_dark", "runtime/pvrt/direct.py", "            out[s, q] = math.exp(-tau[q])",
+           "            out[s, q] = 0.8 * math.exp(-tau[q])",
+           (f"{PVRT_DIRECT}::test_direct_term_of_a_constant_sky_is_the_closed_form_at_the_camera_samples",),
+           "the kept samples' transmittances towards the quadrature directions 20 % dark"),
     Mutant("pvrt_no_hg_bands", "runtime/pvrt/radiance.py", "                    y[j] *= band[j]",
            "                    y[j] *= 1.0", (f"{PVRT_PT}::test_pvrt_matches_path_tracer_under_its_light",),
            "the camera's HG phase (band factors g^l) is left out of the exitant radiance (isotropic instead)"),

@@ -15,6 +15,8 @@ One concept per module:
 - :mod:`.transfer`: the compressed transfer in memory and its file (format: ``models_spec/pvrt_transfer.py``).
 - :mod:`.radiance`: the radiance volume after a light change, with early evaluation in CPCA space (Sec. 7.2,
   Eq. 17-21), and the light volume of a directional light's direct term (the NEE fall-back).
+- :mod:`.direct`: the direct term of the lighting the basis represents (Sec. 6.2): optical-depth volumes along
+  quadrature directions, once per transfer, weighted by the lighting at every frame.
 
 The renderer that ray-marches the radiance volume is ``runtime/renderers/pvrt.py`` (Sec. 7.3). Precomputation
 needs no torch, so it lives in the runtime: the viewer and ``photon_fields.render`` can precompute without the

@@ -29,6 +29,13 @@ MAX_BOUNCES = 16  # the path tracer's max_depth: paths of up to 16 scattering ve
 #: Splatting kernel radius h = c * cell edge (Eq. 14; the paper's c = 4 on a full-resolution grid). Our transfer
 #: grid is already 3x coarser than the volume, so c = 1.5 cells is about the paper's smoothing, at ~14 cells a photon.
 KERNEL_C = 1.5
+#: Quadrature points per voxel along each axis for the transfer's denominators D_v (runtime/pvrt/precompute.py).
+#: sigma_t is the transfer function of the trilinear scalar, so a steep ramp concentrates it near the voxel centres,
+#: and a midpoint rule of a few points per voxel aliases with them, the sign alternating with the parity: D_v, which
+#: divides every value of the transfer, was several percent off with the 1-3 points the kernel alone needs, so the
+#: transfer's bias depended on the volume's resolution and the grid. 8 keeps it within half a percent on the vortex
+#: (bench/README.md, PVRT).
+MASS_POINTS = 8
 #: CPCA (Sec. 6.4): clusters and PCA bases per cluster. The paper uses 128 clusters / 4 bases for 5123 voxels; our
 #: ~10^4 occupied cells need fewer clusters (bench/README.md reports the reconstruction error).
 DEFAULT_CLUSTERS = 32
@@ -36,6 +43,10 @@ DEFAULT_PCA_BASES = 4
 KMEANS_ITERATIONS = 12
 #: Light volume of a directional light's direct term (NEE through the medium): cells along the longest side.
 DEFAULT_LIGHT_GRID = 64
+#: Step, in voxels, of the shadow rays of the basis lighting's optical-depth volumes (runtime/pvrt/direct.py; once
+#: per transfer). sigma_t is a steep transfer function of the interpolated scalar, often narrower than a voxel, and
+#: a midpoint rule of one voxel misses part of it: the direct term came out a few percent high (bench/README.md, PVRT).
+DIRECT_STEP = 0.5
 #: Transfer parts: the first collision (direct, single scattering; scalar, before the albedo) and the later ones
 #: (multiple scattering; RGB, because the albedo of earlier vertices colours it).
 PARTS = PVRT_PARTS

@@ -9,7 +9,8 @@ PVRT precomputes the response to distant basis lights, so it renders distant lig
 - an :class:`~photon_fields.runtime.scene.lights.EnvironmentLight` (a constant sky), an
   :class:`~photon_fields.runtime.scene.lights.EnvironmentMap` (an HDR image, looked up with its rotation by
   :func:`~photon_fields.runtime.transport.environment_map.env_map_eval_batch`) and any sky function ``L(w)``:
-  projected whole (direct and multiple scattering from the transfer), and seen by rays that leave the volume;
+  projected whole (multiple scattering from the transfer, the direct term from the optical-depth volumes of
+  ``runtime/pvrt/direct.py``), and seen by rays that leave the volume;
 - a point light is local, not distant: refused in one line.
 """
 

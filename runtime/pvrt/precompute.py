@@ -10,12 +10,17 @@ per cell ``v`` of the transfer grid, the SH coefficients (Sec. 6.1: "we use SH t
 
 - ``part`` 0 (``direct``): first collisions: the reduced incident radiance L_ri of Eq. 2 at the voxel (Sec. 6.2's
   direct illumination; scalar, the light has not met an albedo yet); parts 1-3 (``ms_r/g/b``): later collisions,
-  the multiple-scattering term of Eq. 6, RGB because earlier vertices' albedo colours it.
+  the multiple-scattering term of Eq. 6, RGB because earlier vertices' albedo colours it. The renderer no longer
+  reads part 0: averaged over a kernel of coarse cells it smooths away the lit skin the camera sees, and the direct
+  term comes from optical-depth volumes at the camera's samples instead (``runtime/pvrt/direct.py``, Sec. 6.2's own
+  method); it stays in the file, whose layout ``models_spec/pvrt_transfer.py`` fixes.
 - Collisions are sampled by delta tracking with density ``sigma_t L``, so the numerator estimates the kernel-weighted
   integral of ``sigma_t L`` and the quotient is the sigma_t-weighted mean of the radiance over the kernel (a ratio
   estimate; ``D_v`` is summed over the volume's voxels, deterministically). Dividing each photon by sigma_t at its
   collision instead (plain volume photon mapping) would under-estimate every cell that is partly empty, which on a
-  coarse grid is most of them; and the camera weights the radiance by sigma_t anyway. The phase function and the
+  coarse grid is most of them; and the camera weights the radiance by sigma_t anyway. D_v is integrated with at
+  least ``MASS_POINTS`` points per voxel along each axis (a steep transfer function aliases with fewer, and D_v
+  divides every value). The phase function and the
   albedo of the camera's own vertex are left to render time: the HG phase is a per-band factor ``g^l`` on these
   coefficients (``runtime/pvrt/sh.py``), and the albedo comes from the full-resolution transfer function.
 - ``K_v`` is the paper's polynomial splatting kernel (Eq. 14), ``(h^2 - |d|^2)^3`` with radius ``h = c`` cells
@@ -62,6 +67,7 @@ from photon_fields.runtime.pvrt.constants import (
     EXITANCE_ORDERS,
     GRID_RANGE,
     KERNEL_C,
+    MASS_POINTS,
     MAX_BOUNCES,
     PARTS,
 )
@@ -194,14 +200,38 @@ def _trace_group(m: Medium, ks: np.ndarray, is_dsf: bool, dirs: np.ndarray, h: f
                            max_bounces, gx, gy, gz, hc, acc, env)
 
 
+@njit(cache=True, inline="always")
+def _empty_block(m: Medium, x0: float, y0: float, z0: float, x1: float, y1: float, z1: float) -> bool:
+    """True when every macrocell that the box [x0, x1] x [y0, y1] x [z0, z1] touches has majorant 0 (sigma_t is
+    exactly 0 in it: ``runtime/transport/medium.py``)."""
+    cx, cy, cz = m.majorant.shape
+    i0 = min(max(int((x0 - m.bmin[0]) / m.bsize[0] * cx), 0), cx - 1)
+    i1 = min(max(int((x1 - m.bmin[0]) / m.bsize[0] * cx), 0), cx - 1)
+    j0 = min(max(int((y0 - m.bmin[1]) / m.bsize[1] * cy), 0), cy - 1)
+    j1 = min(max(int((y1 - m.bmin[1]) / m.bsize[1] * cy), 0), cy - 1)
+    k0 = min(max(int((z0 - m.bmin[2]) / m.bsize[2] * cz), 0), cz - 1)
+    k1 = min(max(int((z1 - m.bmin[2]) / m.bsize[2] * cz), 0), cz - 1)
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            for k in range(k0, k1 + 1):
+                if m.majorant[i, j, k] > 0.0:
+                    return False
+    return True
+
+
 @njit(cache=True, parallel=True)
-def _extinction_mass(m: Medium, gx: int, gy: int, gz: int, hc: float, sub: int) -> np.ndarray:
-    """D_v = integral of K_v(x) sigma_t(x) dx (the denominator of the ratio estimate) by the midpoint rule on
-    ``sub``^3 points per voxel of the volume (fine enough that the kernel, a few cells wide, is resolved); each
-    x-slab splats into its own row, and the rows are summed in a fixed order."""
+def _extinction_mass(m: Medium, gx: int, gy: int, gz: int, hc: float, sub: int, q: int) -> np.ndarray:
+    """D_v = integral of K_v(x) sigma_t(x) dx (the denominator of the ratio estimate). The volume's voxels are cut
+    into ``sub``^3 blocks (fine enough that the kernel, a few cells wide, is resolved); sigma_t is integrated over
+    each block by the midpoint rule on ``q``^3 points and splatted once, at the block's sigma_t-weighted centroid.
+    The points must be dense: sigma_t is the transfer function of the interpolated scalar, which a steep ramp
+    concentrates near the voxel centres, and a few points per voxel alias with them (:data:`MASS_POINTS`).
+    Blocks in empty macrocells are skipped (sigma_t is 0 there). Each x-slab of blocks splats into its own row,
+    and the rows are summed in a fixed order."""
     nx, ny, nz = m.density.shape
     sx, sy, sz = nx * sub, ny * sub, nz * sub
-    dv = m.bsize[0] * m.bsize[1] * m.bsize[2] / (sx * sy * sz)
+    bx, by, bz = m.bsize[0] / sx, m.bsize[1] / sy, m.bsize[2] / sz
+    dv = bx * by * bz / (q * q * q)
     rows = np.zeros((sx, gx * gy * gz))
     for i in prange(sx):
         r = int(math.ceil(hc))
@@ -210,17 +240,30 @@ def _extinction_mass(m: Medium, gx: int, gy: int, gz: int, hc: float, sub: int) 
         vals = np.empty(1)
         one = np.ones(1)
         acc = np.zeros((gx * gy * gz, 1, 1, 1), dtype=np.float32)
-        x = m.bmin[0] + (i + 0.5) / sx * m.bsize[0]
+        x0 = m.bmin[0] + i * bx
         for j in range(sy):
-            y = m.bmin[1] + (j + 0.5) / sy * m.bsize[1]
+            y0 = m.bmin[1] + j * by
             for k in range(sz):
-                z = m.bmin[2] + (k + 0.5) / sz * m.bsize[2]
-                s = extinction_at(m, x, y, z)
+                z0 = m.bmin[2] + k * bz
+                if _empty_block(m, x0, y0, z0, x0 + bx, y0 + by, z0 + bz):
+                    continue
+                s = sxw = syw = szw = 0.0
+                for a in range(q):
+                    x = x0 + (a + 0.5) / q * bx
+                    for b in range(q):
+                        y = y0 + (b + 0.5) / q * by
+                        for c in range(q):
+                            z = z0 + (c + 0.5) / q * bz
+                            e = extinction_at(m, x, y, z)
+                            s += e
+                            sxw += e * x
+                            syw += e * y
+                            szw += e * z
                 if s > 0.0:
                     vals[0] = s * dv
-                    _splat(acc, 0, 0, 1, vals, one, 1, gx, gy, gz, (x - m.bmin[0]) / m.bsize[0] * gx - 0.5,
-                           (y - m.bmin[1]) / m.bsize[1] * gy - 0.5, (z - m.bmin[2]) / m.bsize[2] * gz - 0.5, hc,
-                           cells, kw)
+                    _splat(acc, 0, 0, 1, vals, one, 1, gx, gy, gz, (sxw / s - m.bmin[0]) / m.bsize[0] * gx - 0.5,
+                           (syw / s - m.bmin[1]) / m.bsize[1] * gy - 0.5, (szw / s - m.bmin[2]) / m.bsize[2] * gz - 0.5,
+                           hc, cells, kw)
         rows[i] = acc[:, 0, 0, 0]
     return rows.sum(axis=0)
 
@@ -280,7 +323,10 @@ def precompute_raw(scene: Scene, basis: LightingBasis, *, grid: int = DEFAULT_GR
             bar.update(len(ks))
             if on_progress is not None:
                 on_progress(int(ks[-1]) + 1, basis.size)
-    # Quadrature points at most a third of a cell apart.
+    # Blocks at most a third of a cell wide; at least MASS_POINTS quadrature points per voxel along each axis, an
+    # even number of them below 2 MASS_POINTS (an odd number puts one on every voxel centre: MASS_POINTS says why).
     sub = max(1, int(math.ceil(3.0 * max(g / n for g, n in zip(shape, m.density.shape, strict=True)))))
-    mass = _extinction_mass(m, shape[0], shape[1], shape[2], KERNEL_C, sub)
+    q = -(-MASS_POINTS // sub)
+    q += (sub * q) % 2 if sub < MASS_POINTS else 0
+    mass = _extinction_mass(m, shape[0], shape[1], shape[2], KERNEL_C, sub, q)
     return RawTransfer(acc, mass.astype(np.float32), shape, out_lmax, time.perf_counter() - t0)

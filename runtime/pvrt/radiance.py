@@ -8,8 +8,9 @@ K (N + 1) small products instead of one per cell). Each cell then evaluates them
 extinction it is divided by, ``runtime/pvrt/precompute.py``; the volume keeps numerator and D_v apart and the
 division happens at the camera's sample, :data:`CHANNELS`), where the SH coefficients carry the HG phase's band
 factors ``g^l`` and ``w_v`` is the direction from the cell to the eye: one value per channel and cell, never the
-full radiance vector. Channels: direct (RGB: the scalar direct transfer times the lighting's colour) and multiple
-scattering (RGB).
+full radiance vector. Channels: multiple scattering (RGB) and D_v. The transfer's direct part (first collisions)
+is not evaluated: the direct term comes from the optical-depth volumes of ``runtime/pvrt/direct.py`` (Sec. 6.2),
+which resolve the lit skin of the medium that the transfer's coarse grid smooths away.
 
 Light volume. A directional light's direct term is NEE: its transmittance ``T(x -> light)`` is marched (the ray
 marcher's shadow rays with empty-space skipping) from the centre of every cell of a grid (``DEFAULT_LIGHT_GRID``
@@ -34,16 +35,16 @@ from photon_fields.runtime.renderers.ray_marcher import march_transmittance
 from photon_fields.runtime.transport.medium import Medium
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, task_stride
 
-#: Radiance-volume channels: direct RGB and multiple-scattering RGB *photon energy* towards the eye (the CPCA
-#: numerators, not divided by D_v), and D_v itself. The camera divides the trilinear interpolations of the two
+#: Radiance-volume channels: multiple-scattering RGB *photon energy* towards the eye (the CPCA numerators, not
+#: divided by D_v), and D_v itself. The camera divides the trilinear interpolations of the two
 #: (``runtime/renderers/pvrt.py``): the precomputation's ratio estimate carried on to the sample point, i.e. a
 #: D_v-weighted interpolation of the per-cell radiance. Interpolating the per-cell quotients instead weighed a cell
 #: that holds a thin wisp as much as a full one, and CPCA's error in such a cell's numerator, divided by its small
 #: D_v, became a radiance error that did not average out: on the vortex (48^3, 32^3 grid) the L_i mean went from
 #: 1.01 of the path tracer's uncompressed to 1.17 with 32 CPCA clusters and 0.19 with 128; D_v-weighted it is
-#: 1.04, 1.08 and 1.08 (bench/README.md, PVRT). Cells without medium (D_v = 0) weigh nothing. The eighth channel is
-#: 0: a cell's channels then fill 32 bytes, which the camera's interpolation sums as one vector of 8 floats.
-CHANNELS = 8
+#: 1.04, 1.08 and 1.08 (bench/README.md, PVRT). Cells without medium (D_v = 0) weigh nothing. A cell's 4 channels
+#: fill 16 bytes, which the camera's interpolation sums as one vector of 4 floats.
+CHANNELS = 4
 #: A light volume's shadow ray stops where its optical depth passes this (transmittance 1e-4, the camera march's
 #: stopping point, runtime/renderers/pvrt.py) and counts as dark: the light it would still let through is at most
 #: 1e-4 of the light's (the same bound the camera march accepts for what lies behind its end). On the head, the skull
@@ -52,15 +53,13 @@ SHADOW_TAU_MAX = -math.log(1e-4)
 
 
 def cluster_responses(transfer: Transfer, lighting: Lighting) -> np.ndarray:
-    """Eq. 17-18: (K, N + 1, 6, n) radiance vectors (the first 6 of :data:`CHANNELS`) of every cluster's mean
-    (index 0) and basis matrices."""
+    """Eq. 17-18: (K, N + 1, 3, n) multiple-scattering radiance vectors (the first 3 of :data:`CHANNELS`) of every
+    cluster's mean (index 0) and basis matrices."""
     m = transfer.basis.size
     n = sh_count(transfer.exitance_order)
     mats = np.concatenate([transfer.mean[:, None], transfer.basis_matrices], axis=1)  # (K, N + 1, D)
     mats = mats.reshape(mats.shape[0], mats.shape[1], m, 4, n).astype(np.float64)
-    direct = np.einsum("abkj,kc->abcj", mats[:, :, :, 0], lighting.direct_coeffs)
-    ms = np.einsum("abkcj,kc->abcj", mats[:, :, :, 1:], lighting.coeffs)
-    return np.ascontiguousarray(np.concatenate([direct, ms], axis=2))
+    return np.ascontiguousarray(np.einsum("abkcj,kc->abcj", mats[:, :, :, 1:], lighting.coeffs))
 
 
 @njit(cache=True, parallel=True)
@@ -101,8 +100,8 @@ def _evaluate_cells(cluster: np.ndarray, mass: np.ndarray, weights: np.ndarray, 
 
 
 def radiance_volume(transfer: Transfer, lighting: Lighting, eye: np.ndarray, g: float) -> np.ndarray:
-    """The view-dependent radiance volume (gx, gy, gz, CHANNELS) float32 (module docstring): photon energy
-    scattered towards ``eye`` per unit albedo (before the camera's own albedo), and D_v (:data:`CHANNELS`)."""
+    """The view-dependent radiance volume (gx, gy, gz, CHANNELS) float32 (module docstring): multiply scattered
+    photon energy towards ``eye`` per unit albedo (before the camera's own albedo), and D_v (:data:`CHANNELS`)."""
     resp = cluster_responses(transfer, lighting)
     gx, gy, gz = transfer.grid
     box = transfer.manifest["box"]
@@ -114,7 +113,8 @@ def radiance_volume(transfer: Transfer, lighting: Lighting, eye: np.ndarray, g: 
 
 
 def mass_volume(transfer: Transfer) -> np.ndarray:
-    """D_v per cell, (gx, gy, gz) float32: the radiance volume's channel 6, which does not depend on the lighting."""
+    """D_v per cell, (gx, gy, gz) float32: the radiance volume's last channel, which does not depend on the
+    lighting."""
     return np.maximum(transfer.mass, 0.0).astype(np.float32).reshape(transfer.grid)
 
 

@@ -15,7 +15,7 @@ import re
 import time
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -69,6 +69,9 @@ class Transfer:
     #: Where the precomputation's time went ({"trace", "cpca"} seconds); not in the file, whose bytes depend on
     #: the inputs and the seed only (None for a loaded transfer).
     seconds: dict[str, float] | None = None
+    #: What the renderer derives from the transfer and the medium it was made for, once (e.g. the direct term's
+    #: optical-depth volumes, ``runtime/pvrt/direct.py``); not in the file.
+    cache: dict[Any, Any] = field(default_factory=dict, repr=False)
 
     @property
     def basis(self) -> LightingBasis:

@@ -3,13 +3,17 @@
 Per frame (after a light or camera change): project the lighting into the basis (Sec. 7.1,
 ``runtime/pvrt/lighting.py``), evaluate the view-dependent radiance volume with early evaluation in CPCA space
 (Sec. 7.2, ``runtime/pvrt/radiance.py``), march each directional light's light volume (its direct term by NEE,
-the fall-back for a delta the basis cannot represent), then ray-march the camera rays (Sec. 7.3):
+the fall-back for a delta the basis cannot represent), weigh the quadrature directions of the basis lighting's
+direct term (Sec. 6.2, ``runtime/pvrt/direct.py``), then ray-march the camera rays (Sec. 7.3):
 
-    L_d = sum_s T_s (1 - exp(-sigma_s dt)) albedo_s [R_direct(x_s) + sum_lights f_g(w_o, l) E T_light(x_s)]
+    L_d = sum_s T_s (1 - exp(-sigma_s dt)) albedo_s [sum_q W_q f_g(w_o, w_q) exp(-tau_q(x_s))
+                                                     + sum_lights f_g(w_o, l) E T_light(x_s)]
     L_i = sum_s T_s (1 - exp(-sigma_s dt)) albedo_s R_ms(x_s)
     L_e = T_exit * sky(w)
 
-with ``R`` the radiance volume (trilinear, cell-centred, D_v-weighted: ``runtime/pvrt/radiance.py``), sigma and
+with ``tau_q`` the optical-depth volume towards quadrature direction w_q (trilinear before the exponential,
+computed once per transfer), ``W_q`` the lighting on it, ``R_ms`` the radiance volume of multiple scattering
+(trilinear, cell-centred, D_v-weighted: ``runtime/pvrt/radiance.py``), sigma and
 albedo from the full-resolution medium, the same segment quadrature and jittered start as
 ``runtime/renderers/ray_marcher.py`` and its empty-space skipping (``tracking.empty_run``). Layers L, L_d, L_i, L_e
 as the other renderers.
@@ -34,14 +38,29 @@ from dataclasses import replace
 import numpy as np
 from numba import njit, prange
 
-from photon_fields.runtime.pvrt.constants import DEFAULT_LIGHT_GRID
+from photon_fields.runtime.pvrt.constants import DEFAULT_LIGHT_GRID, DIRECT_STEP
+from photon_fields.runtime.pvrt.direct import (
+    NO_BASIS_DIRECT,
+    BasisDirect,
+    Grid,
+    basis_direct,
+    direct_volumes,
+    direct_weights,
+    grid_of,
+    kept_direct,
+    nee,
+    phases,
+    quadrature,
+    sample_transmittances,
+    stencil,
+    trilinear,
+)
 from photon_fields.runtime.pvrt.lighting import scene_lighting
 from photon_fields.runtime.pvrt.precompute import grid_shape
-from photon_fields.runtime.pvrt.radiance import CHANNELS, grid_coord, light_volumes, mass_volume, radiance_volume
+from photon_fields.runtime.pvrt.radiance import CHANNELS, light_volumes, mass_volume, radiance_volume
 from photon_fields.runtime.pvrt.transfer import Transfer
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
-from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run, task_stride
 from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish
@@ -51,45 +70,14 @@ from photon_fields.runtime.wavefront.rays import clip_rays_to_volume, generate_c
 _T_MIN = 1e-4  # as the ray marcher: stop once the camera ray is this opaque
 
 
-#: A cell-centred grid over the world box, for the kernels below: its origin (xyz), cells per unit length (xyz) and
-#: cells (xyz). Plain numbers: an inlined kernel that was handed the medium and looped took and released a reference
-#: to each of its 7 arrays per call (numba's pruning of reference counts missed them), a third of the time of
-#: summing a sample; numbers carry no reference.
-Grid = tuple[float, float, float, float, float, float, int, int, int]
-
-
 @njit(cache=True, inline="always")
-def _grid(m: Medium, gx: int, gy: int, gz: int) -> Grid:
-    return m.bmin[0], m.bmin[1], m.bmin[2], gx / m.bsize[0], gy / m.bsize[1], gz / m.bsize[2], gx, gy, gz
-
-
-@njit(cache=True, inline="always")
-def _stencil(grid: Grid, x: float, y: float, z: float) -> tuple[int, int, int, float, float, float]:
-    """Lower corner and fractions of the trilinear stencil of ``grid`` at x (:func:`grid_coord`)."""
-    i, fx = grid_coord(x, grid[0], grid[3], grid[6])
-    j, fy = grid_coord(y, grid[1], grid[4], grid[7])
-    k, fz = grid_coord(z, grid[2], grid[5], grid[8])
-    return i, j, k, fx, fy, fz
-
-
-@njit(cache=True, inline="always")
-def _trilinear(vol: np.ndarray, i: int, j: int, k: int, fx: float, fy: float, fz: float) -> float:
-    c00 = vol[i, j, k] * (1 - fx) + vol[i + 1, j, k] * fx
-    c10 = vol[i, j + 1, k] * (1 - fx) + vol[i + 1, j + 1, k] * fx
-    c01 = vol[i, j, k + 1] * (1 - fx) + vol[i + 1, j, k + 1] * fx
-    c11 = vol[i, j + 1, k + 1] * (1 - fx) + vol[i + 1, j + 1, k + 1] * fx
-    return (c00 * (1 - fy) + c10 * fy) * (1 - fz) + (c01 * (1 - fy) + c11 * fy) * fz
-
-
-@njit(cache=True, inline="always")
-def _radiance_sums(rad: np.ndarray, grid: Grid, x: float, y: float,
-                   z: float) -> tuple[float, float, float, float, float, float, float]:
-    """The trilinear interpolations at x of the radiance volume's photon energy (direct RGB, multiple-scattering
-    RGB) and of D_v (radiance.CHANNELS); the radiance is their quotient (D_v-weighted interpolation). A corner's 8
-    channels are 32 adjacent bytes and all share the stencil's weight: summed in float32 (the volume's precision)
-    as 8 scalars, which fit one vector register, not in an array the kernel would have to allocate or be handed."""
-    i, j, k, fx, fy, fz = _stencil(grid, x, y, z)
-    r0 = r1 = r2 = r3 = r4 = r5 = r6 = r7 = np.float32(0.0)
+def _radiance_sums(rad: np.ndarray, grid: Grid, x: float, y: float, z: float) -> tuple[float, float, float, float]:
+    """The trilinear interpolations at x of the radiance volume's multiple-scattering photon energy (RGB) and of
+    D_v (radiance.CHANNELS); the radiance is their quotient (D_v-weighted interpolation). A corner's 4 channels are
+    16 adjacent bytes and all share the stencil's weight: summed in float32 (the volume's precision) as 4 scalars,
+    which fit one vector register, not in an array the kernel would have to allocate or be handed."""
+    i, j, k, fx, fy, fz = stencil(grid, x, y, z)
+    r0 = r1 = r2 = r3 = np.float32(0.0)
     for corner in range(8):
         a, b, e = corner & 1, (corner >> 1) & 1, corner >> 2
         w = np.float32((fx if a else 1.0 - fx) * (fy if b else 1.0 - fy) * (fz if e else 1.0 - fz))
@@ -98,34 +86,7 @@ def _radiance_sums(rad: np.ndarray, grid: Grid, x: float, y: float,
         r1 += w * v[1]
         r2 += w * v[2]
         r3 += w * v[3]
-        r4 += w * v[4]
-        r5 += w * v[5]
-        r6 += w * v[6]
-        r7 += w * v[7]
-    return r0, r1, r2, r3, r4, r5, r6
-
-
-@njit(cache=True, inline="always")
-def _nee(lights: np.ndarray, grid: Grid, ph: np.ndarray, rgb: np.ndarray, x: float, y: float,
-         z: float) -> tuple[float, float, float]:
-    """The directional lights' direct term at x per unit albedo: each light's transmittance (its light volume,
-    trilinear) times its phase value along the camera ray (``ph``) and its irradiance (``rgb``)."""
-    n0 = n1 = n2 = 0.0
-    if lights.shape[0] > 0:
-        i, j, k, fx, fy, fz = _stencil(grid, x, y, z)
-        for li in range(lights.shape[0]):
-            tr = _trilinear(lights[li], i, j, k, fx, fy, fz) * ph[li]
-            n0 += tr * rgb[li, 0]
-            n1 += tr * rgb[li, 1]
-            n2 += tr * rgb[li, 2]
-    return n0, n1, n2
-
-
-@njit(cache=True, inline="always")
-def _phases(g: float, travel: np.ndarray, dx: float, dy: float, dz: float, ph: np.ndarray) -> None:
-    """ph[l] = the HG phase between light l's travel direction and the camera ray's way back (one per ray)."""
-    for li in range(travel.shape[0]):
-        ph[li] = hg_eval(g, -(dx * travel[li, 0] + dy * travel[li, 1] + dz * travel[li, 2]))
+    return r0, r1, r2, r3
 
 
 #: What :func:`_march_items` does with a sample: sum its light, count it, or keep its position and weight.
@@ -133,14 +94,15 @@ _EVALUATE, _COUNT, _RECORD = 0, 1, 2
 
 
 @njit(cache=True)
-def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, g: float,
-                 o: np.ndarray, d: np.ndarray, tmax: np.ndarray, states: np.ndarray, h: float, skip: bool, mode: int,
-                 out: np.ndarray, trans: np.ndarray, first: np.ndarray, pos: np.ndarray, weight: np.ndarray, lo: int,
-                 hi: int) -> None:
+def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray,
+                 basis: BasisDirect, g: float, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, states: np.ndarray,
+                 h: float, skip: bool, mode: int, out: np.ndarray, trans: np.ndarray, first: np.ndarray,
+                 pos: np.ndarray, weight: np.ndarray, lo: int, hi: int) -> None:
     """Camera rays lo..hi-1 of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why). Per
     sample with sigma_t > 0 (its weight w = T_s (1 - exp(-sigma_s dt)) albedo_s, RGB), by ``mode``: _EVALUATE adds
-    w times what it sends towards the camera per unit albedo (the radiance volume's D_v-weighted interpolation,
-    :func:`_radiance_sums`, plus the lights' NEE, :func:`_nee`) to out[0:3] (L_d) and out[3:6] (L_i); _COUNT counts
+    w times what it sends towards the camera per unit albedo (the basis lighting's direct term, ``basis_direct``,
+    plus the lights' NEE, ``nee``, to out[0:3] (L_d); the radiance volume's D_v-weighted interpolation,
+    :func:`_radiance_sums`, to out[3:6] (L_i)); _COUNT counts
     the ray's samples into ``first[ray]``; _RECORD writes their positions and weights to ``pos`` and ``weight[0:3]``
     from index ``first[ray]`` on. Every mode writes the transmittance into ``trans``.
 
@@ -149,13 +111,17 @@ def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndar
     it passes have sigma_t = 0 and add nothing), so empty space costs one step per run, not one per segment
     (``skip`` False: every midpoint looked up, the same sums). (The rays are not a kernel of their own: an inlined
     call per ray took and released a reference to each of its 13 arrays.)"""
+    depth, active, b_travel, b_rgb = basis
     ph = np.empty(travel.shape[0])  # each light's phase along the ray
-    rg = _grid(m, rad.shape[0], rad.shape[1], rad.shape[2])
-    lg = _grid(m, lights.shape[1], lights.shape[2], lights.shape[3])
+    b_ph = np.empty(b_travel.shape[0])  # each active quadrature direction's
+    b_tau = np.empty(depth.shape[3])  # the optical depths at a sample
+    rg = grid_of(m, rad.shape[0], rad.shape[1], rad.shape[2])
+    lg = grid_of(m, lights.shape[1], lights.shape[2], lights.shape[3])
+    bg = grid_of(m, depth.shape[0], depth.shape[1], depth.shape[2])
     for ray in range(lo, hi):
         states[ray], jitter = next_float(states[ray])
         ox, oy, oz, dx, dy, dz = o[0, ray], o[1, ray], o[2, ray], d[0, ray], d[1, ray], d[2, ray]
-        _phases(g, travel, dx, dy, dz, ph)
+        phased = False  # the phases are computed at the ray's first sample in the medium (most rays have none)
         t_end = tmax[ray]
         T = 1.0
         s = 0
@@ -181,15 +147,20 @@ def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndar
                 e = math.exp(-sigma * seg)
                 w = T * (1.0 - e)
                 if mode == _EVALUATE:
-                    r0, r1, r2, r3, r4, r5, dv = _radiance_sums(rad, rg, x, y, z)
+                    if not phased:
+                        phases(g, travel, dx, dy, dz, ph)
+                        phases(g, b_travel, dx, dy, dz, b_ph)
+                        phased = True
+                    r0, r1, r2, dv = _radiance_sums(rad, rg, x, y, z)
                     inv = 1.0 / dv if dv > 0.0 else 0.0  # no medium in reach: no transfer
-                    n0, n1, n2 = _nee(lights, lg, ph, rgb, x, y, z)
-                    l0 += w * a0 * (r0 * inv + n0)
-                    l1 += w * a1 * (r1 * inv + n1)
-                    l2 += w * a2 * (r2 * inv + n2)
-                    l3 += w * a0 * (r3 * inv)
-                    l4 += w * a1 * (r4 * inv)
-                    l5 += w * a2 * (r5 * inv)
+                    n0, n1, n2 = nee(lights, lg, ph, rgb, x, y, z)
+                    b0, b1, b2 = basis_direct(depth, bg, active, b_ph, b_rgb, b_tau, x, y, z)
+                    l0 += w * a0 * (n0 + b0)
+                    l1 += w * a1 * (n1 + b1)
+                    l2 += w * a2 * (n2 + b2)
+                    l3 += w * a0 * (r0 * inv)
+                    l4 += w * a1 * (r1 * inv)
+                    l5 += w * a2 * (r2 * inv)
                 elif mode == _RECORD and q < pos.shape[1]:  # the same walk as _COUNT's: never false
                     pos[0, q], pos[1, q], pos[2, q] = x, y, z
                     weight[0, q], weight[1, q], weight[2, q] = w * a0, w * a1, w * a2
@@ -205,9 +176,9 @@ def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndar
 
 
 @njit(cache=True, parallel=True)
-def _march(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, g: float,
-           o: np.ndarray, d: np.ndarray, tmax: np.ndarray, states: np.ndarray, h: float, skip: bool, mode: int,
-           first: np.ndarray, pos: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _march(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, basis: BasisDirect,
+           g: float, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, states: np.ndarray, h: float, skip: bool,
+           mode: int, first: np.ndarray, pos: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """All camera rays (:func:`_march_items`): (out (6, n) (zeros unless _EVALUATE), transmittance (n,))."""
     n = o.shape[1]
     out = np.zeros((6, n))
@@ -216,47 +187,59 @@ def _march(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, r
     stride = task_stride(tasks)
     for task in prange(tasks):
         b = (task * stride) % tasks  # blocks spread over the image (task_stride)
-        _march_items(m, rad, lights, travel, rgb, g, o, d, tmax, states, h, skip, mode, out, trans, first, pos,
-                     weight, b * TASK_ITEMS, min(n, (b + 1) * TASK_ITEMS))
+        _march_items(m, rad, lights, travel, rgb, basis, g, o, d, tmax, states, h, skip, mode, out, trans, first,
+                     pos, weight, b * TASK_ITEMS, min(n, (b + 1) * TASK_ITEMS))
     return out, trans
 
 
 @njit(cache=True)
-def _sum_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, g: float,
-               d: np.ndarray, first: np.ndarray, pos: np.ndarray, weight: np.ndarray, out: np.ndarray, lo: int,
-               hi: int) -> None:
+def _sum_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray,
+               basis: BasisDirect, g: float, d: np.ndarray, first: np.ndarray, pos: np.ndarray, weight: np.ndarray,
+               kept_tr: np.ndarray, out: np.ndarray, lo: int, hi: int) -> None:
     """Rays lo..hi-1 of :func:`_sum_kept`: out[0:6, ray] = the sum over the ray's kept samples (from first[ray] to
-    first[ray + 1]) of what :func:`_march_items` adds for them, with their D_v's reciprocal kept in weight[3]."""
+    first[ray + 1]) of what :func:`_march_items` adds for them, with their D_v's reciprocal kept in weight[3] and,
+    when ``kept_tr`` has a row per sample, their transmittances towards the quadrature directions."""
+    depth, active, b_travel, b_rgb = basis
     ph = np.empty(travel.shape[0])
-    rg = _grid(m, rad.shape[0], rad.shape[1], rad.shape[2])
-    lg = _grid(m, lights.shape[1], lights.shape[2], lights.shape[3])
+    b_ph = np.empty(b_travel.shape[0])
+    b_tau = np.empty(depth.shape[3])
+    rg = grid_of(m, rad.shape[0], rad.shape[1], rad.shape[2])
+    lg = grid_of(m, lights.shape[1], lights.shape[2], lights.shape[3])
+    bg = grid_of(m, depth.shape[0], depth.shape[1], depth.shape[2])
     for ray in range(lo, hi):
-        _phases(g, travel, d[0, ray], d[1, ray], d[2, ray], ph)
+        if first[ray + 1] > first[ray]:  # most rays keep no sample
+            phases(g, travel, d[0, ray], d[1, ray], d[2, ray], ph)
+            phases(g, b_travel, d[0, ray], d[1, ray], d[2, ray], b_ph)
         l0 = l1 = l2 = l3 = l4 = l5 = 0.0
         for q in range(first[ray], first[ray + 1]):
             x, y, z = pos[0, q], pos[1, q], pos[2, q]
-            r0, r1, r2, r3, r4, r5, _ = _radiance_sums(rad, rg, x, y, z)
-            n0, n1, n2 = _nee(lights, lg, ph, rgb, x, y, z)
+            r0, r1, r2, _ = _radiance_sums(rad, rg, x, y, z)
+            n0, n1, n2 = nee(lights, lg, ph, rgb, x, y, z)
+            if kept_tr.shape[0] > 0:
+                b0, b1, b2 = kept_direct(kept_tr, q, active, b_ph, b_rgb)
+            else:
+                b0, b1, b2 = basis_direct(depth, bg, active, b_ph, b_rgb, b_tau, x, y, z)
             w0, w1, w2, inv = weight[0, q], weight[1, q], weight[2, q], weight[3, q]
-            l0 += w0 * (r0 * inv + n0)
-            l1 += w1 * (r1 * inv + n1)
-            l2 += w2 * (r2 * inv + n2)
-            l3 += w0 * (r3 * inv)
-            l4 += w1 * (r4 * inv)
-            l5 += w2 * (r5 * inv)
+            l0 += w0 * (n0 + b0)
+            l1 += w1 * (n1 + b1)
+            l2 += w2 * (n2 + b2)
+            l3 += w0 * (r0 * inv)
+            l4 += w1 * (r1 * inv)
+            l5 += w2 * (r2 * inv)
         out[0, ray], out[1, ray], out[2, ray], out[3, ray], out[4, ray], out[5, ray] = l0, l1, l2, l3, l4, l5
 
 
 @njit(cache=True, parallel=True)
-def _sum_kept(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, g: float,
-              d: np.ndarray, first: np.ndarray, pos: np.ndarray, weight: np.ndarray) -> np.ndarray:
+def _sum_kept(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray, rgb: np.ndarray, basis: BasisDirect,
+              g: float, d: np.ndarray, first: np.ndarray, pos: np.ndarray, weight: np.ndarray,
+              kept_tr: np.ndarray) -> np.ndarray:
     n = d.shape[1]
     out = np.empty((6, n))
     tasks = (n + TASK_ITEMS - 1) // TASK_ITEMS
     stride = task_stride(tasks)
     for task in prange(tasks):
         b = (task * stride) % tasks
-        _sum_items(m, rad, lights, travel, rgb, g, d, first, pos, weight, out, b * TASK_ITEMS,
+        _sum_items(m, rad, lights, travel, rgb, basis, g, d, first, pos, weight, kept_tr, out, b * TASK_ITEMS,
                    min(n, (b + 1) * TASK_ITEMS))
     return out
 
@@ -267,14 +250,14 @@ def _kept_cells(m: Medium, pos: np.ndarray, weight: np.ndarray, dv: np.ndarray, 
     """For kept samples at ``pos`` (3, n): weight[3] = 1 / D_v at each (``dv``: the transfer grid's D_v, trilinear;
     0 where it is 0, as the march divides), and the cells of a (gx, gy, gz) light grid their stencils read."""
     out = np.zeros((gx, gy, gz), dtype=np.bool_)
-    rg = _grid(m, dv.shape[0], dv.shape[1], dv.shape[2])
-    lg = _grid(m, gx, gy, gz)
+    rg = grid_of(m, dv.shape[0], dv.shape[1], dv.shape[2])
+    lg = grid_of(m, gx, gy, gz)
     for q in range(pos.shape[1]):
         x, y, z = pos[0, q], pos[1, q], pos[2, q]
-        i, j, k, fx, fy, fz = _stencil(rg, x, y, z)
-        v = _trilinear(dv, i, j, k, fx, fy, fz)
+        i, j, k, fx, fy, fz = stencil(rg, x, y, z)
+        v = trilinear(dv, i, j, k, fx, fy, fz)
         weight[3, q] = 1.0 / v if v > 0.0 else 0.0
-        i, j, k, _, _, _ = _stencil(lg, x, y, z)
+        i, j, k, _, _, _ = stencil(lg, x, y, z)
         for corner in range(8):
             out[i + (corner & 1), j + ((corner >> 1) & 1), k + (corner >> 2)] = True
     return out
@@ -283,7 +266,9 @@ def _kept_cells(m: Medium, pos: np.ndarray, weight: np.ndarray, dv: np.ndarray, 
 class _Frame:
     """What one frame's lighting gives the camera: the lighting's projection, the radiance volume towards the eye,
     the light volumes (of ``cells``, a mask of the light grid, when given; ``previous``'s when a frame of the same
-    view had the same directional lights), and the sky along view directions."""
+    view had the same directional lights), the basis lighting's direct term (its weights on the quadrature
+    directions and the transfer's optical-depth volumes, ``runtime/pvrt/direct.py``), and the sky along view
+    directions."""
 
     def __init__(self, scene: Scene, lights: tuple, transfer: Transfer, timer: StageTimer, *, sky, direct: str,  # noqa: ANN001
                  rotation: np.ndarray | None, light_grid: int, skip_empty: bool, cells: np.ndarray | None = None,
@@ -300,6 +285,15 @@ class _Frame:
             else:
                 self.lights = light_volumes(m, self.lighting.nee_directions, light_grid,
                                             float(scene.volume.voxel_size), skip_empty, cells)
+        with timer("direct_volumes"):  # once per transfer (cached on it); then only the weights change
+            w = direct_weights(transfer.basis, self.lighting.direct_coeffs)
+            active = np.flatnonzero(np.any(w != 0.0, axis=1))
+            self.basis: BasisDirect = NO_BASIS_DIRECT
+            if len(active):
+                depth = direct_volumes(transfer, m, light_grid, DIRECT_STEP * float(scene.volume.voxel_size),
+                                       skip_empty)
+                travel = np.ascontiguousarray(-quadrature(transfer.basis)[0][active])  # the light arrives from w_q
+                self.basis = (depth, active.astype(np.int64), travel, np.ascontiguousarray(w[active]))
         self.travel = np.ascontiguousarray(self.lighting.nee_directions, dtype=np.float64)
         self.rgb = np.ascontiguousarray(self.lighting.nee_rgb, dtype=np.float64)
         self.see_sky = self.lighting.sky is not None or bool(np.any(self.lighting.constant_sky > 0))
@@ -348,8 +342,8 @@ def render_pvrt(scene: Scene, *, transfer: Transfer, spp: int = 1, seed: int = 0
             rays = generate_camera_rays(cam, work, seed)
             clip_rays_to_volume(m, rays)
         with timer("march"):
-            out, trans = _march(m, frame.rad, frame.lights, frame.travel, frame.rgb, float(scene.g), rays.o, rays.d,
-                                rays.tmax, rays.rng, h, skip_empty, _EVALUATE, *_NO_SAMPLES)
+            out, trans = _march(m, frame.rad, frame.lights, frame.travel, frame.rgb, frame.basis, float(scene.g),
+                                rays.o, rays.d, rays.tmax, rays.rng, h, skip_empty, _EVALUATE, *_NO_SAMPLES)
         frame.splat(film, rays.pixel, rays.d, out, trans, distinct=len(work) <= n_pixels)
     result = finish(film, timer, spp, t_start, {})
     result.stats["notes"] = "; ".join(frame.lighting.notes)  # type: ignore[assignment]
@@ -358,6 +352,10 @@ def render_pvrt(scene: Scene, *, transfer: Transfer, spp: int = 1, seed: int = 0
 
 #: Samples a :class:`Relighting` keeps at most (28 bytes each: 470 MB); beyond, it marches every frame.
 MAX_KEPT_SAMPLES = 1 << 24
+#: Transmittances (samples x quadrature directions, float32: 256 MB) a :class:`Relighting` keeps at most for the
+#: basis lighting's direct term; beyond, each frame looks up and exponentiates the optical depths again.
+MAX_KEPT_TRANSMITTANCES = 1 << 26
+_NO_KEPT_TR = np.zeros((0, 1), dtype=np.float32)
 
 
 class Relighting:
@@ -370,7 +368,11 @@ class Relighting:
     light volumes at those cells only (or reuses the last frame's when the directional lights did not move: an
     environment turned, a colour or power changed) and sums the kept samples (:func:`_sum_kept`): the same sums as
     :func:`render_pvrt` with the same ``seed``, up to the float32 positions and weights (relative 1e-6), without
-    the walk through the medium. More than ``max_samples`` samples are not kept; every frame then marches."""
+    the walk through the medium. The first frame whose lighting has a basis direct term (a sky, an environment map)
+    also keeps each sample's transmittances towards the quadrature directions (``runtime/pvrt/direct.py``; 4 bytes
+    per sample and direction, up to :data:`MAX_KEPT_TRANSMITTANCES`): they depend on the medium only, and the
+    later frames then weigh them instead of looking up and exponentiating 42 optical depths per sample. More than
+    ``max_samples`` samples are not kept; every frame then marches."""
 
     def __init__(self, scene: Scene, transfer: Transfer, *, spp: int = 1, seed: int = 0,
                  batch_size: int = 1 << 18, step: float = 1.0, light_grid: int = DEFAULT_LIGHT_GRID,
@@ -381,6 +383,7 @@ class Relighting:
         self.timings_ms: dict[str, float] = {}
         self.kept = False
         self._previous: _Frame | None = None  # the last frame: its light volumes serve a frame with the same lights
+        self._tr: np.ndarray | None = None  # the samples' transmittances towards the quadrature directions
         t0 = time.perf_counter()
         m = scene.medium()
         cam = scene.camera
@@ -440,16 +443,21 @@ class Relighting:
                        light_grid=self.light_grid, skip_empty=True, cells=self.cells, previous=self._previous)
         self._previous = frame
         film = Film(scene.camera.width, scene.camera.height)
+        depth = frame.basis[0]
+        if len(frame.basis[1]) and self._tr is None and self.samples * depth.shape[3] <= MAX_KEPT_TRANSMITTANCES:
+            with timer("keep_transmittances"):  # once per view: the optical-depth volumes are the transfer's
+                self._tr = sample_transmittances(scene.medium(), depth, self.pos)
         with timer("sum_samples"):
-            out = _sum_kept(scene.medium(), frame.rad, frame.lights, frame.travel, frame.rgb, float(scene.g), self.d,
-                            self.first, self.pos, self.weight)
+            out = _sum_kept(scene.medium(), frame.rad, frame.lights, frame.travel, frame.rgb, frame.basis,
+                            float(scene.g), self.d, self.first, self.pos, self.weight,
+                            self._tr if len(frame.basis[1]) and self._tr is not None else _NO_KEPT_TR)
         frame.splat(film, self.pixel, self.d, out, self.trans, self.spp == 1)
         result = finish(film, timer, self.spp, t_start, {})
         result.stats["notes"] = "; ".join(frame.lighting.notes)  # type: ignore[assignment]
         return result
 
 
-def _empty_lighting() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(rad, lights, travel, rgb) placeholders for the marches that only count or record samples."""
+def _empty_lighting() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, BasisDirect]:
+    """(rad, lights, travel, rgb, basis) placeholders for the marches that only count or record samples."""
     return (np.zeros((2, 2, 2, CHANNELS), dtype=np.float32), np.zeros((0, 2, 2, 2), dtype=np.float32), np.zeros((0, 3)),
-            np.zeros((0, 3)))
+            np.zeros((0, 3)), NO_BASIS_DIRECT)

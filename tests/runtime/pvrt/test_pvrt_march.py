@@ -45,9 +45,13 @@ def transfer(sparse: Scene) -> Transfer:
     return precompute_transfer(sparse, order=0, grid=8, paths=2000, clusters=4, seed=0, progress=False)
 
 
-def test_skipping_empty_space_changes_no_pixel(sparse: Scene, transfer: Transfer) -> None:
-    skipped = render_pvrt(sparse, transfer=transfer, progress=False).layers
-    every = render_pvrt(sparse, transfer=transfer, progress=False, skip_empty=False).layers
+@pytest.mark.parametrize("sky", [0.0, 0.4])
+def test_skipping_empty_space_changes_no_pixel(sparse: Scene, transfer: Transfer, sky: float) -> None:
+    """Also with a sky, whose direct term reads the optical-depth volumes (runtime/pvrt/direct.py), marched at the
+    needed cells only as the light volumes are."""
+    scene = _lit(sparse, [-0.5, -0.8, 0.3], sky)
+    skipped = render_pvrt(scene, transfer=transfer, progress=False).layers
+    every = render_pvrt(scene, transfer=transfer, progress=False, skip_empty=False).layers
     assert skipped["L_d"].max() > 0.0 and skipped["L_i"].max() > 0.0
     for layer in ("L", "L_d", "L_i", "L_e"):
         np.testing.assert_array_equal(skipped[layer], every[layer], err_msg=layer)
