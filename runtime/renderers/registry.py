@@ -142,9 +142,9 @@ def spp_or_none(flag: str, value: Any) -> int | None:
 
 
 #: One real bounce before the first-interaction renderers' L_i estimate (runtime.wavefront.final_gather).
-GATHER_OPTION = Option("--final-gather-after", "final_gather_after", "samples from index SPP on take one real "
-                       "bounce (phase sampling, tracking, NEE) before the L_i estimate: less of its bias, more noise, "
-                       "about 1.5x the time per sample; 0: every sample, never: none", spp_or_never,
+GATHER_OPTION = Option("--final-gather-after", "final_gather_after", "a pixel's samples from this index on take "
+                       "one real bounce (phase sampling, tracking, NEE) before the L_i estimate: less of its bias, "
+                       "more noise, about 1.5x the time per sample; 0: every sample, never: none", spp_or_never,
                        DEFAULT_GATHER_AFTER, spp_or_none)
 
 RENDERERS: dict[str, Renderer] = {r.name: r for r in (
