@@ -149,25 +149,19 @@ def neural_field(scene: Scene, tag: str, args: argparse.Namespace) -> tuple[Path
             return bundle, {**json.loads(record.read_text()), "cached": True}
         print(f"  {folder.name}: trained for another scene (fingerprint {recorded[:12]}, not {fp[:12]}): "
               "training again", flush=True)
+    from bench_render import train_field
+
     from photon_fields.train.export.bundle import export_bundle, write_run_domain
-    from photon_fields.train.fit.loop import fit
-    from photon_fields.train.fit.settings import FitSettings
-    from photon_fields.train.photons.tracing import trace_photons
 
     run = folder / "run"
     with Contention() as c:
-        t0 = time.perf_counter()
-        photons = trace_photons(scene, args.neural_photons, seed=0, progress=False)
-        trace_s = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        fit(scene, photons, run, FitSettings.from_preset(args.neural_preset), progress=False)
-        fit_s = time.perf_counter() - t0
+        records, trace_s, fit_s = train_field(scene, run, args.neural_photons, args.neural_preset)
     write_run_domain(run, scene)
     export_bundle(run, bundle, scene=scene, force=True)
-    doc = {"trace_s": trace_s, "fit_s": fit_s, "photon_records": len(photons), "preset": args.neural_preset,
+    doc = {"trace_s": trace_s, "fit_s": fit_s, "photon_records": records, "preset": args.neural_preset,
            "fingerprint": fp, "other_cores": c.other_cores}
     record.write_text(json.dumps(doc, indent=1) + "\n")
-    print(f"  field {tag}: traced {len(photons)} photon records in {trace_s:.0f} s, fitted ({args.neural_preset}) "
+    print(f"  field {tag}: traced {records} photon records in {trace_s:.0f} s, fitted ({args.neural_preset}) "
           f"in {fit_s:.0f} s", flush=True)
     return bundle, {**doc, "cached": False}
 

@@ -302,8 +302,7 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
                     nee = direct_light_batch(m, kind, vec, rgb, env_map, scene.g, fi.x, fi.d, fi.rng, False)
                 with timer("compose"):
                     film.splat("L_d", fi.pixel, nee, distinct, weight=throughput)
-    gathered = 0 if final_gather_after is None or estimator is None else \
-        first_sample + spp - min(max(first_sample, final_gather_after), first_sample + spp)
+    gathered = 0 if gather_from is None else max(0, first + total - max(first, gather_from)) // n_pixels
     return finish(film, timer, spp, t_start, {"rays_in_volume": float(n_rays), "samples_in_volume": float(n_samples),
                                              "compaction_removed": 1.0 - n_samples / max(n_rays, 1),
                                              "final_gather_spp": float(gathered)})
