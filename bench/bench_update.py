@@ -48,7 +48,7 @@ from photon_fields.train.export.bundle import export_bundle, write_run_domain  #
 from photon_fields.train.fit.checkpoint import finished_run, load_checkpoint  # noqa: E402
 from photon_fields.train.fit.early_stop import DEFAULT_MIN_IMPROVEMENT, DEFAULT_PATIENCE  # noqa: E402
 from photon_fields.train.fit.loop import fit  # noqa: E402
-from photon_fields.train.fit.presets import UPDATE_BUDGET_S, UPDATE_MAX_STEPS  # noqa: E402
+from photon_fields.train.fit.presets import UPDATE_BUDGET_S, UPDATE_LR_SHARE, UPDATE_MAX_STEPS  # noqa: E402
 from photon_fields.train.fit.settings import FitSettings  # noqa: E402
 from photon_fields.train.fit.update import update_run  # noqa: E402
 from photon_fields.train.photons.tracing import trace_photons  # noqa: E402
@@ -143,6 +143,8 @@ def main(argv: list[str] | None = None) -> None:
                     help="validations without an improvement before the update stops (PlateauStop)")
     ap.add_argument("--min-improvement", type=float, default=DEFAULT_MIN_IMPROVEMENT,
                     help="the relative improvement of the validation error that counts (PlateauStop)")
+    ap.add_argument("--lr-share", type=float, default=UPDATE_LR_SHARE,
+                    help="the update's learning rate as a share of the preset's (UPDATE_LR_SHARE)")
     ap.add_argument("--update-photons", type=int, default=None,
                     help="the update's --photons (default: the CLI's, the base map's count capped at UPDATE_PHOTONS)")
     ap.add_argument("--bases", type=Path, default=None,
@@ -181,7 +183,7 @@ def main(argv: list[str] | None = None) -> None:
             t0 = time.perf_counter()
             res = update_run(base, new, folder / "update", budget_s=args.budget, max_steps=args.max_steps,
                              photons=args.update_photons, force=True, progress=False, patience=args.patience,
-                             min_improvement=args.min_improvement)
+                             min_improvement=args.min_improvement, lr_share=args.lr_share)
             update_s = time.perf_counter() - t0
             load_after = load_average()
             pmap, cold = cold_run(new, folder / "cold", args.photons, args.seed, reuse=not args.fresh)

@@ -168,12 +168,12 @@ def check_budget(budget_s: float, max_steps: int) -> None:
         raise InputError("--max-steps", f"must be an integer >= 0, got {max_steps!r}")
 
 
-def update_settings(old: FitSettings, photons: int, seed: int) -> FitSettings:
+def update_settings(old: FitSettings, photons: int, seed: int, lr_share: float = UPDATE_LR_SHARE) -> FitSettings:
     """The fine-tune's settings: the old run's (preset, batch, K, sampling, loss, ...) at its final radius
-    throughout, :data:`photon_fields.train.fit.presets.UPDATE_LR_SHARE` of the preset's learning rate, validation every
-    :data:`photon_fields.train.fit.presets.UPDATE_VAL_EVERY` steps."""
+    throughout, ``lr_share`` (default :data:`photon_fields.train.fit.presets.UPDATE_LR_SHARE`) of the preset's
+    learning rate, validation every :data:`photon_fields.train.fit.presets.UPDATE_VAL_EVERY` steps."""
     final = old.resolve_schedule(photons).radii_percent[-1]
-    return replace(old, lr=PRESETS[old.preset].lr * UPDATE_LR_SHARE, schedule=naive_schedule(final),
+    return replace(old, lr=PRESETS[old.preset].lr * lr_share, schedule=naive_schedule(final),
                    schedule_kind="naive", seed=seed, val_every=UPDATE_VAL_EVERY, average=0.0)
 
 
@@ -194,6 +194,7 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
                max_steps: int = UPDATE_MAX_STEPS, seed: int | None = None, photons: int | None = None,
                force: bool = False, scene_source: str | None = None, tables_dtype: str = "float32",
                min_improvement: float = DEFAULT_MIN_IMPROVEMENT, patience: int = DEFAULT_PATIENCE,
+               lr_share: float = UPDATE_LR_SHARE,
                progress: bool = True, on_progress: Callable[[str, int, int], None] | None = None,
                started: float | None = None,
                on_bundle: Callable[[ExportResult], None] | None = None) -> UpdateResult:
@@ -209,6 +210,8 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
     t_call = time.perf_counter()
     t0 = t_call if started is None else min(float(started), t_call)
     check_budget(budget_s, max_steps)
+    if isinstance(lr_share, bool) or not isinstance(lr_share, (int, float)) or not 0 < lr_share <= 1:
+        raise InputError("lr share", f"must be a number in (0, 1], got {lr_share!r}")
     src, dest = Path(run), Path(out)
     if dest.exists() and src.exists() and dest.resolve() == src.resolve():
         raise InputError("--out", f"{str(dest)!r} is RUN itself; an update writes a new run folder and leaves RUN "
@@ -217,7 +220,7 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
     check_update(record, scene)
     seed = record.map_seed if seed is None else int(seed)
     photons = min(record.photons, UPDATE_PHOTONS) if photons is None else int(photons)
-    settings = update_settings(record.settings, photons, seed)
+    settings = update_settings(record.settings, photons, seed, lr_share)
     if dest.exists() and not dest.is_dir():
         raise InputError("--out", f"{str(dest)!r} is a file; --out names a run folder")
     refuse_to_replace([dest / name for name in UPDATE_OUTPUTS], force, f"an earlier run in {str(dest)!r}")

@@ -15,6 +15,7 @@ pytest.importorskip("torch")
 
 from conftest import tiny_scene_dict  # noqa: E402
 
+from photon_fields.runtime.errors import InputError  # noqa: E402
 from photon_fields.runtime.field.field import PhotonField  # noqa: E402
 from photon_fields.runtime.io.progress import read_progress  # noqa: E402
 from photon_fields.runtime.photons.photon_map import PhotonMap  # noqa: E402
@@ -24,6 +25,7 @@ from photon_fields.train.export.bundle import torch_encoded, verification_inputs
 from photon_fields.train.field.network import TorchPhotonField  # noqa: E402
 from photon_fields.train.fit import update as update_module  # noqa: E402
 from photon_fields.train.fit.checkpoint import load_checkpoint  # noqa: E402
+from photon_fields.train.fit.presets import PRESETS, UPDATE_LR_SHARE  # noqa: E402
 from photon_fields.train.fit.update import read_run, update_run  # noqa: E402
 
 FIT = ["--preset", "tiny", "--steps", "20", "--batch", "256", "--k", "32", "--quiet"]
@@ -400,3 +402,19 @@ def test_the_time_split_accounts_for_the_wall_time(runs: dict[str, Path], tmp_pa
     assert 0.95 * s["wall_s"] <= parts + s["plot_s"] <= s["wall_s"] + 1e-3
     assert (res.out / "loss.png").is_file() and (res.out / "loss.png").stat().st_mtime >= (
         res.out / "field.pfn" / "manifest.json").stat().st_mtime
+
+
+@pytest.mark.parametrize("share", [0.0, -0.1, 1.5, float("nan"), True, "0.1"])
+def test_a_learning_rate_share_outside_0_1_is_refused(runs: dict[str, Path], tmp_path: Path, share: object) -> None:
+    scene = load_scene(runs["denser"])
+    with pytest.raises(InputError, match="lr share"):
+        update_run(runs["run"], scene, tmp_path / "new", lr_share=share, progress=False)  # type: ignore[arg-type]
+    assert not (tmp_path / "new").exists()
+
+
+def test_the_fine_tune_runs_at_its_share_of_the_preset_learning_rate(runs: dict[str, Path], tmp_path: Path) -> None:
+    scene = load_scene(runs["denser"])
+    for share in (UPDATE_LR_SHARE, 0.5):
+        res = update_run(runs["run"], scene, tmp_path / f"s{share}", max_steps=1, lr_share=share, progress=False)
+        preset = res.fit.log["settings"]["preset"]
+        assert res.fit.log["settings"]["lr"] == pytest.approx(PRESETS[preset].lr * share)
