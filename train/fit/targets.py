@@ -233,18 +233,25 @@ class TargetSampler:
         if self.g_sampling == "discrete" or len(self.phases) == 1:
             ph = rng.integers(0, len(self.phases), n)
             return x, d, self.phases[ph], ph
-        order = np.argsort(self.phases, kind="stable")
-        sg = self.phases[order]
+        lo, hi = float(np.min(self.phases)), float(np.max(self.phases))
         u = rng.random(n)
         if self.g_sampling == "window":  # arcsine density: more samples towards the ends of the range
             u = 0.5 * (1.0 - np.cos(np.pi * u))
-        g = sg[0] + u * (sg[-1] - sg[0])
+        g = lo + u * (hi - lo)
         if self.g_sampling == "mixed":  # half of the samples exactly at a phase
             at_phase = rng.random(n) < 0.5
             g[at_phase] = self.phases[rng.integers(0, len(self.phases), int(at_phase.sum()))]
+        return x, d, g, self.sources(rng, g)
+
+    def sources(self, rng: np.random.Generator, g: np.ndarray) -> np.ndarray:
+        """The indices (n,) of the phases (or windows) whose photons estimate the targets at g (n,) in the
+        continuous modes: one of the two next to g, chosen with the tent weights (so the targets' mean is their
+        interpolation, or with windows a kernel whose mean is g)."""
+        order = np.argsort(self.phases, kind="stable")
+        sg = self.phases[order]
         i = np.clip(np.searchsorted(sg, g, side="right") - 1, 0, len(sg) - 2)
         t = (g - sg[i]) / (sg[i + 1] - sg[i])
-        return x, d, g, order[np.where(rng.random(n) < t, i + 1, i)]
+        return order[np.where(rng.random(g.shape[0]) < t, i + 1, i)]
 
     # --- targets ------------------------------------------------------------------------------------
 
