@@ -278,7 +278,10 @@ def load_inputs(args: argparse.Namespace, kind: str | None, scene: Any,
 
         field = PhotonField.load(args.bundle, threads=args.threads, precision=args.precision,
                                  expected_fingerprint=scene.fingerprint(), force=args.force,
-                                 expected_parts=scene.fingerprint_parts())
+                                 expected_parts=scene.fingerprint_parts(),
+                                 expected_lights=scene.light_identities())
+        if field.light_note:
+            print(f"note: {field.light_note}", file=sys.stderr)
         return {"estimator": field.estimator()}, [field.scene_warning] if field.scene_warning else [], field
     return {}, [], None
 

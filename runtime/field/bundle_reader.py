@@ -6,7 +6,10 @@ file missing, manifest not JSON / failing the schema / another format / a newer 
 or sha256 differs from the manifest (corrupt, truncated, replaced), a tables.npz with other arrays, another
 shape or dtype, non-finite values or a pickled object array (refused, never unpickled), an ONNX model with
 external data, failing ``onnx.checker``, or with an input width other than the encodings' features + 1,
-and a scene fingerprint mismatch (unless forced: then a warning line names what differs).
+and a scene fingerprint mismatch (unless forced: then a warning line names what differs). A scene whose lights differ
+from the trained ones only by a common factor of their flux (a light's power or colour edited, same kinds and
+geometry; :mod:`photon_fields.runtime.scene.light_rescale`) is no mismatch: L_i is that factor times the trained
+one, exactly, and ``light_scale`` says by how much.
 
 :func:`scene_for_bundle` rebuilds the scene a bundle records, for renders that name no scene.
 """
@@ -36,7 +39,7 @@ from photon_fields.models_spec.bundle import (
     parse_manifest_bytes,
 )
 from photon_fields.models_spec.encoding import OUTPUT_CHANNELS
-from photon_fields.models_spec.fingerprint import mismatch_detail
+from photon_fields.models_spec.fingerprint import differing_parts, mismatch_detail
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.field.hashgrid import aligned_table
 
@@ -52,16 +55,24 @@ class BundleContents:
     onnx_path: Path
     onnx_bytes: bytes
     scene_warning: str | None = None
+    light_scale: np.ndarray | None = None
+    """The RGB factor (3,) L_i takes for the expected lights (None: the trained lights, or a forced mismatch)."""
 
 
 def read_bundle(path: str | os.PathLike[str], *, expected_fingerprint: str | None = None,
-                expected_parts: dict[str, str] | None = None, force: bool = False) -> BundleContents:
+                expected_parts: dict[str, str] | None = None, force: bool = False,
+                expected_lights: list[dict[str, Any]] | None = None) -> BundleContents:
     """Read and validate the bundle at ``path`` (module docstring). ``expected_fingerprint`` (and
-    ``expected_parts``, to name what differs) refuse a bundle trained for another scene unless ``force``."""
+    ``expected_parts``, to name what differs) refuse a bundle trained for another scene unless ``force``;
+    ``expected_lights`` (the scene's lights as :func:`photon_fields.runtime.scene.lights.light_identity` dicts, with
+    ``expected_parts``) accept one whose only difference is a rescale of the lights' flux (``light_scale``)."""
     bundle = Path(path)
     manifest = read_manifest(bundle)
     warning = None
+    scale = None
     if expected_fingerprint is not None and manifest.scene_fingerprint != expected_fingerprint:
+        scale = _light_rescale(manifest, expected_parts, expected_lights)
+    if scale is None and expected_fingerprint is not None and manifest.scene_fingerprint != expected_fingerprint:
         other = f"another scene{_trained_name(manifest)}: {mismatch_detail(expected_parts, manifest.scene_parts)}"
         if not force:
             raise InputError(str(bundle), f"was trained for {other}; retrain, or force to use it anyway")
@@ -71,7 +82,21 @@ def read_bundle(path: str | os.PathLike[str], *, expected_fingerprint: str | Non
     data = onnx_path.read_bytes()
     _check_onnx(onnx_path, data, manifest)
     tables = _load_tables(tables_path, manifest)
-    return BundleContents(bundle, manifest, tables, onnx_path, data, warning)
+    return BundleContents(bundle, manifest, tables, onnx_path, data, warning, scale)
+
+
+def _light_rescale(manifest: Manifest, expected_parts: dict[str, str] | None,
+                   expected_lights: list[dict[str, Any]] | None) -> np.ndarray | None:
+    """The flux factor from the bundle's trained lights to ``expected_lights`` when the lights are all that
+    differs (the volume's and transfer function's fingerprints match) and the bundle records its scene's lights;
+    else None."""
+    if expected_lights is None or differing_parts(expected_parts, manifest.scene_parts) != ["lights"]:
+        return None
+    from photon_fields.runtime.scene.light_rescale import flux_rescale
+
+    spec = (manifest.scene or {}).get("spec") or {}
+    trained = spec.get("lights")
+    return flux_rescale(trained, expected_lights) if isinstance(trained, list) else None
 
 
 def _bundle_error(err: BundleError, bundle: Path) -> InputError:

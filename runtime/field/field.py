@@ -70,6 +70,7 @@ from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.field.bundle_reader import read_bundle
 from photon_fields.runtime.field.hashgrid import encode
 from photon_fields.runtime.field.session import make_session
+from photon_fields.runtime.scene.light_rescale import rescale_note
 from photon_fields.runtime.threads import check_threads, numba_threads
 
 #: Queries per onnxruntime call: small enough that the paper architecture's encode buffer (257 floats a row)
@@ -117,6 +118,11 @@ class PhotonField:
         #: Set by :meth:`load` when a bundle trained for another scene was forced: one line naming what
         #: differs (``"... lights differ (volume and transfer function match); L_i will be wrong"``).
         self.scene_warning: str | None = None
+        #: Set by :meth:`load` when the scene's lights are the trained ones with their flux rescaled
+        #: (:mod:`photon_fields.runtime.scene.light_rescale`): the RGB factor :meth:`query` applies, and a line
+        #: saying so.
+        self.light_scale: np.ndarray | None = None
+        self.light_note: str | None = None
         self.position_table = tables["position"]
         self.direction_table = tables["direction"]
         self.session = session
@@ -133,8 +139,12 @@ class PhotonField:
     def load(cls, path: str | os.PathLike[str], *, threads: int | None = None, precision: str = "fp32",
              expected_fingerprint: str | None = None, force: bool = False, chunk: int = DEFAULT_CHUNK,
              spinning: bool = False, pipeline: bool = False,
-             expected_parts: dict[str, str] | None = None) -> PhotonField:
-        """Load and validate a bundle (module docstring); one-line InputError on any problem."""
+             expected_parts: dict[str, str] | None = None,
+             expected_lights: list[dict[str, Any]] | None = None) -> PhotonField:
+        """Load and validate a bundle (module docstring); one-line InputError on any problem. ``expected_lights``
+        (the scene's lights as :func:`photon_fields.runtime.scene.lights.light_identity` dicts): a bundle whose
+        lights differ from them only by a common flux factor is no mismatch; :meth:`query` then rescales
+        (``light_scale``, ``light_note``)."""
         if precision in REMOVED_PRECISIONS:
             raise InputError("precision", REMOVED_PRECISIONS[precision])
         if precision not in PRECISIONS:
@@ -143,11 +153,14 @@ class PhotonField:
         if isinstance(chunk, bool) or not isinstance(chunk, int) or not 1 <= chunk <= 1 << 22:
             raise InputError("chunk", f"must be an integer in [1, {1 << 22}], got {chunk!r}")
         contents = read_bundle(path, expected_fingerprint=expected_fingerprint, expected_parts=expected_parts,
-                               force=force)
+                               force=force, expected_lights=expected_lights)
         session = make_session(contents.onnx_bytes, str(contents.onnx_path), threads, spinning)
         field = cls(contents.path, contents.manifest, contents.tables, session, threads=threads, precision=precision,
                     chunk=chunk, spinning=spinning, pipeline=pipeline)
         field.scene_warning = contents.scene_warning
+        if contents.light_scale is not None:
+            field.light_scale = contents.light_scale.astype(np.float32)
+            field.light_note = rescale_note(contents.light_scale)
         return field
 
     # ------------------------------------------------------------------------------------------------
@@ -246,10 +259,13 @@ class PhotonField:
                 pending.result()  # never leave a run writing into a buffer the next call reuses
 
     def query(self, x: Any, omega: Any, g: Any) -> np.ndarray:
-        """Radiance Q(x, omega, g) float32 (N, 3): :meth:`query_encoded` decoded by Eq. 7 (psi of the bundle)."""
+        """Radiance Q(x, omega, g) float32 (N, 3): :meth:`query_encoded` decoded by Eq. 7 (psi of the bundle), times
+        ``light_scale`` when the scene's lights are the trained ones rescaled."""
         Lp = self.query_encoded(x, omega, g)
         t0 = time.perf_counter()
         L = decode_radiance(Lp, self.config.psi)
+        if self.light_scale is not None:
+            L *= self.light_scale
         self.timers.decode_s += time.perf_counter() - t0
         return L
 
@@ -264,7 +280,9 @@ class PhotonField:
                 "field": self.config.to_dict(), "training": self.manifest.training,
                 "scene_fingerprint": self.scene_fingerprint,
                 "scene_parts": self.manifest.scene_parts, "trained_for": (self.manifest.scene or {}).get("name"),
-                "scene_warning": self.scene_warning}
+                "scene_warning": self.scene_warning,
+                "light_scale": None if self.light_scale is None else self.light_scale.tolist(),
+                "light_note": self.light_note}
 
 
 class FieldEstimator:

@@ -97,15 +97,20 @@ class Scene:
         """Identifies the light distribution: volume data, transfer function and lights (not camera, not g)."""
         if "fingerprint" not in self._cache:
             self._cache["fingerprint"] = scene_fingerprint(
-                self._volume_fingerprint(), self.tf.to_dict(), [light_identity(light) for light in self.lights])
+                self._volume_fingerprint(), self.tf.to_dict(), self.light_identities())
         return self._cache["fingerprint"]
+
+    def light_identities(self) -> list[dict[str, Any]]:
+        """The lights as the fingerprint hashes them (:func:`photon_fields.runtime.scene.lights.light_identity`):
+        what a bundle's lights are compared with (:mod:`photon_fields.runtime.scene.light_rescale`)."""
+        return [light_identity(light) for light in self.lights]
 
     def fingerprint_parts(self) -> dict[str, str]:
         """Per-part fingerprints (volume, transfer_function, lights): recorded beside :meth:`fingerprint` in
         photon maps and bundles, so that a mismatch can name what differs."""
         if "fingerprint_parts" not in self._cache:
             self._cache["fingerprint_parts"] = fingerprint_parts(
-                self._volume_fingerprint(), self.tf.to_dict(), [light_identity(light) for light in self.lights])
+                self._volume_fingerprint(), self.tf.to_dict(), self.light_identities())
         return dict(self._cache["fingerprint_parts"])
 
     def medium(self) -> Medium:

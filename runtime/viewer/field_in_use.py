@@ -3,8 +3,9 @@
 A field (or map) answers L_i for the transfer function and lights it was trained (traced) for. The page edits
 both; :class:`FieldInUse` says what follows from an edit:
 
-- a single light's power: L_i is rescaled exactly (radiance is linear in a light's power), no retraining;
-- anything else (another transfer function, a moved light, a power edit among several lights): L_i is *stale*.
+- a light's power or colour (a single light's, or all lights' by one factor): L_i is rescaled exactly (radiance
+  is linear in a light's flux, :mod:`photon_fields.runtime.scene.light_rescale`), no retraining;
+- anything else (another transfer function, a moved light, one light's power edit among several): L_i is *stale*.
   Frames say so, and the session's :class:`photon_fields.runtime.viewer.updater.FieldUpdater` retrains in the
   background; :meth:`FieldInUse.from_job` loads the result, which the session swaps in.
 
@@ -22,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from photon_fields.runtime.scene.labels import LabelTransfer
+from photon_fields.runtime.scene.light_rescale import flux_rescale
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.viewer.light_control import LightControl
@@ -121,12 +123,12 @@ class FieldInUse:
             with numba_threads(threads):
                 return self.pvrt.render(scene, seed=seed, moving=moving)
         scale = self.indirect_scale(lights)
-        scale = 1.0 if scale is None else scale
+        scale = None if scale is None or np.all(scale == 1.0) else scale.astype(np.float32)
         with numba_threads(threads):
             if renderer == "neural":
                 from photon_fields.runtime.renderers.neural import render_neural
 
-                est = self.estimator if scale == 1.0 else _Scaled(self.estimator, scale)
+                est = self.estimator if scale is None else _Scaled(self.estimator, scale)
                 return render_neural(scene, est, spp=1, seed=seed, progress=False, first_sample=n,
                                      final_gather_after=0 if final_gather else None).layers
             if renderer == "pt":
@@ -138,23 +140,17 @@ class FieldInUse:
             # force: after an edit the map is stale, which the frame's warnings say (stale)
             layers = render_photon_mapped(scene, self.pmap, spp=1, seed=seed + n, progress=False, force=True,
                                           final_gather_after=None).layers
-        if scale == 1.0:
+        if scale is None:
             return layers
-        li = (layers["L_i"] * np.float32(scale)).astype(np.float32)
+        li = (layers["L_i"] * scale).astype(np.float32)
         return {**layers, "L_i": li, "L": (layers["L_e"] + layers["L_d"]) + li}
 
-    def indirect_scale(self, lights: list[LightControl]) -> float | None:
-        """How L_i, made for the trained lights, follows the page's ``lights``: 1 without edits; with a single
-        light whose only edit is its power, the ratio of the powers (exact); None otherwise (stale)."""
-        def where(c: LightControl) -> tuple[Any, ...]:
-            return c.kind, c.azimuth, c.elevation, c.distance, c.yaw, tuple(np.asarray(c.color).tolist())
-
-        trained = self.lights
-        if [(where(a), a.power) for a in lights] == [(where(b), b.power) for b in trained]:
-            return 1.0
-        if len(lights) == 1 and len(trained) == 1 and where(lights[0]) == where(trained[0]) and trained[0].power > 0:
-            return lights[0].power / trained[0].power
-        return None
+    def indirect_scale(self, lights: list[LightControl]) -> np.ndarray | None:
+        """How L_i, made for the trained lights, follows the page's ``lights``: the RGB factor (3,) when every light
+        keeps its kind and place and their fluxes change by one common factor (a single light's power or colour,
+        or all lights' alike; exact, :mod:`photon_fields.runtime.scene.light_rescale`), ones without edits; None
+        otherwise (stale)."""
+        return flux_rescale([_flux_dict(c) for c in self.lights], [_flux_dict(c) for c in lights])
 
     def stale(self, transfer: TransferFunction | LabelTransfer | None, lights: list[LightControl]) -> bool:
         """Whether L_i is not the edited scene's: another transfer function, or a light edit
@@ -185,11 +181,20 @@ class FieldInUse:
         return [f"{warning}; {'press retrain' if updater.available else updater.reason}"]
 
 
-class _Scaled:
-    """An indirect-light estimator's output times ``scale`` (a single light's power edit, :meth:`FieldInUse.render`)."""
+def _flux_dict(c: LightControl) -> dict[str, Any]:
+    """A light control as :func:`photon_fields.runtime.scene.light_rescale.flux_rescale` compares lights: where it is
+    (the controls themselves, so that the page's round trip through angles compares equal) and its flux."""
+    return {"kind": c.kind, "azimuth": c.azimuth, "elevation": c.elevation, "distance": c.distance, "yaw": c.yaw,
+            "image": None if c.source is None else c.source.sha256, "color": np.asarray(c.color).tolist(),
+            "power": c.power}
 
-    def __init__(self, inner: Any, scale: float) -> None:
-        self.inner, self.scale = inner, float(scale)
+
+class _Scaled:
+    """An indirect-light estimator's output times the RGB ``scale`` (3,) (a light power or colour edit,
+    :meth:`FieldInUse.render`)."""
+
+    def __init__(self, inner: Any, scale: np.ndarray) -> None:
+        self.inner, self.scale = inner, np.asarray(scale, dtype=np.float32).reshape(3, 1)
 
     def __call__(self, x: np.ndarray, d: np.ndarray, g: float) -> np.ndarray:
         return self.scale * self.inner(x, d, g)

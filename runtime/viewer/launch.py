@@ -79,9 +79,12 @@ def load_inputs(scene: str | None, *, bundle: str | None = None, map_path: str |
         from photon_fields.runtime.field.field import PhotonField
 
         field = PhotonField.load(bundle, threads=threads, precision="fp32", expected_fingerprint=sc.fingerprint(),
-                                 force=force, expected_parts=sc.fingerprint_parts())
+                                 force=force, expected_parts=sc.fingerprint_parts(),
+                                 expected_lights=sc.light_identities())
         if field.scene_warning:
             log.warning("%s", field.scene_warning)
+        if field.light_note:
+            log.info("%s", field.light_note)
         estimator = field.estimator()
         info["bundle"] = str(Path(bundle).resolve())
     if map_path is not None:

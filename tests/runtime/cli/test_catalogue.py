@@ -56,8 +56,8 @@ def assets(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     fit(scene, pmap, folder / "run", FitSettings.from_preset("tiny", steps=5, batch=256, val_points=256, k=32),
         progress=False)
     export_bundle(folder / "run", folder / "field.pfn", scene=scene)
-    other = tiny_scene_dict()
-    other["lights"][0]["power"] = 9.0
+    other = tiny_scene_dict()  # another light: a moved one (a power or colour edit is a rescale, not a mismatch)
+    other["lights"][0]["direction"] = [0.5, -0.8, 0.3]
     (folder / "other.json").write_text(json.dumps(other))
     return {"scene": scene_file, "map": folder / "map.npz", "run": folder / "run", "bundle": folder / "field.pfn",
             "other": folder / "other.json"}

@@ -224,9 +224,10 @@ def test_pfn_render_field_cli_and_foreign_scene_refusal(trained, tmp_path, capsy
     report = _json.loads(out.with_suffix(".json").read_text())
     assert report["method"] == "field" and "estimate_indirect" in report["timings_ms"]
     assert "stages (ms)" in capsys.readouterr().out
-    # Another scene (different lights): refused in one line unless forced.
+    # Another scene (a moved light; a power edit alone is a rescale, tests/runtime/field/test_light_rescale.py):
+    # refused in one line unless forced.
     other = tiny_scene_dict()
-    other["lights"][0]["power"] = 5.0
+    other["lights"][0]["direction"] = [0.5, -0.8, 0.3]
     other_file = tmp_path / "other.json"
     other_file.write_text(_json.dumps(other))
     out2 = tmp_path / "foreign.exr"  # not other.exr: its report other.json would be the scene file

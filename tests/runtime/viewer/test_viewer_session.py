@@ -361,3 +361,23 @@ def test_auto_drag_scale_follows_the_level(tmp_path: Path, monkeypatch: pytest.M
     assert (h["width"], h["moving"]) == (64, False)
     s.apply(msg("set", control="drag_scale", value="auto"))  # the page's selector
     assert s.state.drag_scale == "auto"
+
+
+def test_lights_scaled_together_rescale_and_one_of_several_is_stale() -> None:
+    """L_i follows the page's lights when their fluxes change by one factor (exact), not when one of two lights
+    changes alone (that would need per-light outputs)."""
+    from photon_fields.runtime.scene.lights import PointLight
+    from photon_fields.runtime.viewer.field_in_use import FieldInUse
+    from photon_fields.runtime.viewer.light_control import LightControl
+
+    scene = tiny_scene()
+    two = replace(scene, lights=(scene.lights[0], PointLight([0.9, 0.2, 0.9], [0.6, 0.75, 1.0], 0.6)), _cache={})
+    field = FieldInUse(two, estimator=AnalyticField())
+    controls = [LightControl.from_light(light) for light in two.lights]
+    np.testing.assert_array_equal(field.indirect_scale(controls), [1.0, 1.0, 1.0])
+    both = [replace(c, power=c.power * 2.0) for c in controls]
+    np.testing.assert_allclose(field.indirect_scale(both), [2.0, 2.0, 2.0], rtol=1e-12)
+    assert field.indirect_scale([both[0], controls[1]]) is None
+    assert field.stale(two.tf, [both[0], controls[1]]) and not field.stale(two.tf, both)
+    bluer = [replace(c, color=c.color * np.array([0.5, 1.0, 2.0])) for c in controls]
+    np.testing.assert_allclose(field.indirect_scale(bluer), [0.5, 1.0, 2.0], rtol=1e-12)

@@ -1,0 +1,78 @@
+"""An exact shortcut for light edits: a field (or map) made for some lights answers for the same lights rescaled.
+
+Radiance is linear in the emitted flux: every photon path, and every path a path tracer samples, carries a factor
+of its light's RGB flux (power x colour) and nothing else of it, while where a light is and how it emits (a point,
+a direction, an environment image and its rotation) decides which paths there are. So when an edit keeps every
+light's kind and geometry and multiplies every light's RGB flux by one common factor s (per channel), L_i of the
+edited scene is s times L_i of the trained one, exactly: with a single light, any change of its power or colour;
+with several, the same change of all. Lights that change by different factors need the field to keep their
+contributions apart (per-light outputs, not built): they are not a rescale.
+
+:func:`flux_rescale` takes the lights as their fingerprint dicts (:func:`photon_fields.runtime.scene.lights.
+light_identity`, or the ``to_dict`` a bundle's manifest records with the scene it was trained for; an environment
+map's ``path`` is ignored, its pixels' ``sha256`` is not), so that a bundle can be checked against a scene without
+either being rebuilt.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+#: Keys of a light's dict that carry its flux; every other key (type, position, direction, rotation, the image's
+#: hash) is geometry and must be equal. ``path`` only names an image file (its ``sha256`` stands for the pixels).
+FLUX_KEYS = ("color", "power")
+IGNORED_KEYS = ("path",)
+#: Relative agreement the per-light factors of one channel need to count as one factor.
+RTOL = 1e-9
+
+
+def _geometry(light: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in light.items() if k not in FLUX_KEYS and k not in IGNORED_KEYS}
+
+
+def _flux(light: Mapping[str, Any]) -> np.ndarray:
+    return np.asarray(light["color"], dtype=np.float64) * float(light["power"])
+
+
+def flux_rescale(trained: Sequence[Mapping[str, Any]], edited: Sequence[Mapping[str, Any]]) -> np.ndarray | None:
+    """The RGB factor s (3,) with L_i(edited) = s * L_i(trained) (module docstring), or None when the edit is not a
+    common rescale of the lights' flux: another number of lights, a light of another kind or geometry, lights
+    scaled by different factors, or a channel that was dark in every trained light and is lit now (the field holds
+    nothing to scale)."""
+    if len(trained) != len(edited) or not trained:
+        return None
+    try:
+        if any(_geometry(a) != _geometry(b) for a, b in zip(trained, edited, strict=True)):
+            return None
+        before = np.stack([_flux(a) for a in trained])
+        after = np.stack([_flux(b) for b in edited])
+    except (KeyError, TypeError, ValueError):
+        return None
+    if before.shape[1] != 3 or after.shape != before.shape or not (np.all(np.isfinite(before))
+                                                                   and np.all(np.isfinite(after))):
+        return None
+    scale = np.ones(3)
+    for c in range(3):
+        lit = before[:, c] > 0.0
+        if np.any(after[~lit, c] != 0.0):
+            return None  # light where the trained lights had none in this channel
+        if not np.any(lit):
+            continue  # dark before and after: L_i is 0 in this channel either way
+        ratios = after[lit, c] / before[lit, c]
+        if ratios.max() - ratios.min() > RTOL * max(ratios.max(), 1e-300):
+            return None
+        scale[c] = float(ratios.mean())
+    return scale
+
+
+def rescale_note(scale: np.ndarray, what: str = "field") -> str:
+    """One line for the user: the lights differ only by a common flux factor, which the ``what``'s L_i follows."""
+    s = ", ".join(f"{v:.4g}" for v in np.asarray(scale, dtype=np.float64))
+    return (f"the lights differ from the {what}'s only in power or colour: its L_i is rescaled by ({s}) per RGB "
+            "channel (exact: radiance is linear in a light's flux)")
+
+
+__all__ = ["flux_rescale", "rescale_note", "FLUX_KEYS"]
