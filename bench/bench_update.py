@@ -4,11 +4,16 @@ For each scene (default: vortex) a base run is made as ``pfn-train all`` makes i
 ``--seed``; kept in ``--work`` and reused; or ``--bases DIR`` names existing run folders ``DIR/<scene>``, only
 read). Then for each edit (:data:`EDITS`: one feature's opacity x0.5, the
 density scale x1.5, an albedo colour change, the first light moved by 10 / 45 / 90 degrees about the vertical
-axis) the edited scene is trained twice, each timed end to end (trace, training, export):
+axis, the first light's power x1.5 or its colour changed) the edited scene is trained twice, each timed end to end
+(trace, training, export):
 
 - ``update``: :func:`photon_fields.train.fit.update.update_run` from the base run (``--budget``,
   ``--max-steps``, ``--update-photons``, each by default the CLI's; retrace with the base map's seed, warm start,
   early stop); its time split by stage (``UpdateResult.time_split``) and the load average around it are recorded;
+  for a power or colour edit (:data:`RESCALE_EDITS`) where the runtime takes it as a rescale of L_i (one light:
+  ``photon_fields.runtime.scene.light_rescale``), no training: the base bundle loaded for the edited scene, its
+  L_i times the factor, the load's time as the update's (``stop`` "rescale"); ``mean_over_cold_field`` is the
+  issue's measure there (L_i within 1 % of a retrained field's mean);
 - ``cold``: trace + fit + export with the default preset from scratch (what ``pfn-train all`` does).
 
 Both fields' L_i is scored as :mod:`bench_fidelity` scores it (its ``compare``: image mean ratio, relative L2,
@@ -39,6 +44,8 @@ from bench_fidelity import compare, reference_li  # noqa: E402
 from common import finish_info, load_average, machine_info, parse_scenes, write_report  # noqa: E402
 
 from photon_fields.models_spec import DEFAULT_PHOTONS, PHASE_WINDOW  # noqa: E402
+from photon_fields.runtime.errors import InputError  # noqa: E402
+from photon_fields.runtime.field.field import PhotonField  # noqa: E402
 from photon_fields.runtime.photons.photon_map import PhotonMap  # noqa: E402
 from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped  # noqa: E402
 from photon_fields.runtime.scene.scene import Scene, builtin_scene, scene_from_dict  # noqa: E402
@@ -93,10 +100,37 @@ def light_moved(degrees: float) -> Callable[[dict[str, Any]], None]:
     return edit
 
 
+def light_power(spec: dict[str, Any]) -> None:
+    """The first light's power x1.5."""
+    spec["lights"][0]["power"] *= 1.5
+
+
+def light_colour(spec: dict[str, Any]) -> None:
+    """The first light's colour made bluish."""
+    spec["lights"][0]["color"] = [0.7, 0.9, 1.0]
+
+
 EDITS: dict[str, Callable[[dict[str, Any]], None]] = {
     "opacity": opacity_feature, "density": density_scale, "albedo": albedo_colour,
     "light10": light_moved(10), "light45": light_moved(45), "light90": light_moved(90),
+    "power": light_power, "colour": light_colour,
 }
+#: Edits a field may follow by a rescale of its L_i (``photon_fields.runtime.scene.light_rescale``): with one light
+#: always, with several never (one light's flux changes, the others' do not: that needs per-light outputs), and
+#: then the bench falls back to ``update_run``.
+RESCALE_EDITS = ("power", "colour")
+
+
+def rescaled(base: Path, new: Scene) -> tuple[np.ndarray | None, float]:
+    """The RGB factor the base run's bundle takes for ``new`` (None: not a rescale) and the load's seconds: the
+    runtime's own check, as ``pfn-render`` and ``pfn-view`` load a bundle for an edited scene."""
+    t0 = time.perf_counter()
+    try:
+        field = PhotonField.load(base / "field.pfn", expected_fingerprint=new.fingerprint(),
+                                 expected_parts=new.fingerprint_parts(), expected_lights=new.light_identities())
+    except InputError:
+        return None, time.perf_counter() - t0
+    return field.light_scale, time.perf_counter() - t0
 
 
 def edited(scene: Scene, edit: str) -> Scene:
@@ -125,8 +159,10 @@ def cold_run(scene: Scene, run: Path, photons: int, seed: int, reuse: bool) -> t
                   "val_rel_l1": result.log["totals"]["final_validation"]["val_rel_l1"]}
 
 
-def field_li(scene: Scene, run: Path, size: int, spp: int) -> np.ndarray:
-    model, _ = load_checkpoint(run / "checkpoint.pt", scene.fingerprint())
+def field_li(scene: Scene, run: Path, size: int, spp: int, trained_for: Scene | None = None) -> np.ndarray:
+    """The L_i image of ``run``'s field in ``scene``'s view (``trained_for``: the scene the run was trained for, when
+    that is not ``scene``)."""
+    model, _ = load_checkpoint(run / "checkpoint.pt", (trained_for or scene).fingerprint())
     view = scene.with_overrides(width=size, height=size)
     return render_first_interaction(view, TorchFieldEstimator(model, scene.medium()), spp=spp, seed=7,
                                     progress=False).layers["L_i"]
@@ -163,7 +199,7 @@ def main(argv: list[str] | None = None) -> None:
     info = machine_info()
     results: dict[str, Any] = {}
     print(f"{'scene/edit':<18} {'update s':>8} {'retrace':>7} {'setup':>5} {'steps':>5} {'stop':>9} {'load':>4} "
-          f"{'cold s':>7} {'upd/map L2':>10} {'cold/map L2':>11} {'ratio':>6}"
+          f"{'cold s':>7} {'upd/map L2':>10} {'cold/map L2':>11} {'ratio':>6} {'mean/cold':>9}"
           + ("  upd/PT L2 cold/PT L2" if args.ref_spp else ""), flush=True)
     for name in parse_scenes(args.scenes):
         scene = builtin_scene(name)
@@ -180,11 +216,14 @@ def main(argv: list[str] | None = None) -> None:
             new = edited(scene, edit)
             folder = args.work / name / edit
             load_before = load_average()
+            scale, load_s = rescaled(base, new) if edit in RESCALE_EDITS else (None, 0.0)
             t0 = time.perf_counter()
-            res = update_run(base, new, folder / "update", budget_s=args.budget, max_steps=args.max_steps,
-                             photons=args.update_photons, force=True, progress=False, patience=args.patience,
-                             min_improvement=args.min_improvement, lr_share=args.lr_share)
-            update_s = time.perf_counter() - t0
+            res = None
+            if scale is None:
+                res = update_run(base, new, folder / "update", budget_s=args.budget, max_steps=args.max_steps,
+                                 photons=args.update_photons, force=True, progress=False, patience=args.patience,
+                                 min_improvement=args.min_improvement, lr_share=args.lr_share)
+            update_s = load_s + time.perf_counter() - t0
             load_after = load_average()
             pmap, cold = cold_run(new, folder / "cold", args.photons, args.seed, reuse=not args.fresh)
             view = new.with_overrides(width=args.size, height=args.size)
@@ -193,24 +232,31 @@ def main(argv: list[str] | None = None) -> None:
             ref_map = render_photon_mapped(view, pmap, k=cold_settings.k, radius=radius, spp=args.spp, seed=7,
                                            progress=False, g_window=PHASE_WINDOW,
                                            final_gather_after=None).layers["L_i"]
-            upd_li = field_li(new, res.out, args.size, args.spp)
+            # A rescale renders the base field for the edited scene (its camera interactions) times the factor.
+            upd_li = field_li(new, res.out, args.size, args.spp) if res is not None else \
+                field_li(new, base, args.size, args.spp, trained_for=scene) * scale.astype(np.float32)
             cold_li = field_li(new, folder / "cold", args.size, args.spp)
-            stop = res.fit.log["stop"]
-            entry: dict[str, Any] = {
-                "update": {"wall_s": update_s, "trace_s": res.trace_s, "export_s": res.bundle.seconds,
-                           "photons": res.fit.log["photons"], "time_split": res.time_split,
-                           "load_before": load_before, "load_after": load_after,
-                           "steps": stop["steps"], "stop": stop["reason"], "kept_step": stop["kept_step"],
-                           "validation": res.fit.log["validation"], "vs_map": compare(upd_li, ref_map)},
-                "cold": {**cold, "vs_map": compare(cold_li, ref_map)},
-            }
+            if res is not None:
+                stop = res.fit.log["stop"]
+                update: dict[str, Any] = {
+                    "wall_s": update_s, "trace_s": res.trace_s, "export_s": res.bundle.seconds,
+                    "photons": res.fit.log["photons"], "time_split": res.time_split, "steps": stop["steps"],
+                    "stop": stop["reason"], "kept_step": stop["kept_step"], "validation": res.fit.log["validation"]}
+                split = res.time_split
+            else:
+                stop = {"steps": 0, "reason": "rescale"}
+                update = {"wall_s": update_s, "rescale": scale.tolist(), "steps": 0, "stop": "rescale"}
+                split = {"trace_s": 0.0, "setup_s": load_s}
+            update.update({"load_before": load_before, "load_after": load_after, "vs_map": compare(upd_li, ref_map),
+                           "mean_over_cold_field": float(upd_li.mean() / max(cold_li.mean(), 1e-30))})
+            entry: dict[str, Any] = {"update": update, "cold": {**cold, "vs_map": compare(cold_li, ref_map)}}
             entry["ratio_vs_map"] = entry["update"]["vs_map"]["rel_l2"] / entry["cold"]["vs_map"]["rel_l2"]
-            split = res.time_split
             load = max(x[0] for x in (load_before, load_after) if x) if load_before else float("nan")
             line = (f"{name + '/' + edit:<18} {update_s:8.1f} {split['trace_s']:7.1f} {split['setup_s']:5.1f} "
                     f"{stop['steps']:5d} {stop['reason']:>9} {load:4.1f} {cold['wall_s']:7.1f} "
                     f"{entry['update']['vs_map']['rel_l2']:10.3f} "
-                    f"{entry['cold']['vs_map']['rel_l2']:11.3f} {entry['ratio_vs_map']:6.2f}")
+                    f"{entry['cold']['vs_map']['rel_l2']:11.3f} {entry['ratio_vs_map']:6.2f} "
+                    f"{update['mean_over_cold_field']:9.3f}")
             if args.ref_spp:
                 ref = reference_li(new, new.g, args.size, args.ref_spp, args.work)
                 entry["update"]["vs_path_tracer"] = compare(upd_li, ref)

@@ -526,6 +526,22 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/train/fit/test_update.py::test_the_progress_file_says_done_before_the_loss_plot",),
            "pfn-train update marks its progress file done only after the loss plot: the viewer waits for the plot "
            "(1-3.6 s) before swapping the field in"),
+    Mutant("rescale_ignores_where_lights_are", "runtime/scene/light_rescale.py",
+           "return {k: v for k, v in light.items() if k not in FLUX_KEYS and k not in IGNORED_KEYS}",
+           "return {k: v for k, v in light.items() if k == \"type\"}",
+           ("tests/runtime/field/test_light_rescale.py::test_a_moved_light_is_still_refused",
+            f"{VSESSION}::test_single_light_power_rescales_the_indirect_layer_exactly"),
+           "a moved light passes for a power edit: the field's L_i is rescaled instead of marked stale or refused"),
+    Mutant("rescale_one_light_of_several", "runtime/scene/light_rescale.py",
+           "if ratios.max() - ratios.min() > RTOL * max(ratios.max(), 1e-300):", "if False:",
+           ("tests/runtime/field/test_light_rescale.py::test_several_lights_rescale_only_together",
+            f"{VSESSION}::test_lights_scaled_together_rescale_and_one_of_several_is_stale"),
+           "one light's power among several rescales the whole L_i by that light's ratio (wrong wherever the "
+           "other light dominates)"),
+    Mutant("rescaled_bundle_not_rescaled", "runtime/field/field.py",
+           "            L *= self.light_scale\n", "            pass\n",
+           ("tests/runtime/field/test_light_rescale.py::test_a_bundle_answers_for_its_lights_rescaled",),
+           "a bundle loaded for a brighter light renders the trained light's L_i (the issue's 40 % too dark)"),
 )
 
 
