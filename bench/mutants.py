@@ -542,6 +542,10 @@ MUTANTS: tuple[Mutant, ...] = (
            "            L *= self.light_scale\n", "            pass\n",
            ("tests/runtime/field/test_light_rescale.py::test_a_bundle_answers_for_its_lights_rescaled",),
            "a bundle loaded for a brighter light renders the trained light's L_i (the issue's 40 % too dark)"),
+    Mutant("rescaled_map_keeps_its_power", "runtime/photons/photon_map.py",
+           "power = (self.power * np.asarray(scale, dtype=np.float32)).astype(np.float32)", "power = self.power",
+           ("tests/runtime/field/test_light_rescale.py::test_a_photon_map_answers_for_its_lights_rescaled",),
+           "a photon map taken for a brighter light keeps the traced light's powers"),
 )
 
 

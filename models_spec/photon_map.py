@@ -21,7 +21,9 @@ Metadata keys (:data:`PHOTON_MAP_META_KEYS`; a reader refuses any other key, nam
 per-part fingerprints ``{"volume", "transfer_function", "lights"}`` (:func:`photon_fields.models_spec.fingerprint.
 fingerprint_parts`), so that a map used for another scene can say what differs. ``scene_parts`` was added
 without a version change: it is optional (maps traced before it lack it; their mismatches say the parts
-cannot be compared), and readers of version 1 that predate it ignore metadata keys they do not use.
+cannot be compared), and readers of version 1 that predate it ignore metadata keys they do not use. ``lights``, the
+same way: the scene's lights as its fingerprint hashes them (``Scene.light_identities``), so that a map can answer
+for the same lights with their flux rescaled (:mod:`photon_fields.runtime.scene.light_rescale`).
 """
 
 from __future__ import annotations
@@ -57,7 +59,8 @@ PHOTON_MAP_ARRAYS = {"position": ("float32", 3), "direction": ("float32", 3), "p
 #: Metadata keys a photon map must have, and the ones it may have besides.
 PHOTON_MAP_META_REQUIRED: tuple[str, ...] = ("format", "version", "scene_fingerprint", "phases", "emitted")
 PHOTON_MAP_META_KEYS: tuple[str, ...] = (*PHOTON_MAP_META_REQUIRED, "stored", "per_phase", "seed", "max_bounces",
-                                         "trace_seconds", "scene_name", "emitted_per_phase", "scene_parts")
+                                         "trace_seconds", "scene_name", "emitted_per_phase", "scene_parts",
+                                         "lights")
 #: The file layout above, and its reader (:mod:`photon_fields.models_spec.npz_manifest`).
 PHOTON_MAP_NPZ = NpzManifestFormat(kind="photon map", format=PHOTON_MAP_FORMAT, version=PHOTON_MAP_VERSION,
                                    entry="meta", label="metadata", keys=PHOTON_MAP_META_KEYS,

@@ -255,14 +255,16 @@ def load_inputs(args: argparse.Namespace, kind: str | None, scene: Any,
     """The renderer's input (:data:`photon_fields.runtime.renderers.registry.INPUTS`) loaded and checked against
     the scene: its keyword arguments, the warnings of a forced mismatch, and the field (for the report)."""
     if kind == "map":
-        from photon_fields.runtime.photons.estimate import check_map_matches_scene
+        from photon_fields.runtime.photons.estimate import map_for_scene
         from photon_fields.runtime.photons.photon_map import PhotonMap
 
         pmap = PhotonMap.load(args.map)
         if scene_from == "default" and not args.force and pmap.scene_fingerprint != scene.fingerprint():
             raise InputError(args.map, f"no --scene given, so the default scene '{scene.name}' was used; the map "
                              f"was traced for {pmap.mismatch(scene.fingerprint_parts())}; pass --scene")
-        warning = check_map_matches_scene(pmap, scene, args.force)
+        pmap, warning, note = map_for_scene(pmap, scene, args.force)
+        if note:
+            print(f"note: {note}", file=sys.stderr)
         from photon_fields.runtime.photons.phase_window import answerable, map_window
 
         answerable(pmap.phases, scene.g, map_window(pmap.phases), "--g")

@@ -59,6 +59,21 @@ class PhotonMap:
         parts = self.meta.get("scene_parts")
         return dict(parts) if isinstance(parts, dict) else None
 
+    @property
+    def lights(self) -> list[dict[str, Any]] | None:
+        """The lights traced with, as the scene's fingerprint hashes them (``meta["lights"]``), None for older maps."""
+        lights = self.meta.get("lights")
+        return list(lights) if isinstance(lights, list) else None
+
+    def rescaled(self, scale: np.ndarray, scene: Any) -> PhotonMap:
+        """This map for ``scene``, whose lights are the traced ones with their flux times ``scale`` (RGB, from
+        :func:`photon_fields.runtime.scene.light_rescale.flux_rescale`): every record's power times ``scale``, which
+        is what tracing ``scene`` with the same seed gives (the same paths); the positions and directions are shared."""
+        meta = {**self.meta, "scene_parts": scene.fingerprint_parts(), "lights": scene.light_identities()}
+        power = (self.power * np.asarray(scale, dtype=np.float32)).astype(np.float32)
+        return PhotonMap(self.position, self.direction, power, self.phase, self.phases, scene.fingerprint(),
+                         self.emitted, meta, self.path)
+
     def __len__(self) -> int:
         return int(self.position.shape[0])
 

@@ -88,13 +88,14 @@ def load_inputs(scene: str | None, *, bundle: str | None = None, map_path: str |
         estimator = field.estimator()
         info["bundle"] = str(Path(bundle).resolve())
     if map_path is not None:
-        from photon_fields.runtime.photons.estimate import check_map_matches_scene
+        from photon_fields.runtime.photons.estimate import map_for_scene
         from photon_fields.runtime.photons.photon_map import PhotonMap
 
-        pmap = PhotonMap.load(map_path)
-        warning = check_map_matches_scene(pmap, sc, force)
+        pmap, warning, note = map_for_scene(PhotonMap.load(map_path), sc, force)
         if warning:
             log.warning("%s", warning)
+        if note:
+            log.info("%s", note)
         info["map"] = str(Path(map_path).resolve())
     transfer = None
     if transfer_path is not None:

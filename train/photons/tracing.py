@@ -224,5 +224,5 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
     emitted = int(emitted_per_phase.sum())
     meta = {"seed": int(seed), "max_bounces": int(max_bounces), "trace_seconds": time.perf_counter() - t_start,
             "scene_name": scene.name, "emitted_per_phase": [int(e) for e in emitted_per_phase],
-            "scene_parts": scene.fingerprint_parts()}
+            "scene_parts": scene.fingerprint_parts(), "lights": scene.light_identities()}
     return PhotonMap(pos, dirs, pw, ph_idx, gs, scene.fingerprint(), emitted, meta)

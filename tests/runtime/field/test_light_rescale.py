@@ -143,3 +143,36 @@ def test_pfn_render_says_it_rescaled(bundle: Path, tmp_path: Path, capsys: pytes
     assert "note: the lights differ from the field's only in power or colour" in err and "(3, 3, 3)" in err
     report = json.loads(out.with_suffix(".json").read_text())
     assert report["field"]["light_scale"] == pytest.approx([3.0, 3.0, 3.0]) and report["warnings"] == []
+
+
+def test_a_photon_map_answers_for_its_lights_rescaled(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A map records the lights it was traced with; rendering a scene whose lights are those rescaled uses the map
+    with its powers rescaled (what tracing that scene gives), a moved light or a map without them is refused."""
+    from photon_fields.runtime.photons.estimate import map_for_scene
+    from photon_fields.runtime.photons.photon_map import PhotonMap
+
+    scene = scene_with(tmp_path)
+    path = trace_photons(scene, 3000, phases=(0.0,), seed=3, progress=False).save(tmp_path / "m.npz")
+    pmap = PhotonMap.load(path)
+    assert pmap.lights == scene.light_identities()
+    brighter = scene_with(tmp_path, power=6.0, color=[0.5, 0.95, 1.7])
+    same, warning, note = map_for_scene(pmap, scene)
+    assert same is pmap and warning is None and note is None
+    rescaled, warning, note = map_for_scene(pmap, brighter)
+    traced = trace_photons(brighter, 3000, phases=(0.0,), seed=3, progress=False)
+    np.testing.assert_allclose(rescaled.power, traced.power, rtol=1e-6)
+    assert rescaled.scene_fingerprint == brighter.fingerprint() and warning is None and "(1, 2, 4)" in note
+    with pytest.raises(InputError, match="lights differ"):
+        map_for_scene(pmap, scene_with(tmp_path, direction=[0.5, -0.8, 0.3]))
+    older = PhotonMap(pmap.position, pmap.direction, pmap.power, pmap.phase, pmap.phases, pmap.scene_fingerprint,
+                      pmap.emitted, {k: v for k, v in pmap.meta.items() if k != "lights"})
+    with pytest.raises(InputError, match="lights differ"):
+        map_for_scene(older, brighter)
+    d = tiny_scene_dict()
+    d["lights"][0]["power"] = 9.0
+    scene_file = tmp_path / "brighter.json"
+    scene_file.write_text(json.dumps(d))
+    capsys.readouterr()
+    assert render_main(["--method", "photonmap", "--map", str(path), "--scene", str(scene_file), "--g", "0",
+                        "--size", "8x8", "--spp", "1", "--out", str(tmp_path / "pm.exr"), "--quiet"]) == 0
+    assert "note: the lights differ from the photon map's only in power or colour" in capsys.readouterr().err
