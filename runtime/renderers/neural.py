@@ -49,6 +49,7 @@ it, so a 1280x720, 16 spp render needs a few hundred MB whatever the spp.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER
@@ -66,18 +67,21 @@ def render_neural(scene: Scene, estimator: IndirectEstimator | None, *, spp: int
                   batch_size: int = DEFAULT_BATCH, progress: bool = True, direct: bool = True,
                   film: Film | None = None, first_sample: int = 0,
                   camera: str = DEFAULT_CAMERA_ESTIMATOR,
-                  final_gather_after: int | None = DEFAULT_GATHER_AFTER) -> RenderResult:
+                  final_gather_after: int | None = DEFAULT_GATHER_AFTER,
+                  cancel: Callable[[], bool] | None = None) -> RenderResult:
     """Alg. 2 with ``estimator`` (normally ``PhotonField.estimator()``) for L_i; see the module docstring.
     ``estimator=None`` renders L_d only, ``direct=False`` L_i only (for timing the terms separately).
     ``camera`` picks how first interactions are sampled (``first_interaction.CAMERA_ESTIMATORS``);
     Samples from index ``final_gather_after`` on (counting ``first_sample``'s; 0: all, None: none) take one real
     bounce before the field (:mod:`photon_fields.runtime.wavefront.final_gather`: the field's bias reaches the image
     attenuated and blurred, at about 1.5x the work per sample): a render of many samples converges to the less
-    biased image while one of few stays plain (its noise is larger than the bias the gather removes)."""
+    biased image while one of few stays plain (its noise is larger than the bias the gather removes).
+    ``cancel``: asked before each batch; True stops the render with
+    :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`."""
     stats_before = _field_seconds(estimator)
     result = render_first_interaction(scene, estimator, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
                                       desc="neural rendering", direct=direct, film=film, first_sample=first_sample,
-                                      camera=camera, final_gather_after=final_gather_after)
+                                      camera=camera, final_gather_after=final_gather_after, cancel=cancel)
     after = _field_seconds(estimator)
     for key, value in after.items():  # the field's own split of stage 4: encoding / inference / decoding
         result.timings_ms[f"estimate_indirect.{key}"] = (value - stats_before.get(key, 0.0)) * 1e3

@@ -17,6 +17,7 @@ than shown stale. The path tracer and PVRT are :data:`FOLLOWS_EDITS`: their fram
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -109,14 +110,17 @@ class FieldInUse:
             self.pvrt.check(g, transfer)
 
     def render(self, scene: Scene, renderer: str, *, seed: int, n: int, lights: list[LightControl],
-               threads: int | None = None, final_gather: bool = False, moving: bool = False) -> dict[str, np.ndarray]:
+               threads: int | None = None, final_gather: bool = False, moving: bool = False,
+               cancel: Callable[[], bool] | None = None) -> dict[str, np.ndarray]:
         """Frame ``n`` of a session's accumulation with ``renderer``: 1 sample per pixel; the neural renderer draws
         samples ``first_sample = n`` of ``seed``, the others use seed ``seed + n``. L_i follows the page's
         ``lights`` where it can (:meth:`indirect_scale`; L_d, from NEE with the edited lights, is right anyway).
         ``threads``: numba workers (None: as set). ``final_gather``: the neural renderer takes one real bounce
         before the field (:mod:`photon_fields.runtime.wavefront.final_gather`); its NEE at the bounce already sees
         the edited lights, so the field's part alone is rescaled, inside the estimator. ``moving``: the camera
-        is moving (PVRT keeps no samples of a moving view, :class:`PvrtView`)."""
+        is moving (PVRT keeps no samples of a moving view, :class:`PvrtView`). ``cancel``: the neural renderer works
+        in batches of :data:`photon_fields.runtime.wavefront.batches.CANCELLABLE_BATCH` and asks it before each
+        (True: :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the frame is given up)."""
         from photon_fields.runtime.threads import numba_threads
 
         if renderer == "pvrt":  # L_i from the transfer under the edited lights: nothing to rescale
@@ -127,10 +131,12 @@ class FieldInUse:
         with numba_threads(threads):
             if renderer == "neural":
                 from photon_fields.runtime.renderers.neural import render_neural
+                from photon_fields.runtime.wavefront.batches import CANCELLABLE_BATCH, DEFAULT_BATCH
 
                 est = self.estimator if scale is None else _Scaled(self.estimator, scale)
                 return render_neural(scene, est, spp=1, seed=seed, progress=False, first_sample=n,
-                                     final_gather_after=0 if final_gather else None).layers
+                                     final_gather_after=0 if final_gather else None, cancel=cancel,
+                                     batch_size=DEFAULT_BATCH if cancel is None else CANCELLABLE_BATCH).layers
             if renderer == "pt":
                 from photon_fields.runtime.renderers.path_tracer import render_path_traced
 

@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -336,9 +337,19 @@ class ViewerSession:
         refining = render and (self._samples > 0 or settling)
         gather = render and not moved_only and self.gathers(s.renderer, self._samples)
         if render:
+            from photon_fields.runtime.wavefront.batches import RenderCancelledError  # loaded with the renderers
+
             t = time.perf_counter()
-            with RENDER_LOCK:
-                layers = self._render(scene, s, self._samples, gather, moved_only)
+            # A refinement is thrown away if the view changes while it renders: it is given up between batches
+            # then, so that the new view's first frame waits for a quarter of a frame at most, not a whole one.
+            cancel = (lambda: self.generation != generation) if refining else None
+            try:
+                with RENDER_LOCK:
+                    layers = self._render(scene, s, self._samples, gather, moved_only, cancel)
+            except RenderCancelledError:
+                with self.lock:
+                    self.dropped += 1
+                return None
             timings["render_ms"] = (time.perf_counter() - t) * 1e3
             with self.lock:
                 if self._acc_generation == generation:
@@ -428,14 +439,16 @@ class ViewerSession:
             self._samples = max(self._samples, self.state.max_spp)
             self.redisplay = self._unrested = False
 
-    def _render(self, scene: Scene, s: ViewState, n: int, gather: bool, moving: bool) -> dict[str, np.ndarray]:
+    def _render(self, scene: Scene, s: ViewState, n: int, gather: bool, moving: bool,
+                cancel: Callable[[], bool] | None = None) -> dict[str, np.ndarray]:
         """Frame ``n`` of the accumulation of state ``s`` (module docstring for the seeds), with the final gather
-        or not, of a moving camera or not; while a background job trains, with the cores it leaves."""
+        or not, of a moving camera or not; while a background job trains, with the cores it leaves. ``cancel``: as
+        :meth:`FieldInUse.render`'s."""
         from photon_fields.runtime.threads import max_threads
 
         threads = max(1, max_threads() - self.updater.settings.threads) if self.updater.busy else None
         return self.field.render(scene, s.renderer, seed=self.seed, n=n, lights=s.lights, threads=threads,
-                                 final_gather=gather, moving=moving)
+                                 final_gather=gather, moving=moving, cancel=cancel)
 
     def gathers(self, renderer: str, n: int) -> bool:
         """Whether resting frame ``n`` of an accumulation with ``renderer`` takes the final gather (moving frames

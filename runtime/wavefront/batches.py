@@ -24,6 +24,14 @@ from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.rays import RayBatch, clip_rays_to_volume, generate_camera_rays
 
 DEFAULT_BATCH = 1 << 18
+#: Work items per batch of a render that may be cancelled between batches (the viewer's resting frames): a quarter of
+#: a 512x512 frame, so a camera move waits for at most that much of a frame that is thrown away; the same image
+#: bit for bit, ~3 % slower than whole-frame batches (bench/README.md, "A resting frame cancelled by a move").
+CANCELLABLE_BATCH = 1 << 16
+
+
+class RenderCancelledError(Exception):
+    """A render's ``cancel()`` said stop (checked before each batch): its samples are incomplete, discard them."""
 
 
 @dataclass

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -64,6 +64,7 @@ from photon_fields.runtime.transport.tracking import camera_collision
 from photon_fields.runtime.wavefront.batches import (
     DEFAULT_BATCH,
     Environment,
+    RenderCancelledError,
     RenderResult,
     StageTimer,
     finish,
@@ -243,8 +244,12 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
                              batch_size: int = DEFAULT_BATCH, progress: bool = True, desc: str = "rendering",
                              direct: bool = True, film: Film | None = None, first_sample: int = 0,
                              camera: str = DEFAULT_CAMERA_ESTIMATOR,
-                             final_gather_after: int | None = None) -> RenderResult:
+                             final_gather_after: int | None = None,
+                             cancel: Callable[[], bool] | None = None) -> RenderResult:
     """Render ``spp`` samples per pixel (stages in the module docstring) with the ``camera`` estimator.
+
+    ``cancel``: asked before each batch; when it returns True the render stops with
+    :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError` (the film holds part of the samples).
 
     ``final_gather_after``: samples from this index on (counting ``first_sample``'s; 0: all, None: none) take one
     real bounce from x before asking the estimator (:mod:`photon_fields.runtime.wavefront.final_gather`): less of
@@ -275,6 +280,8 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
     gather_from = None if final_gather_after is None or estimator is None else final_gather_after * n_pixels
     with progress_bar(total=total, desc=desc, unit="spl", unit_scale=True, enabled=progress) as bar:
         for start, count in work_batches(first, total, batch, gather_from):
+            if cancel is not None and cancel():
+                raise RenderCancelledError(f"cancelled before work item {start}")
             with timer("sample_first_interactions"):
                 counts = sample_first_interactions(scene, m, start, count, seed, scratch, status, transmit, camera)
             n_rays += int(counts[:, 1].sum())

@@ -246,3 +246,33 @@ def test_pfn_render_field_cli_and_foreign_scene_refusal(trained, tmp_path, capsy
     frames = sorted(tmp_path.glob("y_*.exr"))
     assert [f.name for f in frames] == ["y_0000.exr", "y_0001.exr", "y_0002.exr"]
     assert json.loads((tmp_path / "y_timings.json").read_text())["frames"] == 3
+
+
+def test_a_render_is_cancelled_between_batches_and_batches_do_not_change_the_image() -> None:
+    """``cancel`` is asked before each batch and stops the render there (the viewer gives up a refinement a camera
+    move overtook); the batch size changes nothing in the image, bit for bit (the viewer's resting frames use
+    smaller batches so that a move waits less)."""
+    from conftest import tiny_scene_dict
+
+    from photon_fields.runtime.scene.scene import scene_from_dict
+    from photon_fields.runtime.wavefront.batches import RenderCancelledError
+
+    def field(x: np.ndarray, d: np.ndarray, g: float) -> np.ndarray:  # any smooth Q(x, d)
+        return (0.1 + 0.05 * np.abs(x) * (1.0 + d)).astype(np.float32)
+
+    scene = scene_from_dict(tiny_scene_dict()).with_overrides(width=16, height=12)
+    whole = render_neural(scene, field, spp=2, seed=4, progress=False, final_gather_after=None)
+    parts = render_neural(scene, field, spp=2, seed=4, progress=False, final_gather_after=None,
+                          batch_size=50)
+    for name, layer in whole.layers.items():
+        np.testing.assert_array_equal(parts.layers[name], layer)
+    asked = []
+
+    def after_three() -> bool:
+        asked.append(1)
+        return len(asked) > 3
+
+    with pytest.raises(RenderCancelledError):
+        render_neural(scene, field, spp=2, seed=4, progress=False, batch_size=50, cancel=after_three)
+    assert len(asked) == 4
+    render_neural(scene, field, spp=1, seed=4, progress=False, batch_size=50, cancel=lambda: False)

@@ -276,9 +276,12 @@ def test_stale_refinement_frames_are_dropped_but_first_frames_never(tmp_path: Pa
     s = make_session(tmp_path)
     real = s._render
 
-    def render_while_input_arrives(scene, state, n, gather, moving):  # noqa: ANN001, ANN202
+    cancels = []
+
+    def render_while_input_arrives(scene, state, n, gather, moving, cancel=None):  # noqa: ANN001, ANN202
         s.apply(msg("orbit", dx=1.0, dy=0.0))  # input arriving during every render
-        return real(scene, state, n, gather, moving)
+        cancels.append(cancel is not None and cancel())
+        return real(scene, state, n, gather, moving, cancel)
 
     assert s.next_frame() is not None  # first frame of the scene camera
     s.apply(msg("orbit", dx=1.0, dy=0.0))
@@ -290,6 +293,8 @@ def test_stale_refinement_frames_are_dropped_but_first_frames_never(tmp_path: Pa
     assert s.next_frame().header["spp"] == 2  # refining at rest
     s._render = render_while_input_arrives
     assert s.next_frame() is None and s.dropped == 1  # a refinement overtaken by input: dropped
+    # a first frame is never cancelled; the refinement was, before its first batch (RenderCancelledError)
+    assert cancels == [False, True]
     s._render = real
     h = s.next_frame().header
     assert (h["spp"], h["moving"]) == (1, True)
