@@ -546,6 +546,15 @@ MUTANTS: tuple[Mutant, ...] = (
            "power = (self.power * np.asarray(scale, dtype=np.float32)).astype(np.float32)", "power = self.power",
            ("tests/runtime/field/test_light_rescale.py::test_a_photon_map_answers_for_its_lights_rescaled",),
            "a photon map taken for a brighter light keeps the traced light's powers"),
+    Mutant("render_never_cancelled", "runtime/wavefront/first_interaction.py",
+           "            if cancel is not None and cancel():", "            if False:",
+           ("tests/runtime/renderers/test_neural_renderer.py::"
+            "test_a_render_is_cancelled_between_batches_and_batches_do_not_change_the_image",),
+           "a render never asks cancel(): a refinement overtaken by a camera move runs to its end first"),
+    Mutant("refinements_not_cancellable", "runtime/viewer/session.py",
+           "cancel = (lambda: self.generation != generation) if refining else None", "cancel = None",
+           (f"{VSESSION}::test_stale_refinement_frames_are_dropped_but_first_frames_never",),
+           "the viewer gives the renderer no cancel for refinements: a move waits for a whole resting frame"),
 )
 
 
