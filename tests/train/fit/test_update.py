@@ -418,3 +418,16 @@ def test_the_fine_tune_runs_at_its_share_of_the_preset_learning_rate(runs: dict[
         res = update_run(runs["run"], scene, tmp_path / f"s{share}", max_steps=1, lr_share=share, progress=False)
         preset = res.fit.log["settings"]["preset"]
         assert res.fit.log["settings"]["lr"] == pytest.approx(PRESETS[preset].lr * share)
+
+
+def test_an_update_for_a_power_edit_says_the_run_renders_it_already(runs: dict[str, Path], tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """A light's power or colour edit needs no update (the field is rescaled exactly at load): pfn-train update says
+    so, and still updates when asked; an edit of the transfer function gets no such note."""
+    assert read_run(runs["run"]).light_rescale(load_scene(runs["brighter"])) == pytest.approx([2.0, 2.0, 2.0])
+    assert read_run(runs["run"]).light_rescale(load_scene(runs["denser"])) is None
+    assert train_main(update_args(runs, "brighter", tmp_path / "b", "--max-steps", "0")) == 0
+    err = capsys.readouterr().err
+    assert "only in its lights' power or colour" in err and "(2, 2, 2)" in err and "updating anyway" in err
+    assert train_main(update_args(runs, "denser", tmp_path / "d", "--max-steps", "0")) == 0
+    assert "only in its lights'" not in capsys.readouterr().err
