@@ -69,10 +69,9 @@ def read_bundle(path: str | os.PathLike[str], *, expected_fingerprint: str | Non
     bundle = Path(path)
     manifest = read_manifest(bundle)
     warning = None
-    scale = None
-    if expected_fingerprint is not None and manifest.scene_fingerprint != expected_fingerprint:
-        scale = _light_rescale(manifest, expected_parts, expected_lights)
-    if scale is None and expected_fingerprint is not None and manifest.scene_fingerprint != expected_fingerprint:
+    other_scene = expected_fingerprint is not None and manifest.scene_fingerprint != expected_fingerprint
+    scale = _light_rescale(manifest, expected_parts, expected_lights) if other_scene else None
+    if other_scene and scale is None:
         other = f"another scene{_trained_name(manifest)}: {mismatch_detail(expected_parts, manifest.scene_parts)}"
         if not force:
             raise InputError(str(bundle), f"was trained for {other}; retrain, or force to use it anyway")
