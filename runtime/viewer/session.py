@@ -369,8 +369,8 @@ class ViewerSession:
                 self.dropped += 1
                 return None
             samples = max(self._samples, 1)
-            mean = None if not self._acc else self._acc[s.layer] if self._acc[s.layer].dtype == np.float32 \
-                else (self._acc[s.layer] / samples).astype(np.float32)
+            acc = self._acc.get(s.layer)  # None: nothing yet; float32: a first sample, the image as it is
+            mean = acc if acc is None or acc.dtype == np.float32 else (acc / samples).astype(np.float32)
             n, gathered = self._samples, self._gathered
         if mean is None:  # nothing rendered yet for this state (only possible on a redisplay race): black
             mean = np.zeros((size[1], size[0], 3), np.float32)
