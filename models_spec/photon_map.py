@@ -21,8 +21,8 @@ Metadata keys (:data:`PHOTON_MAP_META_KEYS`; a reader refuses any other key, nam
 per-part fingerprints ``{"volume", "transfer_function", "lights"}`` (:func:`photon_fields.models_spec.fingerprint.
 fingerprint_parts`), so that a map used for another scene can say what differs. ``scene_parts`` was added
 without a version change: it is optional (maps traced before it lack it; their mismatches say the parts
-cannot be compared), and readers of version 1 that predate it ignore metadata keys they do not use. ``lights`` (2026-11-26),
-also optional and without a version change: the scene's lights as its fingerprint hashes them
+cannot be compared), and readers of version 1 that predate it ignore metadata keys they do not use.
+``lights`` (2026-11-26), also optional and without a version change: the scene's lights as its fingerprint hashes them
 (``Scene.light_identities``), so that a map can answer for the same lights with their flux rescaled
 (:mod:`photon_fields.runtime.scene.light_rescale`); a map without it is read as before (no rescale), and a reader
 from before it refuses the key, naming it.
