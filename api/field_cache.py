@@ -13,8 +13,14 @@ Cache folder: ``cache`` if given, else ``$PFN_CACHE``, else ``~/.cache/photon-fi
 ``fields/<key>/`` (``<key>``: a hash of the scene fingerprint, the kind and the training settings) holds
 ``scene.json`` (the scene file handed to the trainer), ``volume.npy`` (an in-memory volume, normalized, read back
 with window [0, 1] so that its fingerprint is unchanged), ``train.log`` and the trainer's outputs (``run/field.pfn``
-or ``map.npz``) and, last, ``complete`` (written when the trainer succeeded): an entry without it (an
-interrupted or failed training) is trained again. Two processes training the same entry at once are not guarded against.
+or ``map.npz``), ``entry.json`` (what it was made for: kind, seed, settings, the scene's per-part fingerprints and
+lights) and, last, ``complete`` (written when the trainer succeeded): an entry without it (an interrupted or failed
+training) is trained again. Two processes training the same entry at once are not guarded against.
+
+A scene whose lights are an entry's with their flux rescaled (a light's power or colour: the same volume, transfer
+function and light places, :mod:`photon_fields.runtime.scene.light_rescale`) uses that entry instead of training:
+its field, or map, renders the scene exactly, rescaled at load. Entries made before ``entry.json`` are found only by
+their own scene.
 """
 
 from __future__ import annotations
@@ -32,8 +38,11 @@ import numpy as np
 
 from photon_fields.runtime.errors import InputError, check_keys
 from photon_fields.runtime.io.atomic import atomic_write_text
+from photon_fields.runtime.scene.light_rescale import flux_rescale
 from photon_fields.runtime.scene.scene import Scene
 
+#: An entry's record of what it was made for (module docstring).
+ENTRY_FILE = "entry.json"
 #: The trainer, as this interpreter runs it.
 TRAINER = (sys.executable, "-m", "photon_fields.train.cli.train")
 #: Training settings (``training=``): a preset name, or these keys, each a ``pfn-train all`` option.
@@ -82,6 +91,9 @@ def cached_input(scene: Scene, kind: str, settings: dict[str, Any], seed: int, c
     target = entry / ("run/field.pfn" if kind == "field" else "map.npz")
     if (entry / "complete").exists() and target.exists():
         return target
+    relit = rescalable_entry(scene, kind, settings, seed, cache)
+    if relit is not None:
+        return relit
     if importlib.util.find_spec("torch") is None or importlib.util.find_spec("photon_fields.train") is None:
         raise InputError(what, "trains on first use, which needs the train extra (torch): "
                                "pip install 'photon-fields[train]'")
@@ -105,8 +117,35 @@ def cached_input(scene: Scene, kind: str, settings: dict[str, Any], seed: int, c
         lines = [ln for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
         last = lines[-1] if lines else f"the trainer exited with status {code}"
         raise InputError(what, f"training failed: {last} (log: {log})")
+    atomic_write_text(entry / ENTRY_FILE, json.dumps(_made_for(scene, kind, settings, seed)) + "\n")
     atomic_write_text(entry / "complete", " ".join(cmd) + "\n")
     return target
+
+
+def _made_for(scene: Scene, kind: str, settings: dict[str, Any], seed: int) -> dict[str, Any]:
+    return {"kind": kind, "seed": int(seed), "settings": settings, "parts": scene.fingerprint_parts(),
+            "lights": scene.light_identities()}
+
+
+def rescalable_entry(scene: Scene, kind: str, settings: dict[str, Any], seed: int, cache: Path) -> Path | None:
+    """The field (or map) of a complete entry made with the same kind, seed and settings for ``scene``'s volume and
+    transfer function and lights that ``scene``'s rescale (module docstring), or None."""
+    wanted = _made_for(scene, kind, settings, seed)
+    root = cache / "fields"
+    for entry in sorted(root.iterdir()) if root.is_dir() else ():
+        try:
+            doc = json.loads((entry / ENTRY_FILE).read_text())
+        except (OSError, ValueError):
+            continue
+        if not isinstance(doc, dict) or not (entry / "complete").exists() \
+                or any(doc.get(k) != wanted[k] for k in ("kind", "seed", "settings")) \
+                or any((doc.get("parts") or {}).get(p) != wanted["parts"][p] for p in ("volume", "transfer_function")):
+            continue
+        target = entry / ("run/field.pfn" if kind == "field" else "map.npz")
+        lights = doc.get("lights")
+        if target.exists() and isinstance(lights, list) and flux_rescale(lights, wanted["lights"]) is not None:
+            return target
+    return None
 
 
 def cached_transfer(scene: Scene, settings: dict[str, Any], seed: int, cache: Path) -> Path:

@@ -173,11 +173,10 @@ def _load_input(kind: str, path: Path, scene: Any, threads: int | None) -> dict[
         from photon_fields.runtime.field.field import PhotonField
 
         field = PhotonField.load(path, threads=threads, expected_fingerprint=scene.fingerprint(),
-                                 expected_parts=scene.fingerprint_parts())
+                                 expected_parts=scene.fingerprint_parts(), expected_lights=scene.light_identities())
         return {"estimator": field.estimator()}
-    from photon_fields.runtime.photons.estimate import check_map_matches_scene
+    from photon_fields.runtime.photons.estimate import map_for_scene
     from photon_fields.runtime.photons.photon_map import PhotonMap
 
-    pmap = PhotonMap.load(path)
-    check_map_matches_scene(pmap, scene, False)
+    pmap, _, _ = map_for_scene(PhotonMap.load(path), scene, False)  # a map of these lights rescaled, or refused
     return {"pmap": pmap, "force": False}

@@ -86,6 +86,15 @@ def test_readme_example_with_a_field_trains_once(tmp_path: Path, monkeypatch: py
     again = pf.render(tmp_path / "head.nrrd", method="field", spp=1, size=(16, 16), training=TINY_TRAINING,
                       cache=cache)
     assert np.array_equal(again.L, img.L)
+    # the same lights twice as bright (and bluer): the field renders them exactly, rescaled, without training
+    from photon_fields.runtime.scene.rigs import light_rig
+
+    relit = [{**light.to_dict(), "power": light.power * 2.0, "color": (light.color * [1.0, 1.0, 1.5]).tolist()}
+             for light in light_rig("studio")]
+    brighter = pf.render(tmp_path / "head.nrrd", lights=relit, method="field", spp=1, size=(16, 16),
+                         training=TINY_TRAINING, cache=cache)
+    np.testing.assert_allclose(brighter.L_i, img.L_i * [2.0, 2.0, 3.0], rtol=1e-5, atol=1e-7)
+    assert len(list((cache / "fields").iterdir())) == 1
     # another light rig is another scene: it would train (refused here by the stand-in)
     with pytest.raises(AssertionError, match="trained again"):
         pf.render(tmp_path / "head.nrrd", lights="sun", method="field", spp=1, size=(16, 16),
