@@ -70,6 +70,7 @@ from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.viewer import screenshot
+from photon_fields.runtime.viewer.accumulation import Accumulation
 from photon_fields.runtime.viewer.camera import OrbitView
 from photon_fields.runtime.viewer.drag_levels import DRAG_LEVELS, next_drag_level
 from photon_fields.runtime.viewer.encode import encode, tonemap
@@ -95,7 +96,6 @@ from photon_fields.runtime.viewer.view_state import DEFAULT_MAX_SPP, Frame, View
 #: and both miss their frame rate; one at a time keeps each frame as fast as the machine allows.
 RENDER_LOCK = threading.Lock()
 DEFAULT_DENOISE_FRAMES = 16
-ACCUMULATED_LAYERS = ("L", "L_d", "L_i", "L_e")
 
 
 class ViewerSession:
@@ -147,10 +147,8 @@ class ViewerSession:
         self._lights_version = 0
         self._scene_lights_version = 0
         # Owned by the render thread (next_frame), read by screenshot() under self.lock:
-        self._acc: dict[str, np.ndarray] = {}
+        self._acc = Accumulation()
         self._acc_generation = -1
-        self._samples = 0
-        self._gathered = 0  # samples of the accumulation that took the final gather
         self._acc_size: tuple[int, int] = (0, 0)  # (width, height) of the accumulation
         # The accumulation is a deterministic renderer's moving frame: the view, once at rest, takes a frame of its
         # own (the one PVRT keeps its camera samples in, so that the next light change is only a relit frame).
@@ -266,7 +264,7 @@ class ViewerSession:
             return True
         if self._acc_size != (self.state.width, self.state.height) or self._unrested:
             return True  # the last frame was a (reduced) moving frame: the resting view needs its own
-        return self._samples < self.target_spp(self.state)
+        return self._acc.samples < self.target_spp(self.state)
 
     def wait_for_work(self, stop: threading.Event, timeout: float = 0.5) -> bool:
         """Block until there is a frame to render (True) or ``timeout`` passes / ``stop`` is set (False)."""
@@ -301,12 +299,13 @@ class ViewerSession:
             s = replace(self.state)
             generation, cut, seq, reexpose = self.generation, self.cut, self.last_seq, self.reexpose
             full = (s.width, s.height)
-            render = (generation != self._acc_generation or self._samples < self.target_spp(s)
+            render = (generation != self._acc_generation or self._acc.samples < self.target_spp(s)
                       or self._acc_size != full or self._unrested)
             self.cut = self.redisplay = self.reexpose = False
             if generation != self._acc_generation:
                 moved_only = not cut
-                self._acc, self._samples, self._gathered, self._acc_generation = {}, 0, 0, generation
+                self._acc.clear()
+                self._acc_generation = generation
             else:
                 moved_only = False
             size = full
@@ -317,7 +316,7 @@ class ViewerSession:
             # dropped, as a refinement is, when the view changes while it renders
             settling = render and self._unrested and not moved_only
             if render and (self._acc_size != size or self._unrested):  # a moving frame before: rest starts anew
-                self._acc, self._samples, self._gathered = {}, 0, 0
+                self._acc.clear()
             self._acc_size = size
             self._unrested = render and moved_only and not progressive(s.renderer)
             scene = self._scene_for(s, *size)
@@ -334,8 +333,8 @@ class ViewerSession:
         denoiser = self._denoisers.for_frame(scene, size, full, cut) if denoise else None
         if reexpose:
             self._auto_stops = None
-        refining = render and (self._samples > 0 or settling)
-        gather = render and not moved_only and self.gathers(s.renderer, self._samples)
+        refining = render and (self._acc.samples > 0 or settling)
+        gather = render and not moved_only and self.gathers(s.renderer, self._acc.samples)
         if render:
             from photon_fields.runtime.wavefront.batches import RenderCancelledError  # loaded with the renderers
 
@@ -345,7 +344,7 @@ class ViewerSession:
             cancel = (lambda: self.generation != generation) if refining else None
             try:
                 with RENDER_LOCK:
-                    layers = self._render(scene, s, self._samples, gather, moved_only, cancel)
+                    layers = self._render(scene, s, self._acc.samples, gather, moved_only, cancel)
             except RenderCancelledError:
                 with self.lock:
                     self.dropped += 1
@@ -353,25 +352,13 @@ class ViewerSession:
             timings["render_ms"] = (time.perf_counter() - t) * 1e3
             with self.lock:
                 if self._acc_generation == generation:
-                    if not progressive(s.renderer) or not self._acc:
-                        # the one frame of a deterministic view, or an accumulation's first sample (every moving
-                        # frame): kept as it is, float32, no copies (float64 sums cost ~8 ms at 512x512)
-                        self._acc = {k: layers[k] for k in ACCUMULATED_LAYERS}
-                    else:
-                        for k in ACCUMULATED_LAYERS:
-                            if self._acc[k].dtype != np.float64:  # the second sample: from here on, float64 sums
-                                self._acc[k] = self._acc[k].astype(np.float64)
-                            self._acc[k] += layers[k]
-                    self._samples += 1
-                    self._gathered += int(gather)
+                    self._acc.add(layers, gathered=gather, replace=not progressive(s.renderer))
         with self.lock:
             if refining and self.generation != generation:
                 self.dropped += 1
                 return None
-            samples = max(self._samples, 1)
-            acc = self._acc.get(s.layer)  # None: nothing yet; float32: a first sample, the image as it is
-            mean = acc if acc is None or acc.dtype == np.float32 else (acc / samples).astype(np.float32)
-            n, gathered = self._samples, self._gathered
+            mean = self._acc.mean(s.layer)
+            n, gathered = self._acc.samples, self._acc.gathered
         if mean is None:  # nothing rendered yet for this state (only possible on a redisplay race): black
             mean = np.zeros((size[1], size[0], 3), np.float32)
         shown, denoised = mean, False
@@ -436,7 +423,7 @@ class ViewerSession:
         again)."""
         with self.lock:
             self._acc_generation = self.generation
-            self._samples = max(self._samples, self.state.max_spp)
+            self._acc.samples = max(self._acc.samples, self.state.max_spp)
             self.redisplay = self._unrested = False
 
     def _render(self, scene: Scene, s: ViewState, n: int, gather: bool, moving: bool,
@@ -491,10 +478,10 @@ class ViewerSession:
         name when ``name`` is None."""
         with self._shot_lock:
             with self.lock:
-                if not self._acc:
+                if self._acc.empty:
                     raise MessageError("screenshot: no frame has been rendered yet")
-                samples, gathered = self._samples, self._gathered
-                layers = {k: (v / samples).astype(np.float32) for k, v in self._acc.items()}
+                samples, gathered = self._acc.samples, self._acc.gathered
+                layers = self._acc.means()
                 s = replace(self.state)
                 header = dict(self._last_header)
                 cam = s.view.camera(*self._acc_size)

@@ -18,7 +18,7 @@ from photon_fields.runtime.viewer.session import ViewerSession
 
 def accumulated(session: ViewerSession, layer: str) -> np.ndarray:
     with session.lock:
-        return session._acc[layer] / session._samples
+        return session._acc[layer] / session._acc.samples
 
 
 class _Times:

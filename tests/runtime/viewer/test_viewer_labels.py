@@ -47,7 +47,7 @@ def accumulate(s: ViewerSession, layer: str, frames: int = 4) -> np.ndarray:
     for _ in range(frames):
         s.next_frame()
     with s.lock:
-        return (s._acc[layer] / s._samples).sum(axis=-1)
+        return (s._acc[layer] / s._acc.samples).sum(axis=-1)
 
 
 def test_the_page_gets_a_row_per_label_present(scene_dir: Path, tmp_path: Path) -> None:

@@ -27,7 +27,7 @@ def frames(session: ViewerSession, n: int) -> list[dict]:
 
 def accumulated(session: ViewerSession, layer: str) -> np.ndarray:
     with session.lock:
-        return session._acc[layer] / session._samples
+        return session._acc[layer] / session._acc.samples
 
 
 def test_neural_accumulation_equals_one_render_with_all_samples(tmp_path: Path) -> None:

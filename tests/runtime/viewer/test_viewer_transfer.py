@@ -30,7 +30,7 @@ def edited(session: ViewerSession, opacity_scale: float = 1.0, density_scale: fl
 
 def mean_of(session: ViewerSession, layer: str = "L") -> float:
     with session.lock:
-        return float((session._acc[layer] / session._samples).mean())
+        return float((session._acc[layer] / session._acc.samples).mean())
 
 
 def test_an_edit_reaches_the_path_traced_image_and_restarts_the_accumulation(tmp_path: Path) -> None:
