@@ -38,7 +38,7 @@ import numpy as np
 
 from photon_fields.runtime.errors import InputError, check_keys
 from photon_fields.runtime.io.atomic import atomic_write_text
-from photon_fields.runtime.scene.light_rescale import flux_rescale
+from photon_fields.runtime.scene.light_rescale import scene_rescale
 from photon_fields.runtime.scene.scene import Scene
 
 #: An entry's record of what it was made for (module docstring).
@@ -138,12 +138,11 @@ def rescalable_entry(scene: Scene, kind: str, settings: dict[str, Any], seed: in
         except (OSError, ValueError):
             continue
         if not isinstance(doc, dict) or not (entry / "complete").exists() \
-                or any(doc.get(k) != wanted[k] for k in ("kind", "seed", "settings")) \
-                or any((doc.get("parts") or {}).get(p) != wanted["parts"][p] for p in ("volume", "transfer_function")):
+                or any(doc.get(k) != wanted[k] for k in ("kind", "seed", "settings")):
             continue
         target = entry / ("run/field.pfn" if kind == "field" else "map.npz")
-        lights = doc.get("lights")
-        if target.exists() and isinstance(lights, list) and flux_rescale(lights, wanted["lights"]) is not None:
+        parts = doc.get("parts") if isinstance(doc.get("parts"), dict) else None
+        if target.exists() and scene_rescale(parts, doc.get("lights"), wanted["parts"], wanted["lights"]) is not None:
             return target
     return None
 

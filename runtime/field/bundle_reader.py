@@ -39,9 +39,10 @@ from photon_fields.models_spec.bundle import (
     parse_manifest_bytes,
 )
 from photon_fields.models_spec.encoding import OUTPUT_CHANNELS
-from photon_fields.models_spec.fingerprint import differing_parts, mismatch_detail
+from photon_fields.models_spec.fingerprint import mismatch_detail
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.field.hashgrid import aligned_table
+from photon_fields.runtime.scene.light_rescale import scene_rescale
 
 
 @dataclass
@@ -89,13 +90,10 @@ def _light_rescale(manifest: Manifest, expected_parts: dict[str, str] | None,
     """The flux factor from the bundle's trained lights to ``expected_lights`` when the lights are all that
     differs (the volume's and transfer function's fingerprints match) and the bundle records its scene's lights;
     else None."""
-    if expected_lights is None or differing_parts(expected_parts, manifest.scene_parts) != ["lights"]:
+    if expected_lights is None or expected_parts is None:
         return None
-    from photon_fields.runtime.scene.light_rescale import flux_rescale
-
     spec = (manifest.scene or {}).get("spec") or {}
-    trained = spec.get("lights")
-    return flux_rescale(trained, expected_lights) if isinstance(trained, list) else None
+    return scene_rescale(manifest.scene_parts, spec.get("lights"), expected_parts, expected_lights)
 
 
 def _bundle_error(err: BundleError, bundle: Path) -> InputError:

@@ -43,13 +43,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from photon_fields.models_spec.fingerprint import differing_parts
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.knn import indexed_radiance
 from photon_fields.runtime.photons.phase_window import check_window, window_weights
 from photon_fields.runtime.photons.photon_grid import PhotonIndex, build_photon_index
 from photon_fields.runtime.photons.photon_map import PhotonMap
-from photon_fields.runtime.scene.light_rescale import flux_rescale, rescale_note
+from photon_fields.runtime.scene.light_rescale import rescale_note, scene_rescale
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.medium import Medium, extinction_at, extinction_batch
 
@@ -200,9 +199,8 @@ def map_for_scene(pmap: PhotonMap, scene: Scene, force: bool = False) -> tuple[P
     (a power or colour edit, :mod:`photon_fields.runtime.scene.light_rescale`; the map records its lights) is
     rescaled, exactly, and ``note`` says so; any other mismatch as :func:`check_map_matches_scene` (refused, or with
     ``force`` the map as it is and the warning)."""
-    if pmap.scene_fingerprint != scene.fingerprint() and pmap.lights is not None \
-            and differing_parts(scene.fingerprint_parts(), pmap.scene_parts) == ["lights"]:
-        scale = flux_rescale(pmap.lights, scene.light_identities())
+    if pmap.scene_fingerprint != scene.fingerprint():
+        scale = scene_rescale(pmap.scene_parts, pmap.lights, scene.fingerprint_parts(), scene.light_identities())
         if scale is not None:
             return pmap.rescaled(scale, scene), None, rescale_note(scale, "photon map")
     return pmap, check_map_matches_scene(pmap, scene, force), None

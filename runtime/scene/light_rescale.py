@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from photon_fields.models_spec.fingerprint import differing_parts
+
 #: Keys of a light's dict that carry its flux; every other key (type, position, direction, rotation, the image's
 #: hash) is geometry and must be equal. ``path`` only names an image file (its ``sha256`` stands for the pixels).
 FLUX_KEYS = ("color", "power")
@@ -68,11 +70,25 @@ def flux_rescale(trained: Sequence[Mapping[str, Any]], edited: Sequence[Mapping[
     return scale
 
 
+def scene_rescale(trained_parts: Mapping[str, str] | None, trained_lights: Any, parts: Mapping[str, str],
+                  lights: Sequence[Mapping[str, Any]]) -> np.ndarray | None:
+    """:func:`flux_rescale` from a trained scene to another when the lights are all that differs between them (their
+    per-part fingerprints: the same volume and transfer function), else None; ``trained_lights`` as recorded (a
+    bundle's manifest, a map's metadata, a run folder), None or anything not a list when not recorded."""
+    if not isinstance(trained_lights, list) or differing_parts(parts, trained_parts) != ["lights"]:
+        return None
+    return flux_rescale(trained_lights, lights)
+
+
+def format_scale(scale: np.ndarray) -> str:
+    """``(1.5, 1.5, 1.5)``: an RGB factor for a message."""
+    return "(" + ", ".join(f"{v:.4g}" for v in np.asarray(scale, dtype=np.float64)) + ")"
+
+
 def rescale_note(scale: np.ndarray, what: str = "field") -> str:
     """One line for the user: the lights differ only by a common flux factor, which the ``what``'s L_i follows."""
-    s = ", ".join(f"{v:.4g}" for v in np.asarray(scale, dtype=np.float64))
-    return (f"the lights differ from the {what}'s only in power or colour: its L_i is rescaled by ({s}) per RGB "
-            "channel (exact: radiance is linear in a light's flux)")
+    return (f"the lights differ from the {what}'s only in power or colour: its L_i is rescaled by "
+            f"{format_scale(scale)} per RGB channel (exact: radiance is linear in a light's flux)")
 
 
-__all__ = ["flux_rescale", "rescale_note", "FLUX_KEYS"]
+__all__ = ["flux_rescale", "scene_rescale", "format_scale", "rescale_note", "FLUX_KEYS"]

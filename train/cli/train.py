@@ -321,6 +321,7 @@ def cmd_update(args: argparse.Namespace) -> int:
         check_seed(args.seed)
     _set_all_threads(args.threads)
     scene = load_scene(args.scene)
+    from photon_fields.runtime.scene.light_rescale import format_scale
     from photon_fields.train.fit.update import read_run
 
     try:
@@ -329,8 +330,8 @@ def cmd_update(args: argparse.Namespace) -> int:
         scale = None
     if scale is not None:
         print(f"note: {args.scene} differs from {args.run} only in its lights' power or colour: the run's field "
-              f"renders it exactly, rescaled by ({', '.join(f'{v:.4g}' for v in scale)}) per RGB channel (pfn-render "
-              "and pfn-view do that when given its bundle); updating anyway", file=sys.stderr)
+              f"renders it exactly, rescaled by {format_scale(scale)} per RGB channel (pfn-render and pfn-view do "
+              "that when given its bundle); updating anyway", file=sys.stderr)
     progress = open_progress(args, ("trace", "fit", "export"))
 
     def bundle_written(bundle: Any) -> None:  # before the loss plot: a waiting viewer swaps the field in now

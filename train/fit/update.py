@@ -50,7 +50,7 @@ import numpy as np
 from photon_fields.runtime.cli.common import refuse_to_replace
 from photon_fields.runtime.errors import InputError, check_keys
 from photon_fields.runtime.photons.photon_map import read_header
-from photon_fields.runtime.scene.light_rescale import flux_rescale
+from photon_fields.runtime.scene.light_rescale import scene_rescale
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.train.export.bundle import ExportResult, export_bundle, read_run_domain, write_run_domain
 from photon_fields.train.fit.checkpoint import load_checkpoint
@@ -98,15 +98,10 @@ class RunRecord:
     """The run's lights as its scene file recorded them (``domain.json``'s ``scene_spec``), None for older runs."""
 
     def light_rescale(self, scene: Scene) -> np.ndarray | None:
-        """The RGB factor when ``scene``'s lights are this run's with their flux rescaled, its volume and transfer
-        function the same (:mod:`photon_fields.runtime.scene.light_rescale`): the run's field then renders ``scene``
-        exactly, rescaled, and an update is not needed. None otherwise."""
-        if self.lights is None or not self.parts:
-            return None
-        new = scene.fingerprint_parts()
-        if any(new.get(part) != self.parts.get(part) for part in ("volume", "transfer_function")):
-            return None
-        return flux_rescale(self.lights, scene.light_identities())
+        """The RGB factor when ``scene`` differs from this run's scene only in its lights, by a rescale of their flux
+        (:mod:`photon_fields.runtime.scene.light_rescale`): the run's field then renders ``scene`` exactly, rescaled,
+        and an update is not needed. None otherwise."""
+        return scene_rescale(self.parts, self.lights, scene.fingerprint_parts(), scene.light_identities())
 
 
 def _read_json(path: Path) -> dict[str, Any]:
