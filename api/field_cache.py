@@ -142,9 +142,25 @@ def rescalable_entry(scene: Scene, kind: str, settings: dict[str, Any], seed: in
             continue
         target = entry / ("run/field.pfn" if kind == "field" else "map.npz")
         parts = doc.get("parts") if isinstance(doc.get("parts"), dict) else None
-        if target.exists() and scene_rescale(parts, doc.get("lights"), wanted["parts"], wanted["lights"]) is not None:
+        apart = _keeps_lights_apart(target, kind) == len(wanted["lights"]) > 1
+        if target.exists() and scene_rescale(parts, doc.get("lights"), wanted["parts"], wanted["lights"],
+                                             per_light=apart) is not None:
             return target
     return None
+
+
+def _keeps_lights_apart(target: Path, kind: str) -> int:
+    """How many lights a cached field (its manifest's ``light_channels``) or map (a ``light`` array) keeps apart;
+    1 when it does not, or cannot be read (the load that follows then says why)."""
+    try:
+        if kind == "field":
+            channels = json.loads((target / "manifest.json").read_text())["field"].get("light_channels", 1)
+            return channels if isinstance(channels, int) else 1
+        from photon_fields.runtime.photons.photon_map import read_header
+
+        return read_header(target).light_count
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, InputError):
+        return 1
 
 
 def cached_transfer(scene: Scene, settings: dict[str, Any], seed: int, cache: Path) -> Path:

@@ -96,6 +96,8 @@ CONFIGS: dict[str, Config] = {
     "default": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", g_window=PHASE_WINDOW,
                       about="the product's defaults: 39 phase bins (any g of [-0.8, 0.8] from a kernel in g), K = 32, "
                             "spline features, anneal, half the samples where cameras see the medium"),
+    "together": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", {"per_light": False}, g_window=PHASE_WINDOW,
+                       about="the default with one output for all lights (before 2026-11-26; the same with one light)"),
     "support": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", {"sampling": "support"}, g_window=PHASE_WINDOW,
                       about="the default before 2026-11-25: every training sample uniform over the support"),
     "narrow-K64": Config(DEFAULT_PHOTONS, NARROW_BINS, "cpu", {"k": 64}, g_window=PHASE_WINDOW,

@@ -116,8 +116,8 @@ EDITS: dict[str, Callable[[dict[str, Any]], None]] = {
     "power": light_power, "colour": light_colour,
 }
 #: Edits a field may follow by a rescale of its L_i (``photon_fields.runtime.scene.light_rescale``): with one light
-#: always, with several never (one light's flux changes, the others' do not: that needs per-light outputs), and
-#: then the bench falls back to ``update_run``.
+#: always, with several when the base field keeps the lights apart (``--lights apart``, the default since
+#: 2026-11-26); otherwise the bench falls back to ``update_run``.
 RESCALE_EDITS = ("power", "colour")
 
 
@@ -159,13 +159,14 @@ def cold_run(scene: Scene, run: Path, photons: int, seed: int, reuse: bool) -> t
                   "val_rel_l1": result.log["totals"]["final_validation"]["val_rel_l1"]}
 
 
-def field_li(scene: Scene, run: Path, size: int, spp: int, trained_for: Scene | None = None) -> np.ndarray:
+def field_li(scene: Scene, run: Path, size: int, spp: int, trained_for: Scene | None = None,
+             light_scale: np.ndarray | None = None) -> np.ndarray:
     """The L_i image of ``run``'s field in ``scene``'s view (``trained_for``: the scene the run was trained for, when
-    that is not ``scene``)."""
+    that is not ``scene``; ``light_scale``: its rescale for ``scene``, RGB or one per light)."""
     model, _ = load_checkpoint(run / "checkpoint.pt", (trained_for or scene).fingerprint())
     view = scene.with_overrides(width=size, height=size)
-    return render_first_interaction(view, TorchFieldEstimator(model, scene.medium()), spp=spp, seed=7,
-                                    progress=False).layers["L_i"]
+    return render_first_interaction(view, TorchFieldEstimator(model, scene.medium(), light_scale=light_scale),
+                                    spp=spp, seed=7, progress=False).layers["L_i"]
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -234,7 +235,7 @@ def main(argv: list[str] | None = None) -> None:
                                            final_gather_after=None).layers["L_i"]
             # A rescale renders the base field for the edited scene (its camera interactions) times the factor.
             upd_li = field_li(new, res.out, args.size, args.spp) if res is not None else \
-                field_li(new, base, args.size, args.spp, trained_for=scene) * scale.astype(np.float32)
+                field_li(new, base, args.size, args.spp, trained_for=scene, light_scale=scale)
             cold_li = field_li(new, folder / "cold", args.size, args.spp)
             if res is not None:
                 stop = res.fit.log["stop"]

@@ -195,7 +195,8 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/photons/test_photon_estimate.py::test_photon_map_white_furnace_under_an_environment_light",
             "tests/runtime/photons/test_photon_estimate.py::test_photon_map_li_converges_to_path_tracer"),
            "the photon estimate's boundary correction (part of the search ball outside the medium) not applied"),
-    Mutant("loss_in_log_space", "train/fit/loss.py", "        return linear_relative_l2_loss(pred, target, psi)",
+    Mutant("loss_in_log_space", "train/fit/loss.py",
+           "        return linear_relative_l2_loss(pred, target, psi, lights)",
            "        return relative_l2_loss(pred, target)",
            ("tests/train/fit/test_loss.py::test_linear_loss_is_stationary_at_the_arithmetic_mean",),
            "the default loss averages targets in log space: fields converge to the geometric mean, dark"),
@@ -265,9 +266,10 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("update_ignores_budget", "train/fit/fine_tune.py", "if time.perf_counter() >= deadline:", "if False:",
            (f"{UPDATE}::test_stops_on_a_plateau_and_at_the_budget",),
            "the fine-tune ignores the time budget"),
-    Mutant("update_unseeded_sampler", "train/fit/fine_tune.py", "psi=settings.psi, seed=settings.seed,",
+    Mutant("update_unseeded_sampler", "train/fit/loop.py", "psi=settings.psi, seed=settings.seed,",
            "psi=settings.psi, seed=time.perf_counter_ns(),", (f"{UPDATE}::test_same_seed_same_field",),
-           "the fine-tune's training batches do not follow the seed: two updates with one seed differ"),
+           "the training batches (of a fit and of the fine-tune: one sampler) do not follow the seed: two updates "
+           "with one seed differ"),
     # Training points where cameras see the medium (issue 13, sampling="visible").
     Mutant("visible_disk_radius_uniform", "train/fit/visible_points.py",
            "r = radius * np.sqrt(rng.random(chunk))[:, None]", "r = radius * rng.random(chunk)[:, None]",
@@ -284,8 +286,8 @@ MUTANTS: tuple[Mutant, ...] = (
            (f"{VSESSION}::test_neural_accumulation_equals_one_render_with_all_samples",),
            "every progressive neural frame draws the same samples: the view never converges"),
     Mutant("viewer_transfer_not_stale", "runtime/viewer/field_in_use.py",
-           "return not same_transfer(transfer, self.tf) or self.indirect_scale(lights) is None",
-           "return self.indirect_scale(lights) is None",
+           "return not same_transfer(transfer, self.tf) or self.indirect_scale(lights, renderer) is None",
+           "return self.indirect_scale(lights, renderer) is None",
            ("tests/runtime/viewer/test_viewer_transfer.py::"
             "test_an_edit_marks_the_fields_indirect_light_stale_until_undone",),
            "after a transfer-function edit the field's L_i is shown as if it were the edited scene's"),
@@ -539,11 +541,11 @@ MUTANTS: tuple[Mutant, ...] = (
            "one light's power among several rescales the whole L_i by that light's ratio (wrong wherever the "
            "other light dominates)"),
     Mutant("rescaled_bundle_not_rescaled", "runtime/field/field.py",
-           "            L *= self.light_scale\n", "            pass\n",
+           "            L *= scale.reshape(OUTPUT_CHANNELS)\n", "            pass\n",
            ("tests/runtime/field/test_light_rescale.py::test_a_bundle_answers_for_its_lights_rescaled",),
            "a bundle loaded for a brighter light renders the trained light's L_i (the issue's 40 % too dark)"),
     Mutant("rescaled_map_keeps_its_power", "runtime/photons/photon_map.py",
-           "power = (self.power * np.asarray(scale, dtype=np.float32)).astype(np.float32)", "power = self.power",
+           "power = (self.power * factor).astype(np.float32)", "power = self.power",
            ("tests/runtime/field/test_light_rescale.py::test_a_photon_map_answers_for_its_lights_rescaled",),
            "a photon map taken for a brighter light keeps the traced light's powers"),
     Mutant("render_never_cancelled", "runtime/wavefront/first_interaction.py",
@@ -555,6 +557,21 @@ MUTANTS: tuple[Mutant, ...] = (
            "cancel = (lambda: self.generation != generation) if refining else None", "cancel = None",
            (f"{VSESSION}::test_stale_refinement_frames_are_dropped_but_first_frames_never",),
            "the viewer gives the renderer no cancel for refinements: a move waits for a whole resting frame"),
+    # One light among several, the lights kept apart (issue 16).
+    Mutant("photons_all_of_light_zero", "runtime/photons/knn.py",
+           "col = 3 * np.int64(light[j]) if lights > 1 else 0", "col = 0",
+           ("tests/runtime/field/test_per_light.py::test_the_parts_sum_to_the_estimate_and_each_is_its_lights",),
+           "every photon counts for the first light: the per-light targets put the whole L_i on one light"),
+    Mutant("per_light_factors_ignored", "runtime/field/field.py",
+           "L = (parts.sum(axis=1) if scale is None else", "L = (parts.sum(axis=1) if True else",
+           ("tests/runtime/field/test_per_light.py::test_a_field_sums_its_lights_parts_with_their_factors",),
+           "a field that keeps its lights apart ignores a light's edited power: L_i as trained"),
+    Mutant("per_light_loss_on_own_part", "train/fit/loss.py",
+           "return ((parts - targets) ** 2 / (total ** 2 + eps * eps)).sum(dim=1).mean()",
+           "return ((parts - targets) ** 2 / (parts.detach() ** 2 + eps * eps)).sum(dim=1).mean()",
+           ("tests/train/fit/test_per_light_fit.py::test_per_light_loss_weighs_lights_by_the_sum",),
+           "each light's error is weighed by its own part: a dim light's noise is fitted as hard as the image's "
+           "main light"),
 )
 
 

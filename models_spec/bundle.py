@@ -10,9 +10,10 @@ file                contents
                     fingerprint, training summary and the sha256 and size of the two other files
 ``field.onnx``      the MLP alone (paper Sec. 3.4, Fig. 5): input ``features`` float32 (batch, W) = the
                     concatenated hash-grid features of position and direction and g (W =
-                    ``FieldConfig.input_dims``); output ``encoded_radiance`` float32 (batch, 3) = L' of
-                    Eq. 6; the batch axis is dynamic (named ``batch``). One self-contained file (no
-                    external data), opset :data:`ONNX_OPSET`.
+                    ``FieldConfig.input_dims``); output ``encoded_radiance`` float32 (batch, 3 C) = L' of
+                    Eq. 6 (C = ``field.light_channels``, 1 unless the field keeps lights apart); the
+                    batch axis is dynamic (named ``batch``). One self-contained file (no external
+                    data), opset :data:`ONNX_OPSET`.
 ``tables.npz``      two arrays, ``position`` (rows_p, F_p) and ``direction`` (rows_d, F_d), the flat hash
                     tables of :mod:`models_spec.hashgrid` (level l in rows ``table_offsets(cfg)[l] : ...``),
                     float32 or float16 as the manifest says; no pickles (readers use
@@ -26,7 +27,9 @@ travel direction d -> ``direction_input(d)`` (:mod:`photon_fields.models_spec.en
 concatenated with ``phase_features(g, phases, phase_encoding)`` (g, plus one tent or cubic B-spline weight per
 phase when the field's ``phase_encoding`` is "tent" or "spline") in the column order of ``inputs.layout``, the
 ONNX MLP gives L', and Eq. 7 (``decode_radiance``, psi from the manifest) gives the radiance Q(x, d, g) that the
-photon-map estimate (Eq. 5) supplies during training.
+photon-map estimate (Eq. 5) supplies during training. With ``light_channels`` C > 1 the decoded output holds each
+light's part (light l in columns 3 l .. 3 l + 2, the lights of ``scene.spec`` in order), and Q is their sum, each
+part times its light's RGB flux factor relative to the trained one (1 for the scene trained for).
 
 Manifest (version :data:`BUNDLE_VERSION`; :data:`MANIFEST_SCHEMA` is its JSON Schema, shipped as
 ``models_spec/manifest.schema.json``, generated from the dict, test-checked to be in sync)
@@ -35,7 +38,8 @@ Manifest (version :data:`BUNDLE_VERSION`; :data:`MANIFEST_SCHEMA` is its JSON Sc
   a newer version instead of guessing);
 - ``field``: :meth:`photon_fields.models_spec.encoding.FieldConfig.to_dict` (both encodings: levels, features,
   log2 table size, base resolution, per-level scale; MLP hidden width and layers; psi; the phase set G; the
-  phase encoding, a key present only when it is not "scalar", so bundles written before it read unchanged);
+  phase encoding, a key present only when it is not "scalar", so bundles written before it read unchanged;
+  ``light_channels``, likewise present only when > 1, added without a version change);
 - ``hash_primes``: tcnn's primes (:data:`photon_fields.models_spec.hashgrid.HASH_PRIMES`), listed so that a foreign
   runtime needs nothing but the manifest; a reader refuses other values;
 - ``encodings``: per encoding the derived geometry (table rows, per-level resolution, table size, whether
@@ -43,7 +47,7 @@ Manifest (version :data:`BUNDLE_VERSION`; :data:`MANIFEST_SCHEMA` is its JSON Sc
 - ``domain``: ``bmin``, ``bsize`` (world box, 3 numbers each, bsize > 0);
 - ``inputs``: ``width`` and ``layout`` (``[{"name", "start", "stop"}]`` for position, direction, g (its phase
   features: 1 or 1 + |G| columns), in column order), the ONNX tensor names and batch axis name;
-- ``output``: 3 channels, ``encoding`` "eq6-log10" (decode: ``10^(-L' psi)``);
+- ``output``: 3 channels per light channel (3 C), ``encoding`` "eq6-log10" (decode: ``10^(-L' psi)``);
 - ``tables``: file, ``dtype`` (float32 | float16), array shapes;
 - ``scene_fingerprint``: :func:`photon_fields.models_spec.fingerprint.scene_fingerprint` of the scene trained for;
 - ``scene`` (version 2): the scene trained for, each entry null when unknown: ``name``; ``parts``, its

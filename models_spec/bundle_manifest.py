@@ -32,7 +32,7 @@ from photon_fields.models_spec.bundle_layout import (
     BundleError,
 )
 from photon_fields.models_spec.bundle_schema import MANIFEST_SCHEMA, manifest_schema
-from photon_fields.models_spec.encoding import OUTPUT_CHANNELS, FieldConfig
+from photon_fields.models_spec.encoding import FieldConfig
 from photon_fields.models_spec.fingerprint import FINGERPRINT_PARTS
 from photon_fields.models_spec.hashgrid import HASH_PRIMES, HashGridConfig, level_specs, total_table_rows
 from photon_fields.models_spec.schema_check import is_json_type, schema_check, show_json
@@ -101,7 +101,7 @@ def build_manifest(cfg: FieldConfig, *, bmin: Sequence[float], bsize: Sequence[f
         "domain": {"bmin": [float(v) for v in bmin], "bsize": [float(v) for v in bsize]},
         "inputs": {"width": cfg.input_dims, "layout": input_layout(cfg), "onnx_input": ONNX_INPUT,
                    "onnx_output": ONNX_OUTPUT, "batch_axis": BATCH_AXIS},
-        "output": {"channels": OUTPUT_CHANNELS, "encoding": OUTPUT_ENCODING},
+        "output": {"channels": cfg.output_dims, "encoding": OUTPUT_ENCODING},
         "tables": {"file": TABLES_FILE, "dtype": tables_dtype,
                    "arrays": {k: {"shape": list(v)} for k, v in shapes.items()}},
         "onnx": {"file": ONNX_FILE, "opset": ONNX_OPSET},
@@ -182,6 +182,9 @@ def validate_manifest(doc: Any, what: str = MANIFEST_FILE) -> Manifest:
     if doc["inputs"]["width"] != cfg.input_dims:
         raise BundleError(f"{what}: inputs.width", f"must be {cfg.input_dims} (the encodings' features + g), "
                           f"got {doc['inputs']['width']}")
+    if doc["output"]["channels"] != cfg.output_dims:
+        raise BundleError(f"{what}: output.channels", f"must be {cfg.output_dims} (RGB for each of "
+                          f"field.light_channels = {cfg.light_channels}), got {doc['output']['channels']}")
     if doc["inputs"]["layout"] != input_layout(cfg):
         raise BundleError(f"{what}: inputs.layout", f"must be {json.dumps(input_layout(cfg))}")
     for name, shape in table_shapes(cfg).items():

@@ -22,7 +22,7 @@ from photon_fields.models_spec.bundle_layout import (
     TABLE_DTYPES,
     TABLES_FILE,
 )
-from photon_fields.models_spec.encoding import OUTPUT_CHANNELS
+from photon_fields.models_spec.encoding import MAX_LIGHT_CHANNELS, OUTPUT_CHANNELS
 from photon_fields.models_spec.fingerprint import FINGERPRINT_PARTS
 from photon_fields.models_spec.hashgrid import HASH_PRIMES
 
@@ -82,6 +82,7 @@ MANIFEST_SCHEMA: dict[str, Any] = {
             "psi": {"type": "number", "exclusiveMinimum": 0, "maximum": 30},
             "phases": {"type": "array", "items": {"type": "number", "minimum": -1, "maximum": 1}, "minItems": 1},
             "phase_encoding": {"type": "string", "enum": ["tent", "spline"]},
+            "light_channels": {"type": "integer", "minimum": 2, "maximum": MAX_LIGHT_CHANNELS},
         }, required=["version", "position", "direction", "hidden_width", "hidden_layers", "psi", "phases"]),
         "hash_primes": {"type": "array", "const": [int(p) for p in HASH_PRIMES]},
         "encodings": _obj({"position": {"$ref": "#/$defs/geometry"}, "direction": {"$ref": "#/$defs/geometry"}}),
@@ -93,7 +94,8 @@ MANIFEST_SCHEMA: dict[str, Any] = {
             "onnx_output": {"type": "string", "const": ONNX_OUTPUT},
             "batch_axis": {"type": "string", "const": BATCH_AXIS},
         }),
-        "output": _obj({"channels": {"type": "integer", "const": OUTPUT_CHANNELS},
+        "output": _obj({"channels": {"type": "integer", "minimum": OUTPUT_CHANNELS,
+                                     "maximum": OUTPUT_CHANNELS * MAX_LIGHT_CHANNELS},
                         "encoding": {"type": "string", "const": OUTPUT_ENCODING}}),
         "tables": _obj({
             "file": {"type": "string", "const": TABLES_FILE},

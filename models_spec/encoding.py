@@ -85,7 +85,10 @@ FIELD_CONFIG_VERSION = 1
 PHASE_ENCODINGS = ("scalar", "tent", "spline")
 #: Largest departure from even spacing the "spline" encoding accepts in its phases (they are stored rounded).
 SPLINE_SPACING_TOLERANCE = 1e-5
+#: Output channels per light: RGB.
 OUTPUT_CHANNELS = 3
+#: Most lights a field keeps apart (:attr:`FieldConfig.light_channels`); a scene with more trains one summed output.
+MAX_LIGHT_CHANNELS = 16
 
 
 def check_psi(psi: float) -> float:
@@ -211,6 +214,12 @@ class FieldConfig:
     psi: float = DEFAULT_PSI
     phases: tuple[float, ...] = DEFAULT_PHASES
     phase_encoding: str = "scalar"
+    light_channels: int = 1
+    """Lights whose parts of L the field outputs apart (RGB each, light l's in output columns 3 l .. 3 l + 2, the
+    scene's lights in order): 1, the paper's single RGB output for all lights together; or the scene's number of
+    lights, so that one light's power or colour can be rescaled among several without retraining (the renderer sums
+    the parts, each times its light's factor). Written to the manifest only when > 1: bundles of one output are
+    unchanged."""
 
     def __post_init__(self) -> None:
         if not isinstance(self.position, HashGridConfig) or self.position.dims != 3:
@@ -220,6 +229,8 @@ class FieldConfig:
         object.__setattr__(self, "hidden_width", _int_field("hidden_width", self.hidden_width, 1, 4096))
         object.__setattr__(self, "hidden_layers", _int_field("hidden_layers", self.hidden_layers, 1, 64))
         object.__setattr__(self, "psi", check_psi(self.psi))
+        object.__setattr__(self, "light_channels", _int_field("light_channels", self.light_channels, 1,
+                                                              MAX_LIGHT_CHANNELS))
         try:
             phases = tuple(float(g) for g in self.phases)
         except (TypeError, ValueError):
@@ -242,6 +253,11 @@ class FieldConfig:
         return 1 + (len(self.phases) if self.phase_encoding != "scalar" else 0)
 
     @property
+    def output_dims(self) -> int:
+        """MLP output width: RGB per light channel."""
+        return OUTPUT_CHANNELS * self.light_channels
+
+    @property
     def input_dims(self) -> int:
         """MLP input width: position features + direction features + phase features."""
         return self.position.output_dims + self.direction.output_dims + self.phase_dims
@@ -253,6 +269,8 @@ class FieldConfig:
                "hidden_layers": self.hidden_layers, "psi": self.psi, "phases": list(self.phases)}
         if self.phase_encoding != "scalar":
             out["phase_encoding"] = self.phase_encoding
+        if self.light_channels != 1:
+            out["light_channels"] = self.light_channels
         return out
 
     @classmethod
@@ -265,10 +283,10 @@ class FieldConfig:
                              f"(this build reads version {FIELD_CONFIG_VERSION})")
         names = [f.name for f in fields(cls)]
         unknown = sorted(set(data) - set(names) - {"version"})
-        missing = [n for n in names if n not in data and n != "phase_encoding"]
+        missing = [n for n in names if n not in data and n not in ("phase_encoding", "light_channels")]
         if unknown or missing:
             raise ValueError(f"FieldConfig.from_dict: unknown keys {unknown}, missing keys {missing}")
         return cls(position=HashGridConfig.from_dict(data["position"]),
                    direction=HashGridConfig.from_dict(data["direction"]), hidden_width=data["hidden_width"],
                    hidden_layers=data["hidden_layers"], psi=data["psi"], phases=tuple(data["phases"]),
-                   phase_encoding=data.get("phase_encoding", "scalar"))
+                   phase_encoding=data.get("phase_encoding", "scalar"), light_channels=data.get("light_channels", 1))

@@ -58,10 +58,12 @@ class NpzManifestFormat:
     #: The JSON's allowed keys and the ones it must have.
     keys: tuple[str, ...]
     required: tuple[str, ...]
-    #: The data arrays beside the entry: a file holds exactly these.
+    #: The data arrays beside the entry: a file holds these, and of :attr:`optional` those it has, nothing else.
     arrays: tuple[str, ...]
     #: What to do with a file of another version: ``"re-trace it"``.
     remedy: str
+    #: Data arrays a file may hold besides :attr:`arrays` (added to a format without a version change).
+    optional: tuple[str, ...] = ()
 
     def read(self, path: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         """The checked JSON and the data arrays (the entry left out) of the file at ``path``."""
@@ -118,11 +120,11 @@ class NpzManifestFormat:
         return meta
 
     def check_array_names(self, names: Collection[str], what: str) -> None:
-        """Refuse data arrays other than :attr:`arrays` (named), then a missing one."""
-        extra = sorted(set(names) - set(self.arrays))
+        """Refuse data arrays other than :attr:`arrays` and :attr:`optional` (named), then a missing one."""
+        extra = sorted(set(names) - set(self.arrays) - set(self.optional))
         if extra:
             raise NpzError(what, f"unknown array{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra))}; a "
-                           f"{self.kind} holds {', '.join(map(repr, [*self.arrays, self.entry]))}")
+                           f"{self.kind} holds {', '.join(map(repr, [*self.arrays, self.entry, *self.optional]))}")
         for name in self.arrays:
             if name not in names:
                 raise NpzError(what, f"{self.kind} lacks the '{name}' array")

@@ -11,8 +11,15 @@ power          float32 (n,3) RGB power arriving at the collision [W], already di
                              emitted photon paths and multiplied by |G| (each phase's photons form a
                              complete map on their own)
 phase          uint8 (n,)    index into ``meta["phases"]`` (the g the photon scattered with)
+light          uint8 (n,)    optional: index into ``meta["lights"]`` of the light that emitted the photon
 meta           uint8 (m,)    UTF-8 JSON metadata (below)
 =============  ============  ===========================================================================
+
+``light`` (2026-11-26, optional, without a version change; maps traced before it lack it, and a reader from before it
+refuses the array, naming it): which light each record's path started from, so that the map, and a field trained
+from it with one output per light (:attr:`photon_fields.models_spec.encoding.FieldConfig.light_channels`), can keep
+the lights' contributions apart and rescale one light's power or colour among several. A map with it also records
+``lights``, and has fewer than :data:`MAX_LIGHTS` of them.
 
 Metadata keys (:data:`PHOTON_MAP_META_KEYS`; a reader refuses any other key, naming it): ``format``
 (= PHOTON_MAP_FORMAT), ``version`` (= PHOTON_MAP_VERSION), ``scene_fingerprint``, ``phases`` (the set G),
@@ -58,6 +65,10 @@ PHASE_WINDOW = 0.15
 DEFAULT_MAP_PHASES: tuple[float, ...] = PHASE_BINS
 PHOTON_MAP_ARRAYS = {"position": ("float32", 3), "direction": ("float32", 3), "power": ("float32", 3),
                      "phase": ("uint8", 0)}
+#: Arrays a map may hold besides :data:`PHOTON_MAP_ARRAYS` (dtype, width as there).
+PHOTON_MAP_OPTIONAL_ARRAYS = {"light": ("uint8", 0)}
+#: Lights a map can tell apart (its ``light`` array is uint8); a scene with more is traced without the array.
+MAX_LIGHTS = 255
 #: Metadata keys a photon map must have, and the ones it may have besides.
 PHOTON_MAP_META_REQUIRED: tuple[str, ...] = ("format", "version", "scene_fingerprint", "phases", "emitted")
 PHOTON_MAP_META_KEYS: tuple[str, ...] = (*PHOTON_MAP_META_REQUIRED, "stored", "per_phase", "seed", "max_bounces",
@@ -67,4 +78,4 @@ PHOTON_MAP_META_KEYS: tuple[str, ...] = (*PHOTON_MAP_META_REQUIRED, "stored", "p
 PHOTON_MAP_NPZ = NpzManifestFormat(kind="photon map", format=PHOTON_MAP_FORMAT, version=PHOTON_MAP_VERSION,
                                    entry="meta", label="metadata", keys=PHOTON_MAP_META_KEYS,
                                    required=PHOTON_MAP_META_REQUIRED, arrays=tuple(PHOTON_MAP_ARRAYS),
-                                   remedy="re-trace it")
+                                   remedy="re-trace it", optional=tuple(PHOTON_MAP_OPTIONAL_ARRAYS))

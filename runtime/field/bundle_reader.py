@@ -9,7 +9,8 @@ external data, failing ``onnx.checker``, or with an input width other than the e
 and a scene fingerprint mismatch (unless forced: then a warning line names what differs). A scene whose lights differ
 from the trained ones only by a common factor of their flux (a light's power or colour edited, same kinds and
 geometry; :mod:`photon_fields.runtime.scene.light_rescale`) is no mismatch: L_i is that factor times the trained
-one, exactly, and ``light_scale`` says by how much.
+one, exactly, and ``light_scale`` says by how much; for a field that keeps its lights apart (``light_channels``)
+each light's factor may differ (``light_scale`` (L, 3)).
 
 :func:`scene_for_bundle` rebuilds the scene a bundle records, for renders that name no scene.
 """
@@ -38,7 +39,6 @@ from photon_fields.models_spec.bundle import (
     file_digest,
     parse_manifest_bytes,
 )
-from photon_fields.models_spec.encoding import OUTPUT_CHANNELS
 from photon_fields.models_spec.fingerprint import mismatch_detail
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.field.hashgrid import aligned_table
@@ -88,12 +88,16 @@ def read_bundle(path: str | os.PathLike[str], *, expected_fingerprint: str | Non
 def _light_rescale(manifest: Manifest, expected_parts: dict[str, str] | None,
                    expected_lights: list[dict[str, Any]] | None) -> np.ndarray | None:
     """The flux factor from the bundle's trained lights to ``expected_lights`` when the lights are all that
-    differs (the volume's and transfer function's fingerprints match) and the bundle records its scene's lights;
-    else None."""
+    differs (the volume's and transfer function's fingerprints match) and the bundle records its scene's lights:
+    RGB (3,), or for a field with one output per light one factor per light (L, 3); else None."""
     if expected_lights is None or expected_parts is None:
         return None
     spec = (manifest.scene or {}).get("spec") or {}
-    return scene_rescale(manifest.scene_parts, spec.get("lights"), expected_parts, expected_lights)
+    lights = spec.get("lights")
+    per_light = manifest.config.light_channels > 1
+    if per_light and (not isinstance(lights, list) or len(lights) != manifest.config.light_channels):
+        return None
+    return scene_rescale(manifest.scene_parts, lights, expected_parts, expected_lights, per_light=per_light)
 
 
 def _bundle_error(err: BundleError, bundle: Path) -> InputError:
@@ -232,7 +236,7 @@ def _check_onnx(path: Path, data: bytes, manifest: Manifest) -> Any:
         raise InputError(what, f"must have one input '{ONNX_INPUT}', has {[i.name for i in inputs]}")
     if [o.name for o in model.graph.output] != [ONNX_OUTPUT]:
         raise InputError(what, f"must have one output '{ONNX_OUTPUT}', has {[o.name for o in model.graph.output]}")
-    want = {"input": manifest.input_width, "output": OUTPUT_CHANNELS}
+    want = {"input": manifest.input_width, "output": manifest.config.output_dims}
     for kind, value in (("input", inputs[0]), ("output", model.graph.output[0])):
         tt = value.type.tensor_type
         if tt.elem_type != onnx.TensorProto.FLOAT:
@@ -244,7 +248,7 @@ def _check_onnx(path: Path, data: bytes, manifest: Manifest) -> Any:
             raise InputError(what, f"{kind} '{value.name}' must have shape (batch, {want[kind]}) with a dynamic "
                              "batch axis")
         if width != want[kind]:
-            meaning = "the encodings' features + g" if kind == "input" else "RGB"
+            meaning = "the encodings' features + g" if kind == "input" else "RGB per light channel"
             raise InputError(what, f"{kind} width {width} does not match the manifest: {meaning} needs "
                              f"{want[kind]}")
     return model

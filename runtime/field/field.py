@@ -119,8 +119,8 @@ class PhotonField:
         #: differs (``"... lights differ (volume and transfer function match); L_i will be wrong"``).
         self.scene_warning: str | None = None
         #: Set by :meth:`load` when the scene's lights are the trained ones with their flux rescaled
-        #: (:mod:`photon_fields.runtime.scene.light_rescale`): the RGB factor :meth:`query` applies, and a line
-        #: saying so.
+        #: (:mod:`photon_fields.runtime.scene.light_rescale`): the RGB factor :meth:`query` applies ((3,), or (L, 3)
+        #: one per light for a field with ``light_channels`` L), and a line saying so.
         self.light_scale: np.ndarray | None = None
         self.light_note: str | None = None
         self.position_table = tables["position"]
@@ -211,12 +211,17 @@ class PhotonField:
         t.encode_position_s += t1 - t0
         t.encode_direction_s += t2 - t1
 
+    @property
+    def light_channels(self) -> int:
+        """Lights whose parts the field outputs apart (1: one RGB output for all lights together)."""
+        return self.config.light_channels
+
     def query_encoded(self, x: Any, omega: Any, g: Any) -> np.ndarray:
-        """L' (Eq. 6 space, the ONNX output) as float32 (N, 3) for world positions x (N, 3), unit camera-ray
-        travel directions omega (N, 3) and g (N,) or a scalar."""
+        """L' (Eq. 6 space, the ONNX output) as float32 (N, 3 C) for world positions x (N, 3), unit camera-ray
+        travel directions omega (N, 3) and g (N,) or a scalar; C = :attr:`light_channels`."""
         x, omega, ga = self._inputs(x, omega, g)
         n = x.shape[0]
-        out = np.empty((n, OUTPUT_CHANNELS), np.float32)
+        out = np.empty((n, self.config.output_dims), np.float32)
         t = self.timers
         with numba_threads(self.threads):
             if self.pipeline and n > self.chunk:
@@ -258,20 +263,33 @@ class PhotonField:
             if pending is not None:
                 pending.result()  # never leave a run writing into a buffer the next call reuses
 
-    def query(self, x: Any, omega: Any, g: Any) -> np.ndarray:
+    def query(self, x: Any, omega: Any, g: Any, light_scale: np.ndarray | None = None) -> np.ndarray:
         """Radiance Q(x, omega, g) float32 (N, 3): :meth:`query_encoded` decoded by Eq. 7 (psi of the bundle), times
-        ``light_scale`` when the scene's lights are the trained ones rescaled."""
+        ``light_scale`` (the argument, else the attribute) when the scene's lights are the trained ones rescaled:
+        RGB (3,), or one factor per light (C, 3) for a field with C > 1 light channels; with C > 1 the lights'
+        parts are summed, each times its factor."""
         Lp = self.query_encoded(x, omega, g)
         t0 = time.perf_counter()
         L = decode_radiance(Lp, self.config.psi)
-        if self.light_scale is not None:
-            L *= self.light_scale
+        scale = self.light_scale if light_scale is None else np.asarray(light_scale, np.float32)
+        if self.light_channels > 1:
+            parts = L.reshape(L.shape[0], self.light_channels, OUTPUT_CHANNELS)
+            L = (parts.sum(axis=1) if scale is None else np.einsum("nlc,lc->nc", parts, np.broadcast_to(
+                scale, (self.light_channels, OUTPUT_CHANNELS)))).astype(np.float32)
+        elif scale is not None:
+            L *= scale.reshape(OUTPUT_CHANNELS)
         self.timers.decode_s += time.perf_counter() - t0
         return L
 
-    def estimator(self) -> FieldEstimator:
-        """This field as the renderer's :class:`photon_fields.runtime.wavefront.first_interaction.IndirectEstimator`."""
-        return FieldEstimator(self)
+    def query_lights(self, x: Any, omega: Any, g: Any) -> np.ndarray:
+        """Each light's part of Q float32 (N, C, 3) as trained (no ``light_scale``), C = :attr:`light_channels`."""
+        L = decode_radiance(self.query_encoded(x, omega, g), self.config.psi)
+        return L.reshape(L.shape[0], self.light_channels, OUTPUT_CHANNELS)
+
+    def estimator(self, light_scale: np.ndarray | None = None) -> FieldEstimator:
+        """This field as the renderer's :class:`photon_fields.runtime.wavefront.first_interaction.IndirectEstimator`
+        (``light_scale``: as :meth:`query`'s)."""
+        return FieldEstimator(self, light_scale)
 
     def describe(self) -> dict[str, Any]:
         """What was loaded (for reports)."""
@@ -281,15 +299,17 @@ class PhotonField:
                 "scene_fingerprint": self.scene_fingerprint,
                 "scene_parts": self.manifest.scene_parts, "trained_for": (self.manifest.scene or {}).get("name"),
                 "scene_warning": self.scene_warning,
+                "light_channels": self.light_channels,
                 "light_scale": None if self.light_scale is None else self.light_scale.tolist(),
                 "light_note": self.light_note}
 
 
 class FieldEstimator:
-    """Q(x, d, g) from a photon field (Alg. 2's network query): ``x``, ``d`` (3, n) -> float32 (3, n)."""
+    """Q(x, d, g) from a photon field (Alg. 2's network query): ``x``, ``d`` (3, n) -> float32 (3, n); with
+    ``light_scale`` (:meth:`PhotonField.query`'s) instead of the field's own."""
 
-    def __init__(self, field: PhotonField) -> None:
-        self.field = field
+    def __init__(self, field: PhotonField, light_scale: np.ndarray | None = None) -> None:
+        self.field, self.light_scale = field, light_scale
 
     def __call__(self, x: np.ndarray, d: np.ndarray, g: float) -> np.ndarray:
-        return np.ascontiguousarray(self.field.query(np.asarray(x).T, np.asarray(d).T, g).T)
+        return np.ascontiguousarray(self.field.query(np.asarray(x).T, np.asarray(d).T, g, self.light_scale).T)

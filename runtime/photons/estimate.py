@@ -95,11 +95,12 @@ def support_fraction(m: Medium, x: np.ndarray, r: np.ndarray, pattern: np.ndarra
 
 @njit(cache=True)
 def _gather_bins(in_bins: np.ndarray, scale: np.ndarray, phase: np.ndarray, position: np.ndarray,
-                 direction: np.ndarray, power: np.ndarray,
-                 sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The photons whose phase bin is in ``in_bins``, in the map's order: positions (float64), directions and
+                 direction: np.ndarray, power: np.ndarray, sigma: np.ndarray,
+                 light: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The photons whose phase bin is in ``in_bins``, in the map's order: positions (float64), directions,
     weights (power * scale[bin]) / sigma_t, in that order of operations (with scale 1, bit for bit the single-phase
-    weights). One pass instead of a boolean-mask gather per array (0.7 s of a 1M map's 17 window indices).
+    weights), and their lights (``light`` of the map, or an empty array for none). One pass instead of a
+    boolean-mask gather per array (0.7 s of a 1M map's 17 window indices).
     Photons sit at real collisions (sigma_t > 0 there); the floor only guards a map traced with another transfer
     function, which the fingerprint check normally refuses."""
     n = 0
@@ -108,6 +109,7 @@ def _gather_bins(in_bins: np.ndarray, scale: np.ndarray, phase: np.ndarray, posi
     pos = np.empty((n, 3))
     dirs = np.empty((n, 3), dtype=direction.dtype)
     weights = np.empty((n, 3))
+    lights = np.empty(n if light.shape[0] else 0, dtype=np.uint8)
     j = 0
     for i in range(phase.shape[0]):
         b = phase[i]
@@ -118,25 +120,34 @@ def _gather_bins(in_bins: np.ndarray, scale: np.ndarray, phase: np.ndarray, posi
             pos[j, c] = position[i, c]
             dirs[j, c] = direction[i, c]
             weights[j, c] = (np.float64(power[i, c]) * scale[b]) / inv
+        if light.shape[0]:
+            lights[j] = light[i]
         j += 1
-    return pos, dirs, weights
+    return pos, dirs, weights, lights
 
 
 class PhotonMapEstimator:
     """Q(x, d, g) from a photon map: an :class:`photon_fields.runtime.wavefront.first_interaction.IndirectEstimator`.
 
     ``g_window`` None: g must be one of the map's phases (the paper). A half-width h: any g with a phase bin
-    within h, from the triangular kernel in g over the map's bins (module docstring)."""
+    within h, from the triangular kernel in g over the map's bins (module docstring). ``lights`` 1: Q (3, n); or,
+    for a map that records each photon's light (``pmap.light_count`` of them), each light's part apart
+    (3 lights, n): light l's RGB in rows 3 l .. 3 l + 2, summing to the estimate with ``lights`` 1 (the training
+    targets of a field with one output per light)."""
 
     def __init__(self, pmap: PhotonMap, medium: Medium, *, k: int = DEFAULT_K, radius: float = DEFAULT_RADIUS,
-                 g_window: float | None = None):
+                 g_window: float | None = None, lights: int = 1):
         if k < 2:
             raise InputError("k", f"must be >= 2 (the K-th photon only sets the radius), got {k}")
         if not (radius > 0 and np.isfinite(radius)):
             raise InputError("radius", f"must be a positive number (world units), got {radius}")
         if g_window is not None:
             check_window(pmap.phases, g_window)
+        if lights != 1 and (pmap.light is None or lights != pmap.light_count):
+            raise InputError(str(pmap.path or "photon map"), f"does not record which of {lights} lights each photon "
+                             "came from (traced before maps recorded it, or for other lights): re-trace it")
         self.pmap, self.medium, self.k, self.radius, self.g_window = pmap, medium, int(k), float(radius), g_window
+        self.lights = int(lights)
         self._indices: dict[int, PhotonIndex] = {}
         self._windows: dict[float, PhotonIndex] = {}
         self._sigma: np.ndarray | None = None  # sigma_t at every photon (_photon_sigma)
@@ -160,9 +171,11 @@ class PhotonMapEstimator:
         scale[bins] = bin_weights
         in_bins = np.zeros(len(self.pmap.phases), dtype=np.bool_)
         in_bins[bins] = True
-        pos, direction, weights = _gather_bins(in_bins, scale, self.pmap.phase, self.pmap.position,
-                                               self.pmap.direction, self.pmap.power, self._photon_sigma())
-        return build_photon_index(pos, direction, weights)
+        light = self.pmap.light if self.lights > 1 else None
+        pos, direction, weights, lights = _gather_bins(in_bins, scale, self.pmap.phase, self.pmap.position,
+                                                       self.pmap.direction, self.pmap.power, self._photon_sigma(),
+                                                       np.zeros(0, np.uint8) if light is None else light)
+        return build_photon_index(pos, direction, weights, light=lights, lights=self.lights)
 
     def index(self, phase: int) -> PhotonIndex:
         """Search structure of one phase's photons, with weights Phi / sigma_t(x_n) (built once)."""
@@ -196,11 +209,13 @@ class PhotonMapEstimator:
 
 def map_for_scene(pmap: PhotonMap, scene: Scene, force: bool = False) -> tuple[PhotonMap, str | None, str | None]:
     """``pmap`` for rendering ``scene``: (map, warning, note). A map traced for the scene's lights with another flux
-    (a power or colour edit, :mod:`photon_fields.runtime.scene.light_rescale`; the map records its lights) is
-    rescaled, exactly, and ``note`` says so; any other mismatch as :func:`check_map_matches_scene` (refused, or with
-    ``force`` the map as it is and the warning)."""
+    (a power or colour edit, :mod:`photon_fields.runtime.scene.light_rescale`; the map records its lights; one
+    light's among several when it records each photon's light) is rescaled, exactly, and ``note`` says so; any
+    other mismatch as :func:`check_map_matches_scene` (refused, or with ``force`` the map as it is and the
+    warning)."""
     if pmap.scene_fingerprint != scene.fingerprint():
-        scale = scene_rescale(pmap.scene_parts, pmap.lights, scene.fingerprint_parts(), scene.light_identities())
+        scale = scene_rescale(pmap.scene_parts, pmap.lights, scene.fingerprint_parts(), scene.light_identities(),
+                              per_light=pmap.light is not None)
         if scale is not None:
             return pmap.rescaled(scale, scene), None, rescale_note(scale, "photon map")
     return pmap, check_map_matches_scene(pmap, scene, force), None

@@ -331,14 +331,16 @@ def _knn_query_kernel(pos: np.ndarray, order: np.ndarray, cell_start: np.ndarray
 
 @njit(cache=True, parallel=True)
 def _radiance_kernel(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: float, dims: np.ndarray,
-                     dirs: np.ndarray, wts: np.ndarray, queries: np.ndarray, view: np.ndarray, qorder: np.ndarray,
-                     g: np.ndarray, k: int, r_max: float, nw: int,
+                     dirs: np.ndarray, wts: np.ndarray, light: np.ndarray, lights: int, queries: np.ndarray,
+                     view: np.ndarray, qorder: np.ndarray, g: np.ndarray, k: int, r_max: float, nw: int,
                      cap: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    # lights > 1: photon j's weights go to the RGB columns 3 light[j] .. 3 light[j] + 2 of the estimate.
     q = queries.shape[0]
-    est = np.zeros((q, 3))
+    est = np.zeros((q, 3 * lights))
     radius = np.full(q, r_max)
     found = np.zeros(q, dtype=np.int64)
     d2, idx, tmp = _worker_scratch(nw, cap)
+    acc = np.empty((nw, 3 * lights))
     for w in prange(nw):
         for t in _worker_slots(w, nw, q):
             i = qorder[t]
@@ -352,22 +354,21 @@ def _radiance_kernel(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray
             # With the K-th photon's radius, that photon lies on the sphere and is left out (module docstring).
             skip = kth if m >= k else -1.0
             vx, vy, vz = view[i, 0], view[i, 1], view[i, 2]
-            sr = 0.0
-            sg = 0.0
-            sb = 0.0
+            for c in range(3 * lights):
+                acc[w, c] = 0.0
             for jj in range(m):
                 if d2[w, jj] == skip:
                     skip = -1.0  # only one photon, even when several tie at the K-th distance
                     continue
                 j = np.uint64(idx[w, jj])
                 p = hg_eval(g[i], -(dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz))
-                sr += p * wts[j, 0]
-                sg += p * wts[j, 1]
-                sb += p * wts[j, 2]
+                col = 3 * np.int64(light[j]) if lights > 1 else 0
+                acc[w, col] += p * wts[j, 0]
+                acc[w, col + 1] += p * wts[j, 1]
+                acc[w, col + 2] += p * wts[j, 2]
             inv_vol = 1.0 / (_FOUR_THIRDS_PI * r * r * r)
-            est[i, 0] = sr * inv_vol
-            est[i, 1] = sg * inv_vol
-            est[i, 2] = sb * inv_vol
+            for c in range(3 * lights):
+                est[i, c] = acc[w, c] * inv_vol
     return est, radius, found
 
 
@@ -443,9 +444,11 @@ def indexed_radiance(index: PhotonIndex, queries: np.ndarray, view_dirs: np.ndar
     """The fused estimate Q (module docstring) over a PhotonIndex (attributes already in grid order), with
     the phase function's g one for all queries (a number) or one per query (q,).
 
-    Returns (estimate (q, 3) float64, radius (q,) float64 = r of the formula (r_max when fewer than k
+    Returns (estimate (q, 3 L) float64, radius (q,) float64 = r of the formula (r_max when fewer than k
     photons were found), found (q,) int64 = min(k, count within r_max) photons found (k - 1 of them are
-    summed when k were found)). Needs k >= 2 (module docstring: why K - 1)."""
+    summed when k were found)). L is the index's ``lights`` (1, or with a ``light`` array one RGB triple per
+    light, columns 3 l .. 3 l + 2 from the photons of light l: the same search, split by light; their sum is the
+    estimate without the split). Needs k >= 2 (module docstring: why K - 1)."""
     qs, k, r = _check_query_args(queries, k, r_max)
     if k < 2:
         raise ValueError(f"the radiance estimate needs k >= 2 (the k-th photon only sets the radius), got {k}")
@@ -453,9 +456,10 @@ def indexed_radiance(index: PhotonIndex, queries: np.ndarray, view_dirs: np.ndar
     if vd.shape != qs.shape:
         raise ValueError(f"view_dirs must have shape {qs.shape} like queries, got {vd.shape}")
     grid = index.grid
+    light = np.zeros(0, np.uint8) if index.light is None else index.light
     return _radiance_kernel(grid.positions, grid.cell_start, grid.origin, float(grid.cell_size), grid.dims,
-                            index.directions, index.weights, qs, vd, _morton_order(grid, qs), _per_query_g(g, qs), k, r,
-                            _n_workers(qs.shape[0]), _capacity(k, grid.order.shape[0]))
+                            index.directions, index.weights, light, index.lights, qs, vd, _morton_order(grid, qs),
+                            _per_query_g(g, qs), k, r, _n_workers(qs.shape[0]), _capacity(k, grid.order.shape[0]))
 
 
 def knn_radiance(grid: PhotonGrid, directions: np.ndarray, weights: np.ndarray, queries: np.ndarray,

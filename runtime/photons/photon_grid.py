@@ -70,6 +70,10 @@ class PhotonIndex(NamedTuple):
     grid: PhotonGrid
     directions: np.ndarray  # (n, 3) float32, grid order
     weights: np.ndarray  # (n, 3) float32, grid order
+    #: (n,) uint8, grid order: the light each photon came from, or None (the estimates sum over the lights).
+    light: np.ndarray | None = None
+    #: The estimates' lights: 1, or with ``light`` the number of lights they keep apart (3 columns each).
+    lights: int = 1
 
 
 @njit(cache=True)
@@ -169,10 +173,18 @@ def build_photon_grid(positions: np.ndarray, cell_size: float | None = None) -> 
 
 
 def build_photon_index(positions: np.ndarray, directions: np.ndarray, weights: np.ndarray,
-                     cell_size: float | None = None) -> PhotonIndex:
-    """Grid + attributes gathered once into grid order (all three inputs in the same, original order)."""
+                       cell_size: float | None = None, light: np.ndarray | None = None,
+                       lights: int = 1) -> PhotonIndex:
+    """Grid + attributes gathered once into grid order (all inputs in the same, original order). ``light`` (n,)
+    with ``lights`` > 1: the estimates keep the lights' parts apart (:func:`photon_fields.runtime.photons.knn.
+    indexed_radiance`)."""
     grid = build_photon_grid(positions, cell_size)
-    return PhotonIndex(grid, *gather_attributes(grid, directions, weights))
+    if lights == 1:
+        return PhotonIndex(grid, *gather_attributes(grid, directions, weights))
+    if light is None or light.shape != (grid.order.shape[0],) or (light.size and int(light.max()) >= lights):
+        raise ValueError(f"light must be (n,) indices below lights = {lights}")
+    return PhotonIndex(grid, *gather_attributes(grid, directions, weights),
+                       np.take(np.asarray(light, np.uint8), grid.order), int(lights))
 
 
 def gather_attributes(grid: PhotonGrid, directions: np.ndarray,

@@ -24,6 +24,7 @@ from photon_fields.models_spec.photon_map import (
     PHOTON_MAP_ARRAYS,
     PHOTON_MAP_FORMAT,
     PHOTON_MAP_NPZ,
+    PHOTON_MAP_OPTIONAL_ARRAYS,
     PHOTON_MAP_VERSION,
 )
 from photon_fields.runtime.errors import InputError, check_keys, npz_errors_as_input
@@ -52,6 +53,15 @@ class PhotonMap:
     meta: dict[str, Any] = field(default_factory=dict)
     #: The file it was loaded from (None for a map in memory): names the map in messages.
     path: Path | None = None
+    #: uint8 (n,): the index into :attr:`lights` of the light each record's path started from, or None (a map traced
+    #: before maps recorded it): what keeps the lights' contributions apart (a field's ``light_channels``).
+    light: np.ndarray | None = None
+
+    @property
+    def light_count(self) -> int:
+        """How many lights the records can be told apart by: the recorded lights' number with a ``light`` array,
+        else 1 (every record counts for all lights together)."""
+        return len(self.lights or ()) if self.light is not None else 1
 
     @property
     def scene_parts(self) -> dict[str, str] | None:
@@ -66,13 +76,17 @@ class PhotonMap:
         return list(lights) if isinstance(lights, list) else None
 
     def rescaled(self, scale: np.ndarray, scene: Any) -> PhotonMap:
-        """This map for ``scene``, whose lights are the traced ones with their flux times ``scale`` (RGB, from
-        :func:`photon_fields.runtime.scene.light_rescale.flux_rescale`): every record's power times ``scale``, which
-        is what tracing ``scene`` with the same seed gives (the same paths); the positions and directions are shared."""
+        """This map for ``scene``, whose lights are the traced ones with their flux times ``scale`` (RGB (3,), from
+        :func:`photon_fields.runtime.scene.light_rescale.flux_rescale`, or one RGB factor per light (L, 3) for a map
+        with a ``light`` array): every record's power times its light's factor, which is what tracing ``scene``
+        with the same seed gives (the same paths); the positions and directions are shared."""
         meta = {**self.meta, "scene_parts": scene.fingerprint_parts(), "lights": scene.light_identities()}
-        power = (self.power * np.asarray(scale, dtype=np.float32)).astype(np.float32)
+        factor = np.asarray(scale, dtype=np.float32)
+        if factor.ndim == 2:
+            factor = factor[self.light] if self.light is not None else factor.reshape(3)
+        power = (self.power * factor).astype(np.float32)
         return PhotonMap(self.position, self.direction, power, self.phase, self.phases, scene.fingerprint(),
-                         self.emitted, meta, self.path)
+                         self.emitted, meta, self.path, self.light)
 
     def __len__(self) -> int:
         return int(self.position.shape[0])
@@ -88,7 +102,8 @@ class PhotonMap:
     def subset(self, phase: int) -> PhotonMap:
         sel = self.phase == phase
         return PhotonMap(self.position[sel], self.direction[sel], self.power[sel], self.phase[sel], self.phases,
-                         self.scene_fingerprint, self.emitted, dict(self.meta), self.path)
+                         self.scene_fingerprint, self.emitted, dict(self.meta), self.path,
+                         None if self.light is None else self.light[sel])
 
     def metadata(self) -> dict[str, Any]:
         counts = np.bincount(self.phase, minlength=len(self.phases)) if len(self) else np.zeros(len(self.phases))
@@ -100,8 +115,9 @@ class PhotonMap:
         path = Path(path)
         meta = np.frombuffer(json.dumps(self.metadata()).encode(), dtype=np.uint8)
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
+            extra = {} if self.light is None else {"light": self.light}
             np.savez(f, position=self.position, direction=self.direction, power=self.power, phase=self.phase,
-                     meta=meta)
+                     meta=meta, **extra)
         return path
 
     @classmethod
@@ -119,13 +135,18 @@ class PhotonMap:
         phases, fp, emitted = _check_meta_values(meta, what)
         if n and int(arrays["phase"].max()) >= len(phases):
             raise InputError(what, "phase index out of range of the phase set")
+        light = arrays.get("light")
+        if light is not None:
+            lights = meta.get("lights")
+            if not isinstance(lights, list) or (n and int(light.max()) >= len(lights)):
+                raise InputError(what, "'light' indexes lights the metadata does not list")
         if "stored" in meta and meta["stored"] != n:
             raise InputError(f"{what} metadata", f"'stored' is {meta['stored']!r} but the arrays hold {n} photons")
         for name in ("position", "direction", "power"):
             if not np.all(np.isfinite(arrays[name])):
                 raise InputError(what, f"'{name}' contains non-finite values")
         pmap = cls(arrays["position"], arrays["direction"], arrays["power"], arrays["phase"], phases, fp, emitted,
-                   meta, p)
+                   meta, p, light)
         if expected_fingerprint is not None and fp != expected_fingerprint:
             raise InputError(what, f"photon map was traced for {pmap.mismatch(expected_parts)}; re-trace it for "
                              "this scene")
@@ -151,6 +172,8 @@ class PhotonMapHeader:
     scene_fingerprint: str
     emitted: int
     count: int
+    #: As :attr:`PhotonMap.light_count`: the recorded lights' number when the file has a ``light`` array, else 1.
+    light_count: int = 1
 
     @property
     def scene_parts(self) -> dict[str, str] | None:
@@ -180,7 +203,9 @@ def read_header(path: str | Path, expected_fingerprint: str | None = None) -> Ph
         raise InputError(what, f"photon map was traced for another scene{named}: "
                          f"{mismatch_detail(None, parts if isinstance(parts, dict) else None)}; re-trace it for "
                          "this scene")
-    return PhotonMapHeader(p, meta, phases, fp, emitted, int(n or 0))
+    lights = meta.get("lights")
+    apart = len(lights) if "light" in shapes and isinstance(lights, list) else 1
+    return PhotonMapHeader(p, meta, phases, fp, emitted, int(n or 0), apart)
 
 
 def _check_arrays(shapes: ArrayHeaders, what: str) -> int | None:
@@ -189,7 +214,9 @@ def _check_arrays(shapes: ArrayHeaders, what: str) -> int | None:
     arrays). One-line errors naming ``what``; shared by :meth:`PhotonMap.load` and :func:`read_header`, which reads
     only the ``.npy`` headers."""
     n = None
-    for name, (dtype, width) in PHOTON_MAP_ARRAYS.items():
+    for name, (dtype, width) in {**PHOTON_MAP_ARRAYS, **PHOTON_MAP_OPTIONAL_ARRAYS}.items():
+        if name not in shapes:
+            continue  # an optional array (the required ones are checked by PHOTON_MAP_NPZ)
         shape, found = tuple(shapes[name][0]), np.dtype(shapes[name][1])
         if found != np.dtype(dtype) or len(shape) != (2 if width else 1) or (width and shape[1] != width):
             expected = f"(n, {width})" if width else "(n,)"

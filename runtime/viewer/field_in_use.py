@@ -3,9 +3,11 @@
 A field (or map) answers L_i for the transfer function and lights it was trained (traced) for. The page edits
 both; :class:`FieldInUse` says what follows from an edit:
 
-- a light's power or colour (a single light's, or all lights' by one factor): L_i is rescaled exactly (radiance
-  is linear in a light's flux, :mod:`photon_fields.runtime.scene.light_rescale`), no retraining;
-- anything else (another transfer function, a moved light, one light's power edit among several): L_i is *stale*.
+- a light's power or colour (a single light's, or all lights' by one factor; or any light's among several when the
+  field keeps the lights apart, ``light_channels``, or the map records each photon's light): L_i is rescaled
+  exactly (radiance is linear in a light's flux, :mod:`photon_fields.runtime.scene.light_rescale`), no retraining;
+- anything else (another transfer function, a moved light, one light's power edit among several for a field of one
+  output): L_i is *stale*.
   Frames say so, and the session's :class:`photon_fields.runtime.viewer.updater.FieldUpdater` retrains in the
   background; :meth:`FieldInUse.from_job` loads the result, which the session swaps in.
 
@@ -24,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from photon_fields.runtime.scene.labels import LabelTransfer
-from photon_fields.runtime.scene.light_rescale import flux_rescale
+from photon_fields.runtime.scene.light_rescale import flux_rescale, per_light_rescale
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.viewer.light_control import LightControl
@@ -57,6 +59,7 @@ class FieldInUse:
         self.run_dir = run_dir  # the field's run folder, when it has one: retraining then fine-tunes it
         self.tf: TransferFunction | LabelTransfer = scene.tf
         self.lights = [LightControl.from_light(lt) for lt in scene.lights]
+        self._rescaled_map: tuple[bytes, Any] | None = None  # (the factors, the map rescaled by them)
 
     @classmethod
     def from_job(cls, job: RetrainJob, threads: int | None = None) -> FieldInUse:
@@ -126,14 +129,19 @@ class FieldInUse:
         if renderer == "pvrt":  # L_i from the transfer under the edited lights: nothing to rescale
             with numba_threads(threads):
                 return self.pvrt.render(scene, seed=seed, moving=moving)
-        scale = self.indirect_scale(lights)
+        scale = self.indirect_scale(lights, renderer)
         scale = None if scale is None or np.all(scale == 1.0) else scale.astype(np.float32)
         with numba_threads(threads):
             if renderer == "neural":
                 from photon_fields.runtime.renderers.neural import render_neural
                 from photon_fields.runtime.wavefront.batches import CANCELLABLE_BATCH, DEFAULT_BATCH
 
-                est = self.estimator if scale is None else _Scaled(self.estimator, scale)
+                if scale is None:
+                    est = self.estimator
+                elif scale.ndim == 2:  # one factor per light: the field sums its lights' parts with them
+                    est = self.estimator.field.estimator(scale)
+                else:
+                    est = _Scaled(self.estimator, scale)
                 return render_neural(scene, est, spp=1, seed=seed, progress=False, first_sample=n,
                                      final_gather_after=0 if final_gather else None, cancel=cancel,
                                      batch_size=DEFAULT_BATCH if cancel is None else CANCELLABLE_BATCH).layers
@@ -143,30 +151,52 @@ class FieldInUse:
                 return render_path_traced(scene, spp=1, seed=seed + n, progress=False).layers
             from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 
+            pmap = self.pmap
+            if scale is not None and scale.ndim == 2:  # one factor per light: the map's powers, per photon
+                pmap, scale = self.map_rescaled(scale, scene), None
             # force: after an edit the map is stale, which the frame's warnings say (stale)
-            layers = render_photon_mapped(scene, self.pmap, spp=1, seed=seed + n, progress=False, force=True,
+            layers = render_photon_mapped(scene, pmap, spp=1, seed=seed + n, progress=False, force=True,
                                           final_gather_after=None).layers
         if scale is None:
             return layers
         li = (layers["L_i"] * scale).astype(np.float32)
         return {**layers, "L_i": li, "L": (layers["L_e"] + layers["L_d"]) + li}
 
-    def indirect_scale(self, lights: list[LightControl]) -> np.ndarray | None:
-        """How L_i, made for the trained lights, follows the page's ``lights``: the RGB factor (3,) when every light
-        keeps its kind and place and their fluxes change by one common factor (a single light's power or colour,
-        or all lights' alike; exact, :mod:`photon_fields.runtime.scene.light_rescale`), ones without edits; None
-        otherwise (stale)."""
-        return flux_rescale([_flux_dict(c) for c in self.lights], [_flux_dict(c) for c in lights])
+    def kept_apart(self, renderer: str | None = None) -> int:
+        """How many lights the L_i of ``renderer`` (a page name; None: the field's, else the map's) keeps apart: a
+        field's ``light_channels``, a map's lights when it records each photon's, else 1."""
+        if renderer == "photonmap" or (renderer is None and self.estimator is None):
+            return self.pmap.light_count if self.pmap is not None else 1
+        return int(getattr(getattr(self.estimator, "field", None), "light_channels", 1))
 
-    def stale(self, transfer: TransferFunction | LabelTransfer | None, lights: list[LightControl]) -> bool:
-        """Whether L_i is not the edited scene's: another transfer function, or a light edit
-        :meth:`indirect_scale` cannot follow."""
-        return not same_transfer(transfer, self.tf) or self.indirect_scale(lights) is None
+    def indirect_scale(self, lights: list[LightControl], renderer: str | None = None) -> np.ndarray | None:
+        """How L_i of ``renderer`` (:meth:`kept_apart`), made for the trained lights, follows the page's ``lights``
+        (exact, :mod:`photon_fields.runtime.scene.light_rescale`; ones without edits): when every light keeps its
+        kind and place, the RGB factor (3,) of a common change of their fluxes (a single light's power or colour, or
+        all lights' alike), or for an L_i that keeps the lights apart one factor per light (L, 3); None otherwise
+        (stale)."""
+        trained, edited = [_flux_dict(c) for c in self.lights], [_flux_dict(c) for c in lights]
+        if self.kept_apart(renderer) == len(trained) > 1:
+            return per_light_rescale(trained, edited)
+        return flux_rescale(trained, edited)
+
+    def map_rescaled(self, scale: np.ndarray, scene: Scene) -> Any:
+        """The photon map with each light's records times its factor (``scale`` (L, 3)), kept for the next frame."""
+        key = np.asarray(scale, np.float32).tobytes()
+        if self._rescaled_map is None or self._rescaled_map[0] != key:
+            self._rescaled_map = (key, self.pmap.rescaled(scale, scene))
+        return self._rescaled_map[1]
+
+    def stale(self, transfer: TransferFunction | LabelTransfer | None, lights: list[LightControl],
+              renderer: str | None = None) -> bool:
+        """Whether L_i (of ``renderer``, :meth:`kept_apart`) is not the edited scene's: another transfer function,
+        or a light edit :meth:`indirect_scale` cannot follow."""
+        return not same_transfer(transfer, self.tf) or self.indirect_scale(lights, renderer) is None
 
     def stale_for(self, renderer: str, transfer: TransferFunction | LabelTransfer | None,
                   lights: list[LightControl]) -> bool:
         """Whether a frame of ``renderer`` shows a stale L_i (:meth:`stale`; never for :data:`FOLLOWS_EDITS`)."""
-        return renderer not in FOLLOWS_EDITS and self.stale(transfer, lights)
+        return renderer not in FOLLOWS_EDITS and self.stale(transfer, lights, renderer)
 
     def warnings(self, renderer: str, transfer: TransferFunction | LabelTransfer | None, lights: list[LightControl],
                  updater: FieldUpdater) -> list[str]:
@@ -178,8 +208,9 @@ class FieldInUse:
             warning = (f"stale L_i: the {what} for another transfer function (L_d and the path tracer follow the "
                        "edit at once)")
         else:
+            apart = "" if self.kept_apart(renderer) > 1 or len(lights) == 1 else " by a field with the lights apart"
             warning = (f"stale L_i: the {what} for the scene's lights: L_i does not follow this light edit (L_d "
-                       "does; a single light's power alone would be followed exactly)")
+                       f"does; a light's power or colour alone would be followed exactly{apart})")
         if updater.busy:
             return [warning + "; retraining in the background"]
         if not shows_something(transfer):

@@ -156,6 +156,9 @@ def _add_fit_options(f: argparse.ArgumentParser) -> None:
     f.add_argument("--average", type=float, default=None,
                    help="share of the last steps whose parameters are averaged into the final field, 0: the last "
                         "step's (default: the preset's)")
+    f.add_argument("--lights", choices=["apart", "together"], default="apart",
+                   help="with several lights: one output per light, so that a light's power or colour can be edited "
+                        "without retraining (apart), or one output for all (together, the paper's)")
     f.add_argument("--checkpoint-every", type=int, default=500, help="save checkpoint.pt every N steps")
     f.add_argument("--seed", type=int, default=0, help="random seed: same seed, same field")
     add_job_options(f, replaces="the results of an earlier run in --out")
@@ -192,7 +195,7 @@ def _fit_settings(args: argparse.Namespace):  # noqa: ANN202  (photon_fields.tra
     settings = FitSettings.from_preset(args.preset, steps=args.steps, batch=args.batch, lr=args.lr, k=args.k,
                                        schedule_kind=args.schedule, sampling=args.sampling, loss=args.loss,
                                        average=args.average, g_sampling=args.g_sampling,
-                                       seed=args.seed,
+                                       seed=args.seed, per_light=args.lights == "apart",
                                        checkpoint_every=args.checkpoint_every)
     settings.validate()
     check_seed(args.seed)

@@ -8,7 +8,8 @@
    (:mod:`models_spec.encoding` defines the input conventions, :class:`train.field.hashgrid.HashGridEncoding`
    the hash grids, bit-exact with tiny-cuda-nn);
 2. network: a ReLU MLP with ``cfg.hidden_layers`` hidden layers of ``cfg.hidden_width`` neurons and no
-   output activation, producing the 3 log-encoded channels L' (Eq. 6). Like tiny-cuda-nn's
+   output activation, producing the 3 log-encoded channels L' (Eq. 6), or 3 per light with ``cfg.light_channels`` > 1
+   (each light's part of L, which the renderer sums). Like tiny-cuda-nn's
    FullyFusedMLP (what the paper trained with) the linear layers have no biases and are initialized
    Xavier-uniform; the hash tables start uniform in [-1e-4, 1e-4] as in tcnn;
 3. decoding: :func:`decode_radiance_torch` (Eq. 7), applied by the caller (the loss works on L').
@@ -22,7 +23,8 @@ seed : int
     the MLP weights: the same seed gives the same initial parameters, whatever else used torch's RNG.
 
 ``forward(pos, dirs, g)`` takes float32 tensors pos (n, 3) from :func:`models_spec.encoding.normalize_position`,
-dirs (n, 2) from :func:`photon_fields.models_spec.encoding.direction_input` and g (n, 1), and returns float32 (n, 3) L'.
+dirs (n, 2) from :func:`photon_fields.models_spec.encoding.direction_input` and g (n, 1), and returns
+float32 (n, 3 C) L' (C = ``cfg.light_channels``).
 
 The torch twins :func:`encode_radiance_torch` / :func:`decode_radiance_torch` compute in float64 and round
 to float32 once, like the numpy originals, so both sides agree bit for bit (tests/models_spec/test_encoding.py).
@@ -63,7 +65,7 @@ class TorchPhotonField(nn.Module):
         gen = torch.Generator().manual_seed(int(seed))
         self.position = HashGridEncoding(cfg.position, generator=gen)
         self.direction = HashGridEncoding(cfg.direction, generator=gen)
-        widths = [cfg.input_dims] + [cfg.hidden_width] * cfg.hidden_layers + [3]
+        widths = [cfg.input_dims] + [cfg.hidden_width] * cfg.hidden_layers + [cfg.output_dims]
         layers: list[nn.Module] = []
         for i in range(len(widths) - 1):
             lin = nn.Linear(widths[i], widths[i + 1], bias=False)
@@ -108,5 +110,8 @@ class TorchPhotonField(nn.Module):
         return self.mlp(features)
 
     def radiance(self, pos: torch.Tensor, dirs: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
-        """Decoded radiance L (Eq. 7), float32 (n, 3)."""
-        return decode_radiance_torch(self.forward(pos, dirs, g), self.cfg.psi)
+        """Decoded radiance L (Eq. 7), float32 (n, 3): with C > 1 light channels the sum of the lights' parts (what
+        the runtime renders for the scene trained for)."""
+        L = decode_radiance_torch(self.forward(pos, dirs, g), self.cfg.psi)
+        c = self.cfg.light_channels
+        return L if c == 1 else L.reshape(L.shape[0], c, 3).sum(dim=1)

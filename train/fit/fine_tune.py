@@ -61,14 +61,13 @@ from photon_fields.train.fit.loop import (
     FitResult,
     TrainingDivergedError,
     deterministic_torch,
+    field_sampler,
     train_step,
     validate_field,
 )
 from photon_fields.train.fit.optimizer import TcnnAdam
 from photon_fields.train.fit.plots import plot_loss
-from photon_fields.train.fit.presets import PRESETS, field_config_for
 from photon_fields.train.fit.settings import FitSettings
-from photon_fields.train.fit.targets import TargetSampler
 
 #: Why a fine-tune stopped (``log.json``'s ``stop.reason``).
 STOP_REASONS = ("plateau", "max_steps", "budget")
@@ -90,10 +89,11 @@ def fine_tune(model: TorchPhotonField, scene: Scene, pmap: PhotonMap, out_dir: s
         raise InputError("--max-steps", f"must be an integer >= 0, got {max_steps!r}")
     t_start = time.perf_counter()
     out = Path(out_dir)
-    preset = PRESETS[settings.preset]
-    sampler = TargetSampler(pmap, scene.medium(), k=settings.k, psi=settings.psi, seed=settings.seed,
-                            sampling=settings.sampling, g_sampling=settings.g_sampling)
-    cfg = field_config_for(preset, sampler.field_phases(preset.phase_nodes), settings.psi)
+    lights = model.cfg.light_channels
+    if lights > 1 and lights != pmap.light_count:
+        raise InputError("warm start", f"the earlier field keeps {lights} lights apart, the scene has "
+                         f"{len(scene.lights)}: train a new field with pfn-train all")
+    sampler, cfg = field_sampler(scene, pmap, settings, lights)
     if cfg.to_dict() != model.cfg.to_dict():
         raise InputError("warm start", f"the earlier field's architecture is not preset {settings.preset!r}'s for "
                          "this photon map (its phases differ); train a new field with pfn-train all")

@@ -39,6 +39,7 @@ import numba
 import numpy as np
 import torch
 
+from photon_fields.models_spec.encoding import MAX_LIGHT_CHANNELS, FieldConfig
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.io.atomic import atomic_write_text
 from photon_fields.runtime.photons.estimate import check_map_matches_scene
@@ -73,7 +74,7 @@ def train_step(model: TorchPhotonField, opt: TcnnAdam, pos: torch.Tensor, dirs: 
     """One optimization step on encoded targets; returns the loss *before* the step. A non-finite loss
     returns at once, without touching the parameters (the caller decides what to do)."""
     pred = model(pos, dirs, g)
-    loss = field_loss(loss_name, pred, target, model.cfg.psi)
+    loss = field_loss(loss_name, pred, target, model.cfg.psi, model.cfg.light_channels)
     value = float(loss.detach())
     if not math.isfinite(value):
         return value
@@ -87,15 +88,36 @@ def validate_field(model: TorchPhotonField, val: TargetBatch, chunk: int = 1 << 
                    loss_name: str = "linear") -> dict[str, float]:
     """Validation of a field during its fit (not the image-based evaluation of :mod:`photon_fields.train.eval`):
     quality on held-out support samples: ``val_loss`` (the training loss on L') and ``val_rel_l1``,
-    sum |L_pred - Q| / sum Q over samples and channels of the decoded radiance (Eq. 7): the share of the
-    light that is wrong, which is what an image shows."""
+    sum |L_pred - Q| / sum Q over samples and channels of the decoded radiance (Eq. 7), the lights' parts summed
+    first: the share of the light that is wrong, which is what an image shows."""
     preds = [model(val.pos[i:i + chunk], val.dirs[i:i + chunk], val.g[i:i + chunk])
              for i in range(0, val.pos.shape[0], chunk)]
     pred = torch.cat(preds)
-    loss = float(field_loss(loss_name, pred, val.target, model.cfg.psi))
-    L = decode_radiance_torch(pred, model.cfg.psi).double().numpy()
-    rel = float(np.abs(L - val.q).sum() / max(float(val.q.sum()), 1e-300))
+    lights = model.cfg.light_channels
+    loss = float(field_loss(loss_name, pred, val.target, model.cfg.psi, lights))
+    n = pred.shape[0]
+    L = decode_radiance_torch(pred, model.cfg.psi).double().numpy().reshape(n, lights, 3).sum(axis=1)
+    q = val.q.reshape(n, lights, 3).sum(axis=1)
+    rel = float(np.abs(L - q).sum() / max(float(q.sum()), 1e-300))
     return {"val_loss": loss, "val_rel_l1": rel}
+
+
+def light_channels_for(pmap: PhotonMap, per_light: bool) -> int:
+    """The light channels of a field fitted to ``pmap`` (:attr:`photon_fields.models_spec.encoding.FieldConfig.
+    light_channels`): the map's lights when ``per_light`` and it records each photon's light among 2 to
+    ``MAX_LIGHT_CHANNELS``; else 1."""
+    lights = pmap.light_count
+    return lights if per_light and 2 <= lights <= MAX_LIGHT_CHANNELS else 1
+
+
+def field_sampler(scene: Scene, pmap: PhotonMap, settings: FitSettings,
+                  light_channels: int) -> tuple[TargetSampler, FieldConfig]:
+    """The target sampler of a fit with ``settings`` on ``pmap`` and the field configuration it trains (its preset's
+    architecture, the sampler's phases, ``light_channels`` outputs)."""
+    preset = PRESETS[settings.preset]
+    sampler = TargetSampler(pmap, scene.medium(), k=settings.k, psi=settings.psi, seed=settings.seed,
+                            sampling=settings.sampling, g_sampling=settings.g_sampling, lights=light_channels)
+    return sampler, field_config_for(preset, sampler.field_phases(preset.phase_nodes), settings.psi, light_channels)
 
 
 @contextlib.contextmanager
@@ -150,10 +172,7 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
         raise InputError("--out", f"{str(out)!r} is not a folder")
 
     t_start = time.perf_counter()
-    preset = PRESETS[settings.preset]
-    sampler = TargetSampler(pmap, scene.medium(), k=settings.k, psi=settings.psi, seed=settings.seed,
-                            sampling=settings.sampling, g_sampling=settings.g_sampling)
-    cfg = field_config_for(preset, sampler.field_phases(preset.phase_nodes), settings.psi)
+    sampler, cfg = field_sampler(scene, pmap, settings, light_channels_for(pmap, settings.per_light))
     schedule = settings.resolve_schedule(len(pmap))
     total = settings.steps
     boundaries = schedule.boundaries(total)

@@ -34,19 +34,30 @@ def relative_l2_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return ((pred - target) ** 2 / (pred.detach() ** 2 + RELATIVE_L2_EPS)).mean()
 
 
-def linear_relative_l2_loss(pred: torch.Tensor, target: torch.Tensor, psi: float) -> torch.Tensor:
+def linear_relative_l2_loss(pred: torch.Tensor, target: torch.Tensor, psi: float, lights: int = 1) -> torch.Tensor:
     """Relative L2 of the decoded radiance: mean of (L - Q)^2 / (L.detach()^2 + eps^2), with L and Q the Eq. 7
-    decodings of the encoded ``pred`` and ``target`` and eps = 25 % of mean(Q)."""
+    decodings of the encoded ``pred`` and ``target`` and eps = 25 % of mean(Q). With ``lights`` > 1 (one RGB
+    output per light, (n, 3 lights)) each light's squared error is divided by the *summed* prediction's square
+    and eps taken from the summed targets, and the lights' terms are added: the loss weighs each light's error by
+    what it does to the image (the sum), so a light that adds little at a point is not fitted at the cost of the
+    others; with one light this is the loss above."""
     L = decode_radiance_torch(pred, psi)
     Q = decode_radiance_torch(target, psi)
-    eps = LINEAR_EPS_RELATIVE * float(Q.detach().mean()) + 1e-30
-    return ((L - Q) ** 2 / (L.detach() ** 2 + eps * eps)).mean()
+    if lights == 1:
+        eps = LINEAR_EPS_RELATIVE * float(Q.detach().mean()) + 1e-30
+        return ((L - Q) ** 2 / (L.detach() ** 2 + eps * eps)).mean()
+    n = L.shape[0]
+    parts, targets = L.reshape(n, lights, 3), Q.reshape(n, lights, 3)
+    total = parts.detach().sum(dim=1, keepdim=True)
+    eps = LINEAR_EPS_RELATIVE * float(targets.detach().sum(dim=1).mean()) + 1e-30
+    return ((parts - targets) ** 2 / (total ** 2 + eps * eps)).sum(dim=1).mean()
 
 
-def field_loss(name: str, pred: torch.Tensor, target: torch.Tensor, psi: float) -> torch.Tensor:
-    """The loss ``name`` (one of :data:`LOSSES`) of encoded predictions against encoded targets."""
+def field_loss(name: str, pred: torch.Tensor, target: torch.Tensor, psi: float, lights: int = 1) -> torch.Tensor:
+    """The loss ``name`` (one of :data:`LOSSES`) of encoded predictions against encoded targets (``lights``: RGB
+    outputs per sample, :func:`linear_relative_l2_loss`; the log loss is per channel either way)."""
     if name == "linear":
-        return linear_relative_l2_loss(pred, target, psi)
+        return linear_relative_l2_loss(pred, target, psi, lights)
     if name == "log":
         return relative_l2_loss(pred, target)
     raise ValueError(f"unknown loss {name!r} (one of {LOSSES})")

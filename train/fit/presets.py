@@ -133,7 +133,8 @@ UPDATE_LR_SHARE = 0.15
 UPDATE_VAL_EVERY = 25
 
 
-def field_config_for(preset: Preset, phases: tuple[float, ...], psi: float = DEFAULT_PSI) -> FieldConfig:
-    """The field configuration of ``preset`` for a map traced at ``phases``."""
+def field_config_for(preset: Preset, phases: tuple[float, ...], psi: float = DEFAULT_PSI,
+                     light_channels: int = 1) -> FieldConfig:
+    """The field configuration of ``preset`` for a map traced at ``phases``, with ``light_channels`` outputs."""
     return FieldConfig(preset.position, preset.direction, preset.hidden_width, preset.hidden_layers, psi, phases,
-                       preset.phase_encoding)
+                       preset.phase_encoding, light_channels)

@@ -18,6 +18,8 @@ from photon_fields.train.fit.schedule import KnnSchedule, default_schedule, naiv
 from photon_fields.train.fit.targets import G_SAMPLING_MODES, SAMPLING_MODES
 
 _DEFAULT = PRESETS[DEFAULT_PRESET]
+#: Settings a run's log may lack (added later; a run without them trained with their defaults' earlier meaning).
+OPTIONAL_KEYS = ("per_light",)
 
 
 @dataclass
@@ -61,6 +63,10 @@ class FitSettings:
     """Steps between validations; 0: about 10 per run."""
     psi: float = DEFAULT_PSI
     """Eq. 6's precision of the encoded targets."""
+    per_light: bool = True
+    """Keep the lights apart: a field with one RGB output per light (``FieldConfig.light_channels``) when the scene
+    has 2 to ``MAX_LIGHT_CHANNELS`` lights and the map records each photon's light, so that one light's power or
+    colour can be edited among several without retraining; False (or one light): one output for all lights."""
 
     @classmethod
     def from_preset(cls, name: str, **overrides: Any) -> FitSettings:
@@ -98,6 +104,8 @@ class FitSettings:
             raise InputError("g_sampling", f"must be one of {G_SAMPLING_MODES}, got {self.g_sampling!r}")
         if self.sampling not in SAMPLING_MODES:
             raise InputError("--sampling", f"must be one of {SAMPLING_MODES}, got {self.sampling!r}")
+        if not isinstance(self.per_light, bool):
+            raise InputError("per_light", f"must be true or false, got {self.per_light!r}")
         if self.val_every < 0:
             raise InputError("validation interval", f"must be >= 0, got {self.val_every}")
 
@@ -115,7 +123,7 @@ class FitSettings:
         if not isinstance(d, dict):
             raise InputError(what, "must be an object")
         names = tuple(f.name for f in fields(cls))
-        check_keys(d, names, what, required=names)
+        check_keys(d, names, what, required=tuple(n for n in names if n not in OPTIONAL_KEYS))
         values = dict(d)
         try:
             values["schedule"] = None if d["schedule"] is None else KnnSchedule.from_dict(d["schedule"])

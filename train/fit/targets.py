@@ -53,6 +53,9 @@ seed : int
     independent stream of the same seed, so its size never changes the training batches.
 sampling : "box", "support" or "visible"
 g_sampling : "discrete", "continuous", "mixed" or "window"
+lights : int (default 1)
+    1: targets for all lights together (n, 3); or the map's number of lights (it must record each photon's light):
+    each light's part apart (n, 3 lights), from the same search (:class:`PhotonMapEstimator`'s ``lights``).
 
 Targets ahead. The estimates are computed for several steps' batches at once (:data:`TARGETS_PER_SET` per
 phase or window, :meth:`TargetSampler.sample` then hands them out a batch at a time): every sample is still
@@ -115,8 +118,8 @@ class TargetBatch:
     pos: torch.Tensor  # (n, 3) normalized position in [0, 1]^3
     dirs: torch.Tensor  # (n, 2) direction on the unit square
     g: torch.Tensor  # (n, 1)
-    target: torch.Tensor  # (n, 3) Eq. 6 encoded Q
-    q: np.ndarray  # (n, 3) float64 Q (decoded units)
+    target: torch.Tensor  # (n, 3 lights) Eq. 6 encoded Q (each light's part apart with the sampler's lights > 1)
+    q: np.ndarray  # (n, 3 lights) float64 Q (decoded units)
     found: np.ndarray  # (n,) photons used per query
     seconds: float  # wall time to draw and estimate this batch
 
@@ -146,7 +149,8 @@ class TargetSampler:
     """Draws training batches and computes their targets (see the module docstring)."""
 
     def __init__(self, pmap: PhotonMap, medium: Medium, *, k: int = DEFAULT_K, psi: float, seed: int = 0,
-                 sampling: str = "box", g_sampling: str = "discrete", per_set: int = TARGETS_PER_SET) -> None:
+                 sampling: str = "box", g_sampling: str = "discrete", per_set: int = TARGETS_PER_SET,
+                 lights: int = 1) -> None:
         if sampling not in SAMPLING_MODES:
             raise InputError("sampling", f"must be one of {SAMPLING_MODES}, got {sampling!r}")
         if g_sampling not in G_SAMPLING_MODES:
@@ -155,15 +159,16 @@ class TargetSampler:
         check_map_for_sampling(pmap, g_sampling)
         t0 = time.perf_counter()
         self.pmap, self.medium, self.k, self.psi, self.sampling = pmap, medium, int(k), float(psi), sampling
+        self.lights = int(lights)
         # The estimator owns the search structures (weights Phi / sigma_t): build every phase's (or every
         # window's) once, now.
         if g_sampling == "window":
             lo, hi = window_range(pmap.phases, PHASE_WINDOW)
-            self.estimator = PhotonMapEstimator(pmap, medium, k=k, g_window=PHASE_WINDOW)
+            self.estimator = PhotonMapEstimator(pmap, medium, k=k, g_window=PHASE_WINDOW, lights=lights)
             self.phases = np.linspace(lo, hi, max(2, int(np.ceil((hi - lo) / WINDOW_STRIDE - 1e-9)) + 1))
             self.indices = [self.estimator.window_index(c) for c in self.phases]
         else:
-            self.estimator = PhotonMapEstimator(pmap, medium, k=k)
+            self.estimator = PhotonMapEstimator(pmap, medium, k=k, lights=lights)
             self.phases = np.asarray(pmap.phases, dtype=np.float64)
             self.indices = [self.estimator.index(p) for p in range(len(pmap.phases))]
         self._occupied = np.flatnonzero(medium.majorant.ravel() > 0.0)
@@ -257,10 +262,11 @@ class TargetSampler:
 
     def estimate(self, x: np.ndarray, d: np.ndarray, g: np.ndarray, ph: np.ndarray,
                  radius: float) -> tuple[np.ndarray, np.ndarray]:
-        """Q (n, 3) float64 and photons used (n,) at world points x (n, 3), directions d (n, 3), phase function
-        coefficients g (n,), from the photons of phases (or windows) ph (n,)."""
+        """Q (n, 3 lights) float64 (each light's part apart with ``lights`` > 1) and photons used (n,) at world points
+        x (n, 3), directions d (n, 3), phase function coefficients g (n,), from the photons of phases (or windows)
+        ph (n,)."""
         n = x.shape[0]
-        q = np.zeros((n, 3))
+        q = np.zeros((n, 3 * self.lights))
         found = np.zeros(n, dtype=np.int64)
         for p in range(len(self.phases)):
             sel = np.flatnonzero(ph == p)

@@ -96,12 +96,16 @@ class RunRecord:
     steps: int
     lights: list[dict[str, Any]] | None = None
     """The run's lights as its scene file recorded them (``domain.json``'s ``scene_spec``), None for older runs."""
+    light_channels: int = 1
+    """The run's field's light channels (``FieldConfig.light_channels`` in ``log.json``'s ``field_config``)."""
 
     def light_rescale(self, scene: Scene) -> np.ndarray | None:
-        """The RGB factor when ``scene`` differs from this run's scene only in its lights, by a rescale of their flux
+        """The RGB factor (3,), or one per light (L, 3) for a field that keeps its lights apart, when ``scene`` differs
+        from this run's scene only in its lights, by a rescale of their flux
         (:mod:`photon_fields.runtime.scene.light_rescale`): the run's field then renders ``scene`` exactly, rescaled,
         and an update is not needed. None otherwise."""
-        return scene_rescale(self.parts, self.lights, scene.fingerprint_parts(), scene.light_identities())
+        per_light = self.light_channels > 1 and self.light_channels == len(self.lights or ())
+        return scene_rescale(self.parts, self.lights, scene.fingerprint_parts(), scene.light_identities(), per_light)
 
 
 def _read_json(path: Path) -> dict[str, Any]:
@@ -144,8 +148,11 @@ def read_run(run: str | Path) -> RunRecord:
         parts = parts or header.scene_parts
     steps = int((log.get("totals") or {}).get("steps_done", settings.steps))
     lights = (record.get("spec") or {}).get("lights")
+    channels = (log.get("field_config") or {}).get("light_channels", 1) if isinstance(log.get("field_config"),
+                                                                                      dict) else 1
     return RunRecord(path, record.get("name"), settings, fingerprint, parts, tuple(bmin), tuple(bsize), photons,
-                     phases, max_bounces, map_seed, steps, lights if isinstance(lights, list) else None)
+                     phases, max_bounces, map_seed, steps, lights if isinstance(lights, list) else None,
+                     channels if isinstance(channels, int) else 1)
 
 
 def check_update(record: RunRecord, scene: Scene, what: str = "--scene") -> None:

@@ -36,7 +36,9 @@ the density estimate's variance low). Recording before the albedo differs from A
 purpose: the albedo at the camera's vertex is applied at render time from the full-resolution
 transfer function, so the field only has to learn the smooth incident light (see
 ``runtime.photons.estimate``). Record powers are divided by the number of paths emitted for their phase, so
-the records of each phase form a complete photon map on their own.
+the records of each phase form a complete photon map on their own. Each record also keeps the index of the light its
+path started from (the map's ``light`` array): the map then holds each light's photon map apart, which a field with
+one output per light learns (:attr:`photon_fields.models_spec.encoding.FieldConfig.light_channels`).
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.models_spec import DEFAULT_MAP_PHASES
+from photon_fields.models_spec.photon_map import MAX_LIGHTS
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.photons.photon_path import trace_path
@@ -79,7 +82,7 @@ def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, powe
                  light_cdf: np.ndarray, phases: np.ndarray, active: np.ndarray, seed: int, first: int, lo: int, hi: int,
                  max_bounces: int,
                  out_pos: np.ndarray, out_dir: np.ndarray, out_pow: np.ndarray, out_phase: np.ndarray,
-                 out_count: np.ndarray) -> None:
+                 out_light: np.ndarray, out_count: np.ndarray) -> None:
     """Paths lo..hi-1 of :func:`_trace_chunk`, serially (``TASK_ITEMS`` in the tracking module says why)."""
     cx, cy, cz = m.bmin[0] + 0.5 * m.bsize[0], m.bmin[1] + 0.5 * m.bsize[1], m.bmin[2] + 0.5 * m.bsize[2]
     radius = 0.5 * math.sqrt(m.bsize[0] ** 2 + m.bsize[1] ** 2 + m.bsize[2] ** 2)
@@ -110,6 +113,7 @@ def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, powe
                     out_dir[k, c] = hit_dir[bounce, c]
                     out_pow[k, c] = hit_pow[bounce, c]
                 out_phase[k] = ph
+                out_light[k] = li
                 count += 1
         out_count[i] = count
 
@@ -119,13 +123,15 @@ def _trace_chunk(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, powe
                  light_cdf: np.ndarray, phases: np.ndarray, active: np.ndarray, seed: int, first: int, n: int,
                  max_bounces: int,
                  out_pos: np.ndarray, out_dir: np.ndarray, out_pow: np.ndarray, out_phase: np.ndarray,
-                 out_count: np.ndarray) -> None:
+                 out_light: np.ndarray, out_count: np.ndarray) -> None:
     """Trace photon paths first .. first + n - 1; path i scatters with phase active[i % len(active)],
-    writes its records to slots [i * (max_bounces - 1), ...) and their number to out_count[i]. ``env``: the
+    writes its records (and the index of the light it started from) to slots [i * (max_bounces - 1), ...) and their
+    number to out_count[i]. ``env``: the
     scene's environment map (its photons' power is scaled per channel by ``emit_photon``)."""
     for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
         _trace_paths(m, kind, vec, env, power, cos_max, light_cdf, phases, active, seed, first, task * TASK_ITEMS,
-                     min(n, (task + 1) * TASK_ITEMS), max_bounces, out_pos, out_dir, out_pow, out_phase, out_count)
+                     min(n, (task + 1) * TASK_ITEMS), max_bounces, out_pos, out_dir, out_pow, out_phase, out_light,
+                     out_count)
 
 
 def _check_progress(scene: Scene, stored: np.ndarray, emitted: np.ndarray, quota: int) -> None:
@@ -184,6 +190,7 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
     buf_dir = np.empty((CHUNK * slots, 3), dtype=np.float32)
     buf_pow = np.empty((CHUNK * slots, 3), dtype=np.float32)
     buf_phase = np.empty(CHUNK * slots, dtype=np.uint8)
+    buf_light = np.zeros(CHUNK * slots, dtype=np.uint8)
     counts = np.empty(CHUNK, dtype=np.int64)
     quota = -(-photons // len(gs))
     stored = np.zeros(len(gs), dtype=np.int64)
@@ -197,7 +204,7 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
         while np.any(stored < quota):
             active = np.flatnonzero(stored < quota).astype(np.int64)
             _trace_chunk(m, kind, vec, env, power, cos_max, light_cdf, g_arr, active, int(seed), first_path, CHUNK,
-                         max_bounces, buf_pos, buf_dir, buf_pow, buf_phase, counts)
+                         max_bounces, buf_pos, buf_dir, buf_pow, buf_phase, buf_light, counts)
             first_path += CHUNK
             for j, ph in enumerate(active):
                 paths = np.arange(j, CHUNK, len(active))  # this phase's paths in the chunk
@@ -206,7 +213,7 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
                     paths = paths[: int(np.searchsorted(cum, quota - stored[ph])) + 1]
                 used = np.arange(slots)[None, :] < counts[paths, None]
                 sel = (paths[:, None] * slots + np.arange(slots)[None, :])[used]
-                parts[ph].append((buf_pos[sel], buf_dir[sel], buf_pow[sel], buf_phase[sel]))
+                parts[ph].append((buf_pos[sel], buf_dir[sel], buf_pow[sel], buf_phase[sel], buf_light[sel]))
                 stored[ph] += sel.size
                 emitted_per_phase[ph] += paths.size
                 bar.update(int(min(sel.size, quota * len(gs) - bar.n)))
@@ -218,6 +225,7 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
     pos = np.concatenate([p[0] for ph_parts in parts for p in ph_parts])
     dirs = np.concatenate([p[1] for ph_parts in parts for p in ph_parts])
     ph_idx = np.concatenate([p[3] for ph_parts in parts for p in ph_parts])
+    light = np.concatenate([p[4] for ph_parts in parts for p in ph_parts]) if len(kind) <= MAX_LIGHTS else None
     # Normalize by the paths emitted for each record's own phase (each phase is a complete map).
     pw = np.concatenate([p[2] / np.float32(emitted_per_phase[k]) for k, ph_parts in enumerate(parts)
                          for p in ph_parts]).astype(np.float32)
@@ -225,4 +233,4 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
     meta = {"seed": int(seed), "max_bounces": int(max_bounces), "trace_seconds": time.perf_counter() - t_start,
             "scene_name": scene.name, "emitted_per_phase": [int(e) for e in emitted_per_phase],
             "scene_parts": scene.fingerprint_parts(), "lights": scene.light_identities()}
-    return PhotonMap(pos, dirs, pw, ph_idx, gs, scene.fingerprint(), emitted, meta)
+    return PhotonMap(pos, dirs, pw, ph_idx, gs, scene.fingerprint(), emitted, meta, light=light)

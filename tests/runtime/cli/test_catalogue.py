@@ -482,6 +482,7 @@ CASES += [
     (T, lambda a, d, o: ["pvrt", "blobs", "--pca-bases", "-1", "--out", str(o / "t.pvrt")], "--pca-bases"),
     (T, lambda a, d, o: ["pvrt", "blobs", "--g", "1.5", "--out", str(o / "t.pvrt")], "--g"),
     (T, lambda a, d, o: [*FIT(a), "--loss", "l1", "--out", str(o / "run")], "--loss"),
+    (T, lambda a, d, o: [*FIT(a), "--lights", "some", "--out", str(o / "run")], "--lights"),
     (T, lambda a, d, o: [*FIT(a), "--g-sampling", "random", "--out", str(o / "run")], "--g-sampling"),
     # The default preset trains any g from a kernel in g: a map of a few phases is refused, naming the way out.
     (T, lambda a, d, o: [*FIT(a), "--out", str(o / "run")], "--g-sampling discrete"),

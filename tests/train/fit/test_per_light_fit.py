@@ -1,0 +1,67 @@
+"""Fitting a field that keeps the lights apart (``FieldConfig.light_channels``, issue 16): its targets, its loss and
+what a fit of a two-light scene makes; the runtime side is tests/runtime/field/test_per_light.py."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import tiny_scene_dict
+
+torch = pytest.importorskip("torch")
+
+from photon_fields.runtime.scene.scene import scene_from_dict  # noqa: E402
+from photon_fields.train.fit.loop import fit  # noqa: E402
+from photon_fields.train.fit.loss import linear_relative_l2_loss  # noqa: E402
+from photon_fields.train.fit.settings import FitSettings  # noqa: E402
+from photon_fields.train.fit.targets import TargetSampler  # noqa: E402
+from photon_fields.train.photons.tracing import trace_photons  # noqa: E402
+
+LAMP = {"type": "point", "position": [0.9, 0.2, 0.9], "color": [0.6, 0.75, 1.0], "power": 2.5}
+
+
+@pytest.fixture(scope="module")
+def two_light_map(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
+    d = tiny_scene_dict()
+    d["lights"].append(dict(LAMP))
+    scene = scene_from_dict(d, tmp_path_factory.mktemp("two"))
+    return scene, trace_photons(scene, 60_000, seed=2, progress=False)
+
+
+def test_per_light_targets_sum_to_the_targets(two_light_map) -> None:  # noqa: ANN001
+    """The same draws give targets whose light blocks add up to the summed targets (same search, split by light)."""
+    scene, pmap = two_light_map
+    kw = {"k": 16, "psi": 5.0, "seed": 4, "sampling": "visible", "g_sampling": "window"}
+    together = TargetSampler(pmap, scene.medium(), **kw).sample(512, 0.05)
+    apart = TargetSampler(pmap, scene.medium(), lights=2, **kw).sample(512, 0.05)
+    assert apart.q.shape == (512, 6) and apart.target.shape == (512, 6)
+    np.testing.assert_array_equal(apart.pos.numpy(), together.pos.numpy())
+    np.testing.assert_allclose(apart.q[:, :3] + apart.q[:, 3:], together.q, rtol=1e-12, atol=1e-300)
+    assert float(apart.q[:, 3:].sum()) > 0.05 * float(apart.q.sum())  # the lamp lights a share of the targets
+
+
+def test_per_light_loss_weighs_lights_by_the_sum() -> None:
+    """With one light the loss is the plain relative L2; with two, each light's squared error over the sum's square:
+    a prediction off by e in one light costs what a summed prediction off by e costs."""
+    rng = np.random.default_rng(0)
+    q = torch.from_numpy(rng.uniform(0.5, 2.0, (64, 6)).astype(np.float32))
+    enc = -torch.log10(q) / 5.0
+    assert float(linear_relative_l2_loss(enc, enc, 5.0, lights=2)) == 0.0
+    off = q.clone()
+    off[:, 3] *= 1.1  # the lamp's red 10 % high
+    apart = float(linear_relative_l2_loss(-torch.log10(off) / 5.0, enc, 5.0, lights=2))
+    summed_q, summed_off = q[:, :3] + q[:, 3:], off[:, :3] + off[:, 3:]
+    together = float(linear_relative_l2_loss(-torch.log10(summed_off) / 5.0, -torch.log10(summed_q) / 5.0, 5.0))
+    assert apart == pytest.approx(together, rel=1e-3)
+
+
+def test_a_fit_of_two_lights_keeps_them_apart_unless_told(two_light_map, tmp_path: Path) -> None:  # noqa: ANN001
+    scene, pmap = two_light_map
+    apart = fit(scene, pmap, tmp_path / "apart", FitSettings.from_preset("tiny", steps=20), progress=False)
+    assert apart.model.cfg.light_channels == 2 and apart.log["field_config"]["light_channels"] == 2
+    together = fit(scene, pmap, tmp_path / "together", FitSettings.from_preset("tiny", steps=20, per_light=False),
+                   progress=False)
+    assert together.model.cfg.light_channels == 1 and "light_channels" not in together.log["field_config"]
+    for run in (apart, together):
+        assert np.isfinite(run.log["validation"][-1]["val_rel_l1"])
