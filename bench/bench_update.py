@@ -110,15 +110,21 @@ def light_colour(spec: dict[str, Any]) -> None:
     spec["lights"][0]["color"] = [0.7, 0.9, 1.0]
 
 
+def last_light_power(spec: dict[str, Any]) -> None:
+    """The last light's power x2 and its colour made warmer (with several lights: one light's edit among them)."""
+    spec["lights"][-1]["power"] *= 2.0
+    spec["lights"][-1]["color"] = [1.0, 0.8, 0.6]
+
+
 EDITS: dict[str, Callable[[dict[str, Any]], None]] = {
     "opacity": opacity_feature, "density": density_scale, "albedo": albedo_colour,
     "light10": light_moved(10), "light45": light_moved(45), "light90": light_moved(90),
-    "power": light_power, "colour": light_colour,
+    "power": light_power, "colour": light_colour, "last": last_light_power,
 }
 #: Edits a field may follow by a rescale of its L_i (``photon_fields.runtime.scene.light_rescale``): with one light
 #: always, with several when the base field keeps the lights apart (``--lights apart``, the default since
 #: 2026-11-26); otherwise the bench falls back to ``update_run``.
-RESCALE_EDITS = ("power", "colour")
+RESCALE_EDITS = ("power", "colour", "last")
 
 
 def rescaled(base: Path, new: Scene) -> tuple[np.ndarray | None, float]:
