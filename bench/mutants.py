@@ -563,7 +563,7 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/field/test_per_light.py::test_the_parts_sum_to_the_estimate_and_each_is_its_lights",),
            "every photon counts for the first light: the per-light targets put the whole L_i on one light"),
     Mutant("per_light_factors_ignored", "runtime/field/field.py",
-           "L = (parts.sum(axis=1) if scale is None else", "L = (parts.sum(axis=1) if True else",
+           "            if factors is not None:\n                part = part * factors[light]\n", "",
            ("tests/runtime/field/test_per_light.py::test_a_field_sums_its_lights_parts_with_their_factors",),
            "a field that keeps its lights apart ignores a light's edited power: L_i as trained"),
     Mutant("per_light_loss_on_own_part", "train/fit/loss.py",
