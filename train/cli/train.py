@@ -236,14 +236,19 @@ def _run_fit(args: argparse.Namespace, scene, pmap, settings,  # noqa: ANN001
     out = Path(args.out)
     check_map_for_sampling(pmap, settings.g_sampling)  # refuse before anything is written into the run folder
     write_run_domain(out, scene, args.scene)  # the world box the export needs (checkpoints do not hold it)
+    if settings.per_light and len(scene.lights) > 1 and pmap.light is None:
+        print(f"note: {pmap.path or 'the photon map'} does not record which light each photon came from (traced "
+              "before 2026-11-26): the field gets one output for all lights, and a light's power or colour edit "
+              "will need an update; re-trace it to keep the lights apart", file=sys.stderr)
     result = fit(scene, pmap, out, settings, progress=not args.quiet, on_progress=stage_callback(progress, "fit"))
     t = result.log["totals"]
     val = t["final_validation"] or {}
     print(f"fitted {t['steps_done']} steps x {settings.batch} samples in {t['wall_s']:.1f} s (targets "
           f"{t['targets_s_per_step'] * 1e3:.0f} ms/step, training {t['train_s_per_step'] * 1e3:.0f} ms/step, "
           f"{t['samples_per_s']:,.0f} samples/s); final loss {t['final_loss']:.4g}, validation loss "
-          f"{val.get('val_loss', float('nan')):.4g}, relative L1 {val.get('val_rel_l1', float('nan')):.3f} -> "
-          + ", ".join(str(p) for p in result.files))
+          f"{val.get('val_loss', float('nan')):.4g}, relative L1 {val.get('val_rel_l1', float('nan')):.3f}"
+          + (f", {result.model.cfg.light_channels} lights apart" if result.model.cfg.light_channels > 1 else "")
+          + " -> " + ", ".join(str(p) for p in result.files))
     return 0
 
 

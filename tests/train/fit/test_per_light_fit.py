@@ -65,3 +65,27 @@ def test_a_fit_of_two_lights_keeps_them_apart_unless_told(two_light_map, tmp_pat
     assert together.model.cfg.light_channels == 1 and "light_channels" not in together.log["field_config"]
     for run in (apart, together):
         assert np.isfinite(run.log["validation"][-1]["val_rel_l1"])
+
+
+def test_pfn_train_fit_says_whether_the_lights_are_kept_apart(two_light_map, tmp_path: Path,  # noqa: ANN001
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """With the map's light records: "2 lights apart"; with a map traced before them: a note that the field will
+    have one output (and why a light edit will need an update)."""
+    import json
+
+    from photon_fields.runtime.photons.photon_map import PhotonMap
+    from photon_fields.train.cli.train import _main as train_main
+
+    scene, pmap = two_light_map
+    d = tiny_scene_dict()
+    d["lights"].append(dict(LAMP))
+    scene_file = tmp_path / "two.json"
+    scene_file.write_text(json.dumps(d))
+    pmap.save(tmp_path / "new.npz")
+    PhotonMap(pmap.position, pmap.direction, pmap.power, pmap.phase, pmap.phases, pmap.scene_fingerprint,
+              pmap.emitted, pmap.meta).save(tmp_path / "old.npz")
+    for name in ("new", "old"):
+        assert train_main(["fit", str(scene_file), "--map", str(tmp_path / f"{name}.npz"), "--preset", "tiny",
+                           "--steps", "3", "--out", str(tmp_path / name), "--quiet"]) == 0
+    out = capsys.readouterr()
+    assert out.out.count("2 lights apart") == 1 and "does not record which light" in out.err
