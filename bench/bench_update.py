@@ -195,6 +195,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--size", type=int, default=64, help="L_i image size")
     ap.add_argument("--spp", type=int, default=16, help="field and photon-map samples per pixel")
     ap.add_argument("--ref-spp", type=int, default=0, help="path-traced reference L_i spp (0: photon map only)")
+    ap.add_argument("--no-reweight", action="store_true",
+                    help="retrace for an albedo edit too (the update reweights RUN's map by default)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--fresh", action="store_true", help="retrain cold runs even if --work holds them")
     ap.add_argument("--work", type=Path, default=DEFAULT_WORK)
@@ -229,7 +231,8 @@ def main(argv: list[str] | None = None) -> None:
             if scale is None:
                 res = update_run(base, new, folder / "update", budget_s=args.budget, max_steps=args.max_steps,
                                  photons=args.update_photons, force=True, progress=False, patience=args.patience,
-                                 min_improvement=args.min_improvement, lr_share=args.lr_share)
+                                 min_improvement=args.min_improvement, lr_share=args.lr_share,
+                                 reweight=not args.no_reweight)
             update_s = load_s + time.perf_counter() - t0
             load_after = load_average()
             pmap, cold = cold_run(new, folder / "cold", args.photons, args.seed, reuse=not args.fresh)
@@ -247,7 +250,8 @@ def main(argv: list[str] | None = None) -> None:
                 stop = res.fit.log["stop"]
                 update: dict[str, Any] = {
                     "wall_s": update_s, "trace_s": res.trace_s, "export_s": res.bundle.seconds,
-                    "photons": res.fit.log["photons"], "time_split": res.time_split, "steps": stop["steps"],
+                    "photons": res.fit.log["photons"], "map_from": res.map_from, "time_split": res.time_split,
+                    "steps": stop["steps"],
                     "stop": stop["reason"], "kept_step": stop["kept_step"], "validation": res.fit.log["validation"]}
                 split = res.time_split
             else:

@@ -572,6 +572,16 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/train/fit/test_per_light_fit.py::test_per_light_loss_weighs_lights_by_the_sum",),
            "each light's error is weighed by its own part: a dim light's noise is fitted as hard as the image's "
            "main light"),
+    # An albedo edit reweights the earlier map (issue 16).
+    Mutant("albedo_reweight_never_resets", "runtime/photons/albedo_reweight.py",
+           "        if bounce[i] <= 2:  # a new path", "        if bounce[i] <= 1:  # a new path",
+           ("tests/runtime/photons/test_albedo_reweight.py::test_an_albedo_edit_reweights_like_a_fresh_trace",),
+           "the albedo factors run on from one path into the next: records get other paths' products"),
+    Mutant("update_never_reweights", "train/fit/update.py",
+           "    pmap = reweighted_map(record, scene, photons, seed) if reweight else None",
+           "    pmap = None",
+           ("tests/train/fit/test_update.py::test_an_albedo_edit_reweights_runs_map_instead_of_retracing",),
+           "an albedo edit retraces like any other: seconds of the budget and a map less correlated with RUN's"),
 )
 
 

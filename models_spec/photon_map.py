@@ -12,6 +12,9 @@ power          float32 (n,3) RGB power arriving at the collision [W], already di
                              complete map on their own)
 phase          uint8 (n,)    index into ``meta["phases"]`` (the g the photon scattered with)
 light          uint8 (n,)    optional: index into ``meta["lights"]`` of the light that emitted the photon
+bounce         uint8 (n,)    optional: the record's collision number along its path (2, 3, ...)
+prev_scalar    float32 (n,)  optional: the volume's scalar (a categorical volume's label index) at the path's
+                             previous collision
 meta           uint8 (m,)    UTF-8 JSON metadata (below)
 =============  ============  ===========================================================================
 
@@ -20,6 +23,12 @@ refuses the array, naming it): which light each record's path started from, so t
 from it with one output per light (:attr:`photon_fields.models_spec.encoding.FieldConfig.light_channels`), can keep
 the lights' contributions apart and rescale one light's power or colour among several. A map with it also records
 ``lights``, and has fewer than :data:`MAX_LIGHTS` of them.
+
+``bounce`` and ``prev_scalar`` (2026-11-26, optional, together, without a version change): a path's records are
+consecutive in the map with ``bounce`` 2, 3, ... (a new path starts at 2), so that the albedo at every earlier
+collision of a record's path can be looked up again (the first collision is not stored: ``prev_scalar`` of the
+record at 2 holds its scalar). An edit of the transfer function's albedo alone then reweights every record's power
+exactly instead of retracing (:mod:`photon_fields.runtime.photons.albedo_reweight`).
 
 Metadata keys (:data:`PHOTON_MAP_META_KEYS`; a reader refuses any other key, naming it): ``format``
 (= PHOTON_MAP_FORMAT), ``version`` (= PHOTON_MAP_VERSION), ``scene_fingerprint``, ``phases`` (the set G),
@@ -66,7 +75,7 @@ DEFAULT_MAP_PHASES: tuple[float, ...] = PHASE_BINS
 PHOTON_MAP_ARRAYS = {"position": ("float32", 3), "direction": ("float32", 3), "power": ("float32", 3),
                      "phase": ("uint8", 0)}
 #: Arrays a map may hold besides :data:`PHOTON_MAP_ARRAYS` (dtype, width as there).
-PHOTON_MAP_OPTIONAL_ARRAYS = {"light": ("uint8", 0)}
+PHOTON_MAP_OPTIONAL_ARRAYS = {"light": ("uint8", 0), "bounce": ("uint8", 0), "prev_scalar": ("float32", 0)}
 #: Lights a map can tell apart (its ``light`` array is uint8); a scene with more is traced without the array.
 MAX_LIGHTS = 255
 #: Metadata keys a photon map must have, and the ones it may have besides.

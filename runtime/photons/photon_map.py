@@ -56,6 +56,11 @@ class PhotonMap:
     #: uint8 (n,): the index into :attr:`lights` of the light each record's path started from, or None (a map traced
     #: before maps recorded it): what keeps the lights' contributions apart (a field's ``light_channels``).
     light: np.ndarray | None = None
+    #: uint8 (n,) and float32 (n,), or None (maps traced before them): each record's collision number along its path
+    #: (2, 3, ...; a path's records are consecutive) and the scalar at the path's previous collision, with which an
+    #: edit of the albedo alone reweights the map (:mod:`photon_fields.runtime.photons.albedo_reweight`).
+    bounce: np.ndarray | None = None
+    prev_scalar: np.ndarray | None = None
 
     @property
     def light_count(self) -> int:
@@ -86,7 +91,7 @@ class PhotonMap:
             factor = factor[self.light] if self.light is not None else factor.reshape(3)
         power = (self.power * factor).astype(np.float32)
         return PhotonMap(self.position, self.direction, power, self.phase, self.phases, scene.fingerprint(),
-                         self.emitted, meta, self.path, self.light)
+                         self.emitted, meta, self.path, self.light, self.bounce, self.prev_scalar)
 
     def __len__(self) -> int:
         return int(self.position.shape[0])
@@ -103,7 +108,7 @@ class PhotonMap:
         sel = self.phase == phase
         return PhotonMap(self.position[sel], self.direction[sel], self.power[sel], self.phase[sel], self.phases,
                          self.scene_fingerprint, self.emitted, dict(self.meta), self.path,
-                         None if self.light is None else self.light[sel])
+                         *(None if a is None else a[sel] for a in (self.light, self.bounce, self.prev_scalar)))
 
     def metadata(self) -> dict[str, Any]:
         counts = np.bincount(self.phase, minlength=len(self.phases)) if len(self) else np.zeros(len(self.phases))
@@ -115,7 +120,8 @@ class PhotonMap:
         path = Path(path)
         meta = np.frombuffer(json.dumps(self.metadata()).encode(), dtype=np.uint8)
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            extra = {} if self.light is None else {"light": self.light}
+            extra = {name: a for name, a in (("light", self.light), ("bounce", self.bounce),
+                                             ("prev_scalar", self.prev_scalar)) if a is not None}
             np.savez(f, position=self.position, direction=self.direction, power=self.power, phase=self.phase,
                      meta=meta, **extra)
         return path
@@ -145,8 +151,10 @@ class PhotonMap:
         for name in ("position", "direction", "power"):
             if not np.all(np.isfinite(arrays[name])):
                 raise InputError(what, f"'{name}' contains non-finite values")
+        if ("bounce" in arrays) != ("prev_scalar" in arrays):
+            raise InputError(what, "holds one of 'bounce' and 'prev_scalar' without the other")
         pmap = cls(arrays["position"], arrays["direction"], arrays["power"], arrays["phase"], phases, fp, emitted,
-                   meta, p, light)
+                   meta, p, light, arrays.get("bounce"), arrays.get("prev_scalar"))
         if expected_fingerprint is not None and fp != expected_fingerprint:
             raise InputError(what, f"photon map was traced for {pmap.mismatch(expected_parts)}; re-trace it for "
                              "this scene")

@@ -353,7 +353,8 @@ def cmd_update(args: argparse.Namespace) -> int:
     log = res.fit.log
     val = log["totals"]["final_validation"] or {}
     first = log["validation"][0]["val_rel_l1"]
-    print(f"updated {args.run} -> {res.out}: traced in {res.trace_s:.1f} s, {log['stop']['steps']} steps "
+    made = "traced" if res.map_from == "retraced" else "the albedo edit reweighted RUN's map"
+    print(f"updated {args.run} -> {res.out}: {made} in {res.trace_s:.1f} s, {log['stop']['steps']} steps "
           f"(stopped: {log['stop']['reason']}), validation relative L1 {first:.3f} -> "
           f"{val.get('val_rel_l1', float('nan')):.3f}, {res.wall_s:.1f} s in all")
     _print_export(res.bundle)

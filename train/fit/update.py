@@ -49,9 +49,11 @@ import numpy as np
 
 from photon_fields.runtime.cli.common import refuse_to_replace
 from photon_fields.runtime.errors import InputError, check_keys
-from photon_fields.runtime.photons.photon_map import read_header
+from photon_fields.runtime.photons.albedo_reweight import albedo_only, reweight_albedo
+from photon_fields.runtime.photons.photon_map import PhotonMap, read_header
 from photon_fields.runtime.scene.light_rescale import scene_rescale
 from photon_fields.runtime.scene.scene import Scene
+from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.train.export.bundle import ExportResult, export_bundle, read_run_domain, write_run_domain
 from photon_fields.train.fit.checkpoint import load_checkpoint
 from photon_fields.train.fit.early_stop import DEFAULT_MIN_IMPROVEMENT, DEFAULT_PATIENCE, PlateauStop
@@ -98,6 +100,8 @@ class RunRecord:
     """The run's lights as its scene file recorded them (``domain.json``'s ``scene_spec``), None for older runs."""
     light_channels: int = 1
     """The run's field's light channels (``FieldConfig.light_channels`` in ``log.json``'s ``field_config``)."""
+    transfer: dict[str, Any] | None = None
+    """The run's transfer function as its scene file recorded it (``domain.json``'s ``scene_spec``), or None."""
 
     def light_rescale(self, scene: Scene) -> np.ndarray | None:
         """The RGB factor (3,), or one per light (L, 3) for a field that keeps its lights apart, when ``scene`` differs
@@ -150,9 +154,10 @@ def read_run(run: str | Path) -> RunRecord:
     lights = (record.get("spec") or {}).get("lights")
     channels = (log.get("field_config") or {}).get("light_channels", 1) if isinstance(log.get("field_config"),
                                                                                       dict) else 1
+    transfer = (record.get("spec") or {}).get("transfer_function")
     return RunRecord(path, record.get("name"), settings, fingerprint, parts, tuple(bmin), tuple(bsize), photons,
                      phases, max_bounces, map_seed, steps, lights if isinstance(lights, list) else None,
-                     channels if isinstance(channels, int) else 1)
+                     channels if isinstance(channels, int) else 1, transfer if isinstance(transfer, dict) else None)
 
 
 def check_update(record: RunRecord, scene: Scene, what: str = "--scene") -> None:
@@ -202,9 +207,45 @@ class UpdateResult:
     trace_s: float
     wall_s: float
     time_split: dict[str, float]
-    """Seconds by stage: ``log.json``'s ``update_time`` (``read_run_s``: RUN's files and checks; ``trace_s``;
+    """Seconds by stage: ``log.json``'s ``update_time`` (``read_run_s``: RUN's files and checks; ``trace_s``: the new
+    map, retraced or reweighted;
     ``save_map_s``: ``map.npz`` and ``domain.json``; the fine-tune's stages to ``fine_tune_s``), then
     ``outputs_s`` (the loss plot and the last log write), ``export_s`` and ``wall_s`` (the call, end to end)."""
+    map_from: str = "retraced"
+    """How the new map was made: "retraced", or "reweighted" (RUN's map, for an edit of the albedo alone,
+    :func:`reweighted_map`)."""
+
+
+def reweighted_map(record: RunRecord, scene: Scene, photons: int, seed: int) -> PhotonMap | None:
+    """RUN's map as ``scene``'s when the edit changes the transfer function's albedo and nothing else: every record
+    reweighted exactly, its paths thinned to about ``photons`` records
+    (:mod:`photon_fields.runtime.photons.albedo_reweight`); None when that cannot be (another edit, a map without
+    its path records or with fewer lights apart, a channel lit that was dark), and the update retraces."""
+    path = record.path / "map.npz"
+    if record.transfer is None or not path.is_file() or record.lights != scene.light_identities() \
+            or _without_albedo(record.transfer) != _without_albedo(scene.tf.to_dict()):
+        return None
+    try:
+        before = replace(scene, tf=TransferFunction.from_dict(record.transfer, what="RUN transfer_function",
+                                                                 volume=scene.volume), _cache={})
+    except InputError:
+        return None
+    if before.fingerprint() != record.fingerprint or not albedo_only(before.medium(), scene.medium()):
+        return None
+    pmap = PhotonMap.load(path, expected_fingerprint=record.fingerprint)
+    if record.light_channels > 1 and pmap.light_count != record.light_channels:
+        return None  # a field of light channels needs each photon's light
+    keep = min(1.0, photons / max(len(pmap), 1))
+    return reweight_albedo(pmap, before.medium(), scene.medium(), scene, keep=keep, seed=seed)
+
+
+def _without_albedo(spec: Any) -> Any:
+    """A transfer function's dict without its albedo entries (what an albedo-only edit leaves equal)."""
+    if isinstance(spec, dict):
+        return {k: _without_albedo(v) for k, v in spec.items() if k not in ("albedo", "name")}
+    if isinstance(spec, list):
+        return [_without_albedo(v) for v in spec]
+    return spec
 
 
 def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: float = UPDATE_BUDGET_S,
@@ -214,7 +255,7 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
                lr_share: float = UPDATE_LR_SHARE,
                progress: bool = True, on_progress: Callable[[str, int, int], None] | None = None,
                started: float | None = None,
-               on_bundle: Callable[[ExportResult], None] | None = None) -> UpdateResult:
+               on_bundle: Callable[[ExportResult], None] | None = None, reweight: bool = True) -> UpdateResult:
     """Update RUN's field to ``scene`` into the run folder ``out`` (module docstring). ``seed`` (default: RUN's
     map's) seeds the retrace and the fine-tune; ``photons`` (default: RUN's map's count, at most
     :data:`photon_fields.train.fit.presets.UPDATE_PHOTONS`) the new map's size.
@@ -223,7 +264,8 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
     counts from, if earlier than the call (``pfn-train update`` passes its process's start, so that ``--budget``
     bounds the command's wall time, its imports included: the viewer's retrain runs it as a process).
     ``on_bundle(export)`` is called once the bundle is written, before the loss plot (``pfn-train update`` marks its
-    progress file done there: the viewer swaps the field in while the plot is drawn)."""
+    progress file done there: the viewer swaps the field in while the plot is drawn). ``reweight`` False: retrace
+    even for an edit of the albedo alone (:func:`reweighted_map`; for comparisons)."""
     t_call = time.perf_counter()
     t0 = t_call if started is None else min(float(started), t_call)
     check_budget(budget_s, max_steps)
@@ -252,10 +294,13 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
         return None if on_progress is None else (lambda done, total: on_progress(name, done, total))
 
     t1 = time.perf_counter()
-    trace_deadline = t1 + UPDATE_TRACE_SHARE * max(t0 + float(budget_s) - t1, 0.0)
-    pmap = trace_photons(scene, photons, phases=record.phases, max_bounces=record.max_bounces, seed=seed,
-                         progress=progress, on_progress=stage("trace"), deadline=trace_deadline,
-                         min_photons=min(photons, UPDATE_MIN_PHOTONS))
+    pmap = reweighted_map(record, scene, photons, seed) if reweight else None
+    map_from = "reweighted" if pmap is not None else "retraced"
+    if pmap is None:
+        trace_deadline = t1 + UPDATE_TRACE_SHARE * max(t0 + float(budget_s) - t1, 0.0)
+        pmap = trace_photons(scene, photons, phases=record.phases, max_bounces=record.max_bounces, seed=seed,
+                             progress=progress, on_progress=stage("trace"), deadline=trace_deadline,
+                             min_photons=min(photons, UPDATE_MIN_PHOTONS))
     t2 = time.perf_counter()
     pmap.save(dest / "map.npz")
     trace_s = time.perf_counter() - t_call
@@ -264,7 +309,7 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
     spent = {"budget_s": float(budget_s), "startup_s": t_call - t0, "read_run_s": read_s,
              "trace_s": t2 - t1, "save_map_s": t_fit - t2}
     warm = {"run": str(src), "scene": record.scene_name, "scene_fingerprint": record.fingerprint,
-            "steps": record.steps, "map_seed": record.map_seed}
+            "steps": record.steps, "map_seed": record.map_seed, "map": map_from}
     deadline = t0 + float(budget_s) - min(UPDATE_OUTPUT_RESERVE_S, 0.5 * float(budget_s))
     result = fine_tune(model, scene, pmap, dest, settings, max_steps=max_steps, deadline=deadline,
                        stop=PlateauStop(min_improvement, patience), warm_start_from=warm, progress=progress,
@@ -281,4 +326,4 @@ def update_run(run: str | Path, scene: Scene, out: str | Path, *, budget_s: floa
     logged = result.log["update_time"]  # up to the log's writing; then the export, and the plot
     split = {**logged, "outputs_s": t3 - t_fit - logged["fine_tune_s"], "export_s": t4 - t3,
              "bundle_s": t4 - t0, "plot_s": time.perf_counter() - t4, "wall_s": wall}
-    return UpdateResult(dest, result, bundle, trace_s, wall, split)
+    return UpdateResult(dest, result, bundle, trace_s, wall, split, map_from)

@@ -38,7 +38,9 @@ transfer function, so the field only has to learn the smooth incident light (see
 ``runtime.photons.estimate``). Record powers are divided by the number of paths emitted for their phase, so
 the records of each phase form a complete photon map on their own. Each record also keeps the index of the light its
 path started from (the map's ``light`` array): the map then holds each light's photon map apart, which a field with
-one output per light learns (:attr:`photon_fields.models_spec.encoding.FieldConfig.light_channels`).
+one output per light learns (:attr:`photon_fields.models_spec.encoding.FieldConfig.light_channels`); and its
+collision number along the path and the scalar at the path's previous collision, from which an edit of the albedo
+alone reweights the map exactly instead of retracing it (:mod:`photon_fields.runtime.photons.albedo_reweight`).
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.emitters import emission_fluxes, emit_photon
 from photon_fields.runtime.transport.environment_map import EnvMap
-from photon_fields.runtime.transport.medium import Medium
+from photon_fields.runtime.transport.medium import Medium, scalar_at
 from photon_fields.runtime.transport.phase import check_g
 from photon_fields.runtime.transport.rng import next_float, stream_state
 from photon_fields.runtime.transport.tracking import TASK_ITEMS
@@ -82,7 +84,7 @@ def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, powe
                  light_cdf: np.ndarray, phases: np.ndarray, active: np.ndarray, seed: int, first: int, lo: int, hi: int,
                  max_bounces: int,
                  out_pos: np.ndarray, out_dir: np.ndarray, out_pow: np.ndarray, out_phase: np.ndarray,
-                 out_light: np.ndarray, out_count: np.ndarray) -> None:
+                 out_light: np.ndarray, out_bounce: np.ndarray, out_prev: np.ndarray, out_count: np.ndarray) -> None:
     """Paths lo..hi-1 of :func:`_trace_chunk`, serially (``TASK_ITEMS`` in the tracking module says why)."""
     cx, cy, cz = m.bmin[0] + 0.5 * m.bsize[0], m.bmin[1] + 0.5 * m.bsize[1], m.bmin[2] + 0.5 * m.bsize[2]
     radius = 0.5 * math.sqrt(m.bsize[0] ** 2 + m.bsize[1] ** 2 + m.bsize[2] ** 2)
@@ -114,6 +116,8 @@ def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, powe
                     out_pow[k, c] = hit_pow[bounce, c]
                 out_phase[k] = ph
                 out_light[k] = li
+                out_bounce[k] = bounce + 1
+                out_prev[k] = scalar_at(m, hit_pos[bounce - 1, 0], hit_pos[bounce - 1, 1], hit_pos[bounce - 1, 2])
                 count += 1
         out_count[i] = count
 
@@ -123,15 +127,16 @@ def _trace_chunk(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, powe
                  light_cdf: np.ndarray, phases: np.ndarray, active: np.ndarray, seed: int, first: int, n: int,
                  max_bounces: int,
                  out_pos: np.ndarray, out_dir: np.ndarray, out_pow: np.ndarray, out_phase: np.ndarray,
-                 out_light: np.ndarray, out_count: np.ndarray) -> None:
+                 out_light: np.ndarray, out_bounce: np.ndarray, out_prev: np.ndarray, out_count: np.ndarray) -> None:
     """Trace photon paths first .. first + n - 1; path i scatters with phase active[i % len(active)],
-    writes its records (and the index of the light it started from) to slots [i * (max_bounces - 1), ...) and their
+    writes its records (with the index of the light it started from, the collision's number along the path and the
+    scalar at the path's previous collision) to slots [i * (max_bounces - 1), ...) and their
     number to out_count[i]. ``env``: the
     scene's environment map (its photons' power is scaled per channel by ``emit_photon``)."""
     for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
         _trace_paths(m, kind, vec, env, power, cos_max, light_cdf, phases, active, seed, first, task * TASK_ITEMS,
                      min(n, (task + 1) * TASK_ITEMS), max_bounces, out_pos, out_dir, out_pow, out_phase, out_light,
-                     out_count)
+                     out_bounce, out_prev, out_count)
 
 
 def _check_progress(scene: Scene, stored: np.ndarray, emitted: np.ndarray, quota: int) -> None:
@@ -191,6 +196,8 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
     buf_pow = np.empty((CHUNK * slots, 3), dtype=np.float32)
     buf_phase = np.empty(CHUNK * slots, dtype=np.uint8)
     buf_light = np.zeros(CHUNK * slots, dtype=np.uint8)
+    buf_bounce = np.zeros(CHUNK * slots, dtype=np.uint8)
+    buf_prev = np.zeros(CHUNK * slots, dtype=np.float32)
     counts = np.empty(CHUNK, dtype=np.int64)
     quota = -(-photons // len(gs))
     stored = np.zeros(len(gs), dtype=np.int64)
@@ -204,7 +211,7 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
         while np.any(stored < quota):
             active = np.flatnonzero(stored < quota).astype(np.int64)
             _trace_chunk(m, kind, vec, env, power, cos_max, light_cdf, g_arr, active, int(seed), first_path, CHUNK,
-                         max_bounces, buf_pos, buf_dir, buf_pow, buf_phase, buf_light, counts)
+                         max_bounces, buf_pos, buf_dir, buf_pow, buf_phase, buf_light, buf_bounce, buf_prev, counts)
             first_path += CHUNK
             for j, ph in enumerate(active):
                 paths = np.arange(j, CHUNK, len(active))  # this phase's paths in the chunk
@@ -213,7 +220,8 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
                     paths = paths[: int(np.searchsorted(cum, quota - stored[ph])) + 1]
                 used = np.arange(slots)[None, :] < counts[paths, None]
                 sel = (paths[:, None] * slots + np.arange(slots)[None, :])[used]
-                parts[ph].append((buf_pos[sel], buf_dir[sel], buf_pow[sel], buf_phase[sel], buf_light[sel]))
+                parts[ph].append((buf_pos[sel], buf_dir[sel], buf_pow[sel], buf_phase[sel], buf_light[sel],
+                                  buf_bounce[sel], buf_prev[sel]))
                 stored[ph] += sel.size
                 emitted_per_phase[ph] += paths.size
                 bar.update(int(min(sel.size, quota * len(gs) - bar.n)))
@@ -226,6 +234,8 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
     dirs = np.concatenate([p[1] for ph_parts in parts for p in ph_parts])
     ph_idx = np.concatenate([p[3] for ph_parts in parts for p in ph_parts])
     light = np.concatenate([p[4] for ph_parts in parts for p in ph_parts]) if len(kind) <= MAX_LIGHTS else None
+    bounce = np.concatenate([p[5] for ph_parts in parts for p in ph_parts])
+    prev = np.concatenate([p[6] for ph_parts in parts for p in ph_parts])
     # Normalize by the paths emitted for each record's own phase (each phase is a complete map).
     pw = np.concatenate([p[2] / np.float32(emitted_per_phase[k]) for k, ph_parts in enumerate(parts)
                          for p in ph_parts]).astype(np.float32)
@@ -233,4 +243,5 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
     meta = {"seed": int(seed), "max_bounces": int(max_bounces), "trace_seconds": time.perf_counter() - t_start,
             "scene_name": scene.name, "emitted_per_phase": [int(e) for e in emitted_per_phase],
             "scene_parts": scene.fingerprint_parts(), "lights": scene.light_identities()}
-    return PhotonMap(pos, dirs, pw, ph_idx, gs, scene.fingerprint(), emitted, meta, light=light)
+    return PhotonMap(pos, dirs, pw, ph_idx, gs, scene.fingerprint(), emitted, meta, light=light, bounce=bounce,
+                     prev_scalar=prev)

@@ -431,3 +431,28 @@ def test_an_update_for_a_power_edit_says_the_run_renders_it_already(runs: dict[s
     assert "only in its lights' power or colour" in err and "(2, 2, 2)" in err and "updating anyway" in err
     assert train_main(update_args(runs, "denser", tmp_path / "d", "--max-steps", "0")) == 0
     assert "only in its lights'" not in capsys.readouterr().err
+
+
+def test_an_albedo_edit_reweights_runs_map_instead_of_retracing(runs: dict[str, Path], tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """Only the albedo changed: the new map is RUN's paths, reweighted (runtime/photons/albedo_reweight.py), thinned
+    to the update's photon count; nothing is traced. A density edit still retraces."""
+    tf = load_scene(runs["base"]).tf.to_dict()
+    for p in tf["points"]:
+        p["albedo"] = [0.6 * p["albedo"][0], p["albedo"][1], p["albedo"][2]]
+    bluer = write_scene(tmp_path, "bluer", transfer_function=tf)
+    traced = []
+    monkeypatch.setattr(update_module, "trace_photons", lambda *a, **k: traced.append(1))
+    monkeypatch.setattr(update_module, "UPDATE_PHOTONS", 2000)
+    res = update_run(runs["run"], load_scene(bluer), tmp_path / "new", max_steps=1, progress=False)
+    assert res.map_from == "reweighted" and not traced and res.fit.log["warm_start_from"]["map"] == "reweighted"
+    old, new = PhotonMap.load(runs["run"] / "map.npz"), PhotonMap.load(res.out / "map.npz")
+    assert 1000 < len(new) < 3000 < len(old) and new.scene_fingerprint == load_scene(bluer).fingerprint()
+    monkeypatch.undo()
+    denser = update_run(runs["run"], load_scene(runs["denser"]), tmp_path / "denser", max_steps=0, progress=False)
+    assert denser.map_from == "retraced"
+    capsys.readouterr()
+    assert train_main(["update", str(runs["run"]), "--scene", str(bluer), "--out", str(tmp_path / "cli"),
+                       "--max-steps", "1", "--quiet"]) == 0
+    assert "the albedo edit reweighted RUN's map" in capsys.readouterr().out
