@@ -153,6 +153,10 @@ class PhotonMap:
                 raise InputError(what, f"'{name}' contains non-finite values")
         if ("bounce" in arrays) != ("prev_scalar" in arrays):
             raise InputError(what, "holds one of 'bounce' and 'prev_scalar' without the other")
+        if "bounce" in arrays and n and (int(arrays["bounce"].min()) < 2 or not np.all(np.isfinite(
+                arrays["prev_scalar"]))):
+            raise InputError(what, "'bounce' below 2 (records start at a path's 2nd collision) or a non-finite "
+                             "'prev_scalar'")
         pmap = cls(arrays["position"], arrays["direction"], arrays["power"], arrays["phase"], phases, fp, emitted,
                    meta, p, light, arrays.get("bounce"), arrays.get("prev_scalar"))
         if expected_fingerprint is not None and fp != expected_fingerprint:

@@ -102,3 +102,32 @@ def test_what_cannot_be_reweighted(base, tmp_path: Path) -> None:  # noqa: ANN00
     older = copy.copy(pmap)
     older.bounce = older.prev_scalar = None
     assert reweight_albedo(older, scene.medium(), scene_with(tmp_path, BLUER).medium(), scene) is None
+
+
+@pytest.mark.parametrize(("change", "problem"), [
+    ({"bounce": None}, "without the other"),
+    ({"bounce": "low"}, "'bounce' below 2"),
+    ({"light": "beyond"}, "indexes lights"),
+])
+def test_inconsistent_path_and_light_records_are_refused(base, tmp_path: Path, change: dict,  # noqa: ANN001
+                                                         problem: str) -> None:
+    """The optional arrays are checked at load: both path arrays or neither, collision numbers from 2, light indices
+    among the recorded lights; one line naming the file."""
+    from photon_fields.runtime.errors import InputError
+    from photon_fields.runtime.photons.photon_map import PhotonMap
+
+    _, pmap = base
+    path = pmap.save(tmp_path / "m.npz")
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    for name, how in change.items():
+        if how is None:
+            del arrays[name]
+        elif how == "low":
+            arrays[name] = np.ones_like(arrays[name])
+        else:
+            arrays[name] = np.full_like(arrays[name], 7)
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(InputError, match=problem) as info:
+        PhotonMap.load(tmp_path / "bad.npz")
+    assert "bad.npz" in str(info.value)
