@@ -95,6 +95,15 @@ def test_readme_example_with_a_field_trains_once(tmp_path: Path, monkeypatch: py
                          training=TINY_TRAINING, cache=cache)
     np.testing.assert_allclose(brighter.L_i, img.L_i * [2.0, 2.0, 3.0], rtol=1e-5, atol=1e-7)
     assert len(list((cache / "fields").iterdir())) == 1
+    # one light of the rig twice as bright, then the others: the field keeps the lights apart (the default), so
+    # each is a rescale of its own part, and the two images' L_i add up to three times the rig's (linearity)
+    rig = [light.to_dict() for light in light_rig("studio")]
+    first = [{**rig[0], "power": 2.0 * rig[0]["power"]}, *rig[1:]]
+    others = [rig[0], *({**lt, "power": 2.0 * lt["power"]} for lt in rig[1:])]
+    a, b = (pf.render(tmp_path / "head.nrrd", lights=lights, method="field", spp=1, size=(16, 16),
+                      training=TINY_TRAINING, cache=cache) for lights in (first, others))
+    np.testing.assert_allclose(a.L_i + b.L_i, 3.0 * img.L_i, rtol=1e-5, atol=1e-7)
+    assert not np.allclose(a.L_i, b.L_i, rtol=1e-3) and len(list((cache / "fields").iterdir())) == 1
     # another light rig is another scene: it would train (refused here by the stand-in)
     with pytest.raises(AssertionError, match="trained again"):
         pf.render(tmp_path / "head.nrrd", lights="sun", method="field", spp=1, size=(16, 16),
