@@ -259,7 +259,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
     settings = _fit_settings(args)
     _set_all_threads(args.threads)
     scene = load_scene(args.scene)
-    pmap = load_map_for(scene, args.map)
+    pmap, note = load_map_for(scene, args.map)
+    if note is not None:
+        print(f"note: {note}", file=sys.stderr)
     out = Path(args.out)
     _prepare_run_folder(out, args.force, (*FIT_OUTPUTS, "field.pfn"))
     if (out / "field.pfn").exists():

@@ -42,7 +42,7 @@ import torch
 from photon_fields.models_spec.encoding import MAX_LIGHT_CHANNELS, FieldConfig
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.io.atomic import atomic_write_text
-from photon_fields.runtime.photons.estimate import check_map_matches_scene
+from photon_fields.runtime.photons.estimate import check_map_matches_scene, map_for_scene
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
@@ -269,6 +269,15 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
     return FitResult(model, log, out, [ckpt, log_path, png])
 
 
-def load_map_for(scene: Scene, path: str | Path) -> PhotonMap:
-    """Load a photon map and refuse one traced for another scene, in one line."""
-    return PhotonMap.load(path, expected_fingerprint=scene.fingerprint(), expected_parts=scene.fingerprint_parts())
+def load_map_for(scene: Scene, path: str | Path) -> tuple[PhotonMap, str | None]:
+    """A photon map for fitting ``scene``, and a note or None: a map traced for the scene; or for it with its
+    lights' power or colour edited, rescaled exactly (:func:`photon_fields.runtime.photons.estimate.map_for_scene`;
+    the note says so); any other map is refused in one line."""
+    pmap = PhotonMap.load(path)
+    if pmap.scene_fingerprint == scene.fingerprint():
+        return pmap, None
+    rescaled, _, note = map_for_scene(pmap, scene, force=True)
+    if note is None:
+        raise InputError(str(path), f"photon map was traced for {pmap.mismatch(scene.fingerprint_parts())}; "
+                         "re-trace it for this scene")
+    return rescaled, note

@@ -89,3 +89,30 @@ def test_pfn_train_fit_says_whether_the_lights_are_kept_apart(two_light_map, tmp
                            "--steps", "3", "--out", str(tmp_path / name), "--quiet"]) == 0
     out = capsys.readouterr()
     assert out.out.count("2 lights apart") == 1 and "does not record which light" in out.err
+
+
+def test_pfn_train_fit_takes_a_map_of_the_same_lights_rescaled(two_light_map, tmp_path: Path,  # noqa: ANN001
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """A map traced before the lamp was made brighter fits the edited scene, rescaled per light (a note says so);
+    a map whose lamp stood elsewhere is refused in one line."""
+    import json
+
+    from photon_fields.runtime.errors import InputError
+    from photon_fields.train.cli.train import _main as train_main
+    from photon_fields.train.fit.loop import load_map_for
+
+    scene, pmap = two_light_map
+    pmap.save(tmp_path / "m.npz")
+    d = tiny_scene_dict()
+    d["lights"].append({**LAMP, "power": 2 * LAMP["power"]})
+    brighter = scene_from_dict(d, tmp_path)
+    rescaled, note = load_map_for(brighter, tmp_path / "m.npz")
+    assert "light 2 (2, 2, 2)" in note and rescaled.scene_fingerprint == brighter.fingerprint()
+    np.testing.assert_allclose(rescaled.power, pmap.power * np.where(pmap.light == 1, 2.0, 1.0)[:, None], rtol=1e-6)
+    (tmp_path / "brighter.json").write_text(json.dumps(d))
+    assert train_main(["fit", str(tmp_path / "brighter.json"), "--map", str(tmp_path / "m.npz"), "--preset", "tiny",
+                       "--steps", "2", "--out", str(tmp_path / "run"), "--quiet"]) == 0
+    assert "light 2 (2, 2, 2)" in capsys.readouterr().err
+    d["lights"][1]["position"] = [0.0, 0.9, 0.9]
+    with pytest.raises(InputError, match="lights differ"):
+        load_map_for(scene_from_dict(d, tmp_path), tmp_path / "m.npz")
