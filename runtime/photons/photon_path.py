@@ -22,7 +22,7 @@ import math
 import numpy as np
 from numba import njit
 
-from photon_fields.runtime.transport.medium import Medium, albedo_at, intersect_box
+from photon_fields.runtime.transport.medium import Medium, _albedo_of, intersect_box, scalar_at
 from photon_fields.runtime.transport.phase import sample_hg
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.tracking import delta_track
@@ -31,11 +31,13 @@ from photon_fields.runtime.transport.tracking import delta_track
 @njit(cache=True)
 def trace_path(m: Medium, g: float, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, br: float,
                bg: float, bb: float, st: np.uint64, max_bounces: int, pos: np.ndarray, dirs: np.ndarray,
-               power: np.ndarray) -> tuple[int, np.uint64]:
+               power: np.ndarray, scalar: np.ndarray) -> tuple[int, np.uint64]:
     """Follow the photon emitted at (ox, oy, oz) along (dx, dy, dz) with RGB power (br, bg, bb) (module docstring).
     Collision k (0: the first) goes to row k of ``pos``, ``dirs`` (unit travel direction arriving there) and
-    ``power`` (power arriving there), each (>= max_bounces, 3) float64; returns the number of collisions and the
-    stream state after the path. A photon that misses the box has none."""
+    ``power`` (power arriving there), each (>= max_bounces, 3) float64, and the volume's scalar there (whose albedo
+    the roulette used) to ``scalar[k]`` (not set at the last collision of ``max_bounces``, which plays no
+    roulette); returns the number of collisions and the stream state after the path. A photon that misses the box
+    has none."""
     t0, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
     if t0 >= t1:
         return 0, st
@@ -53,7 +55,9 @@ def trace_path(m: Medium, g: float, ox: float, oy: float, oz: float, dx: float, 
         n += 1
         if bounce + 1 == max_bounces:
             break
-        a0, a1, a2 = albedo_at(m, ox, oy, oz)
+        s = scalar_at(m, ox, oy, oz)
+        scalar[n - 1] = s
+        a0, a1, a2 = _albedo_of(m.albedo_lut, m.categorical, s)
         q = max(a0, a1, a2)
         st, u = next_float(st)
         if u >= q:

@@ -61,7 +61,7 @@ from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.emitters import emission_fluxes, emit_photon
 from photon_fields.runtime.transport.environment_map import EnvMap
-from photon_fields.runtime.transport.medium import Medium, scalar_at
+from photon_fields.runtime.transport.medium import Medium
 from photon_fields.runtime.transport.phase import check_g
 from photon_fields.runtime.transport.rng import next_float, stream_state
 from photon_fields.runtime.transport.tracking import TASK_ITEMS
@@ -90,6 +90,7 @@ def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, powe
     radius = 0.5 * math.sqrt(m.bsize[0] ** 2 + m.bsize[1] ** 2 + m.bsize[2] ** 2)
     slots = max_bounces - 1
     hit_pos, hit_dir, hit_pow = np.empty((max_bounces, 3)), np.empty((max_bounces, 3)), np.empty((max_bounces, 3))
+    hit_scalar = np.empty(max_bounces)
     for i in range(lo, hi):
         st = stream_state(np.uint64(seed), np.uint64(first + i))
         st, u = next_float(st)
@@ -106,7 +107,8 @@ def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, powe
         g = phases[ph]
         br, bg, bb = power[li, 0] * sr, power[li, 1] * sg, power[li, 2] * sb
         count = 0
-        n, st = trace_path(m, g, ox, oy, oz, dx, dy, dz, br, bg, bb, st, max_bounces, hit_pos, hit_dir, hit_pow)
+        n, st = trace_path(m, g, ox, oy, oz, dx, dy, dz, br, bg, bb, st, max_bounces, hit_pos, hit_dir, hit_pow,
+                           hit_scalar)
         for bounce in range(n):
             if bounce >= 1:  # Alg. 1: the first interaction is direct light, not stored
                 k = i * slots + count
@@ -117,7 +119,7 @@ def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, powe
                 out_phase[k] = ph
                 out_light[k] = li
                 out_bounce[k] = bounce + 1
-                out_prev[k] = scalar_at(m, hit_pos[bounce - 1, 0], hit_pos[bounce - 1, 1], hit_pos[bounce - 1, 2])
+                out_prev[k] = hit_scalar[bounce - 1]  # the previous collision played its roulette on this
                 count += 1
         out_count[i] = count
 
