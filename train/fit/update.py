@@ -19,7 +19,9 @@ field is a good start for the new one. :func:`update_run`:
    :func:`photon_fields.train.photons.tracing.trace_photons`): path i uses random stream i of the seed, so
    every path of the new map starts like the old map's path i and departs from it only where the edit
    changes what it meets: the new map is correlated with the old one, and the field is asked to learn the
-   difference, not new noise;
+   difference, not new noise. An edit of the transfer function's albedo alone is not retraced: RUN's map is
+   reweighted exactly and thinned to the same count (:func:`reweighted_map`,
+   :mod:`photon_fields.runtime.photons.albedo_reweight`; its paths, the most correlated map there is);
 4. warm-starts from RUN's field and trains on the new map until the validation error stops improving, the
    step limit or the time budget (:func:`photon_fields.train.fit.fine_tune.fine_tune`), at the final KNN
    radius and :data:`photon_fields.train.fit.presets.UPDATE_LR_SHARE` of the preset's learning rate;
