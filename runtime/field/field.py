@@ -265,13 +265,17 @@ class PhotonField:
 
     def query(self, x: Any, omega: Any, g: Any, light_scale: np.ndarray | None = None) -> np.ndarray:
         """Radiance Q(x, omega, g) float32 (N, 3): :meth:`query_encoded` decoded by Eq. 7 (psi of the bundle), times
-        ``light_scale`` (the argument, else the attribute) when the scene's lights are the trained ones rescaled:
-        RGB (3,), or one factor per light (C, 3) for a field with C > 1 light channels; with C > 1 the lights'
-        parts are summed, each times its factor."""
+        the field's ``light_scale`` (set at load when the scene's lights are the trained ones rescaled) and the
+        argument ``light_scale`` on top of it (a further edit of those lights, the viewer's): each RGB (3,), or one
+        factor per light (C, 3) for a field with C > 1 light channels; with C > 1 the lights' parts are summed,
+        each times its factor."""
         Lp = self.query_encoded(x, omega, g)
         t0 = time.perf_counter()
         L = decode_radiance(Lp, self.config.psi)
-        scale = self.light_scale if light_scale is None else np.asarray(light_scale, np.float32)
+        scale = self.light_scale
+        if light_scale is not None:
+            edit = np.asarray(light_scale, np.float32)
+            scale = edit if scale is None else scale * edit
         if self.light_channels > 1:
             L = self._sum_lights(L, scale)
         elif scale is not None:
@@ -320,7 +324,7 @@ class PhotonField:
 
 class FieldEstimator:
     """Q(x, d, g) from a photon field (Alg. 2's network query): ``x``, ``d`` (3, n) -> float32 (3, n); with
-    ``light_scale`` (:meth:`PhotonField.query`'s) instead of the field's own."""
+    ``light_scale`` (:meth:`PhotonField.query`'s) on top of the field's own."""
 
     def __init__(self, field: PhotonField, light_scale: np.ndarray | None = None) -> None:
         self.field, self.light_scale = field, light_scale

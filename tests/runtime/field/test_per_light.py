@@ -150,6 +150,9 @@ def test_a_field_sums_its_lights_parts_with_their_factors(bundle: Path, tmp_path
     assert edited.light_scale == pytest.approx(np.array([[1, 1, 1], [3, 3, 1.5]])) and edited.scene_warning is None
     assert "light 2 (3, 3, 1.5)" in edited.light_note
     np.testing.assert_allclose(edited.query(x, d, 0.2), parts[:, 0] + parts[:, 1] * [3.0, 3.0, 1.5], rtol=1e-5)
+    # a further edit of the loaded scene's lights (the viewer's) applies on top of the load's rescale
+    np.testing.assert_allclose(edited.query(x, d, 0.2, np.array([[2, 2, 2], [1, 1, 1]])),
+                               parts[:, 0] * 2.0 + parts[:, 1] * [3.0, 3.0, 1.5], rtol=1e-5)
     with pytest.raises(InputError, match="lights differ"):
         load(two_lights(tmp_path, position=[0.0, 0.9, 0.9]))
 
