@@ -142,9 +142,8 @@ def rescalable_entry(scene: Scene, kind: str, settings: dict[str, Any], seed: in
             continue
         target = entry / ("run/field.pfn" if kind == "field" else "map.npz")
         parts = doc.get("parts") if isinstance(doc.get("parts"), dict) else None
-        apart = _keeps_lights_apart(target, kind) == len(wanted["lights"]) > 1
         if target.exists() and scene_rescale(parts, doc.get("lights"), wanted["parts"], wanted["lights"],
-                                             per_light=apart) is not None:
+                                             _keeps_lights_apart(target, kind)) is not None:
             return target
     return None
 

@@ -93,11 +93,8 @@ def _light_rescale(manifest: Manifest, expected_parts: dict[str, str] | None,
     if expected_lights is None or expected_parts is None:
         return None
     spec = (manifest.scene or {}).get("spec") or {}
-    lights = spec.get("lights")
-    per_light = manifest.config.light_channels > 1
-    if per_light and (not isinstance(lights, list) or len(lights) != manifest.config.light_channels):
-        return None
-    return scene_rescale(manifest.scene_parts, lights, expected_parts, expected_lights, per_light=per_light)
+    return scene_rescale(manifest.scene_parts, spec.get("lights"), expected_parts, expected_lights,
+                         manifest.config.light_channels)
 
 
 def _bundle_error(err: BundleError, bundle: Path) -> InputError:

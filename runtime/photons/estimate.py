@@ -215,7 +215,7 @@ def map_for_scene(pmap: PhotonMap, scene: Scene, force: bool = False) -> tuple[P
     warning)."""
     if pmap.scene_fingerprint != scene.fingerprint():
         scale = scene_rescale(pmap.scene_parts, pmap.lights, scene.fingerprint_parts(), scene.light_identities(),
-                              per_light=pmap.light is not None)
+                              pmap.light_count)
         if scale is not None:
             return pmap.rescaled(scale, scene), None, rescale_note(scale, "photon map")
     return pmap, check_map_matches_scene(pmap, scene, force), None

@@ -40,12 +40,10 @@ def _flux(light: Mapping[str, Any]) -> np.ndarray:
     return np.asarray(light["color"], dtype=np.float64) * float(light["power"])
 
 
-def per_light_rescale(trained: Sequence[Mapping[str, Any]],
-                      edited: Sequence[Mapping[str, Any]]) -> np.ndarray | None:
-    """The RGB factor of each light (L, 3): light l's part of L_i in the edited scene is ``s[l]`` times its part in
-    the trained one. None when the edit is not a rescale of each light's flux: another number of lights, a light of
-    another kind or geometry, or a light lit now in a channel where it was dark (its part holds nothing to scale);
-    a channel dark before and after has factor 1."""
+def _fluxes(trained: Sequence[Mapping[str, Any]],
+            edited: Sequence[Mapping[str, Any]]) -> tuple[np.ndarray, np.ndarray] | None:
+    """The lights' RGB fluxes before and after (L, 3 each) when the edit keeps their number, kinds and geometry and
+    both are finite; else None."""
     if len(trained) != len(edited) or not trained:
         return None
     try:
@@ -58,20 +56,35 @@ def per_light_rescale(trained: Sequence[Mapping[str, Any]],
     if before.shape[1] != 3 or after.shape != before.shape or not (np.all(np.isfinite(before))
                                                                    and np.all(np.isfinite(after))):
         return None
+    return before, after
+
+
+def _per_light(before: np.ndarray, after: np.ndarray) -> np.ndarray | None:
     lit = before > 0.0
     if np.any(after[~lit] != 0.0):
         return None  # light where the trained light had none in this channel
     return np.where(lit, after / np.where(lit, before, 1.0), 1.0)
 
 
+def per_light_rescale(trained: Sequence[Mapping[str, Any]],
+                      edited: Sequence[Mapping[str, Any]]) -> np.ndarray | None:
+    """The RGB factor of each light (L, 3): light l's part of L_i in the edited scene is ``s[l]`` times its part in
+    the trained one. None when the edit is not a rescale of each light's flux: another number of lights, a light of
+    another kind or geometry, or a light lit now in a channel where it was dark (its part holds nothing to scale);
+    a channel dark before and after has factor 1."""
+    fluxes = _fluxes(trained, edited)
+    return None if fluxes is None else _per_light(*fluxes)
+
+
 def flux_rescale(trained: Sequence[Mapping[str, Any]], edited: Sequence[Mapping[str, Any]]) -> np.ndarray | None:
     """The RGB factor s (3,) with L_i(edited) = s * L_i(trained) (module docstring), or None when the edit is not a
     common rescale of the lights' flux: :func:`per_light_rescale` is None, or the lights lit in a channel are
     scaled by different factors in it."""
-    per_light = per_light_rescale(trained, edited)
+    fluxes = _fluxes(trained, edited)
+    per_light = None if fluxes is None else _per_light(*fluxes)
     if per_light is None:
         return None
-    lit = np.stack([_flux(a) for a in trained]) > 0.0
+    lit = fluxes[0] > 0.0
     scale = np.ones(3)
     for c in range(3):
         if not np.any(lit[:, c]):
@@ -83,15 +96,25 @@ def flux_rescale(trained: Sequence[Mapping[str, Any]], edited: Sequence[Mapping[
     return scale
 
 
+def lights_rescale(trained: Sequence[Mapping[str, Any]], edited: Sequence[Mapping[str, Any]],
+                   apart: int = 1) -> np.ndarray | None:
+    """How an L_i made for the ``trained`` lights follows the ``edited`` ones, for a field or map that keeps
+    ``apart`` lights apart (a field's ``light_channels``, a map's ``light_count``; 1: their sum only): one factor
+    per light (:func:`per_light_rescale`, (L, 3)) when it keeps every trained light apart, else the common factor
+    (:func:`flux_rescale`, (3,)); None when it cannot follow the edit."""
+    if apart > 1 and apart == len(trained):
+        return per_light_rescale(trained, edited)
+    return flux_rescale(trained, edited)
+
+
 def scene_rescale(trained_parts: Mapping[str, str] | None, trained_lights: Any, parts: Mapping[str, str],
-                  lights: Sequence[Mapping[str, Any]], per_light: bool = False) -> np.ndarray | None:
-    """:func:`flux_rescale` (or with ``per_light``, for a field or map that keeps the lights' parts apart,
-    :func:`per_light_rescale`) from a trained scene to another when the lights are all that differs between them
+                  lights: Sequence[Mapping[str, Any]], apart: int = 1) -> np.ndarray | None:
+    """:func:`lights_rescale` from a trained scene to another when the lights are all that differs between them
     (their per-part fingerprints: the same volume and transfer function), else None; ``trained_lights`` as recorded
     (a bundle's manifest, a map's metadata, a run folder), None or anything not a list when not recorded."""
     if not isinstance(trained_lights, list) or differing_parts(parts, trained_parts) != ["lights"]:
         return None
-    return (per_light_rescale if per_light else flux_rescale)(trained_lights, lights)
+    return lights_rescale(trained_lights, lights, apart)
 
 
 def format_scale(scale: np.ndarray) -> str:
@@ -112,4 +135,5 @@ def rescale_note(scale: np.ndarray, what: str = "field") -> str:
             f"{format_scale(scale)} per RGB channel (exact: radiance is linear in a light's flux)")
 
 
-__all__ = ["flux_rescale", "per_light_rescale", "scene_rescale", "format_scale", "rescale_note", "FLUX_KEYS"]
+__all__ = ["flux_rescale", "per_light_rescale", "lights_rescale", "scene_rescale", "format_scale", "rescale_note",
+           "FLUX_KEYS"]

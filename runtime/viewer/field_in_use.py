@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from photon_fields.runtime.scene.labels import LabelTransfer
-from photon_fields.runtime.scene.light_rescale import flux_rescale, per_light_rescale
+from photon_fields.runtime.scene.light_rescale import lights_rescale
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.viewer.light_control import LightControl
@@ -175,10 +175,8 @@ class FieldInUse:
         kind and place, the RGB factor (3,) of a common change of their fluxes (a single light's power or colour, or
         all lights' alike), or for an L_i that keeps the lights apart one factor per light (L, 3); None otherwise
         (stale)."""
-        trained, edited = [_flux_dict(c) for c in self.lights], [_flux_dict(c) for c in lights]
-        if self.kept_apart(renderer) == len(trained) > 1:
-            return per_light_rescale(trained, edited)
-        return flux_rescale(trained, edited)
+        return lights_rescale([_flux_dict(c) for c in self.lights], [_flux_dict(c) for c in lights],
+                              self.kept_apart(renderer))
 
     def map_rescaled(self, scale: np.ndarray, scene: Scene) -> Any:
         """The photon map with each light's records times its factor (``scale`` (L, 3)), kept for the next frame."""
@@ -219,7 +217,7 @@ class FieldInUse:
 
 
 def _flux_dict(c: LightControl) -> dict[str, Any]:
-    """A light control as :func:`photon_fields.runtime.scene.light_rescale.flux_rescale` compares lights: where it is
+    """A light control as :func:`photon_fields.runtime.scene.light_rescale.lights_rescale` compares lights: where it is
     (the controls themselves, so that the page's round trip through angles compares equal) and its flux."""
     return {"kind": c.kind, "azimuth": c.azimuth, "elevation": c.elevation, "distance": c.distance, "yaw": c.yaw,
             "image": None if c.source is None else c.source.sha256, "color": np.asarray(c.color).tolist(),

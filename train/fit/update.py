@@ -110,8 +110,8 @@ class RunRecord:
         from this run's scene only in its lights, by a rescale of their flux
         (:mod:`photon_fields.runtime.scene.light_rescale`): the run's field then renders ``scene`` exactly, rescaled,
         and an update is not needed. None otherwise."""
-        per_light = self.light_channels > 1 and self.light_channels == len(self.lights or ())
-        return scene_rescale(self.parts, self.lights, scene.fingerprint_parts(), scene.light_identities(), per_light)
+        return scene_rescale(self.parts, self.lights, scene.fingerprint_parts(), scene.light_identities(),
+                             self.light_channels)
 
 
 def _read_json(path: Path) -> dict[str, Any]:
