@@ -41,7 +41,7 @@ from photon_fields.runtime.scene.camera import Camera, orbit_camera
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.medium import Medium
 from photon_fields.runtime.wavefront.first_interaction import render_first_interaction
-from photon_fields.train.field.network import TorchPhotonField, decode_radiance_torch
+from photon_fields.train.field.network import TorchPhotonField
 from photon_fields.train.photons.tracing import trace_photons
 
 HELD_OUT_ANGLES = (35.0, 160.0)  # degrees about the camera's up axis; neither is the scene camera's view
@@ -55,9 +55,7 @@ class TorchFieldEstimator:
     def __init__(self, model: TorchPhotonField, medium: Medium, chunk: int = 1 << 15,
                  light_scale: np.ndarray | None = None) -> None:
         self.model, self.medium, self.chunk = model.eval(), medium, int(chunk)
-        c = model.cfg.light_channels
-        self.factors = None if light_scale is None else torch.from_numpy(
-            np.broadcast_to(np.asarray(light_scale, np.float32), (c, 3)).copy())
+        self.factors = None if light_scale is None else torch.from_numpy(np.asarray(light_scale, np.float32))
         self.seconds = 0.0
         self.queries = 0
 
@@ -71,12 +69,7 @@ class TorchFieldEstimator:
             for a in range(0, n, self.chunk):
                 b = min(n, a + self.chunk)
                 gg = torch.full((b - a, 1), float(g), dtype=torch.float32)
-                if self.factors is None:
-                    q = self.model.radiance(torch.from_numpy(pos[a:b]), torch.from_numpy(dirs[a:b]), gg)
-                else:
-                    parts = decode_radiance_torch(self.model(torch.from_numpy(pos[a:b]), torch.from_numpy(dirs[a:b]),
-                                                             gg), self.model.cfg.psi)
-                    q = (parts.reshape(b - a, -1, 3) * self.factors).sum(dim=1)
+                q = self.model.radiance(torch.from_numpy(pos[a:b]), torch.from_numpy(dirs[a:b]), gg, self.factors)
                 out[:, a:b] = q.numpy().T
         self.seconds += time.perf_counter() - t0
         self.queries += n

@@ -109,9 +109,13 @@ class TorchPhotonField(nn.Module):
         features = torch.cat([self.position(pos), self.direction(dirs), self.phase_features(g)], dim=1)
         return self.mlp(features)
 
-    def radiance(self, pos: torch.Tensor, dirs: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+    def radiance(self, pos: torch.Tensor, dirs: torch.Tensor, g: torch.Tensor,
+                 light_scale: torch.Tensor | None = None) -> torch.Tensor:
         """Decoded radiance L (Eq. 7), float32 (n, 3): with C > 1 light channels the sum of the lights' parts (what
-        the runtime renders for the scene trained for)."""
+        the runtime renders for the scene trained for); ``light_scale`` (3,) or (C, 3): each part times its light's
+        factor first (as :meth:`photon_fields.runtime.field.field.PhotonField.query`)."""
         L = decode_radiance_torch(self.forward(pos, dirs, g), self.cfg.psi)
-        c = self.cfg.light_channels
-        return L if c == 1 else L.reshape(L.shape[0], c, 3).sum(dim=1)
+        parts = L.reshape(L.shape[0], self.cfg.light_channels, 3)
+        if light_scale is not None:
+            parts = parts * light_scale
+        return parts.sum(dim=1)

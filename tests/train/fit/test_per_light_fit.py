@@ -116,3 +116,33 @@ def test_pfn_train_fit_takes_a_map_of_the_same_lights_rescaled(two_light_map, tm
     d["lights"][1]["position"] = [0.0, 0.9, 0.9]
     with pytest.raises(InputError, match="lights differ"):
         load_map_for(scene_from_dict(d, tmp_path), tmp_path / "m.npz")
+
+
+def test_torch_and_runtime_agree_on_a_per_light_rescale(two_light_map, tmp_path: Path) -> None:  # noqa: ANN001
+    """The torch field's radiance with per-light factors (the benches' estimator) is the exported bundle's query
+    with the same factors (the renderers'), and the factors act on each light's part."""
+    from photon_fields.models_spec.encoding import direction_input, normalize_position
+    from photon_fields.runtime.field.field import PhotonField
+    from photon_fields.train.export.bundle import export_bundle, write_run_domain
+
+    scene, pmap = two_light_map
+    run = tmp_path / "run"
+    run.mkdir()
+    write_run_domain(run, scene)
+    model = fit(scene, pmap, run, FitSettings.from_preset("tiny", steps=5), progress=False).model
+    field = PhotonField.load(export_bundle(run, scene=scene).path)
+    m = scene.medium()
+    rng = np.random.default_rng(1)
+    x = m.bmin + rng.random((256, 3)) * m.bsize
+    d = rng.normal(size=(256, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    scale = np.array([[1.0, 1.0, 1.0], [3.0, 0.5, 2.0]], np.float32)
+    with torch.no_grad():
+        args = (torch.from_numpy(normalize_position(x, m.bmin, m.bsize)), torch.from_numpy(direction_input(d)),
+                torch.full((256, 1), 0.1))
+        scaled = model.radiance(*args, torch.from_numpy(scale)).numpy()
+        plain = model.radiance(*args).numpy()
+    np.testing.assert_allclose(field.query(x, d, 0.1, scale), scaled, rtol=1e-4, atol=1e-7)
+    parts = field.query_lights(x, d, 0.1)
+    np.testing.assert_allclose(scaled, parts[:, 0] + parts[:, 1] * scale[1], rtol=1e-4, atol=1e-7)
+    np.testing.assert_allclose(plain, parts.sum(axis=1), rtol=1e-4, atol=1e-7)
