@@ -86,7 +86,7 @@ def reweight_albedo(pmap: PhotonMap, before: Medium, after: Medium, scene: objec
     meta = {**pmap.meta, "scene_parts": scene.fingerprint_parts(), "lights": scene.light_identities()}
     return PhotonMap(pmap.position[sel], pmap.direction[sel], power[sel], pmap.phase[sel], pmap.phases,
                      scene.fingerprint(), pmap.emitted, meta, None,
-                     *(None if a is None else a[sel] for a in (pmap.light, pmap.bounce, pmap.prev_scalar)))
+                     **{name: a[sel] for name, a in pmap.optional_arrays().items()})
 
 
 __all__ = ["albedo_only", "reweight_albedo"]

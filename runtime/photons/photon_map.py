@@ -62,6 +62,11 @@ class PhotonMap:
     bounce: np.ndarray | None = None
     prev_scalar: np.ndarray | None = None
 
+    def optional_arrays(self) -> dict[str, np.ndarray]:
+        """The optional per-record arrays the map holds (of :data:`photon_fields.models_spec.photon_map.
+        PHOTON_MAP_OPTIONAL_ARRAYS`), by name: what a copy of some of its records takes along."""
+        return {name: getattr(self, name) for name in PHOTON_MAP_OPTIONAL_ARRAYS if getattr(self, name) is not None}
+
     @property
     def light_count(self) -> int:
         """How many lights the records can be told apart by: the recorded lights' number with a ``light`` array,
@@ -91,7 +96,7 @@ class PhotonMap:
             factor = factor[self.light] if self.light is not None else factor.reshape(3)
         power = (self.power * factor).astype(np.float32)
         return PhotonMap(self.position, self.direction, power, self.phase, self.phases, scene.fingerprint(),
-                         self.emitted, meta, self.path, self.light, self.bounce, self.prev_scalar)
+                         self.emitted, meta, self.path, **self.optional_arrays())
 
     def __len__(self) -> int:
         return int(self.position.shape[0])
@@ -108,7 +113,7 @@ class PhotonMap:
         sel = self.phase == phase
         return PhotonMap(self.position[sel], self.direction[sel], self.power[sel], self.phase[sel], self.phases,
                          self.scene_fingerprint, self.emitted, dict(self.meta), self.path,
-                         *(None if a is None else a[sel] for a in (self.light, self.bounce, self.prev_scalar)))
+                         **{name: a[sel] for name, a in self.optional_arrays().items()})
 
     def metadata(self) -> dict[str, Any]:
         counts = np.bincount(self.phase, minlength=len(self.phases)) if len(self) else np.zeros(len(self.phases))
@@ -120,10 +125,8 @@ class PhotonMap:
         path = Path(path)
         meta = np.frombuffer(json.dumps(self.metadata()).encode(), dtype=np.uint8)
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
-            extra = {name: a for name, a in (("light", self.light), ("bounce", self.bounce),
-                                             ("prev_scalar", self.prev_scalar)) if a is not None}
             np.savez(f, position=self.position, direction=self.direction, power=self.power, phase=self.phase,
-                     meta=meta, **extra)
+                     meta=meta, **self.optional_arrays())
         return path
 
     @classmethod
@@ -158,7 +161,7 @@ class PhotonMap:
             raise InputError(what, "'bounce' below 2 (records start at a path's 2nd collision) or a non-finite "
                              "'prev_scalar'")
         pmap = cls(arrays["position"], arrays["direction"], arrays["power"], arrays["phase"], phases, fp, emitted,
-                   meta, p, light, arrays.get("bounce"), arrays.get("prev_scalar"))
+                   meta, p, **{name: arrays[name] for name in PHOTON_MAP_OPTIONAL_ARRAYS if name in arrays})
         if expected_fingerprint is not None and fp != expected_fingerprint:
             raise InputError(what, f"photon map was traced for {pmap.mismatch(expected_parts)}; re-trace it for "
                              "this scene")
