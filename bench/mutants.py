@@ -582,6 +582,15 @@ MUTANTS: tuple[Mutant, ...] = (
            "    pmap = None",
            ("tests/train/fit/test_update.py::test_an_albedo_edit_reweights_runs_map_instead_of_retracing",),
            "an albedo edit retraces like any other: seconds of the budget and a map less correlated with RUN's"),
+    # The direction features times g (issue 13).
+    Mutant("runtime_ignores_direction_gain", "runtime/field/field.py",
+           "        if gains is not None:\n", "        if gains is not None and False:\n",
+           ("tests/runtime/field/test_bundle.py::test_direction_gain_makes_the_field_isotropic_at_g_zero",),
+           "the runtime feeds the direction features unscaled to an MLP trained on scaled ones: another function"),
+    Mutant("torch_ignores_direction_gain", "train/field/network.py",
+           '        if self.cfg.direction_gain == "g":', "        if False:",
+           ("tests/runtime/field/test_bundle.py::test_direction_gain_makes_the_field_isotropic_at_g_zero",),
+           "the trained field is not isotropic at g = 0 (the cpu preset's field 3.5 % dark there on shell)"),
 )
 
 

@@ -26,6 +26,7 @@ travel direction d -> ``direction_input(d)`` (:mod:`photon_fields.models_spec.en
 :mod:`photon_fields.models_spec.hashgrid` defines (tiny-cuda-nn's HashGrid; the primes are repeated in the manifest),
 concatenated with ``phase_features(g, phases, phase_encoding)`` (g, plus one tent or cubic B-spline weight per
 phase when the field's ``phase_encoding`` is "tent" or "spline") in the column order of ``inputs.layout``, the
+direction's columns times g when the field's ``direction_gain`` is "g" (``direction_gains``), the
 ONNX MLP gives L', and Eq. 7 (``decode_radiance``, psi from the manifest) gives the radiance Q(x, d, g) that the
 photon-map estimate (Eq. 5) supplies during training. With ``light_channels`` C > 1 the decoded output holds each
 light's part (light l in columns 3 l .. 3 l + 2, the lights of ``scene.spec`` in order), and Q is their sum, each
@@ -39,7 +40,9 @@ Manifest (version :data:`BUNDLE_VERSION`; :data:`MANIFEST_SCHEMA` is its JSON Sc
 - ``field``: :meth:`photon_fields.models_spec.encoding.FieldConfig.to_dict` (both encodings: levels, features,
   log2 table size, base resolution, per-level scale; MLP hidden width and layers; psi; the phase set G; the
   phase encoding, a key present only when it is not "scalar", so bundles written before it read unchanged;
-  ``light_channels``, likewise present only when > 1, added without a version change);
+  ``light_channels``, likewise present only when > 1, added without a version change; ``direction_gain``, present
+  only when "g": the direction's columns of the features are multiplied by g before the MLP, added without a version
+  change, since a reader that does not know the key refuses the bundle rather than render it wrong);
 - ``hash_primes``: tcnn's primes (:data:`photon_fields.models_spec.hashgrid.HASH_PRIMES`), listed so that a foreign
   runtime needs nothing but the manifest; a reader refuses other values;
 - ``encodings``: per encoding the derived geometry (table rows, per-level resolution, table size, whether

@@ -83,6 +83,7 @@ MANIFEST_SCHEMA: dict[str, Any] = {
             "phases": {"type": "array", "items": {"type": "number", "minimum": -1, "maximum": 1}, "minItems": 1},
             "phase_encoding": {"type": "string", "enum": ["tent", "spline"]},
             "light_channels": {"type": "integer", "minimum": 2, "maximum": MAX_LIGHT_CHANNELS},
+            "direction_gain": {"type": "string", "enum": ["g"]},
         }, required=["version", "position", "direction", "hidden_width", "hidden_layers", "psi", "phases"]),
         "hash_primes": {"type": "array", "const": [int(p) for p in HASH_PRIMES]},
         "encodings": _obj({"position": {"$ref": "#/$defs/geometry"}, "direction": {"$ref": "#/$defs/geometry"}}),

@@ -47,6 +47,14 @@ Inputs (Sec. 3.1, Eq. 2: ``P(x, g, omega)``)
   darker at each node than half-way between (docs/training.md). The splines are smooth (C2) and give the
   first layer a cubic in g between nodes.
 
+With ``direction_gain`` "g" the direction features enter the MLP multiplied by g (:func:`direction_gains`). Why:
+the in-scattered light is isotropic at g = 0 whatever the incident light (the l-th Legendre coefficient of the
+Henyey-Greenstein phase function is g^l, so its direction dependence is of first order in g), and a field whose
+direction features enter unscaled has to learn that by cancelling them with the phase features: on shell it was
+1-3 % darker towards the camera than in other directions at g = 0, and 3.5 % dark there in the image
+(docs/training.md). Scaled by g, the field is isotropic at g = 0 exactly, and its direction dependence starts at
+first order in g, as the light's does; the sign of g (forward or back scattering) reaches it too.
+
 The network input is ``[hash_position(x) (Lp Fp), hash_direction(d) (Ld Fd), phase features (1 or 1 + |G|)]``
 in this order.
 
@@ -65,6 +73,9 @@ phases : tuple of g in [-1, 1]
 phase_encoding : "scalar" (default, the paper), "tent" or "spline"
     The phase features (above); "spline" needs two or more evenly spaced, increasing phases. A "scalar"
     config's dict has no ``phase_encoding`` key, so configs written before it existed read unchanged.
+direction_gain : "none" (default, the paper) or "g"
+    Whether the direction features are multiplied by g (above); like ``phase_encoding``, a key of the dict only
+    when it is not the default.
 """
 
 from __future__ import annotations
@@ -85,6 +96,8 @@ FIELD_CONFIG_VERSION = 1
 PHASE_ENCODINGS = ("scalar", "tent", "spline")
 #: Largest departure from even spacing the "spline" encoding accepts in its phases (they are stored rounded).
 SPLINE_SPACING_TOLERANCE = 1e-5
+#: What the direction features may be multiplied by before the MLP (:attr:`FieldConfig.direction_gain`).
+DIRECTION_GAINS = ("none", "g")
 #: Output channels per light: RGB.
 OUTPUT_CHANNELS = 3
 #: Most lights a field keeps apart (:attr:`FieldConfig.light_channels`); a scene with more trains one summed output.
@@ -197,10 +210,24 @@ def phase_features(g: np.ndarray, phases: tuple[float, ...], encoding: str) -> n
     return out
 
 
+def direction_gains(g: np.ndarray, gain: str) -> np.ndarray | None:
+    """The factors (n, 1) float32 the direction features of phase coefficients g (n,) are multiplied by before
+    the MLP: g itself for ``gain`` "g" (module docstring), None for "none" (the features as they are)."""
+    if gain == "none":
+        return None
+    if gain not in DIRECTION_GAINS:
+        raise ValueError(f"unknown direction gain {gain!r} (one of {DIRECTION_GAINS})")
+    return np.asarray(g, dtype=np.float32).reshape(-1, 1)
+
+
 def _int_field(name: str, v: Any, lo: int, hi: int) -> int:
     if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not lo <= int(v) <= hi:
         raise ValueError(f"FieldConfig.{name} must be an int in [{lo}, {hi}], got {v!r}")
     return int(v)
+
+
+#: FieldConfig keys a dict may leave out (their defaults: configs written before they existed read unchanged).
+_OPTIONAL_KEYS = ("phase_encoding", "light_channels", "direction_gain")
 
 
 @dataclass(frozen=True)
@@ -220,6 +247,8 @@ class FieldConfig:
     lights, so that one light's power or colour can be rescaled among several without retraining (the renderer sums
     the parts, each times its light's factor). Written to the manifest only when > 1: bundles of one output are
     unchanged."""
+    direction_gain: str = "none"
+    """"none" (the paper) or "g": the direction features times g (module docstring; :func:`direction_gains`)."""
 
     def __post_init__(self) -> None:
         if not isinstance(self.position, HashGridConfig) or self.position.dims != 3:
@@ -241,6 +270,9 @@ class FieldConfig:
         if self.phase_encoding not in PHASE_ENCODINGS:
             raise ValueError(f"FieldConfig.phase_encoding must be one of {PHASE_ENCODINGS}, "
                              f"got {self.phase_encoding!r}")
+        if self.direction_gain not in DIRECTION_GAINS:
+            raise ValueError(f"FieldConfig.direction_gain must be one of {DIRECTION_GAINS}, "
+                             f"got {self.direction_gain!r}")
         if self.phase_encoding == "spline":
             try:
                 check_spline_phases(phases)
@@ -271,6 +303,8 @@ class FieldConfig:
             out["phase_encoding"] = self.phase_encoding
         if self.light_channels != 1:
             out["light_channels"] = self.light_channels
+        if self.direction_gain != "none":
+            out["direction_gain"] = self.direction_gain
         return out
 
     @classmethod
@@ -283,10 +317,11 @@ class FieldConfig:
                              f"(this build reads version {FIELD_CONFIG_VERSION})")
         names = [f.name for f in fields(cls)]
         unknown = sorted(set(data) - set(names) - {"version"})
-        missing = [n for n in names if n not in data and n not in ("phase_encoding", "light_channels")]
+        missing = [n for n in names if n not in data and n not in _OPTIONAL_KEYS]
         if unknown or missing:
             raise ValueError(f"FieldConfig.from_dict: unknown keys {unknown}, missing keys {missing}")
         return cls(position=HashGridConfig.from_dict(data["position"]),
                    direction=HashGridConfig.from_dict(data["direction"]), hidden_width=data["hidden_width"],
                    hidden_layers=data["hidden_layers"], psi=data["psi"], phases=tuple(data["phases"]),
-                   phase_encoding=data.get("phase_encoding", "scalar"), light_channels=data.get("light_channels", 1))
+                   phase_encoding=data.get("phase_encoding", "scalar"), light_channels=data.get("light_channels", 1),
+                   direction_gain=data.get("direction_gain", "none"))

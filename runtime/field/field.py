@@ -62,6 +62,7 @@ from photon_fields.models_spec.bundle import ONNX_INPUT, ONNX_OUTPUT, Manifest
 from photon_fields.models_spec.encoding import (
     OUTPUT_CHANNELS,
     decode_radiance,
+    direction_gains,
     direction_input,
     normalize_position,
     phase_features,
@@ -206,6 +207,9 @@ class PhotonField:
             encode(cfg.direction, self.direction_table, direction_input(omega), out=buf, col=self._dir_col)
         except ValueError as exc:  # non-finite or absurdly far positions / directions
             raise InputError("query", str(exc)) from None
+        gains = direction_gains(ga, cfg.direction_gain)
+        if gains is not None:
+            buf[:, self._dir_col:self._phase_col] *= gains
         t2 = time.perf_counter()
         buf[:, self._phase_col:] = phase_features(ga, cfg.phases, cfg.phase_encoding)
         t.encode_position_s += t1 - t0

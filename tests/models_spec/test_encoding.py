@@ -11,6 +11,7 @@ from photon_fields.models_spec.encoding import (  # noqa: E402
     DEFAULT_PSI,
     FieldConfig,
     decode_radiance,
+    direction_gains,
     direction_input,
     encode_radiance,
     normalize_position,
@@ -173,3 +174,20 @@ def test_field_config_phase_encoding() -> None:
     assert FieldConfig.from_dict(scalar.to_dict()) == scalar
     with pytest.raises(ValueError, match="phase_encoding"):
         FieldConfig(phase_encoding="onehot")
+
+
+def test_field_config_direction_gain() -> None:
+    """"g" round-trips through the dict, "none" leaves no key (older configs read unchanged), anything else is
+    refused; the gains are g itself (float32, one column) or None."""
+    plain = FieldConfig(phases=(-0.75, 0.0, 0.75))
+    gained = FieldConfig(phases=(-0.75, 0.0, 0.75), direction_gain="g")
+    assert plain.direction_gain == "none" and "direction_gain" not in plain.to_dict()
+    assert gained.to_dict()["direction_gain"] == "g" and gained.input_dims == plain.input_dims
+    assert FieldConfig.from_dict(json.loads(json.dumps(gained.to_dict()))) == gained
+    with pytest.raises(ValueError, match="direction_gain"):
+        FieldConfig(direction_gain="abs")
+    g = np.array([-0.5, 0.0, 0.75])
+    np.testing.assert_array_equal(direction_gains(g, "g"), g.astype(np.float32).reshape(-1, 1))
+    assert direction_gains(g, "none") is None
+    with pytest.raises(ValueError, match="direction gain"):
+        direction_gains(g, "abs")

@@ -4,7 +4,8 @@
 
 1. encoding: a 3-D hash grid on the normalized position x in [0, 1]^3, a 2-D hash grid on the direction
    in normalized spherical coordinates ([0, 1]^2), and the phase features of g (g itself, plus one tent per
-   phase with the "tent" encoding); concatenated in that order
+   phase with the "tent" encoding); concatenated in that order, the direction's features times g with
+   ``cfg.direction_gain`` "g" (the field is then isotropic at g = 0, as the light is)
    (:mod:`models_spec.encoding` defines the input conventions, :class:`train.field.hashgrid.HashGridEncoding`
    the hash grids, bit-exact with tiny-cuda-nn);
 2. network: a ReLU MLP with ``cfg.hidden_layers`` hidden layers of ``cfg.hidden_width`` neurons and no
@@ -106,7 +107,10 @@ class TorchPhotonField(nn.Module):
         if dirs.shape != (n, 2) or g.shape != (n, 1) or pos.shape != (n, 3):
             raise ValueError(f"expected pos (n, 3), dirs (n, 2), g (n, 1); got {tuple(pos.shape)}, "
                              f"{tuple(dirs.shape)}, {tuple(g.shape)}")
-        features = torch.cat([self.position(pos), self.direction(dirs), self.phase_features(g)], dim=1)
+        direction = self.direction(dirs)
+        if self.cfg.direction_gain == "g":  # models_spec.encoding.direction_gains, in float32 like the runtime
+            direction = direction * g.to(torch.float32)
+        features = torch.cat([self.position(pos), direction, self.phase_features(g)], dim=1)
         return self.mlp(features)
 
     def radiance(self, pos: torch.Tensor, dirs: torch.Tensor, g: torch.Tensor,

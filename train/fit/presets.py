@@ -11,7 +11,8 @@
   traced in narrow phase bins (``g_sampling="window"``, :mod:`photon_fields.runtime.photons.phase_window`), g itself
   and its cubic B-spline weights on 16 nodes (~0.1 apart: five nodes could not follow shell's dip in g at -0.6),
   K = 32 photons per target (K = 64's ball reached from lit surfaces into the darker inside: its maps were 2-3 % dark
-  on shell and head), and a harder learning-rate anneal. Needs a map of
+  on shell and head), the direction features times g (the field is isotropic at g = 0, as the light is: without
+  it shell's field was 3.5 % dark at g = 0 in its view), and a harder learning-rate anneal. Needs a map of
   :data:`photon_fields.models_spec.photon_map.PHASE_BINS` (what ``pfn-train trace`` makes by default).
 - ``cpu-phases``: ``cpu`` as it was before the kernel in g: trains at the map's phases only (the paper's way,
   any map of a few phases), scalar g, the paper's anneal.
@@ -78,6 +79,9 @@ class Preset:
     """Nodes of the phase features (tents or splines) of a field trained from a kernel in g
     (``g_sampling="window"``), evenly spread over the g it is trained on; a field trained at a map's phases has one
     per phase."""
+    direction_gain: str = "none"
+    """"none" (the paper) or "g": the direction features times g before the MLP, so that the field is isotropic at
+    g = 0, as the light is (:attr:`photon_fields.models_spec.encoding.FieldConfig.direction_gain`)."""
     g_sampling: str = "discrete"
     """Training g (:mod:`photon_fields.train.fit.targets`): "discrete" (the phases G, the paper), "continuous"
     (uniform over [min G, max G], targets from the two nearest phases' photons) or "mixed" (half of each)."""
@@ -94,7 +98,7 @@ PRESETS: dict[str, Preset] = {
                     schedule="staggered", sampling="box", loss="log",
                     about="Sec. 3.4/3.5 as published (hours on 2 CPU cores)"),
     "cpu": replace(_CPU_PHASES, phase_encoding="spline", g_sampling="window", phase_nodes=16, lr_decay_start=0.5,
-                   lr_decay_every=10, sampling="visible", k=32,
+                   lr_decay_every=10, sampling="visible", k=32, direction_gain="g",
                    about="the default: any g from a kernel in g over a map in narrow phase bins; ~1 min on 2 cores"),
     "cpu-phases": _CPU_PHASES,
     "cpu-tent": replace(_CPU_PHASES, phase_encoding="tent", g_sampling="continuous",
@@ -137,4 +141,4 @@ def field_config_for(preset: Preset, phases: tuple[float, ...], psi: float = DEF
                      light_channels: int = 1) -> FieldConfig:
     """The field configuration of ``preset`` for a map traced at ``phases``, with ``light_channels`` outputs."""
     return FieldConfig(preset.position, preset.direction, preset.hidden_width, preset.hidden_layers, psi, phases,
-                       preset.phase_encoding, light_channels)
+                       preset.phase_encoding, light_channels, preset.direction_gain)

@@ -156,6 +156,34 @@ def test_parity_phase_features(tmp_path: Path, preset: str, encoding: str) -> No
     assert np.abs(field.query_encoded(x, d, 0.35) - field.query_encoded(x, d, 0.0)).max() > 1e-3
 
 
+def test_direction_gain_makes_the_field_isotropic_at_g_zero(tmp_path: Path) -> None:
+    """``direction_gain`` "g" (the cpu preset's): the direction features enter times g, so the exported field gives
+    the same L' for every direction at g = 0 (the light is isotropic there) and the torch model agrees; the same
+    weights without the gain, or at g != 0, depend on the direction. (The runtime ignoring the gain fails the parity;
+    the torch model ignoring it fails the isotropy of the torch side.)"""
+    cfg = dataclasses.replace(SMALL, direction_gain="g")
+    model = make_model(cfg, seed=9)
+    run = make_run(tmp_path / "run", model, [0.0, 0.0, 0.0], [1.0, 1.0, 1.0])
+    path = export_bundle(run, tmp_path / "gain.pfn").path
+    assert json.loads((path / "manifest.json").read_text())["field"]["direction_gain"] == "g"
+    field = PhotonField.load(path, threads=1)
+    rng = np.random.default_rng(10)
+    x = rng.random((2000, 3))
+    d1, d2 = unit(rng.standard_normal((2000, 3))), unit(rng.standard_normal((2000, 3)))
+    g = rng.uniform(-1.0, 1.0, 2000)
+    want = torch_reference(model, x, d1, g, np.zeros(3), np.ones(3))
+    assert np.abs(field.query_encoded(x, d1, g) - want).max() <= 1e-5
+    np.testing.assert_array_equal(field.query_encoded(x, d1, 0.0), field.query_encoded(x, d2, 0.0))
+    zero = np.zeros(2000)
+    np.testing.assert_array_equal(torch_reference(model, x, d1, zero, np.zeros(3), np.ones(3)),
+                                  torch_reference(model, x, d2, zero, np.zeros(3), np.ones(3)))
+    assert np.abs(field.query_encoded(x, d1, 0.5) - field.query_encoded(x, d2, 0.5)).max() > 1e-2
+    plain = TorchField(SMALL, seed=0)
+    plain.load_state_dict(model.state_dict())
+    assert np.abs(torch_reference(plain, x, d1, zero, np.zeros(3), np.ones(3))
+                  - torch_reference(plain, x, d2, zero, np.zeros(3), np.ones(3))).max() > 1e-2
+
+
 @pytest.mark.parametrize("psi", [3.0, 7.0])
 def test_bundle_decodes_with_its_own_psi(tmp_path: Path, psi: float) -> None:
     """A field trained with psi != 5 (Eq. 6/7's decades) decodes with the bundle's psi, not the default:
