@@ -591,6 +591,10 @@ MUTANTS: tuple[Mutant, ...] = (
            '        if self.cfg.direction_gain == "g":', "        if False:",
            ("tests/runtime/field/test_bundle.py::test_direction_gain_makes_the_field_isotropic_at_g_zero",),
            "the trained field is not isotropic at g = 0 (the cpu preset's field 3.5 % dark there on shell)"),
+    Mutant("update_refuses_fields_without_gain", "train/fit/fine_tune.py",
+           "    cfg = replace(cfg, direction_gain=model.cfg.direction_gain)\n", "",
+           ("tests/train/fit/test_update.py::test_a_field_from_before_its_presets_direction_gain_keeps_its_own",),
+           "every run trained before the cpu preset's direction gain is refused by pfn-train update and the viewer"),
 )
 
 

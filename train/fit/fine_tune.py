@@ -41,6 +41,7 @@ import json
 import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -94,9 +95,14 @@ def fine_tune(model: TorchPhotonField, scene: Scene, pmap: PhotonMap, out_dir: s
         raise InputError("warm start", f"the earlier field keeps {lights} lights apart, the scene has "
                          f"{len(scene.lights)}: train a new field with pfn-train all")
     sampler, cfg = field_sampler(scene, pmap, settings, lights)
-    if cfg.to_dict() != model.cfg.to_dict():
+    # A field trained before its preset took the direction gain keeps its own: the gain changes no parameter's shape,
+    # and the warm start is the earlier field, whose features were fitted with (or without) it.
+    cfg = replace(cfg, direction_gain=model.cfg.direction_gain)
+    want, have = cfg.to_dict(), model.cfg.to_dict()
+    if want != have:
+        differ = ", ".join(sorted(k for k in {*want, *have} if want.get(k) != have.get(k)))
         raise InputError("warm start", f"the earlier field's architecture is not preset {settings.preset!r}'s for "
-                         "this photon map (its phases differ); train a new field with pfn-train all")
+                         f"this photon map (its {differ} differ); train a new field with pfn-train all")
     schedule = settings.resolve_schedule(len(pmap))
     radius = schedule.final_radius
     torch.manual_seed(settings.seed)

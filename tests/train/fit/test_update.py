@@ -166,6 +166,18 @@ def test_the_update_starts_from_runs_field(runs: dict[str, Path], tmp_path: Path
     assert first["step"] == 0 and res0.fit.log["totals"]["final_validation"] == first
 
 
+def test_a_field_from_before_its_presets_direction_gain_keeps_its_own(runs: dict[str, Path], tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """RUN's field has no direction gain; its preset takes one now (as ``cpu`` did on 2026-11-27): the update still
+    starts from RUN's field, exactly, and keeps RUN's architecture instead of refusing it."""
+    from dataclasses import replace
+
+    monkeypatch.setitem(PRESETS, "tiny", replace(PRESETS["tiny"], direction_gain="g"))
+    res = update_run(runs["run"], load_scene(runs["denser"]), tmp_path / "zero", max_steps=0, progress=False)
+    assert PhotonField.load(res.bundle.path).config.direction_gain == "none"
+    assert np.array_equal(outputs(res.bundle.path), outputs(runs["run"] / "field.pfn"))
+
+
 def test_same_seed_same_field(runs: dict[str, Path], tmp_path: Path) -> None:
     new = load_scene(runs["denser"])
     a = update_run(runs["run"], new, tmp_path / "a", max_steps=4, progress=False)
