@@ -50,8 +50,8 @@ Inputs (Sec. 3.1, Eq. 2: ``P(x, g, omega)``)
 With ``direction_gain`` "g" the direction features enter the MLP multiplied by g (:func:`direction_gains`). Why:
 the in-scattered light is isotropic at g = 0 whatever the incident light (the l-th Legendre coefficient of the
 Henyey-Greenstein phase function is g^l, so its direction dependence is of first order in g), and a field whose
-direction features enter unscaled has to learn that by cancelling them with the phase features: on shell it was
-1-3 % darker towards the camera than in other directions at g = 0, and 3.5 % dark there in the image
+direction features enter unscaled has to learn that by cancelling them with the phase features, and fitted fields
+did not quite: they came out darker towards some directions than others at g = 0, and dark in the image there
 (docs/training.md). Scaled by g, the field is isotropic at g = 0 exactly, and its direction dependence starts at
 first order in g, as the light's does; the sign of g (forward or back scattering) reaches it too.
 

@@ -11,8 +11,8 @@
   traced in narrow phase bins (``g_sampling="window"``, :mod:`photon_fields.runtime.photons.phase_window`), g itself
   and its cubic B-spline weights on 16 nodes (~0.1 apart: five nodes could not follow shell's dip in g at -0.6),
   K = 32 photons per target (K = 64's ball reached from lit surfaces into the darker inside: its maps were 2-3 % dark
-  on shell and head), the direction features times g (the field is isotropic at g = 0, as the light is: without
-  it shell's field was 3.5 % dark at g = 0 in its view), and a harder learning-rate anneal. Needs a map of
+  on shell and head), the direction features times g (the field is isotropic at g = 0, as the light is; without
+  it fields came out dark around g = 0), and a harder learning-rate anneal. Needs a map of
   :data:`photon_fields.models_spec.photon_map.PHASE_BINS` (what ``pfn-train trace`` makes by default).
 - ``cpu-phases``: ``cpu`` as it was before the kernel in g: trains at the map's phases only (the paper's way,
   any map of a few phases), scalar g, the paper's anneal.
