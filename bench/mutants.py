@@ -595,6 +595,14 @@ MUTANTS: tuple[Mutant, ...] = (
            "    cfg = replace(cfg, direction_gain=model.cfg.direction_gain)\n", "",
            ("tests/train/fit/test_update.py::test_a_field_from_before_its_presets_direction_gain_keeps_its_own",),
            "every run trained before the cpu preset's direction gain is refused by pfn-train update and the viewer"),
+    Mutant("resident_ignores_code", "runtime/resident/server.py", '        if request["code"] != self.code:\n',
+           "        if False:\n",
+           ("tests/runtime/cli/test_resident.py::test_another_code_fingerprint_is_not_run",),
+           "a resident server renders with old code after the user edits or reinstalls the package"),
+    Mutant("resident_ignores_environment", "runtime/resident/server.py", "        if theirs != ours:\n",
+           "        if False:\n",
+           ("tests/runtime/cli/test_resident.py::test_another_environment_renders_in_process",),
+           "a resident server renders with another thread count or threading layer than the client asked for"),
 )
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np  # noqa: E402
@@ -22,6 +23,10 @@ settings.load_profile("photon-fields")
 
 #: The repository's root (the tests live in tests/<package>/...).
 REPO = Path(__file__).resolve().parents[1]
+
+# The console scripts the tests run never hand their work to a developer's resident render server (pfn-resident):
+# a folder that cannot exist. The tests of the server start their own (tests/runtime/cli/test_resident.py).
+os.environ["PFN_RESIDENT_DIR"] = os.path.join(os.devnull, "photon-fields-resident")
 
 
 def constant_tf(sigma: float, albedo: float | tuple[float, float, float] = 1.0) -> TransferFunction:

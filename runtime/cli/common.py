@@ -38,8 +38,28 @@ def guarded(main_fn: Callable[[Sequence[str] | None], int]) -> Callable[[Sequenc
         except KeyboardInterrupt:
             print("error: interrupted", file=sys.stderr)
             return 130
+        except SystemError as err:
+            if not interrupted(err):
+                raise
+            print("error: interrupted", file=sys.stderr)
+            return 130
 
     return wrapper
+
+
+def interrupted(err: BaseException) -> bool:
+    """Whether ``err`` is a KeyboardInterrupt or was caused by one. Ctrl-C during a call into a numba kernel often
+    reaches Python as ``SystemError: CPUDispatcher(...) returned a result with an exception set`` caused by the
+    KeyboardInterrupt (the dispatcher's C code returned while the handler's exception was pending), which printed a
+    traceback and exit status 1 instead of ``error: interrupted`` and 130 (tests/runtime/cli/test_cli.py)."""
+    seen: set[int] = set()
+    cause: BaseException | None = err
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, KeyboardInterrupt):
+            return True
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    return False
 
 
 def positive_int(name: str, value: int, upper: int = 1 << 30) -> int:

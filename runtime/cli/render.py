@@ -95,6 +95,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="PNG exposure recorded in an earlier render's JSON report (or an orbit's timings file), "
                         "so two renders are shown alike")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-resident", action="store_true",
+                   help="render in this process even when a resident render server (pfn-resident start) is running; "
+                        "without it, a running server of the same code and environment renders instead (the same "
+                        "files and output, without the ~1 s of numba start-up; docs/resident.md)")
     p.add_argument("--out", default="render.exr",
                    help="output image, NAME.exr or NAME.png: the EXR (layers), the PNG (tone-mapped L) and a "
                         "NAME.json report are written side by side")

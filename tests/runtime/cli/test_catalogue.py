@@ -1,8 +1,8 @@
 """The bad-input catalogue: every command refuses every kind of bad input with one line and nothing written.
 
 One table across scene files, volumes, transfer functions, lights, cameras, photon maps, bundles and the
-arguments of pfn-render, pfn-train, pfn-demo, pfn-eval and pfn-view. Each case builds its inputs in a fresh folder,
-runs the command in-process, and checks: exit status 2, exactly one ``error: ...`` line on stderr naming
+arguments of pfn-render, pfn-train, pfn-demo, pfn-eval, pfn-view and pfn-resident. Each case builds its inputs in a
+fresh folder, runs the command in-process, and checks: exit status 2, exactly one ``error: ...`` line on stderr naming
 the input (``needle``), nothing on stdout that claims success, and no file written to the output folder.
 Hypothesis fuzzes the two parsers users feed by hand (scene files, bundle manifests): any input either
 parses or raises the one-line error type, never anything else.
@@ -30,6 +30,7 @@ from photon_fields.models_spec.bundle import BundleError, validate_manifest  # n
 from photon_fields.runtime.cli.render import _main as render_main  # noqa: E402
 from photon_fields.runtime.errors import InputError  # noqa: E402
 from photon_fields.runtime.photons.photon_map import PhotonMap  # noqa: E402
+from photon_fields.runtime.resident.cli import _main as resident_main  # noqa: E402
 from photon_fields.runtime.scene.scene import scene_from_dict  # noqa: E402
 from photon_fields.runtime.viewer.cli import _main as view_main  # noqa: E402
 from photon_fields.train.cli.demo import _main as demo_main  # noqa: E402
@@ -108,7 +109,7 @@ def map_without_a_phase(a: dict[str, Path], d: Path) -> str:
 
 
 Case = tuple[str, Callable[[dict[str, Path], Path, Path], list[str]], str]
-R, T, D, E, V = "render", "train", "demo", "eval", "view"
+R, T, D, E, V, S = "render", "train", "demo", "eval", "view", "resident"
 
 CASES: list[Case] = [
     # scene files
@@ -531,9 +532,15 @@ CASES += [
      "--retrain-photons"),
     (V, lambda a, d, o: [str(a["scene"]), "--final-gather-after", "later", *VIEW, "--out", str(o / "shots")],
      "--final-gather-after"),
+    # pfn-resident: refused before any folder is made or any server started
+    (S, lambda a, d, o: ["start", "--idle-minutes", "0"], "--idle-minutes"),
+    (S, lambda a, d, o: ["start", "--idle-minutes", "inf"], "--idle-minutes"),
+    (S, lambda a, d, o: ["start", "--idle-minutes", "soon"], "--idle-minutes"),
+    (S, lambda a, d, o: ["start", "--ready-fd", "1"], "--ready-fd"),
+    (S, lambda a, d, o: ["restart"], "COMMAND"),
 ]
 
-MAINS = {R: render_main, T: train_main, D: demo_main, E: eval_main, V: view_main}
+MAINS = {R: render_main, T: train_main, D: demo_main, E: eval_main, V: view_main, S: resident_main}
 #: Options whose refusals name the offending value (a file, folder or scene name), not the option: their
 #: cases are the scene-file, volume, photon-map, bundle and run-folder sections above.
 NAMED_BY_VALUE = {"--scene", "--map", "--bundle", "--out", "--work", "--scenes"}
@@ -559,6 +566,7 @@ def test_catalogue_covers_every_cli_and_option() -> None:
     from importlib import metadata
 
     from photon_fields.runtime.cli.render import build_parser as render_parser
+    from photon_fields.runtime.resident.cli import build_parser as resident_parser
     from photon_fields.runtime.viewer.cli import build_parser as view_parser
     from photon_fields.train.cli.demo import build_parser as demo_parser
     from photon_fields.train.cli.train import build_parser as train_parser
@@ -569,7 +577,8 @@ def test_catalogue_covers_every_cli_and_option() -> None:
     for script in scripts:
         module = importlib.import_module(script.module)
         assert any(module._main is m for m in MAINS.values()), f"{script.name} ({script.value}) has no cases"
-    parsers = {R: render_parser(), T: train_parser(), D: demo_parser(), E: eval_parser(), V: view_parser()}
+    parsers = {R: render_parser(), T: train_parser(), D: demo_parser(), E: eval_parser(), V: view_parser(),
+               S: resident_parser()}
     for cli, parser in parsers.items():
         needles = {c[2].lstrip("-").replace("_", "-") for c in CASES if c[0] == cli}
         missing = sorted(opt for opt in _value_options(parser) - NAMED_BY_VALUE if opt.lstrip("-") not in needles)

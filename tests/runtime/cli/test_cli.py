@@ -480,3 +480,27 @@ def test_console_script_bad_input(tmp_path: Path) -> None:
     assert files_in(tmp_path) == []
     proc = _run(["--spp", "many"], tmp_path)  # an argparse type error is one line too
     assert proc.returncode == 2 and "--spp" in one_error_line(proc.stderr)
+
+
+def test_ctrl_c_inside_a_numba_call_is_an_interrupt(capsys: pytest.CaptureFixture[str]) -> None:
+    """Ctrl-C during a numba kernel call reaches Python as a SystemError caused (through more SystemErrors) by the
+    KeyboardInterrupt: still 'error: interrupted' and status 130, not a traceback; any other SystemError is raised."""
+    from photon_fields.runtime.cli.common import guarded
+
+    def interrupted_in_a_kernel(argv: object) -> int:
+        try:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as exc:
+                raise SystemError("<function _numba_unpickle> returned a result with an exception set") from exc
+        except SystemError as exc:
+            raise SystemError("CPUDispatcher(<function _camera_rays>) returned a result with an exception set") from exc
+
+    assert guarded(interrupted_in_a_kernel)(None) == 130
+    assert capsys.readouterr().err == "error: interrupted\n"
+
+    def broken(argv: object) -> int:
+        raise SystemError("a real one")
+
+    with pytest.raises(SystemError, match="a real one"):
+        guarded(broken)(None)
