@@ -95,8 +95,8 @@ class Config:
 CONFIGS: dict[str, Config] = {
     "default": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", g_window=PHASE_WINDOW,
                       about="the product's defaults: 39 phase bins (any g of [-0.8, 0.8] from a kernel in g), K = 32, "
-                            "spline features, the direction features times g (since 2026-11-27), anneal, half the "
-                            "samples where cameras see the medium"),
+                            "spline features, the direction features times g (since 2026-11-27), anneal, three "
+                            "quarters of the samples where cameras see the medium (half before 2026-11-27)"),
     "together": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", {"per_light": False}, g_window=PHASE_WINDOW,
                        about="the default with one output for all lights (before 2026-11-26; the same with one light)"),
     "support": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", {"sampling": "support"}, g_window=PHASE_WINDOW,

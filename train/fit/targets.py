@@ -88,8 +88,11 @@ from photon_fields.train.fit.visible_points import uniform_directions, visible_p
 
 SAMPLING_MODES = ("box", "support", "visible")
 #: ``sampling="visible"``: the share of samples at the first collisions of rays from outside the volume
-#: (:mod:`photon_fields.train.fit.visible_points`); the rest are uniform over the support.
-VISIBLE_SHARE = 0.5
+#: (:mod:`photon_fields.train.fit.visible_points`); the rest are uniform over the support (a camera inside the
+#: volume, the final gather's queries). Three quarters since 2026-11-27 (a half before): the field's error where a
+#: camera looks from is what the image shows, and it was the field's, not its targets' (docs/training.md, "Three
+#: quarters of the samples where cameras look").
+VISIBLE_SHARE = 0.75
 #: ``sampling="visible"``: samples per traced collision. Each copy of a point gets its own g, hence its target
 #: from the photons of another phase window: nearly independent targets for a quarter of the rays (on a sparse
 #: medium most rays leave without a collision, and tracing them costs more than the targets).
