@@ -35,11 +35,8 @@ def guarded(main_fn: Callable[[Sequence[str] | None], int]) -> Callable[[Sequenc
         except InputError as err:
             print(f"error: {err}", file=sys.stderr)
             return 2
-        except KeyboardInterrupt:
-            print("error: interrupted", file=sys.stderr)
-            return 130
-        except SystemError as err:
-            if not interrupted(err):
+        except (KeyboardInterrupt, SystemError) as err:
+            if not interrupted(err):  # a SystemError not caused by Ctrl-C
                 raise
             print("error: interrupted", file=sys.stderr)
             return 130
