@@ -5,7 +5,11 @@ Parameters
 step : float (default 0.5)
     Step length along camera rays in voxels (of the smallest voxel edge).
 shadow_step : float (default 1.0)
-    Step length along shadow rays in voxels.
+    Step length along shadow rays in voxels. Where sigma_t h reaches ~1 per voxel at sharp boundaries (bone in a
+    CT transfer function, a shell's wall) the midpoint sum's error across a boundary is of order 1 and differs from
+    ray to ray, and exp(-tau) averaged over such errors is biased high: single scattering reads bright there (the
+    camera march errs the other way, less). A finer step shrinks the bias quickly (bench/README.md, ray marcher);
+    the path tracer's trackers are unbiased.
 spp : int
     Jittered passes per pixel (a random start offset along each ray removes wood-grain banding).
 seed : int

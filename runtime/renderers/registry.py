@@ -156,7 +156,10 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
                      "light only)", check=negate))),
     Renderer("raymarch", "single-scattering ray marcher with global shadows",
              "photon_fields.runtime.renderers.ray_marcher:render_ray_marched",
-             (Option("--step", "step", "step length in voxels", float, 0.5, float_in(0.01, 100, "voxels")),)),
+             (Option("--step", "step", "step length in voxels", float, 0.5, float_in(0.01, 100, "voxels")),
+              Option("--shadow-step", "shadow_step", "shadow-ray step length in voxels (below 1 on media with "
+                     "sharp, dense boundaries: the 1-voxel sum reads bright there)", float, 1.0,
+                     float_in(0.01, 100, "voxels")))),
     Renderer("photonmap", "first interactions + NEE + the photon-map estimate of L_i (needs --map)",
              "photon_fields.runtime.renderers.photon_mapped:render_photon_mapped",
              (Option("--k", "k", "photons per estimate (K)", int, 1024, int_in(2, 1 << 16)),

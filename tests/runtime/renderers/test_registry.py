@@ -49,9 +49,9 @@ def test_command_line_offers_exactly_the_registry() -> None:
 
 def test_options_reach_only_their_renderer_and_are_all_checked() -> None:
     parser = build_parser()
-    args = parser.parse_args(["--method", "pt", "--max-depth", "3", "--no-nee", "--step", "2"])
+    args = parser.parse_args(["--method", "pt", "--max-depth", "3", "--no-nee", "--step", "2", "--shadow-step", "0.25"])
     assert renderer_options(args, "pt") == {"max_depth": 3, "nee": False}
-    assert renderer_options(args, "raymarch") == {"step": 2.0}
+    assert renderer_options(args, "raymarch") == {"step": 2.0, "shadow_step": 0.25}
     assert renderer_options(args, "field") == {"camera": "forced", "final_gather_after": DEFAULT_GATHER_AFTER}
     delta = parser.parse_args(["--method", "field", "--camera-estimator", "delta", "--final-gather-after", "0"])
     assert renderer_options(delta, "field") == {"camera": "delta", "final_gather_after": 0}  # shared with photonmap
