@@ -63,7 +63,7 @@ from typing import Any
 from common import Contention, finish_info, machine_info, write_report
 from websockets.sync.client import ClientConnection, connect
 
-from photon_fields.runtime.eval.machine import cpu_record
+from photon_fields.runtime.eval.machine import cpu_record, resident_memory_mb
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -284,17 +284,6 @@ def retrain_cycle(client: Client, scale: float, seconds: float, hz: float, pid: 
 STATE: dict[str, Any] = {}
 
 
-def rss_mb(pid: int) -> float | None:
-    """Resident memory of process ``pid`` in MB, from /proc (None elsewhere)."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    except OSError:
-        return None
-    return None
-
-
 def soak(client: Client, seconds: float, pid: int) -> dict[str, Any]:
     """A long session (issue 15: memory stays bounded over 10 minutes): cycles of a 2 s drag at 30 Hz, a zoom, a
     g change, a layer change, an exposure change and a rest of 3 s, for ``seconds``; the viewer's resident memory
@@ -314,7 +303,7 @@ def soak(client: Client, seconds: float, pid: int) -> dict[str, Any]:
         client.drain()
         while not client.texts.empty():
             client.texts.get_nowait()
-        samples.append((round(time.perf_counter() - t0, 1), rss_mb(pid)))
+        samples.append((round(time.perf_counter() - t0, 1), resident_memory_mb(pid)))
         cycle += 1
     rss = [m for _, m in samples if m is not None]
     half = [m for t, m in samples if m is not None and t >= seconds / 2]

@@ -63,3 +63,14 @@ def cpu_record() -> dict[str, Any]:
     """The short form for reports with timings (renders, demo, evaluation): model and ISA extensions."""
     info = cpu_info()
     return {"model": info["model"], "isa": info["isa"], "logical_cpus": info["logical_cpus"]}
+
+
+def resident_memory_mb(pid: int | str = "self") -> float | None:
+    """Resident memory (VmRSS) of process ``pid`` in MB, from /proc; None where /proc does not say."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None

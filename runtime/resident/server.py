@@ -37,6 +37,7 @@ import traceback
 from collections.abc import Callable, Iterator
 from typing import IO, Any
 
+from photon_fields.runtime.eval.machine import resident_memory_mb
 from photon_fields.runtime.resident.fingerprint import code_fingerprint, is_job_variable, process_environment
 from photon_fields.runtime.resident.job import TerminalStandIn, run_job
 from photon_fields.runtime.resident.paths import ResidentPaths
@@ -89,14 +90,8 @@ class _Sender:
 
 def _rss_mb() -> float:
     """This process's resident memory (MB; 0 where /proc is missing)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmRSS:"):
-                    return round(int(line.split()[1]) / 1024, 1)
-    except (OSError, ValueError, IndexError):
-        pass
-    return 0.0
+    rss = resident_memory_mb()
+    return 0.0 if rss is None else round(rss, 1)
 
 
 def _client_left(conn: socket.socket) -> bool:

@@ -1,14 +1,22 @@
-"""The CPU record every benchmark JSON carries (photon_fields.runtime.eval.machine)."""
+"""The CPU record every benchmark JSON carries, and the resident-memory reading (photon_fields.runtime.eval.machine)."""
 
 from __future__ import annotations
 
+import os
 import re
 import sys
 from pathlib import Path
 
+import pytest
 from conftest import REPO
 
-from photon_fields.runtime.eval.machine import _proc_cpuinfo, cpu_info, cpu_summary, parse_cpuinfo
+from photon_fields.runtime.eval.machine import (
+    _proc_cpuinfo,
+    cpu_info,
+    cpu_summary,
+    parse_cpuinfo,
+    resident_memory_mb,
+)
 
 CPUINFO = """processor\t: 0
 vendor_id\t: AuthenticAMD
@@ -57,3 +65,16 @@ def test_every_benchmark_records_the_machine() -> None:
         text = script.read_text()
         if re.search(r"write_report|json\.dump", text):
             assert "machine_info()" in text, f"{script.name} writes JSON without machine_info()"
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="no /proc on this system")
+def test_resident_memory_grows_with_an_allocation_and_is_none_for_no_process() -> None:
+    """VmRSS of this process in MB: it rises by about the size of 64 MB written into memory, reads the same by pid,
+    and a pid no process has gives None."""
+    before = resident_memory_mb()
+    block = bytearray(64 << 20)
+    block[:: 4096] = b"\x01" * len(block[:: 4096])  # touch every page
+    after = resident_memory_mb(os.getpid())
+    assert before is not None and after is not None
+    assert 48.0 < after - before < 96.0
+    assert resident_memory_mb(2**22 + 12345) is None
