@@ -58,6 +58,7 @@ VLABELS = "tests/runtime/viewer/test_viewer_labels.py"
 UPDATE = "tests/train/fit/test_update.py"
 LABELS_MEDIUM = "tests/runtime/transport/test_labels_medium.py"
 ENVMAP = "tests/runtime/transport/test_environment_map.py"
+LSAMPLING = "tests/runtime/transport/test_light_sampling.py"
 ENVRENDER = "tests/runtime/renderers/test_environment_map_render.py"
 PVRT_CLI = "tests/train/cli/test_pvrt_cli.py"
 PVRT_PT = "tests/runtime/pvrt/test_pvrt_vs_path_tracer.py"
@@ -177,6 +178,16 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/renderers/test_path_tracer.py::test_absorbing_furnace_loses_energy",
             "tests/runtime/renderers/test_path_tracer.py::test_ray_marcher_matches_single_scattering"),
            "next-event estimation ignores the shadow ray's transmittance"),
+    Mutant("one_light_not_replayed", "runtime/transport/direct_light.py", "    state = start  # replay",
+           "    pass  # replay",
+           (f"{LSAMPLING}::test_one_light_and_every_light_have_one_mean[False]",
+            f"{LSAMPLING}::test_one_light_and_every_light_have_one_mean[True]"),
+           "one-light NEE draws an environment's direction again after choosing it by another one's contribution"),
+    Mutant("one_light_chosen_by_power", "runtime/transport/direct_light.py",
+           "return lx, ly, lz, c * lr, c * lg, c * lb, tend, c * (lr + lg + lb), state",
+           "return lx, ly, lz, c * lr, c * lg, c * lb, tend, lr + lg + lb, state",
+           (f"{LSAMPLING}::test_choice_follows_each_lights_unshadowed_contribution",),
+           "one-light NEE chooses by the light's radiance alone (unbiased, but noisier: phase function ignored)"),
     Mutant("pt_roulette_not_reweighted", "runtime/renderers/path_tracer.py",
            "                beta[0, i] /= q\n                beta[1, i] /= q\n                beta[2, i] /= q\n",
            "                pass\n",
@@ -334,8 +345,8 @@ MUTANTS: tuple[Mutant, ...] = (
            (f"{VLABELS}::test_the_other_kind_of_edit_and_absent_labels_are_refused",),
            "a scalar transfer message turns a label scene into a scalar one (interpolated label values)"),
     # The final gather (one real bounce before the field).
-    Mutant("gather_environment_halved", "runtime/wavefront/final_gather.py", "x2, w, states, False)",
-           "x2, w, states, True)", (f"{GATHER}::test_gather_of_nothing_is_the_path_tracers_second_bounce",),
+    Mutant("gather_environment_halved", "runtime/wavefront/final_gather.py", "x2, w, states, False, one_light)",
+           "x2, w, states, True, one_light)", (f"{GATHER}::test_gather_of_nothing_is_the_path_tracers_second_bounce",),
            "NEE at the bounce gives the environment only its MIS share, though no phase-sampled escape follows"),
     Mutant("gather_without_albedo", "runtime/wavefront/final_gather.py", "= wt * ar, wt * ag, wt * ab",
            "= wt, wt, wt", (f"{GATHER}::test_gather_of_nothing_is_the_path_tracers_second_bounce",),

@@ -12,7 +12,8 @@ Stages (each timed under its own name in ``RenderResult.timings_ms``; code in
 3. ``estimate_indirect``: the field :class:`photon_fields.runtime.field.field.PhotonField` predicts Q(x, d, g) at every
    interaction (hash encoding, batched onnxruntime inference, Eq. 7 decode), at the render's g, which may
    be any value in [-1, 1]: the field interpolates between the phases G it was trained on;
-4. ``estimate_direct``: next-event estimation with ratio-tracked shadow rays to every light;
+4. ``estimate_direct``: next-event estimation with ratio-tracked shadow rays, to one light per sample drawn by its
+   unshadowed contribution (``light_sampling="one"``, the default) or to every light ("all");
 5. ``compose``: per sample ``L_d = a(x) NEE(x)`` and ``L_i = a(x) Q(x, d, g)``, averaged over spp.
 
 The estimator (Sec. 3.6's ``L = 1/spp sum (w_d L_d + w_i sigma_s L_i^pred)``): the paper's sigma_s becomes
@@ -58,6 +59,7 @@ from photon_fields.runtime.wavefront.batches import DEFAULT_BATCH, RenderResult
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.first_interaction import (
     DEFAULT_CAMERA_ESTIMATOR,
+    DEFAULT_LIGHT_SAMPLING,
     IndirectEstimator,
     render_first_interaction,
 )
@@ -68,10 +70,12 @@ def render_neural(scene: Scene, estimator: IndirectEstimator | None, *, spp: int
                   film: Film | None = None, first_sample: int = 0,
                   camera: str = DEFAULT_CAMERA_ESTIMATOR,
                   final_gather_after: int | None = DEFAULT_GATHER_AFTER,
-                  cancel: Callable[[], bool] | None = None) -> RenderResult:
+                  cancel: Callable[[], bool] | None = None,
+                  light_sampling: str = DEFAULT_LIGHT_SAMPLING) -> RenderResult:
     """Alg. 2 with ``estimator`` (normally ``PhotonField.estimator()``) for L_i; see the module docstring.
     ``estimator=None`` renders L_d only, ``direct=False`` L_i only (for timing the terms separately).
-    ``camera`` picks how first interactions are sampled (``first_interaction.CAMERA_ESTIMATORS``);
+    ``camera`` picks how first interactions are sampled (``first_interaction.CAMERA_ESTIMATORS``), ``light_sampling``
+    how NEE treats several lights (``first_interaction.LIGHT_SAMPLINGS``).
     Samples from index ``final_gather_after`` on (counting ``first_sample``'s; 0: all, None: none) take one real
     bounce before the field (:mod:`photon_fields.runtime.wavefront.final_gather`: the field's bias reaches the image
     attenuated and blurred, at about 1.5x the work per sample): a render of many samples converges to the less
@@ -81,7 +85,8 @@ def render_neural(scene: Scene, estimator: IndirectEstimator | None, *, spp: int
     stats_before = _field_seconds(estimator)
     result = render_first_interaction(scene, estimator, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
                                       desc="neural rendering", direct=direct, film=film, first_sample=first_sample,
-                                      camera=camera, final_gather_after=final_gather_after, cancel=cancel)
+                                      camera=camera, final_gather_after=final_gather_after, cancel=cancel,
+                                      light_sampling=light_sampling)
     after = _field_seconds(estimator)
     for key, value in after.items():  # the field's own split of stage 4: encoding / inference / decoding
         result.timings_ms[f"estimate_indirect.{key}"] = (value - stats_before.get(key, 0.0)) * 1e3
@@ -110,9 +115,10 @@ class ProgressiveRender:
 
     def __init__(self, scene: Scene, estimator: IndirectEstimator | None, *, spp: int = 1, seed: int = 0,
                  batch_size: int = DEFAULT_BATCH, camera: str = DEFAULT_CAMERA_ESTIMATOR,
-                 denoiser: Any = None, final_gather_after: int | None = DEFAULT_GATHER_AFTER) -> None:
+                 denoiser: Any = None, final_gather_after: int | None = DEFAULT_GATHER_AFTER,
+                 light_sampling: str = DEFAULT_LIGHT_SAMPLING) -> None:
         self.scene, self.estimator, self.spp, self.seed, self.batch_size = scene, estimator, int(spp), seed, batch_size
-        self.camera, self.final_gather_after = camera, final_gather_after
+        self.camera, self.final_gather_after, self.light_sampling = camera, final_gather_after, light_sampling
         self.film = Film(scene.camera.width, scene.camera.height)
         self.frames = 0
         self.denoiser = denoiser
@@ -126,7 +132,7 @@ class ProgressiveRender:
     def frame(self) -> RenderResult:
         result = render_neural(self.scene, self.estimator, spp=self.spp, seed=self.seed, batch_size=self.batch_size,
                                progress=False, film=self.film, first_sample=self.film.samples, camera=self.camera,
-                               final_gather_after=self.final_gather_after)
+                               final_gather_after=self.final_gather_after, light_sampling=self.light_sampling)
         self.frames += 1
         if self.denoiser is not None:
             t0 = time.perf_counter()

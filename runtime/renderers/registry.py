@@ -121,6 +121,11 @@ CAMERA_OPTION = Option("--camera-estimator", "camera", "camera estimator: forced
                        "whole ray, weighted by its collision probability; less noise in thin media) or delta (delta "
                        "tracking, the path tracer's first bounce)", str, "forced", one_of(("forced", "delta")))
 
+#: The first-interaction renderers' NEE over several lights (runtime.wavefront.first_interaction.LIGHT_SAMPLINGS).
+LIGHT_OPTION = Option("--light-sampling", "light_sampling", "next-event estimation with several lights: one (one "
+                      "shadow ray per sample, to a light drawn by its unshadowed contribution) or all (a shadow ray to "
+                      "every light: less noise, more time)", str, "one", one_of(("one", "all")))
+
 #: Samples of a render (or of a viewer's resting view) from which the first-interaction renderers take the final
 #: gather (runtime.wavefront.final_gather): by then the image's noise is below the estimator's bias, which the gather
 #: reduces (measurements: bench/README.md, ``bench_final_gather.py``).
@@ -164,10 +169,11 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
              "photon_fields.runtime.renderers.photon_mapped:render_photon_mapped",
              (Option("--k", "k", "photons per estimate (K)", int, 1024, int_in(2, 1 << 16)),
               Option("--radius", "radius", "max search radius, in units of the volume box's longest side", float,
-                     0.05, float_in(0, 2, "box units", open_low=True)), CAMERA_OPTION, GATHER_OPTION),
+                     0.05, float_in(0, 2, "box units", open_low=True)), CAMERA_OPTION, LIGHT_OPTION, GATHER_OPTION),
              input="map"),
     Renderer("field", "the neural renderer (Alg. 2): first interactions + NEE + the photon field's L_i "
-             "(needs --bundle)", "photon_fields.runtime.renderers.neural:render_neural", (CAMERA_OPTION, GATHER_OPTION),
+             "(needs --bundle)", "photon_fields.runtime.renderers.neural:render_neural",
+             (CAMERA_OPTION, LIGHT_OPTION, GATHER_OPTION),
              input="bundle"),
     # Defaults spelt out as in runtime.pvrt.constants / lighting (not imported: building the CLI stays cheap).
     Renderer("pvrt", "PVRT relighting (Zhang et al. 2013) from a precomputed transfer: distant lights only, "

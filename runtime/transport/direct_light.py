@@ -14,6 +14,20 @@ phase sampling; both strategies are combined with the power heuristic (Veach 199
 ``w_nee = pdf_l^2 / (pdf_l^2 + pdf_phase^2)``, and the phase-sampled escape gets the complement
 (:func:`mis_weight_phase`, with the map's pdf of the escape direction for an environment map). Used by the
 reference path tracer and, at the first vertex, by the neural renderer (paper Sec. 3.6, "Direct Illumination").
+
+**One light per vertex** (:func:`direct_light_one`, ``one_light=True``; the first-interaction renderers' default,
+:data:`LIGHT_SAMPLINGS`): instead of a shadow ray to every light, one light k is drawn with probability
+
+    p_k = c_k / sum_j c_j,    c_k = f_g(d . l_k) * scale_k * (Le_r + Le_g + Le_b)_k
+
+(its contribution without the shadow: what :func:`direct_light` would add for it at transmittance 1) and its term is
+divided by p_k: unbiased for every light with c_k > 0, and a light with c_k = 0 adds nothing to either sum. One
+shadow ray per vertex instead of one per light: where the lights' transmittances agree the estimate is exact in
+luminance, and where one light is shadowed and a weaker one is not, the weaker one's light arrives in fewer samples
+with a larger weight (pbrt-v4's power light sampler, made spatial by the falloff and the phase function). With one
+light nothing is drawn and the result equals :func:`direct_light`'s bit for bit. The two passes over the lights
+replay the same random numbers (only environments draw any), so the chosen light's direction is the one its
+probability was computed with.
 """
 
 from __future__ import annotations
@@ -27,6 +41,7 @@ from photon_fields.runtime.transport.emitters import sample_light_direction
 from photon_fields.runtime.transport.environment_map import EnvMap
 from photon_fields.runtime.transport.medium import Medium, intersect_box
 from photon_fields.runtime.transport.phase import hg_eval
+from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, ratio_track
 
 
@@ -71,26 +86,94 @@ def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
     return r, gr, b, state
 
 
+#: How NEE treats several lights: "all" (a shadow ray to every light, :func:`direct_light`) or "one" (one light per
+#: vertex drawn by its unshadowed contribution, :func:`direct_light_one`; module docstring).
+LIGHT_SAMPLINGS = ("all", "one")
+
+
+@njit(cache=True, inline="always")
+def _light_term(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, k: int, px: float,
+                py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64, env_mis: bool
+                ) -> tuple[float, float, float, float, float, float, float, float, np.uint64]:
+    """Light k's sample from p without its shadow: (lx, ly, lz, r, g, b, distance, c, state) with (r, g, b) its
+    unshadowed term and c = r + g + b (0: it adds nothing), :func:`direct_light`'s weights."""
+    lx, ly, lz, lr, lg, lb, pdf_l, tend, state = sample_light_direction(kind[k], vec[k], rgb[k], env, px, py, pz,
+                                                                        state)
+    f = hg_eval(g, dx * lx + dy * ly + dz * lz)
+    scale = 1.0
+    if not math.isinf(pdf_l):  # an environment: MIS against phase sampling, as in direct_light
+        if pdf_l <= 0.0:
+            return lx, ly, lz, 0.0, 0.0, 0.0, tend, 0.0, state
+        w = 1.0
+        if env_mis:
+            w = 1.0 - mis_weight_phase(f, pdf_l)
+        scale = w / pdf_l
+    c = f * scale
+    if c <= 0.0 or (lr + lg + lb) <= 0.0:
+        return lx, ly, lz, 0.0, 0.0, 0.0, tend, 0.0, state
+    return lx, ly, lz, c * lr, c * lg, c * lb, tend, c * (lr + lg + lb), state
+
+
+@njit(cache=True)
+def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
+                     py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
+                     env_mis: bool) -> tuple[float, float, float, np.uint64]:
+    """:func:`direct_light`'s estimate with one shadow ray: one light drawn by its unshadowed contribution (module
+    docstring). With a single light, the same numbers as :func:`direct_light`."""
+    n = kind.shape[0]
+    if n <= 1:
+        return direct_light(m, kind, vec, rgb, env, g, px, py, pz, dx, dy, dz, state, env_mis)
+    state, u = next_float(state)
+    start = state
+    total = 0.0
+    for k in range(n):
+        _, _, _, _, _, _, _, c, state = _light_term(kind, vec, rgb, env, g, k, px, py, pz, dx, dy, dz, state, env_mis)
+        total += c
+    if total <= 0.0:
+        return 0.0, 0.0, 0.0, state
+    state = start  # replay the same samples (only environments draw random numbers) up to the chosen light
+    target = u * total
+    acc = 0.0
+    for k in range(n):
+        lx, ly, lz, r, gr, b, tend, c, state = _light_term(kind, vec, rgb, env, g, k, px, py, pz, dx, dy, dz, state,
+                                                           env_mis)
+        acc += c
+        if c > 0.0 and (target < acc or acc >= total):  # acc reaches total at the last light with c > 0
+            tr = 1.0
+            t0, t1 = intersect_box(m, px, py, pz, lx, ly, lz)
+            if t0 < t1:
+                tr, state = ratio_track(m, px, py, pz, lx, ly, lz, t0, min(t1, tend), state)
+            s = tr * total / c
+            return r * s, gr * s, b * s, state
+    return 0.0, 0.0, 0.0, state
+
+
 @njit(cache=True)
 def _direct_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
-                        o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, out: np.ndarray, lo: int,
-                        hi: int) -> None:
+                        o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, one_light: bool,
+                        out: np.ndarray, lo: int, hi: int) -> None:
     """:func:`direct_light_batch` for items lo..hi-1 (one task; ``TASK_ITEMS`` in tracking.py says why)."""
     for i in range(lo, hi):
-        out[0, i], out[1, i], out[2, i], states[i] = direct_light(
-            m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
+        if one_light:
+            out[0, i], out[1, i], out[2, i], states[i] = direct_light_one(
+                m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
+        else:
+            out[0, i], out[1, i], out[2, i], states[i] = direct_light(
+                m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
 
 
 @njit(cache=True, parallel=True)
 def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
-                       o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool = True) -> np.ndarray:
+                       o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool = True,
+                       one_light: bool = False) -> np.ndarray:
     """Stage: NEE at every vertex of a SoA batch; returns radiance (3, n) (times throughput later). ``env`` is
     the scene's environment map (``Scene.packed_environment_map()``, a placeholder when it has none).
     ``env_mis=False`` gives the environment's NEE full weight, for estimators that never reach the
-    environment by phase sampling (the first-interaction renderers)."""
+    environment by phase sampling (the first-interaction renderers). ``one_light``: one shadow ray per vertex to a
+    light drawn by its unshadowed contribution (:func:`direct_light_one`) instead of one to every light."""
     n = o.shape[1]
     out = np.empty((3, n))
     for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
-        _direct_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, out, task * TASK_ITEMS,
+        _direct_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, one_light, out, task * TASK_ITEMS,
                             min(n, (task + 1) * TASK_ITEMS))
     return out

@@ -88,11 +88,12 @@ def _bounce(m: Medium, g: float, x: np.ndarray, d: np.ndarray, rng: np.ndarray, 
 
 def gather_indirect(m: Medium, lights: tuple[np.ndarray, np.ndarray, np.ndarray, EnvMap], g: float, x: np.ndarray,
                     d: np.ndarray, rng: np.ndarray, estimator: object, forced: bool, w_min: float,
-                    timer: StageTimer) -> np.ndarray:
+                    timer: StageTimer, one_light: bool = False) -> np.ndarray:
     """Q^(x, d, g) at every item of a SoA batch (module docstring): (3, n). ``lights`` is
     ``Scene.packed_lights()`` followed by ``Scene.packed_environment_map()``; ``estimator`` an
     ``IndirectEstimator`` evaluated at the bounces' collisions;
-    ``forced`` / ``w_min`` the camera estimator's choice and weight floor, used for the bounce too. ``rng`` is
+    ``forced`` / ``w_min`` the camera estimator's choice and weight floor, used for the bounce too; ``one_light``
+    the NEE's light sampling (``runtime.transport.direct_light``), as at the first interaction. ``rng`` is
     read, not advanced. Sub-stages are timed as ``final_gather.bounce`` / ``.direct`` / ``.estimator``."""
     n = x.shape[1]
     x2, w, weight = np.empty((3, n)), np.empty((3, n)), np.empty((3, n))
@@ -107,7 +108,7 @@ def gather_indirect(m: Medium, lights: tuple[np.ndarray, np.ndarray, np.ndarray,
                              weight[:, idx], states[idx])
     kind, vec, rgb, env = lights
     with timer("final_gather.direct"):
-        arriving = direct_light_batch(m, kind, vec, rgb, env, float(g), x2, w, states, False)
+        arriving = direct_light_batch(m, kind, vec, rgb, env, float(g), x2, w, states, False, one_light)
     with timer("final_gather.estimator"):
         arriving += estimator(x2, w, g)
     q[:, idx] = weight * arriving

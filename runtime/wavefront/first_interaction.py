@@ -12,7 +12,8 @@ Stages over structure-of-arrays batches of work items (pixel, sample):
    the box or escape add the environment to L_e;
 2. ``compact``: the interacting items are packed densely, no holes reach the estimators;
 3. ``estimate_indirect``: the estimator's in-scattered indirect radiance Q(x, d, g) at every sample;
-4. ``estimate_direct``: next-event estimation to every light with ratio-tracked shadow rays;
+4. ``estimate_direct``: next-event estimation with ratio-tracked shadow rays, to one light per sample drawn by its
+   unshadowed contribution ("one", the default) or to every light ("all"; :data:`LIGHT_SAMPLINGS`);
 5. ``compose``: L_d = W a(x) * NEE, L_i = W a(x) * Q, accumulated per pixel and divided by spp.
 
 The estimator we implement (and why it matches the path tracer's split). With delta tracking, the
@@ -58,7 +59,7 @@ from numba import njit, prange
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
-from photon_fields.runtime.transport.direct_light import direct_light_batch
+from photon_fields.runtime.transport.direct_light import LIGHT_SAMPLINGS, direct_light_batch
 from photon_fields.runtime.transport.medium import Medium, albedo_at
 from photon_fields.runtime.transport.tracking import camera_collision
 from photon_fields.runtime.wavefront.batches import (
@@ -89,6 +90,10 @@ class IndirectEstimator(Protocol):
 #: interacts with weight W instead of rarely with weight 1.
 CAMERA_ESTIMATORS = ("delta", "forced")
 DEFAULT_CAMERA_ESTIMATOR = "forced"
+#: NEE at the first interactions (and at a final gather's bounce): "one" light per sample, drawn by its unshadowed
+#: contribution, or "all" lights (runtime.transport.direct_light). "one" is the default: on the embedded two-light
+#: scenes it halves the NEE stage for a few per cent more noise (docs/rendering.md); with one light both are the same.
+DEFAULT_LIGHT_SAMPLING = "one"
 #: "forced": a collision of weight W < FORCED_MIN_WEIGHT is kept with probability W / FORCED_MIN_WEIGHT and then
 #: weighted FORCED_MIN_WEIGHT (Russian roulette on the weight), which bounds the field and NEE work per frame.
 FORCED_MIN_WEIGHT = 0.25
@@ -202,6 +207,13 @@ def _pack(counts: np.ndarray, block: int, src_pixel: np.ndarray, src_x: np.ndarr
                 albedo[c, o] = src_albedo[c, i]
 
 
+def check_light_sampling(name: str) -> bool:
+    """Whether ``name`` samples one light per vertex; refuses names not in :data:`LIGHT_SAMPLINGS` in one line."""
+    if name not in LIGHT_SAMPLINGS:
+        raise InputError("light sampling", f"must be one of {', '.join(LIGHT_SAMPLINGS)}, got {name!r}")
+    return name == "one"
+
+
 def check_camera_estimator(name: str) -> bool:
     """Whether ``name`` is the forced estimator; refuses names not in :data:`CAMERA_ESTIMATORS` in one line."""
     if name not in CAMERA_ESTIMATORS:
@@ -245,8 +257,10 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
                              direct: bool = True, film: Film | None = None, first_sample: int = 0,
                              camera: str = DEFAULT_CAMERA_ESTIMATOR,
                              final_gather_after: int | None = None,
-                             cancel: Callable[[], bool] | None = None) -> RenderResult:
-    """Render ``spp`` samples per pixel (stages in the module docstring) with the ``camera`` estimator.
+                             cancel: Callable[[], bool] | None = None,
+                             light_sampling: str = DEFAULT_LIGHT_SAMPLING) -> RenderResult:
+    """Render ``spp`` samples per pixel (stages in the module docstring) with the ``camera`` estimator and NEE's
+    ``light_sampling`` (:data:`LIGHT_SAMPLINGS`).
 
     ``cancel``: asked before each batch; when it returns True the render stops with
     :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError` (the film holds part of the samples).
@@ -274,6 +288,7 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
     first, total = first_sample * n_pixels, n_pixels * spp
     batch = min(batch_size, total)
     forced = check_camera_estimator(camera)
+    one_light = check_light_sampling(light_sampling)
     scratch, status, transmit = FirstInteractions.empty(batch), np.empty(batch, np.uint8), np.empty(batch)
     distinct = batch <= n_pixels  # consecutive work items: no pixel twice in one batch (Film.splat)
     n_rays = n_samples = 0
@@ -299,14 +314,14 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
                 with timer("estimate_indirect"):
                     if gather_from is not None and start >= gather_from:
                         q = gather_indirect(m, (kind, vec, rgb, env_map), scene.g, fi.x, fi.d, fi.rng, estimator,
-                                            forced, FORCED_MIN_WEIGHT, timer)
+                                            forced, FORCED_MIN_WEIGHT, timer, one_light)
                     else:
                         q = estimator(fi.x, fi.d, scene.g)
                 with timer("compose"):
                     film.splat("L_i", fi.pixel, q, distinct, weight=throughput)
             if direct:
                 with timer("estimate_direct"):
-                    nee = direct_light_batch(m, kind, vec, rgb, env_map, scene.g, fi.x, fi.d, fi.rng, False)
+                    nee = direct_light_batch(m, kind, vec, rgb, env_map, scene.g, fi.x, fi.d, fi.rng, False, one_light)
                 with timer("compose"):
                     film.splat("L_d", fi.pixel, nee, distinct, weight=throughput)
     gathered = 0 if gather_from is None else max(0, first + total - max(first, gather_from)) // n_pixels

@@ -441,6 +441,8 @@ CASES += [
     (R, lambda a, d, o: [*PHOTONMAP(a), "--camera-estimator", "ratio", *SIZE, "--out", str(o / "r.exr")],
      "--camera-estimator"),
     (R, lambda a, d, o: [*PHOTONMAP(a), "--radius", "-1", *SIZE, "--out", str(o / "r.exr")], "--radius"),
+    (R, lambda a, d, o: [*FIELD(a), "--light-sampling", "some", *SIZE, "--out", str(o / "r.exr")],
+     "--light-sampling"),
     (R, lambda a, d, o: [*PHOTONMAP(a), "--final-gather-after", "soon", *SIZE, "--out", str(o / "r.exr")],
      "--final-gather-after"),
     (R, lambda a, d, o: [*FIELD(a), "--precision", "int4", *SIZE, "--out", str(o / "r.exr")], "--precision"),

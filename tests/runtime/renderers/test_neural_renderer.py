@@ -37,12 +37,13 @@ def pmap(scene: Scene):  # noqa: ANN201
 
 def test_photon_map_estimator_in_place_of_the_field_gives_the_photon_map_and_path_tracer_layers(scene, pmap) -> None:  # noqa: ANN001
     est = PhotonMapEstimator(pmap, scene.medium(), k=128, radius=0.1)
-    neural = render_neural(scene, est, spp=3, seed=5, progress=False, batch_size=500, camera="delta").layers
+    neural = render_neural(scene, est, spp=3, seed=5, progress=False, batch_size=500, camera="delta",
+                           light_sampling="all").layers
     ref = render_photon_mapped(scene, pmap, k=128, radius=0.1, spp=3, seed=5, progress=False, camera="delta").layers
     np.testing.assert_array_equal(neural["L_i"], ref["L_i"])
     assert neural["L_i"].mean() > 0
     pt = render_path_traced(scene, spp=3, seed=5, progress=False).layers
-    np.testing.assert_array_equal(neural["L_d"], pt["L_d"])  # same first interactions and shadow rays
+    np.testing.assert_array_equal(neural["L_d"], pt["L_d"])  # same first interactions and shadow rays (every light)
 
 
 @pytest.mark.parametrize(("start", "count"), [(0, 400), (650, 1111), (1370, 37)])

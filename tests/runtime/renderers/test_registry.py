@@ -52,11 +52,15 @@ def test_options_reach_only_their_renderer_and_are_all_checked() -> None:
     args = parser.parse_args(["--method", "pt", "--max-depth", "3", "--no-nee", "--step", "2", "--shadow-step", "0.25"])
     assert renderer_options(args, "pt") == {"max_depth": 3, "nee": False}
     assert renderer_options(args, "raymarch") == {"step": 2.0, "shadow_step": 0.25}
-    assert renderer_options(args, "field") == {"camera": "forced", "final_gather_after": DEFAULT_GATHER_AFTER}
-    delta = parser.parse_args(["--method", "field", "--camera-estimator", "delta", "--final-gather-after", "0"])
-    assert renderer_options(delta, "field") == {"camera": "delta", "final_gather_after": 0}  # shared with photonmap
+    assert renderer_options(args, "field") == {"camera": "forced", "light_sampling": "one",
+                                               "final_gather_after": DEFAULT_GATHER_AFTER}
+    delta = parser.parse_args(["--method", "field", "--camera-estimator", "delta", "--final-gather-after", "0",
+                               "--light-sampling", "all"])
+    assert renderer_options(delta, "field") == {"camera": "delta", "light_sampling": "all",  # shared with photonmap
+                                                "final_gather_after": 0}
     assert renderer_options(delta, "photonmap")["camera"] == "delta"
     assert renderer_options(delta, "photonmap")["final_gather_after"] == 0
+    assert renderer_options(delta, "photonmap")["light_sampling"] == "all"
     never = parser.parse_args(["--method", "field", "--final-gather-after", "never"])
     assert renderer_options(never, "field")["final_gather_after"] is None
     bad = parser.parse_args(["--method", "pt", "--k", "0"])

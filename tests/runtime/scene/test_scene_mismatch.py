@@ -266,7 +266,8 @@ def test_final_gather_reaches_the_field_renderer_and_its_report(bundle: Path, tm
                                      str(out)], capsys)
         assert code == 0 and err == [], err
         gathers = flags[1] == "0"
-        assert report["options"] == {"camera": "forced", "final_gather_after": 0 if gathers else None}
+        assert report["options"] == {"camera": "forced", "light_sampling": "one",
+                                     "final_gather_after": 0 if gathers else None}
         images[gathers] = read_exr(out)[0]
     np.testing.assert_array_equal(images[False]["L_d"], images[True]["L_d"])
     assert not np.array_equal(images[False]["L_i"], images[True]["L_i"])
