@@ -8,11 +8,19 @@ random streams, ``--alternations`` times each. Both see the same load drift; the
 of each side is compared. The two sides' results must be bit-identical (checked; a change to the scalar path that
 alters samples is not what this measures).
 
+``--stages`` times the frame's walks instead, as the renderers call them: ``sample_first_interactions`` (the
+forced camera estimator) and ``direct_light_batch`` (NEE at those first interactions, the renderers' default light
+sampling) at a ``--size`` square camera of each builtin scene, on all numba threads; medians and first quartiles
+of the alternated calls. Whether the two sides' outputs are identical is reported, not required (a change that
+rounds differently is still timed).
+
 Usage::
 
     NUMBA_NUM_THREADS=1 .venv/bin/python bench/ab_tracking.py --base main --alternations 30
+    .venv/bin/python bench/ab_tracking.py --base main --stages --scenes head,shell,blobs,vortex --alternations 15
 
-Output: one line per scene and tracker, ``new/base`` ratios of the minimum and the first quartile.
+Output: one line per scene and tracker (or stage), ``new/base`` ratios of the minimum (median) and the first
+quartile.
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ import tempfile
 import time
 from io import BytesIO
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -53,7 +62,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--alternations", type=int, default=30)
     ap.add_argument("--rays", type=int, default=1 << 15)
     ap.add_argument("--scenes", default="vortex,head")
+    ap.add_argument("--stages", action="store_true", help="time the 512^2 frame's first interactions and NEE instead")
+    ap.add_argument("--size", type=int, default=512, help="--stages: the camera's width and height")
     args = ap.parse_args(argv)
+    if args.stages:
+        return ab_stages(args)
     from bench_tracking import random_box_rays
 
     from photon_fields.runtime.scene.scene import builtin_scene
@@ -86,6 +99,58 @@ def main(argv: list[str] | None = None) -> int:
                       f"new/base min {n.min() / b.min():.3f}, first quartile "
                       f"{np.percentile(n, 25) / np.percentile(b, 25):.3f} | results identical: {same}", flush=True)
     return 0
+
+
+def ab_stages(args: argparse.Namespace) -> int:
+    """``--stages``: the frame's first interactions and their NEE, base against the working tree (module docstring)."""
+    sides = {"base": "pf_base", "new": "photon_fields"}
+    with tempfile.TemporaryDirectory() as tmp:
+        extract_base(args.base, Path(tmp))
+        sys.path.insert(0, tmp)
+        for name in args.scenes.split(","):
+            calls, outputs = {}, {}
+            for side, pkg in sides.items():
+                calls[side], outputs[side] = _stage_calls(pkg, name, args.size)
+            same = {k: np.array_equal(outputs["base"][k], outputs["new"][k]) for k in outputs["new"]}
+            times: dict[str, dict[str, list[float]]] = {side: {"first": [], "nee": []} for side in sides}
+            for a in range(args.alternations):
+                for side in (("base", "new") if a % 2 else ("new", "base")):
+                    for stage, call in calls[side].items():
+                        t0 = time.perf_counter()
+                        call()
+                        times[side][stage].append(time.perf_counter() - t0)
+            for stage in ("first", "nee"):
+                b, n = (np.array(times[k][stage]) for k in sides)
+                print(f"{name:7s} {stage:5s} base median {np.median(b) * 1e3:7.2f} ms | new {np.median(n) * 1e3:7.2f} "
+                      f"ms | new/base median {np.median(n) / np.median(b):.3f}, first quartile "
+                      f"{np.percentile(n, 25) / np.percentile(b, 25):.3f} | outputs identical: {same[stage]}",
+                      flush=True)
+    return 0
+
+
+def _stage_calls(pkg: str, name: str, size: int) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Package ``pkg``'s first-interaction and NEE calls on scene ``name`` at a size x size camera (warmed up), and
+    their outputs."""
+    fim = importlib.import_module(f"{pkg}.runtime.wavefront.first_interaction")
+    nee = importlib.import_module(f"{pkg}.runtime.transport.direct_light")
+    scene = importlib.import_module(f"{pkg}.runtime.scene.scene").builtin_scene(name).with_overrides(width=size,
+                                                                                                    height=size)
+    m, (kind, vec, rgb), env = scene.medium(), scene.packed_lights(), scene.packed_environment_map()
+    n = size * size
+    scratch, status, transmit = fim.FirstInteractions.empty(n), np.empty(n, np.uint8), np.empty(n)
+
+    def first() -> np.ndarray:
+        return fim.sample_first_interactions(scene, m, 0, n, 1, scratch, status, transmit)
+
+    found = fim.compact_first_interactions(scratch, first())
+
+    one_light = (True,) if nee.direct_light_batch.py_func.__code__.co_argcount > 10 else ()  # a base before it: all
+
+    def direct() -> np.ndarray:
+        return nee.direct_light_batch(m, kind, vec, rgb, env, scene.g, found.x, found.d, found.rng.copy(), False,
+                                      *one_light)
+
+    return {"first": first, "nee": direct}, {"first": found.x.copy(), "nee": direct()}
 
 
 if __name__ == "__main__":

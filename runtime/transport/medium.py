@@ -71,6 +71,7 @@ class Medium(NamedTuple):
     leap: np.ndarray  # uint8 (8, cx, cy, cz): per direction octant, the empty cube at each macrocell (module docstring)
     bmin: np.ndarray  # float64 (3,)
     bsize: np.ndarray  # float64 (3,)
+    voxels_per_unit: np.ndarray  # float64 (3,): density.shape / bsize, so a lookup multiplies instead of dividing
     categorical: bool = False  # nearest-voxel label index and exact table lookups (module docstring)
 
 
@@ -87,6 +88,7 @@ def build_medium(volume: Volume, tf: TransferFunction | LabelTransfer, macrocell
     return Medium(np.ascontiguousarray(density, dtype=np.float32), np.ascontiguousarray(ext_lut),
                   np.ascontiguousarray(albedo_lut), majorant, leap_distances(majorant, leap),
                   volume.bbox_min.astype(np.float64), volume.extent.astype(np.float64),
+                  np.asarray(density.shape, np.float64) / volume.extent.astype(np.float64),
                   bool(getattr(tf, "categorical", False)))
 
 
@@ -216,9 +218,9 @@ def scalar_at(m: Medium, x: float, y: float, z: float) -> float:
     """Trilinearly interpolated normalized scalar at world point (x, y, z) (clamped at the border); in a
     categorical medium, the nearest voxel's label index (never interpolated)."""
     nx, ny, nz = m.density.shape
-    vx = min(max((x - m.bmin[0]) / m.bsize[0] * nx - 0.5, 0.0), nx - 1.0)
-    vy = min(max((y - m.bmin[1]) / m.bsize[1] * ny - 0.5, 0.0), ny - 1.0)
-    vz = min(max((z - m.bmin[2]) / m.bsize[2] * nz - 0.5, 0.0), nz - 1.0)
+    vx = min(max((x - m.bmin[0]) * m.voxels_per_unit[0] - 0.5, 0.0), nx - 1.0)
+    vy = min(max((y - m.bmin[1]) * m.voxels_per_unit[1] - 0.5, 0.0), ny - 1.0)
+    vz = min(max((z - m.bmin[2]) * m.voxels_per_unit[2] - 0.5, 0.0), nz - 1.0)
     if m.categorical:  # vx <= nx - 1, so int(vx + 0.5) <= nx - 1: the nearest voxel centre
         return m.density[int(vx + 0.5), int(vy + 0.5), int(vz + 0.5)]
     i = min(int(vx), nx - 2)

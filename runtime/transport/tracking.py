@@ -222,7 +222,8 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
                 if tau >= depth:
                     tau -= depth
                     break
-                t += tau / maj
+                inv_maj = 1.0 / maj  # one division per tentative collision, not three
+                t += tau * inv_maj
                 tau = -1.0
                 sigma = extinction_at(m, ox + t * dx, oy + t * dy, oz + t * dz)
                 if mode == _DELTA:
@@ -231,12 +232,12 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
                         return t, w_sum, tr, state
                     continue
                 if mode == _RESAMPLE and sigma > 0.0:
-                    w = tr * sigma / maj
+                    w = tr * sigma * inv_maj
                     w_sum += w
                     state, u = next_float(state)
                     if u * w_sum < w:
                         kept = t
-                tr *= 1.0 - sigma / maj
+                tr *= 1.0 - sigma * inv_maj
                 if tr < RR_THRESHOLD:
                     state, u = next_float(state)
                     if u < 0.5:
