@@ -21,7 +21,9 @@ first real collision x is sampled with pdf sigma_t T, and the path tracer weight
 there by the albedo a(x) = sigma_s / sigma_t. The light a path tracer gathers at x splits into paths
 whose only scattering vertex is x (L_d) and paths with further vertices (L_i). Here
 
-    L_d(x) = a(x) * sum_lights NEE(x)            (every light by NEE, weight 1)
+    L_d(x) = a(x) * sum_lights NEE(x)            (every light by NEE, weight 1; with "one", a light drawn
+                                                 with probability p_k and divided by it: the same sum in
+                                                 expectation)
     L_i(x) = a(x) * Q(x, d, g),   Q = integral p_g(d, w) L_scattered(x, w) dw
 
 where L_scattered is radiance arriving at x that has scattered at least once: exactly what photons
