@@ -54,38 +54,6 @@ def mis_weight_phase(pdf_phase: float, pdf_light: float) -> float:
     return a / (a + pdf_light * pdf_light)
 
 
-@njit(cache=True)
-def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
-                 py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
-                 env_mis: bool) -> tuple[float, float, float, np.uint64]:
-    r = 0.0
-    gr = 0.0
-    b = 0.0
-    for k in range(kind.shape[0]):
-        lx, ly, lz, lr, lg, lb, pdf_l, tend, state = sample_light_direction(kind[k], vec[k], rgb[k], env, px, py,
-                                                                            pz, state)
-        scale = 1.0
-        if not math.isinf(pdf_l):  # not a delta light (an environment): MIS against phase sampling
-            if pdf_l <= 0.0:
-                continue
-            w = 1.0
-            if env_mis:
-                w = 1.0 - mis_weight_phase(hg_eval(g, dx * lx + dy * ly + dz * lz), pdf_l)
-            scale = w / pdf_l
-        f = hg_eval(g, dx * lx + dy * ly + dz * lz)
-        if f * scale <= 0.0 or (lr + lg + lb) <= 0.0:
-            continue
-        t0, t1 = intersect_box(m, px, py, pz, lx, ly, lz)
-        tr = 1.0
-        if t0 < t1:
-            tr, state = ratio_track(m, px, py, pz, lx, ly, lz, t0, min(t1, tend), state)
-        c = f * scale * tr
-        r += c * lr
-        gr += c * lg
-        b += c * lb
-    return r, gr, b, state
-
-
 #: How NEE treats several lights: "all" (a shadow ray to every light, :func:`direct_light`) or "one" (one light per
 #: vertex drawn by its unshadowed contribution, :func:`direct_light_one`; module docstring).
 LIGHT_SAMPLINGS = ("all", "one")
@@ -94,24 +62,57 @@ LIGHT_SAMPLINGS = ("all", "one")
 @njit(cache=True, inline="always")
 def _light_term(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, k: int, px: float,
                 py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64, env_mis: bool
-                ) -> tuple[float, float, float, float, float, float, float, float, np.uint64]:
-    """Light k's sample from p without its shadow: (lx, ly, lz, r, g, b, distance, c, state) with (r, g, b) its
-    unshadowed term and c = r + g + b (0: it adds nothing), :func:`direct_light`'s weights."""
+                ) -> tuple[float, float, float, float, float, float, float, float, float, np.uint64]:
+    """Light k's sample from p (module docstring) without its shadow: (lx, ly, lz, r, g, b, distance, f, c, state)
+    with f the phase function times the environment's MIS weight over its pdf (1 / pdf for a delta light's
+    infinite one), so that f (r, g, b) times the transmittance is the light's term, and c = f (r + g + b) its
+    unshadowed contribution (0: the light adds nothing here; only then is f 0 too)."""
     lx, ly, lz, lr, lg, lb, pdf_l, tend, state = sample_light_direction(kind[k], vec[k], rgb[k], env, px, py, pz,
                                                                         state)
-    f = hg_eval(g, dx * lx + dy * ly + dz * lz)
     scale = 1.0
-    if not math.isinf(pdf_l):  # an environment: MIS against phase sampling, as in direct_light
+    if not math.isinf(pdf_l):  # not a delta light (an environment): MIS against phase sampling
         if pdf_l <= 0.0:
-            return lx, ly, lz, 0.0, 0.0, 0.0, tend, 0.0, state
+            return lx, ly, lz, lr, lg, lb, tend, 0.0, 0.0, state
         w = 1.0
         if env_mis:
-            w = 1.0 - mis_weight_phase(f, pdf_l)
+            w = 1.0 - mis_weight_phase(hg_eval(g, dx * lx + dy * ly + dz * lz), pdf_l)
         scale = w / pdf_l
-    c = f * scale
-    if c <= 0.0 or (lr + lg + lb) <= 0.0:
-        return lx, ly, lz, 0.0, 0.0, 0.0, tend, 0.0, state
-    return lx, ly, lz, c * lr, c * lg, c * lb, tend, c * (lr + lg + lb), state
+    f = hg_eval(g, dx * lx + dy * ly + dz * lz) * scale
+    if f <= 0.0 or (lr + lg + lb) <= 0.0:
+        return lx, ly, lz, lr, lg, lb, tend, 0.0, 0.0, state
+    return lx, ly, lz, lr, lg, lb, tend, f, f * (lr + lg + lb), state
+
+
+@njit(cache=True, inline="always")
+def _shadow(m: Medium, px: float, py: float, pz: float, lx: float, ly: float, lz: float, tend: float,
+            state: np.uint64) -> tuple[float, np.uint64]:
+    """Transmittance from p towards the light (direction l, ``tend`` away at most), by ratio tracking."""
+    t0, t1 = intersect_box(m, px, py, pz, lx, ly, lz)
+    tr = 1.0
+    if t0 < t1:
+        tr, state = ratio_track(m, px, py, pz, lx, ly, lz, t0, min(t1, tend), state)
+    return tr, state
+
+
+@njit(cache=True)
+def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
+                 py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
+                 env_mis: bool) -> tuple[float, float, float, np.uint64]:
+    """NEE with a shadow ray to every light (module docstring): radiance (r, g, b) and the stream's state."""
+    r = 0.0
+    gr = 0.0
+    b = 0.0
+    for k in range(kind.shape[0]):
+        lx, ly, lz, lr, lg, lb, tend, f, c, state = _light_term(kind, vec, rgb, env, g, k, px, py, pz, dx, dy, dz,
+                                                                state, env_mis)
+        if c <= 0.0:
+            continue
+        tr, state = _shadow(m, px, py, pz, lx, ly, lz, tend, state)
+        ft = f * tr
+        r += ft * lr
+        gr += ft * lg
+        b += ft * lb
+    return r, gr, b, state
 
 
 @njit(cache=True)
@@ -127,7 +128,8 @@ def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarr
     start = state
     total = 0.0
     for k in range(n):
-        _, _, _, _, _, _, _, c, state = _light_term(kind, vec, rgb, env, g, k, px, py, pz, dx, dy, dz, state, env_mis)
+        _, _, _, _, _, _, _, _, c, state = _light_term(kind, vec, rgb, env, g, k, px, py, pz, dx, dy, dz, state,
+                                                       env_mis)
         total += c
     if total <= 0.0:
         return 0.0, 0.0, 0.0, state
@@ -135,16 +137,13 @@ def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarr
     target = u * total
     acc = 0.0
     for k in range(n):
-        lx, ly, lz, r, gr, b, tend, c, state = _light_term(kind, vec, rgb, env, g, k, px, py, pz, dx, dy, dz, state,
-                                                           env_mis)
+        lx, ly, lz, lr, lg, lb, tend, f, c, state = _light_term(kind, vec, rgb, env, g, k, px, py, pz, dx, dy, dz,
+                                                                state, env_mis)
         acc += c
         if c > 0.0 and (target < acc or acc >= total):  # acc reaches total at the last light with c > 0
-            tr = 1.0
-            t0, t1 = intersect_box(m, px, py, pz, lx, ly, lz)
-            if t0 < t1:
-                tr, state = ratio_track(m, px, py, pz, lx, ly, lz, t0, min(t1, tend), state)
+            tr, state = _shadow(m, px, py, pz, lx, ly, lz, tend, state)
             s = tr * total / c
-            return r * s, gr * s, b * s, state
+            return (f * lr) * s, (f * lg) * s, (f * lb) * s, state
     return 0.0, 0.0, 0.0, state
 
 
