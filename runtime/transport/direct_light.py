@@ -94,7 +94,7 @@ def _shadow(m: Medium, px: float, py: float, pz: float, lx: float, ly: float, lz
     return tr, state
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
                  py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
                  env_mis: bool) -> tuple[float, float, float, np.uint64]:
@@ -115,15 +115,14 @@ def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
     return r, gr, b, state
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
                      py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
                      env_mis: bool) -> tuple[float, float, float, np.uint64]:
     """:func:`direct_light`'s estimate with one shadow ray: one light drawn by its unshadowed contribution (module
-    docstring). With a single light, the same numbers as :func:`direct_light`."""
+    docstring), for two lights or more (:func:`direct_light_batch` gives a single light to :func:`direct_light`,
+    which draws nothing: the same numbers)."""
     n = kind.shape[0]
-    if n <= 1:
-        return direct_light(m, kind, vec, rgb, env, g, px, py, pz, dx, dy, dz, state, env_mis)
     state, u = next_float(state)
     start = state
     total = 0.0
@@ -147,18 +146,29 @@ def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarr
     return 0.0, 0.0, 0.0, state
 
 
+# The two kinds of task below are separate compiled functions, each with its NEE (and so its walk) inlined into its
+# loop over items: a compiled call per item passed the medium's arrays with reference counting, which cost more
+# than many shadow rays' walks; one function inlining both bodies took minutes to compile.
+
+
 @njit(cache=True)
-def _direct_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
-                        o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, one_light: bool,
-                        out: np.ndarray, lo: int, hi: int) -> None:
-    """:func:`direct_light_batch` for items lo..hi-1 (one task; ``TASK_ITEMS`` in tracking.py says why)."""
+def _every_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
+                       o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, out: np.ndarray, lo: int,
+                       hi: int) -> None:
+    """:func:`direct_light` at items lo..hi-1 (one task; ``TASK_ITEMS`` in tracking.py says why)."""
     for i in range(lo, hi):
-        if one_light:
-            out[0, i], out[1, i], out[2, i], states[i] = direct_light_one(
-                m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
-        else:
-            out[0, i], out[1, i], out[2, i], states[i] = direct_light(
-                m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
+        out[0, i], out[1, i], out[2, i], states[i] = direct_light(
+            m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
+
+
+@njit(cache=True)
+def _one_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
+                     o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, out: np.ndarray, lo: int,
+                     hi: int) -> None:
+    """:func:`direct_light_one` at items lo..hi-1 (one task)."""
+    for i in range(lo, hi):
+        out[0, i], out[1, i], out[2, i], states[i] = direct_light_one(
+            m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
 
 
 @njit(cache=True, parallel=True)
@@ -172,7 +182,11 @@ def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.nda
     light drawn by its unshadowed contribution (:func:`direct_light_one`) instead of one to every light."""
     n = o.shape[1]
     out = np.empty((3, n))
+    one = one_light and kind.shape[0] > 1  # with one light, direct_light's numbers (nothing to draw)
     for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
-        _direct_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, one_light, out, task * TASK_ITEMS,
-                            min(n, (task + 1) * TASK_ITEMS))
+        lo, hi = task * TASK_ITEMS, min(n, (task + 1) * TASK_ITEMS)
+        if one:
+            _one_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, out, lo, hi)
+        else:
+            _every_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, out, lo, hi)
     return out
