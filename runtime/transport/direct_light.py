@@ -33,6 +33,7 @@ probability was computed with.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit, prange
@@ -146,29 +147,24 @@ def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarr
     return 0.0, 0.0, 0.0, state
 
 
-# The two kinds of task below are separate compiled functions, each with its NEE (and so its walk) inlined into its
-# loop over items: a compiled call per item passed the medium's arrays with reference counting, which cost more
-# than many shadow rays' walks; one function inlining both bodies took minutes to compile.
+def _items_of(nee: Any) -> Any:
+    """A task of :func:`direct_light_batch`: ``nee`` (:func:`direct_light` or :func:`direct_light_one`, inlined into
+    the loop) at items lo..hi-1 (``TASK_ITEMS`` in tracking.py says why tasks). One compiled loop per kind of
+    task: a compiled call per item passed the medium's arrays with reference counting, which cost more than many
+    shadow rays' walks, and one function inlining both kinds took minutes to compile."""
+
+    @njit(cache=True)
+    def items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, o: np.ndarray,
+              d: np.ndarray, states: np.ndarray, env_mis: bool, out: np.ndarray, lo: int, hi: int) -> None:
+        for i in range(lo, hi):
+            out[0, i], out[1, i], out[2, i], states[i] = nee(
+                m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
+
+    return items
 
 
-@njit(cache=True)
-def _every_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
-                       o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, out: np.ndarray, lo: int,
-                       hi: int) -> None:
-    """:func:`direct_light` at items lo..hi-1 (one task; ``TASK_ITEMS`` in tracking.py says why)."""
-    for i in range(lo, hi):
-        out[0, i], out[1, i], out[2, i], states[i] = direct_light(
-            m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
-
-
-@njit(cache=True)
-def _one_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
-                     o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, out: np.ndarray, lo: int,
-                     hi: int) -> None:
-    """:func:`direct_light_one` at items lo..hi-1 (one task)."""
-    for i in range(lo, hi):
-        out[0, i], out[1, i], out[2, i], states[i] = direct_light_one(
-            m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
+_every_light_items = _items_of(direct_light)
+_one_light_items = _items_of(direct_light_one)
 
 
 @njit(cache=True, parallel=True)
