@@ -70,15 +70,16 @@ def _light_term(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap,
     unshadowed contribution (0: the light adds nothing here; only then is f 0 too)."""
     lx, ly, lz, lr, lg, lb, pdf_l, tend, state = sample_light_direction(kind[k], vec[k], rgb[k], env, px, py, pz,
                                                                         state)
+    phase = hg_eval(g, dx * lx + dy * ly + dz * lz)
     scale = 1.0
     if not math.isinf(pdf_l):  # not a delta light (an environment): MIS against phase sampling
         if pdf_l <= 0.0:
             return lx, ly, lz, lr, lg, lb, tend, 0.0, 0.0, state
         w = 1.0
         if env_mis:
-            w = 1.0 - mis_weight_phase(hg_eval(g, dx * lx + dy * ly + dz * lz), pdf_l)
+            w = 1.0 - mis_weight_phase(phase, pdf_l)
         scale = w / pdf_l
-    f = hg_eval(g, dx * lx + dy * ly + dz * lz) * scale
+    f = phase * scale
     if f <= 0.0 or (lr + lg + lb) <= 0.0:
         return lx, ly, lz, lr, lg, lb, tend, 0.0, 0.0, state
     return lx, ly, lz, lr, lg, lb, tend, f, f * (lr + lg + lb), state

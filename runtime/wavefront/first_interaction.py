@@ -209,18 +209,21 @@ def _pack(counts: np.ndarray, block: int, src_pixel: np.ndarray, src_x: np.ndarr
                 albedo[c, o] = src_albedo[c, i]
 
 
+def _choice(what: str, name: str, choices: tuple[str, ...]) -> str:
+    """``name`` if it is one of ``choices``, else one line naming ``what`` and the choices."""
+    if name not in choices:
+        raise InputError(what, f"must be one of {', '.join(choices)}, got {name!r}")
+    return name
+
+
 def check_light_sampling(name: str) -> bool:
     """Whether ``name`` samples one light per vertex; refuses names not in :data:`LIGHT_SAMPLINGS` in one line."""
-    if name not in LIGHT_SAMPLINGS:
-        raise InputError("light sampling", f"must be one of {', '.join(LIGHT_SAMPLINGS)}, got {name!r}")
-    return name == "one"
+    return _choice("light sampling", name, LIGHT_SAMPLINGS) == "one"
 
 
 def check_camera_estimator(name: str) -> bool:
     """Whether ``name`` is the forced estimator; refuses names not in :data:`CAMERA_ESTIMATORS` in one line."""
-    if name not in CAMERA_ESTIMATORS:
-        raise InputError("camera estimator", f"must be one of {', '.join(CAMERA_ESTIMATORS)}, got {name!r}")
-    return name == "forced"
+    return _choice("camera estimator", name, CAMERA_ESTIMATORS) == "forced"
 
 
 def sample_first_interactions(scene: Scene, m: Medium, start: int, count: int, seed: int,
