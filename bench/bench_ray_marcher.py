@@ -1,14 +1,14 @@
-"""The ray marcher as a preview: its time with and without empty-space skipping, against the other renderers.
+"""The ray marcher as a preview: its frame time against the other renderers at equal image size.
 
 For each scene (default: every builtin) at ``--size`` (default 256x256), and at ``--resolution`` voxels per side
-(default 96; the issue's case is a 200^3 brain, so also run ``--resolution 256``), in one process after a warm-up:
+(default 96; the issue's case is a 200^3 brain, so also run ``--resolution 256``), in one process after a warm-up,
+1 spp, median wall time of ``--repeats`` renders with all threads:
 
-- the ray marcher at 1 spp (default steps: 0.5 voxel along camera rays, 1 voxel along shadow rays) with
-  ``skip_empty`` (camera and shadow rays look nothing up in empty macrocells; the same image bit for bit,
-  tests/runtime/renderers/test_ray_marcher.py) and without (every sample looked up: the marcher before);
-- the path tracer at 1 spp and, with ``--bundle SCENE=PATH``, the neural renderer at 1 spp, for scale;
-- the median wall time of ``--repeats`` renders with all threads, and CPU time on one numba thread
-  (``time.process_time``: robust to other processes) for the marcher.
+- the preview (``shadows="volume"``, the default): its first frame, which marches the light-volume cells it reads
+  (the volume is emptied before each), and a frame of the same scene after it (a camera move, a progressive pass:
+  the cells are filled), with the fraction of the light volume's cells filled;
+- the marcher with a shadow ray per sample and light (``shadows="march"``, the paper's baseline), same steps;
+- the path tracer and, with ``--bundle SCENE=PATH``, the neural renderer (Alg. 2), for scale.
 
 Output: a table and JSON (default ``bench/results/ray_marcher.json``) with the machine record.
 """
@@ -17,14 +17,11 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-import numba  # noqa: E402
 from common import finish_info, machine_info, median_ms, parse_scenes, write_report  # noqa: E402
 
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
@@ -34,28 +31,25 @@ from photon_fields.runtime.scene.scene import builtin_scene  # noqa: E402
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "ray_marcher.json"
 
 
-def one_thread_cpu_ms(fn: Callable[[int], Any], repeats: int) -> float:
-    """CPU milliseconds of ``fn`` on one numba thread."""
-    old = numba.get_num_threads()
-    numba.set_num_threads(1)
-    try:
-        return median_ms(fn, repeats, time.process_time)
-    finally:
-        numba.set_num_threads(old)
-
-
 def scene_row(scene: Any, est: Any, repeats: int) -> dict[str, Any]:
-    """The marcher with and without skipping, the path tracer and (with ``est``) the neural renderer."""
-    row: dict[str, Any] = {}
-    for skip in (True, False):
-        def march(seed: int, skip: bool = skip) -> Any:
-            return render_ray_marched(scene, spp=1, seed=seed, progress=False, skip_empty=skip)
+    """The preview cold and warm, the marched baseline, the path tracer and (with ``est``) the neural renderer."""
+    from photon_fields.runtime.renderers.ray_marcher import scene_light_volume
+    from photon_fields.runtime.transport.light_volume import DEFAULT_CELLS_PER_VOXEL, DEFAULT_SHADOW_STEP, UNFILLED
 
-        key = "skip" if skip else "every"
-        row[f"marcher_{key}_ms"] = median_ms(march, repeats)
-        row[f"marcher_{key}_cpu1_ms"] = one_thread_cpu_ms(march, repeats)
-    row["speedup"] = row["marcher_every_ms"] / row["marcher_skip_ms"]
-    row["speedup_cpu1"] = row["marcher_every_cpu1_ms"] / row["marcher_skip_cpu1_ms"]
+    volumes = scene.shared_cache("light_volumes")
+    row: dict[str, Any] = {}
+
+    def cold(seed: int) -> Any:
+        volumes.clear()
+        return render_ray_marched(scene, spp=1, seed=seed, progress=False)
+
+    row["preview_first_ms"] = median_ms(cold, repeats)
+    row["preview_ms"] = median_ms(lambda seed: render_ray_marched(scene, spp=1, seed=seed, progress=False), repeats)
+    values = scene_light_volume(scene, DEFAULT_CELLS_PER_VOXEL, DEFAULT_SHADOW_STEP).values
+    row["light_volume_filled"] = float((values != UNFILLED).mean())
+    row["light_volume_mb"] = values.nbytes / 1e6
+    row["march_ms"] = median_ms(lambda seed: render_ray_marched(scene, spp=1, seed=seed, shadows="march",
+                                                                progress=False), repeats)
     row["path_tracer_ms"] = median_ms(lambda seed: render_path_traced(scene, spp=1, seed=seed, progress=False),
                                       repeats)
     if est is not None:
@@ -79,8 +73,8 @@ def main(argv: list[str] | None = None) -> None:
     given = dict(b.split("=", 1) for b in args.bundle)
     info = machine_info()
     results: dict[str, Any] = {}
-    print(f"{'scene':8s} {'marcher, skip':>14s} {'marcher, every':>15s} {'speedup':>8s} {'1 thread CPU':>13s} "
-          f"{'path tracer':>12s} {'neural':>8s}   (ms, {args.size}x{args.size}, {args.resolution}^3, 1 spp)")
+    print(f"{'scene':8s} {'preview 1st':>12s} {'preview':>8s} {'filled':>7s} {'march':>8s} {'path tracer':>12s} "
+          f"{'neural':>8s}   (ms, {args.size}x{args.size}, {args.resolution}^3, 1 spp)")
     for name in parse_scenes(args.scenes):
         scene = builtin_scene(name, args.resolution).with_overrides(width=args.size, height=args.size)
         est = None
@@ -91,8 +85,8 @@ def main(argv: list[str] | None = None) -> None:
         row = scene_row(scene, est, args.repeats)
         results[name] = row
         neural = f"{row['neural_ms']:8.0f}" if "neural_ms" in row else f"{'-':>8s}"
-        print(f"{name:8s} {row['marcher_skip_ms']:14.0f} {row['marcher_every_ms']:15.0f} {row['speedup']:7.1f}x "
-              f"{row['speedup_cpu1']:12.1f}x {row['path_tracer_ms']:12.0f} {neural}", flush=True)
+        print(f"{name:8s} {row['preview_first_ms']:12.0f} {row['preview_ms']:8.0f} {row['light_volume_filled']:7.3f} "
+              f"{row['march_ms']:8.0f} {row['path_tracer_ms']:12.0f} {neural}", flush=True)
     write_report(args.out, "ray_marcher", finish_info(info, {}), {"size": args.size, "resolution": args.resolution,
                                                                   "repeats": args.repeats}, results=results)
 

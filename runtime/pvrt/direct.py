@@ -37,8 +37,9 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.pvrt.basis import LightingBasis, make_basis
-from photon_fields.runtime.pvrt.radiance import SHADOW_TAU_MAX, grid_coord, light_volumes
+from photon_fields.runtime.pvrt.radiance import SHADOW_TAU_MAX, light_volumes
 from photon_fields.runtime.pvrt.transfer import Transfer
+from photon_fields.runtime.transport.cell_grid import Grid, grid_of, stencil, trilinear
 from photon_fields.runtime.transport.medium import Medium
 from photon_fields.runtime.transport.phase import hg_eval
 
@@ -47,40 +48,12 @@ from photon_fields.runtime.transport.phase import hg_eval
 #: orders and SH lightings are projected onto these directions (module docstring).
 QUADRATURE_ORDER = 1
 
-#: A cell-centred grid over the world box, for the kernels below: its origin (xyz), cells per unit length (xyz) and
-#: cells (xyz). Plain numbers: an inlined kernel that was handed the medium and looped took and released a reference
-#: to each of its 7 arrays per call (numba's pruning of reference counts missed them), a third of the time of
-#: summing a sample; numbers carry no reference.
-Grid = tuple[float, float, float, float, float, float, int, int, int]
 #: The basis lighting's direct term as the camera march takes it: the optical-depth volumes (gx, gy, gz, Q) float32,
 #: the active quadrature directions (A,) int64, their travel directions (A, 3) and weights W (A, 3).
 BasisDirect = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 #: No basis lighting's direct term (a lighting of directional lights by NEE only, or the marches that count samples).
 NO_BASIS_DIRECT: BasisDirect = (np.zeros((2, 2, 2, 1), dtype=np.float32), np.zeros(0, dtype=np.int64),
                                 np.zeros((0, 3)), np.zeros((0, 3)))
-
-
-@njit(cache=True, inline="always")
-def grid_of(m: Medium, gx: int, gy: int, gz: int) -> Grid:
-    return m.bmin[0], m.bmin[1], m.bmin[2], gx / m.bsize[0], gy / m.bsize[1], gz / m.bsize[2], gx, gy, gz
-
-
-@njit(cache=True, inline="always")
-def stencil(grid: Grid, x: float, y: float, z: float) -> tuple[int, int, int, float, float, float]:
-    """Lower corner and fractions of the trilinear stencil of ``grid`` at x (:func:`grid_coord`)."""
-    i, fx = grid_coord(x, grid[0], grid[3], grid[6])
-    j, fy = grid_coord(y, grid[1], grid[4], grid[7])
-    k, fz = grid_coord(z, grid[2], grid[5], grid[8])
-    return i, j, k, fx, fy, fz
-
-
-@njit(cache=True, inline="always")
-def trilinear(vol: np.ndarray, i: int, j: int, k: int, fx: float, fy: float, fz: float) -> float:
-    c00 = vol[i, j, k] * (1 - fx) + vol[i + 1, j, k] * fx
-    c10 = vol[i, j + 1, k] * (1 - fx) + vol[i + 1, j + 1, k] * fx
-    c01 = vol[i, j, k + 1] * (1 - fx) + vol[i + 1, j, k + 1] * fx
-    c11 = vol[i, j + 1, k + 1] * (1 - fx) + vol[i + 1, j + 1, k + 1] * fx
-    return (c00 * (1 - fy) + c10 * fy) * (1 - fz) + (c01 * (1 - fy) + c11 * fy) * fz
 
 
 @njit(cache=True, inline="always")

@@ -31,7 +31,8 @@ from photon_fields.runtime.pvrt.lighting import Lighting
 from photon_fields.runtime.pvrt.precompute import grid_shape
 from photon_fields.runtime.pvrt.sh import hg_band_factors, sh_count, sh_eval
 from photon_fields.runtime.pvrt.transfer import Transfer
-from photon_fields.runtime.renderers.ray_marcher import march_transmittance
+from photon_fields.runtime.transport.cell_grid import grid_coord
+from photon_fields.runtime.transport.marching import march_transmittance
 from photon_fields.runtime.transport.medium import Medium
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, task_stride
 
@@ -116,17 +117,6 @@ def mass_volume(transfer: Transfer) -> np.ndarray:
     """D_v per cell, (gx, gy, gz) float32: the radiance volume's last channel, which does not depend on the
     lighting."""
     return np.maximum(transfer.mass, 0.0).astype(np.float32).reshape(transfer.grid)
-
-
-@njit(cache=True, inline="always")
-def grid_coord(p: float, lo: float, scale: float, n: int) -> tuple[int, float]:
-    """Lower index and fraction of the trilinear stencil along one axis of a cell-centred grid of ``n`` cells from
-    ``lo`` on, ``scale`` cells per unit length (n / the box's size), at coordinate ``p`` (clamped at the border):
-    the camera's lookups of the radiance and light volumes, and :func:`_needed_cells`, which must agree with them.
-    (A multiplication: the camera samples' stencils divided three times each before.)"""
-    u = min(max((p - lo) * scale - 0.5, 0.0), n - 1.0)
-    i = min(int(u), n - 2)
-    return i, u - i
 
 
 @njit(cache=True)

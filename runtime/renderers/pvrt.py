@@ -42,24 +42,21 @@ from photon_fields.runtime.pvrt.constants import DEFAULT_LIGHT_GRID, DIRECT_STEP
 from photon_fields.runtime.pvrt.direct import (
     NO_BASIS_DIRECT,
     BasisDirect,
-    Grid,
     basis_direct,
     direct_volumes,
     direct_weights,
-    grid_of,
     kept_direct,
     nee,
     phases,
     quadrature,
     sample_transmittances,
-    stencil,
-    trilinear,
 )
 from photon_fields.runtime.pvrt.lighting import scene_lighting
 from photon_fields.runtime.pvrt.precompute import grid_shape
 from photon_fields.runtime.pvrt.radiance import CHANNELS, light_volumes, mass_volume, radiance_volume
 from photon_fields.runtime.pvrt.transfer import Transfer
 from photon_fields.runtime.scene.scene import Scene
+from photon_fields.runtime.transport.cell_grid import Grid, grid_of, stencil, trilinear
 from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run, task_stride

@@ -63,6 +63,11 @@ def one_of(choices: tuple[str, ...]) -> Callable[[str, Any], str]:
     return check
 
 
+def optional(check: Callable[[str, Any], Any]) -> Callable[[str, Any], Any]:
+    """``check`` for an option whose default None means "the render function decides"."""
+    return lambda flag, value: None if value is None else check(flag, value)
+
+
 def negate(flag: str, value: Any) -> bool:
     """For a ``--no-X`` switch that sets keyword ``X``."""
     return not value
@@ -159,12 +164,19 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
                      "(1: single scattering)", int, 16, int_in(1, 1 << 16)),
               Option("--no-nee", "nee", "pure phase sampling (no next-event estimation; reaches the environment "
                      "light only)", check=negate))),
-    Renderer("raymarch", "single-scattering ray marcher with global shadows",
+    Renderer("raymarch", "single-scattering ray marcher with global shadows (the fastest preview)",
              "photon_fields.runtime.renderers.ray_marcher:render_ray_marched",
-             (Option("--step", "step", "step length in voxels", float, 0.5, float_in(0.01, 100, "voxels")),
-              Option("--shadow-step", "shadow_step", "shadow-ray step length in voxels (below 1 on media with "
-                     "sharp, dense boundaries: the 1-voxel sum reads bright there)", float, 1.0,
-                     float_in(0.01, 100, "voxels")))),
+             (Option("--step", "step", "camera-ray step length in voxels", float, 1.0, float_in(0.01, 100, "voxels")),
+              Option("--shadows", "shadows", "volume (each light's transmittance cached in a light volume: the "
+                     "preview) or march (a shadow ray per sample and light: the paper's baseline)", str, "volume",
+                     one_of(("volume", "march"))),
+              Option("--shadow-step", "shadow_step", "shadow-ray step length in voxels (default: 0.5 for "
+                     "--shadows volume, 1 for march; below 1 on media with sharp, dense boundaries: the 1-voxel sum "
+                     "reads bright there)", float, None, optional(float_in(0.01, 100, "voxels"))),
+              Option("--light-grid-scale", "light_grid_scale", "--shadows volume: light-volume cells per voxel "
+                     "along each axis", float, 1.0, float_in(0.25, 4, "cells per voxel")),
+              Option("--min-transmittance", "min_transmittance", "early ray termination: a camera ray stops once "
+                     "this opaque", float, 1e-2, float_in(0, 0.5, "(transmittance)")))),
     Renderer("photonmap", "first interactions + NEE + the photon-map estimate of L_i (needs --map)",
              "photon_fields.runtime.renderers.photon_mapped:render_photon_mapped",
              (Option("--k", "k", "photons per estimate (K)", int, 1024, int_in(2, 1 << 16)),

@@ -119,6 +119,11 @@ class Scene:
             self._cache["medium"] = build_medium(self.volume, self.tf)
         return self._cache["medium"]
 
+    def shared_cache(self, key: str) -> dict[Any, Any]:
+        """A dict kept with the scene for what depends on its medium and lights only (the ray marcher's light
+        volumes, ``"light_volumes"``), carried over by :meth:`with_overrides`, which changes neither."""
+        return self._cache.setdefault(key, {})
+
     def packed_lights(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Lights in SoA form, with all environment lights merged into one (radiances add up): an
         ENVIRONMENT_MAP entry when the scene has a map (the constant ones are added to its radiance table,
@@ -163,6 +168,7 @@ class Scene:
             cam = cam.with_resolution(cam.width if width is None else width,
                                       cam.height if height is None else height)
         new = replace(self, g=self.g if g is None else g, camera=cam, _cache={})
+        new._cache["light_volumes"] = self.shared_cache("light_volumes")  # one dict: later volumes are shared too
         for key in ("medium", "fingerprint", "fingerprint_parts", "lights", "env_map"):  # none depend on g or camera
             if key in self._cache:
                 new._cache[key] = self._cache[key]

@@ -83,14 +83,17 @@ def test_layers_add_up_and_single_scattering_has_no_li() -> None:
 
 @pytest.mark.parametrize("light", [DirectionalLight([-0.5, -1.0, -0.3], [1.0, 0.8, 0.6], 2.0),
                                    PointLight([0.8, 0.9, 0.7], [1.0, 1.0, 1.0], 1.5)])
-def test_ray_marcher_matches_single_scattering(light) -> None:  # noqa: ANN001
+@pytest.mark.parametrize("shadows", ["march", "volume"])
+def test_ray_marcher_matches_single_scattering(light, shadows: str) -> None:  # noqa: ANN001
     """With one delta light and no multiple scattering, the marcher's model is exact: it and the path
-    tracer limited to one scattering vertex agree (up to quadrature error and noise)."""
+    tracer limited to one scattering vertex agree (up to quadrature error, the light volume's interpolation and
+    noise), with shadow rays per sample and with the preview's light volume."""
     scene = _scene([light], sigma=6.0, albedo=0.9, g=0.3)
     pt, se = _seeds_stats(scene, "L_d", range(16), spp=8, max_depth=1)
     # The marcher is noise-free along a ray but still jitters sub-pixel positions, which matters at
     # the volume's silhouette: give it enough passes that its coverage noise is small.
-    rm = _block_means(render_ray_marched(scene, spp=192, step=0.5, shadow_step=0.5, progress=False).layers["L_d"])
+    rm = _block_means(render_ray_marched(scene, spp=192, step=0.5, shadows=shadows, shadow_step=0.5,
+                                         progress=False).layers["L_d"])
     rel = np.abs(pt - rm) / (np.abs(pt) + 1e-3)
     z = np.abs(pt - rm) / (se + 1e-6)
     assert abs(pt.mean() - rm.mean()) / pt.mean() < 0.02  # marcher quadrature error at half-voxel steps

@@ -1,0 +1,123 @@
+"""The ray marcher's light volume: each delta light's transmittance on a grid of cells, marched when first read.
+
+Parameters
+----------
+cells_per_voxel : float (default :data:`DEFAULT_CELLS_PER_VOXEL` = 1)
+    Grid cells per voxel along each axis (:func:`new_light_volume`). Finer grids resolve the light's fall-off
+    across a dense, sharp wall (a skull, a shell) better and cost memory (4 bytes per cell and light) and a march
+    per cell read.
+shadow_step : float
+    Step of each cell's shadow ray, in world units (the renderer passes :data:`DEFAULT_SHADOW_STEP` voxels).
+
+A shadow ray per camera sample and light made the ray marcher the slowest renderer on dense media (each sample
+marched a ray through the volume to every light). A light's transmittance does not depend on the camera, so the
+preview caches it: ``T(c -> light)`` at the centre of every cell c that a sample reads, interpolated trilinearly at
+the sample (an approximation of the per-sample shadow ray; bench/README.md, ray marcher, says how close). A cell is
+marched the first time a camera sample's stencil reaches it (:func:`light_transmittance`), so a frame pays only for
+the cells near what the camera sees (a few per cent of the grid on a dense volume, where rays stop at the surface),
+and later frames of the same scene (camera moves, progressive passes) find them filled.
+
+Filling during a parallel march is a benign race: a cell's value is a deterministic function of the cell (the
+midpoint rule of :mod:`photon_fields.runtime.transport.marching`, no random numbers), so two threads that both find
+it empty write the same 4 bytes, and every image is the same whatever the order of filling or the thread count
+(tested). Point lights march to the light's position, directional ones to the box; the environment is not a delta
+light and has no entry read (the marcher leaves it unscattered).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.transport.cell_grid import Grid, cell_centre
+from photon_fields.runtime.transport.emitters import delta_light_direction
+from photon_fields.runtime.transport.marching import march_transmittance
+from photon_fields.runtime.transport.medium import Medium
+
+DEFAULT_CELLS_PER_VOXEL = 1.0
+#: Voxels per step of a cell's shadow ray: half a voxel, since a cell is marched once and read by many samples
+#: (the per-sample shadow rays' 1-voxel sum reads bright at sharp walls; bench/README.md, ray marcher).
+DEFAULT_SHADOW_STEP = 0.5
+#: A cell's shadow ray stops where its optical depth passes this (transmittance 1e-4) and counts as dark.
+TAU_MAX = -math.log(1e-4)
+#: A light volume's size limit: an error names the option to lower rather than filling the memory.
+MAX_BYTES = 1 << 30
+#: The value of a cell not marched yet.
+UNFILLED = np.float32(-1.0)
+
+
+class LightVolume(NamedTuple):
+    """Transmittances (gx, gy, gz, lights) float32, :data:`UNFILLED` until read; the grid; the cells' shadow step
+    (world units)."""
+
+    values: np.ndarray
+    grid: Grid
+    shadow_step: float
+
+
+def light_volume_shape(volume_shape: tuple[int, ...], cells_per_voxel: float) -> tuple[int, int, int]:
+    """Cells along each axis: the voxels times ``cells_per_voxel``, plus a ring of one cell outside the box."""
+    return tuple(max(1, int(round(n * cells_per_voxel))) + 2 for n in volume_shape)  # type: ignore[return-value]
+
+
+def new_light_volume(m: Medium, lights: int, cells_per_voxel: float, shadow_step: float) -> LightVolume:
+    """An unfilled light volume for ``lights`` lights over ``m``'s box; refuses one over :data:`MAX_BYTES`.
+
+    Its cells tile the box (at one cell per voxel their centres are the voxel centres, where the volume's values
+    are: a lattice shifted by half a voxel read the shell's lit wall 18 % bright instead of 9 % dark) plus a ring
+    of cells outside it: where the medium touches the box (a scan cropped to its tissue), a sample at the lit
+    face interpolates towards the light outside, where a lookup clamped at the box read the value half a cell
+    inside (a slab filling the box, 1.5 optical depths per voxel, read 23 % dark)."""
+    cells = light_volume_shape(m.density.shape, cells_per_voxel)
+    size = int(np.prod(cells)) * max(lights, 1) * 4
+    if size > MAX_BYTES:
+        raise InputError("--light-grid-scale", f"a {'x'.join(map(str, cells))} light volume for {lights} lights would "
+                         f"take {size / 2**20:.0f} MiB (limit {MAX_BYTES >> 20} MiB): use a smaller scale")
+    spacing = m.bsize / (np.asarray(cells, dtype=np.float64) - 2.0)
+    origin = m.bmin - spacing  # cell 0 is the ring's: centred half a cell outside the box
+    grid = (float(origin[0]), float(origin[1]), float(origin[2]), float(1.0 / spacing[0]), float(1.0 / spacing[1]),
+            float(1.0 / spacing[2]), cells[0], cells[1], cells[2])
+    values = np.full((*cells, max(lights, 1)), UNFILLED, dtype=np.float32)
+    return LightVolume(values, grid, float(shadow_step))
+
+
+@njit(cache=True)
+def _fill_stencil(m: Medium, kind: np.ndarray, vec: np.ndarray, values: np.ndarray, light: int, i: int, j: int,
+                  k: int, grid: Grid, h: float) -> None:
+    """March light ``light``'s transmittance from the centres of the stencil's unfilled corners. A call, not
+    inlined: it runs once per cell, and inlining its march into the camera loop made every sample slower (the
+    loop grew and kept references to the medium's arrays; a warm 256^2 frame took 2-3x as long)."""
+    for c in range(8):
+        a, b, e = i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)
+        if values[a, b, e, light] >= 0.0:
+            continue
+        px, py, pz = cell_centre(grid, a, b, e)
+        lx, ly, lz, scale, tend = delta_light_direction(kind[light], vec[light], px, py, pz)
+        t = march_transmittance(m, px, py, pz, lx, ly, lz, tend, h, True, TAU_MAX) if scale > 0.0 else 0.0
+        values[a, b, e, light] = np.float32(t)
+
+
+@njit(cache=True, inline="always")
+def light_transmittance(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Grid, h: float,
+                        light: int, i: int, j: int, k: int, fx: float, fy: float, fz: float) -> float:
+    """Light ``light``'s transmittance at the stencil (i, j, k, fx, fy, fz) of ``grid``, trilinear in the values
+    ``v`` of a :class:`LightVolume` (its fields apart: a tuple holding an array costs reference counts in a loop);
+    unfilled corners are marched first, with step ``h`` (module docstring)."""
+    v000, v100, v010, v110 = v[i, j, k, light], v[i + 1, j, k, light], v[i, j + 1, k, light], v[i + 1, j + 1, k, light]
+    v001, v101 = v[i, j, k + 1, light], v[i + 1, j, k + 1, light]
+    v011, v111 = v[i, j + 1, k + 1, light], v[i + 1, j + 1, k + 1, light]
+    if min(min(min(v000, v100), min(v010, v110)), min(min(v001, v101), min(v011, v111))) < 0.0:
+        _fill_stencil(m, kind, vec, v, light, i, j, k, grid, h)
+        v000, v100, v010, v110 = (v[i, j, k, light], v[i + 1, j, k, light], v[i, j + 1, k, light],
+                                  v[i + 1, j + 1, k, light])
+        v001, v101 = v[i, j, k + 1, light], v[i + 1, j, k + 1, light]
+        v011, v111 = v[i, j + 1, k + 1, light], v[i + 1, j + 1, k + 1, light]
+    c00 = v000 * (1 - fx) + v100 * fx
+    c10 = v010 * (1 - fx) + v110 * fx
+    c01 = v001 * (1 - fx) + v101 * fx
+    c11 = v011 * (1 - fx) + v111 * fx
+    return (c00 * (1 - fy) + c10 * fy) * (1 - fz) + (c01 * (1 - fy) + c11 * fy) * fz
