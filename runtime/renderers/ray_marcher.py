@@ -58,8 +58,10 @@ from photon_fields.runtime.transport.light_volume import (
     DEFAULT_CELLS_PER_VOXEL,
     DEFAULT_SHADOW_STEP,
     LightVolume,
+    fill_wanted,
     light_transmittance,
     new_light_volume,
+    want_stencil,
 )
 from photon_fields.runtime.transport.marching import march_transmittance
 from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
@@ -92,17 +94,22 @@ def scattering_centroid(sigma: float, seg: float, e: float) -> float:
 @njit(cache=True)
 def _shadow_ray(m: Medium, x: float, y: float, z: float, lx: float, ly: float, lz: float, tend: float, h: float,
                 skip: bool) -> float:
-    """``march_transmittance`` as a call: inlined beside the light volume's lookup, the march made the preview's
-    loop slower (a warm 256^2 blobs frame 30 -> 48 ms), for a baseline whose shadow ray costs far more than a call."""
+    """``march_transmittance`` as a call, for the baseline: it keeps the preview's loop small (what a march inside
+    it costs: ``light_volume.light_transmittance``), and a shadow ray costs far more than a call."""
     return march_transmittance(m, x, y, z, lx, ly, lz, tend, h, skip)
+
+
+_SHADE = 0  # _march_items' modes: sum the samples' single scattering
+_MARK = 1  # mark the light-volume cells the samples read (runtime/transport/light_volume.py)
 
 
 @njit(cache=True)
 def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, o: np.ndarray, d: np.ndarray,
                  tmax: np.ndarray, states: np.ndarray, h: float, h_shadow: float, skip: bool, use_volume: bool,
-                 lv: np.ndarray, grid: Grid, t_min: float, ld: np.ndarray, trans: np.ndarray, lo: int,
-                 hi: int) -> None:
-    """Rays lo..hi-1 of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why)."""
+                 lv: np.ndarray, grid: Grid, t_min: float, mode: int, ld: np.ndarray, trans: np.ndarray,
+                 missed: np.ndarray, lo: int, hi: int) -> None:
+    """Rays lo..hi-1 of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why). A ray that
+    reads an unfilled light-volume cell stops with ``missed`` set."""
     for i in range(lo, hi):
         states[i], jitter = next_float(states[i])
         dx, dy, dz = d[0, i], d[1, i], d[2, i]
@@ -136,13 +143,22 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                     c = w * scale * hg_eval(g, dx * lx + dy * ly + dz * lz)
                     if c <= 0.0:
                         continue
+                    if mode == _MARK:
+                        want_stencil(lv, k, ci, cj, ck)
+                        continue
                     if use_volume:
-                        c *= light_transmittance(m, kind, vec, lv, grid, h_shadow, k, ci, cj, ck, fx, fy, fz)
+                        tl = light_transmittance(lv, k, ci, cj, ck, fx, fy, fz)
+                        if tl < 0.0:
+                            missed[i] = True
+                            break
+                        c *= tl
                     else:
                         c *= _shadow_ray(m, x, y, z, lx, ly, lz, tend, h_shadow, skip)
                     ld[0, i] += c * a0 * rgb[k, 0]
                     ld[1, i] += c * a1 * rgb[k, 1]
                     ld[2, i] += c * a2 * rgb[k, 2]
+                if missed[i]:
+                    break
                 T *= e
             t_prev = t_next
             t = t_next + h
@@ -152,16 +168,44 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
 @njit(cache=True, parallel=True)
 def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, o: np.ndarray, d: np.ndarray,
            tmax: np.ndarray, states: np.ndarray, h: float, h_shadow: float, skip: bool, use_volume: bool,
-           lv: np.ndarray, grid: Grid, t_min: float) -> tuple[np.ndarray, np.ndarray]:
+           lv: np.ndarray, grid: Grid, t_min: float, mode: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     n = o.shape[1]
     ld = np.zeros((3, n))
     trans = np.ones(n)
+    missed = np.zeros(n, dtype=np.bool_)
     tasks = (n + TASK_ITEMS - 1) // TASK_ITEMS
     stride = task_stride(tasks)
     for task in prange(tasks):
         b = (task * stride) % tasks  # golden-ratio order: each thread gets dense and empty blocks alike
-        _march_items(m, kind, vec, rgb, g, o, d, tmax, states, h, h_shadow, skip, use_volume, lv, grid, t_min, ld,
-                     trans, b * TASK_ITEMS, min(n, (b + 1) * TASK_ITEMS))
+        _march_items(m, kind, vec, rgb, g, o, d, tmax, states, h, h_shadow, skip, use_volume, lv, grid, t_min, mode,
+                     ld, trans, missed, b * TASK_ITEMS, min(n, (b + 1) * TASK_ITEMS))
+    return ld, trans, missed
+
+
+def march_rays(scene: Scene, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, states: np.ndarray, h: float,
+               hs: float, skip: bool, lv: LightVolume | None, t_min: float) -> tuple[np.ndarray, np.ndarray]:
+    """(L_d, transmittance) of a batch of camera rays; ``states`` advance as one march advances them. With a light
+    volume (``lv``), the rays that read unfilled cells are walked again to mark them, the cells are marched and
+    those rays marched once more from their first state (runtime/transport/light_volume.py): the sums are the
+    ones a filled volume gives."""
+    m = scene.medium()
+    kind, vec, rgb = scene.packed_lights()
+    values, grid = (lv.values, lv.grid) if lv is not None else (_NO_VOLUME, _NO_GRID)
+    first = states.copy() if lv is not None else states
+    ld, trans, missed = _march(m, kind, vec, rgb, scene.g, o, d, tmax, states, h, hs, skip, lv is not None, values,
+                               grid, t_min, _SHADE)
+    if lv is None or not missed.any():
+        return ld, trans
+    idx = np.flatnonzero(missed)
+    so, sd, st = np.ascontiguousarray(o[:, idx]), np.ascontiguousarray(d[:, idx]), np.ascontiguousarray(tmax[idx])
+    _march(m, kind, vec, rgb, scene.g, so, sd, st, first[idx], h, hs, skip, True, values, grid, t_min, _MARK)
+    fill_wanted(m, kind, vec, lv)
+    again = first[idx]
+    ld[:, idx], trans[idx], still = _march(m, kind, vec, rgb, scene.g, so, sd, st, again, h, hs, skip, True, values,
+                                           grid, t_min, _SHADE)
+    if still.any():
+        raise RuntimeError("ray marcher: a light-volume cell its rays read was not filled")  # cannot happen
+    states[idx] = again
     return ld, trans
 
 
@@ -190,24 +234,18 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
     use_volume = shadows == "volume"
     if shadow_step is None:
         shadow_step = DEFAULT_SHADOW_STEP if use_volume else 1.0
-    m = scene.medium()
-    kind, vec, rgb = scene.packed_lights()
     env = scene_environment(scene)
     h = step * scene.volume.voxel_size
     hs = shadow_step * scene.volume.voxel_size
-    if use_volume:
-        lv = scene_light_volume(scene, light_grid_scale, shadow_step)
-        values, grid = lv.values, lv.grid
-    else:
-        values, grid = _NO_VOLUME, (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 2, 2, 2)
+    lv = scene_light_volume(scene, light_grid_scale, shadow_step) if use_volume else None
     film = Film(scene.camera.width, scene.camera.height)
     timer = StageTimer()
     t_start = time.perf_counter()
     for rays in primary_ray_batches(scene, film, timer, spp=spp, seed=seed, batch_size=batch_size,
                                     progress=progress, desc="ray marching"):
         with timer("march"):
-            ld, trans = _march(m, kind, vec, rgb, scene.g, rays.o, rays.d, rays.tmax, rays.rng, h, hs, skip_empty,
-                               use_volume, values, grid, min_transmittance)
+            ld, trans = march_rays(scene, rays.o, rays.d, rays.tmax, rays.rng, h, hs, skip_empty, lv,
+                                   min_transmittance)
         film.splat("L_d", rays.pixel, ld)
         if env is not None:
             film.splat("L_e", rays.pixel, trans[None, :] * env.radiance(rays.d))
@@ -215,3 +253,4 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
 
 
 _NO_VOLUME = np.ones((2, 2, 2, 1), dtype=np.float32)  # what "march" passes for the light volume it does not read
+_NO_GRID: Grid = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 2, 2, 2)
