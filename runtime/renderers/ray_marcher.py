@@ -51,6 +51,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.scene.lights import DIRECTIONAL
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.cell_grid import Grid, stencil
 from photon_fields.runtime.transport.emitters import delta_light_direction
@@ -110,9 +111,13 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                  missed: np.ndarray, lo: int, hi: int) -> None:
     """Rays lo..hi-1 of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why). A ray that
     reads an unfilled light-volume cell stops with ``missed`` set."""
+    ray_phase = np.empty(kind.shape[0])
     for i in range(lo, hi):
         states[i], jitter = next_float(states[i])
         dx, dy, dz = d[0, i], d[1, i], d[2, i]
+        for k in range(kind.shape[0]):  # a directional light's phase value is the same all along the ray
+            if kind[k] == DIRECTIONAL:
+                ray_phase[k] = hg_eval(g, -(dx * vec[k, 0] + dy * vec[k, 1] + dz * vec[k, 2]))
         T = 1.0
         t = jitter * h  # first segment [0, jitter*h) is folded into the last partial one below
         t_prev = 0.0
@@ -139,8 +144,12 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 ci, cj, ck, fx, fy, fz = stencil(grid, x, y, z)
                 for k in range(kind.shape[0]):
                     # The environment is not marched (module docstring): delta_light_direction gives it 0.
-                    lx, ly, lz, scale, tend = delta_light_direction(kind[k], vec[k], x, y, z)
-                    c = w * scale * hg_eval(g, dx * lx + dy * ly + dz * lz)
+                    if kind[k] == DIRECTIONAL:
+                        lx, ly, lz, tend = -vec[k, 0], -vec[k, 1], -vec[k, 2], math.inf
+                        c = w * ray_phase[k]
+                    else:
+                        lx, ly, lz, scale, tend = delta_light_direction(kind[k], vec[k], x, y, z)
+                        c = w * scale * hg_eval(g, dx * lx + dy * ly + dz * lz)
                     if c <= 0.0:
                         continue
                     if mode == _MARK:
