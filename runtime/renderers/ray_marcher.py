@@ -1,5 +1,5 @@
 """Ray marcher with global shadows: the paper's ray-marching baseline (Sec. 4.3), single scattering only, and the
-product's fastest preview.
+product's preview (noise-free, no training; bench/README.md compares its speed with the other renderers').
 
 Parameters
 ----------

@@ -164,7 +164,7 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
                      "(1: single scattering)", int, 16, int_in(1, 1 << 16)),
               Option("--no-nee", "nee", "pure phase sampling (no next-event estimation; reaches the environment "
                      "light only)", check=negate))),
-    Renderer("raymarch", "single-scattering ray marcher with global shadows (the fastest preview)",
+    Renderer("raymarch", "single-scattering ray marcher with global shadows (a noise-free preview without L_i)",
              "photon_fields.runtime.renderers.ray_marcher:render_ray_marched",
              (Option("--step", "step", "camera-ray step length in voxels", float, 1.0, float_in(0.01, 100, "voxels")),
               Option("--shadows", "shadows", "volume (each light's transmittance cached in a light volume: the "
