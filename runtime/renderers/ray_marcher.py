@@ -79,6 +79,8 @@ from photon_fields.runtime.wavefront.batches import (
 from photon_fields.runtime.wavefront.film import Film
 
 SHADOWS = ("volume", "march")
+_NO_VOLUME = np.ones((2, 2, 2, 1), dtype=np.float32)  # what "march" passes for the light volume it does not read
+_NO_GRID: Grid = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 2, 2, 2)
 
 
 @njit(cache=True, inline="always")
@@ -260,6 +262,3 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
             film.splat("L_e", rays.pixel, trans[None, :] * env.radiance(rays.d))
     return finish(film, timer, spp, t_start, {})
 
-
-_NO_VOLUME = np.ones((2, 2, 2, 1), dtype=np.float32)  # what "march" passes for the light volume it does not read
-_NO_GRID: Grid = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 2, 2, 2)
