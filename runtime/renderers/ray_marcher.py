@@ -261,4 +261,3 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
         if env is not None:
             film.splat("L_e", rays.pixel, trans[None, :] * env.radiance(rays.d))
     return finish(film, timer, spp, t_start, {})
-
