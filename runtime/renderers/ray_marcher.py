@@ -146,12 +146,9 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 ci, cj, ck, fx, fy, fz = stencil(grid, x, y, z)
                 for k in range(kind.shape[0]):
                     # The environment is not marched (module docstring): delta_light_direction gives it 0.
-                    if kind[k] == DIRECTIONAL:
-                        lx, ly, lz, tend = -vec[k, 0], -vec[k, 1], -vec[k, 2], math.inf
-                        c = w * ray_phase[k]
-                    else:
-                        lx, ly, lz, scale, tend = delta_light_direction(kind[k], vec[k], x, y, z)
-                        c = w * scale * hg_eval(g, dx * lx + dy * ly + dz * lz)
+                    lx, ly, lz, scale, tend = delta_light_direction(kind[k], vec[k], x, y, z)
+                    ph = ray_phase[k] if kind[k] == DIRECTIONAL else hg_eval(g, dx * lx + dy * ly + dz * lz)
+                    c = w * scale * ph
                     if c <= 0.0:
                         continue
                     if mode == _MARK:

@@ -146,9 +146,8 @@ def spp_or_never(text: str) -> int | None:
     return int(text)
 
 
-def spp_or_none(flag: str, value: Any) -> int | None:
-    """A check for ``final_gather_after``: a sample count in [0, 2^16], or None (never)."""
-    return None if value is None else int_in(0, 1 << 16)(flag, value)
+#: A check for ``final_gather_after``: a sample count in [0, 2^16], or None (never).
+spp_or_none = optional(int_in(0, 1 << 16))
 
 
 #: One real bounce before the first-interaction renderers' L_i estimate (runtime.wavefront.final_gather).

@@ -119,21 +119,18 @@ def want_stencil(v: np.ndarray, light: int, i: int, j: int, k: int) -> None:
 
 
 @njit(cache=True)
-def _fill_slices(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Grid, h: float, lo: int,
-                 hi: int, stride: int) -> None:
-    """x-slices (t * stride) % gx for t in lo..hi-1 of :func:`fill_wanted`, serially."""
-    gx, gy, gz, lights = v.shape
-    for t in range(lo, hi):
-        a = (t * stride) % gx
-        for b in range(gy):
-            for e in range(gz):
-                for light in range(lights):
-                    if v[a, b, e, light] != WANTED:
-                        continue
-                    px, py, pz = cell_centre(grid, a, b, e)
-                    lx, ly, lz, scale, tend = delta_light_direction(kind[light], vec[light], px, py, pz)
-                    tr = march_transmittance(m, px, py, pz, lx, ly, lz, tend, h, True, TAU_MAX) if scale > 0.0 else 0.0
-                    v[a, b, e, light] = np.float32(tr)
+def _fill_slice(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Grid, h: float, a: int) -> None:
+    """March the :data:`WANTED` cells of x-slice ``a`` (:func:`fill_wanted`), serially."""
+    _, gy, gz, lights = v.shape
+    for b in range(gy):
+        for e in range(gz):
+            for light in range(lights):
+                if v[a, b, e, light] != WANTED:
+                    continue
+                px, py, pz = cell_centre(grid, a, b, e)
+                lx, ly, lz, scale, tend = delta_light_direction(kind[light], vec[light], px, py, pz)
+                tr = march_transmittance(m, px, py, pz, lx, ly, lz, tend, h, True, TAU_MAX) if scale > 0.0 else 0.0
+                v[a, b, e, light] = np.float32(tr)
 
 
 @njit(cache=True, parallel=True)
@@ -141,7 +138,7 @@ def _fill(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Gri
     gx = v.shape[0]
     stride = task_stride(gx)
     for t in prange(gx):  # golden-ratio order: the wanted cells cluster where the camera looks
-        _fill_slices(m, kind, vec, v, grid, h, t, t + 1, stride)
+        _fill_slice(m, kind, vec, v, grid, h, (t * stride) % gx)
 
 
 def fill_wanted(m: Medium, kind: np.ndarray, vec: np.ndarray, lv: LightVolume) -> None:
