@@ -54,6 +54,7 @@ from photon_fields.models_spec import (  # noqa: E402
     PAPER_PHASES,
     PHASE_WINDOW,
 )
+from photon_fields.models_spec.photon_map import RECORD_FLOOR  # noqa: E402
 from photon_fields.runtime.denoise.oidn import denoise_oidn, oidn_available  # noqa: E402
 from photon_fields.runtime.eval.metrics import relative_l2, ssim  # noqa: E402
 from photon_fields.runtime.photons.phase_window import window_range  # noqa: E402
@@ -89,6 +90,8 @@ class Config:
     """:class:`photon_fields.train.fit.settings.FitSettings` fields that differ from the preset's."""
     g_window: float | None = None
     """The map's kernel in g (a PHASE_BINS map): its photon-map column is then the training target at every g."""
+    record_floor: float = RECORD_FLOOR
+    """Photon tracing's record floor (:mod:`photon_fields.runtime.photons.photon_path`)."""
     about: str = ""
 
 
@@ -97,6 +100,9 @@ CONFIGS: dict[str, Config] = {
                       about="the product's defaults: 39 phase bins (any g of [-0.8, 0.8] from a kernel in g), K = 32, "
                             "spline features, the direction features times g (since 2026-11-27), anneal, three "
                             "quarters of the samples where cameras see the medium (half before 2026-11-27)"),
+    **{f"floor{q}": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", g_window=PHASE_WINDOW, record_floor=q,
+                           about=f"the default with photons also recorded at null collisions, record floor {q}")
+       for q in (0.0, 0.03, 0.1, 0.3)},
     "together": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", {"per_light": False}, g_window=PHASE_WINDOW,
                        about="the default with one output for all lights (before 2026-11-26; the same with one light)"),
     "support": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", {"sampling": "support"}, g_window=PHASE_WINDOW,
@@ -163,7 +169,8 @@ def train(scene: Scene, name: str, config: Config, work: Path, seed: int) -> tup
     run = work / scene.name / (f"{name}-{code_tag()}" + (f"-s{seed}" if seed else ""))
     settings = FitSettings.from_preset(config.preset, seed=seed, **config.overrides)
     t0 = time.perf_counter()
-    pmap = trace_photons(scene, config.photons, phases=config.phases, seed=seed, progress=False)
+    pmap = trace_photons(scene, config.photons, phases=config.phases, seed=seed, progress=False,
+                         record_floor=config.record_floor)
     trace_s = time.perf_counter() - t0
     log = finished_run(run, settings)
     if log is None:

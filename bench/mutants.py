@@ -129,6 +129,15 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/photons/test_photon_estimate.py::test_photon_map_li_converges_to_path_tracer",
             f"{LIGHTS}[directional]"),
            "Eq. 5 without the 1 / sigma_t weight that turns collision density into radiance"),
+    Mutant("estimate_ignores_record_floor", "runtime/photons/estimate.py",
+           "pos, floor = self.pmap.position, self.pmap.record_floor", "pos, floor = self.pmap.position, 0.0",
+           ("tests/train/photons/test_record_floor.py::test_records_with_a_floor_estimate_the_same_light",),
+           "null records weighted as real ones (Phi / sigma_t): a map with a record floor too bright where "
+           "sigma_t is a sliver of its majorant"),
+    Mutant("null_records_anywhere", "runtime/transport/tracking.py",
+           "if mode == _RECORD and u < floor and sigma > 0.0:", "if mode == _RECORD and u < floor * 2.0:",
+           ("tests/train/photons/test_record_floor.py::test_records_with_a_floor_estimate_the_same_light",),
+           "null records made twice as often as their weight assumes"),
     Mutant("phase_window_unnormalized", "runtime/photons/phase_window.py",
            "return idx, w[idx] / w[idx].sum()",
            "return idx, w[idx] / 2.0",
@@ -162,8 +171,8 @@ MUTANTS: tuple[Mutant, ...] = (
             f"{LIGHTS}[point_outside]", f"{LIGHTS}[directional]"),
            "the photon estimate's phase cosine taken between the photon and the camera ray instead of the "
            "light's path towards the camera (invisible at g = 0)"),
-    Mutant("first_collision_stored", "train/photons/tracing.py", "if bounce >= 1:  # Alg. 1",
-           "if bounce >= 0:  # Alg. 1",
+    Mutant("first_collision_stored", "train/photons/tracing.py", "if c >= 2:  # Alg. 1",
+           "if c >= 1:  # Alg. 1",
            (f"{TRACING}::test_stored_energy_matches_analytic_series", f"{LIGHTS}[directional]"),
            "photons recorded from their first collision, counting single scattering twice (NEE has it)"),
     Mutant("photon_roulette_not_reweighted", "runtime/photons/photon_path.py",
@@ -592,6 +601,10 @@ MUTANTS: tuple[Mutant, ...] = (
            "each light's error is weighed by its own part: a dim light's noise is fitted as hard as the image's "
            "main light"),
     # An albedo edit reweights the earlier map (issue 16).
+    Mutant("albedo_reweight_null_records_twice", "runtime/photons/albedo_reweight.py",
+           "elif bounce[i] == bounce[i - 1]:", "elif bounce[i] == -1:",
+           ("tests/runtime/photons/test_albedo_reweight.py::test_an_albedo_edit_reweights_like_a_fresh_trace",),
+           "a null record's albedo factor multiplied again for the collision it precedes"),
     Mutant("albedo_reweight_never_resets", "runtime/photons/albedo_reweight.py",
            "        if bounce[i] <= 2:  # a new path", "        if bounce[i] <= 1:  # a new path",
            ("tests/runtime/photons/test_albedo_reweight.py::test_an_albedo_edit_reweights_like_a_fresh_trace",),

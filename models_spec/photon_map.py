@@ -25,7 +25,8 @@ the lights' contributions apart and rescale one light's power or colour among se
 ``lights``, and has fewer than :data:`MAX_LIGHTS` of them.
 
 ``bounce`` and ``prev_scalar`` (2026-11-26, optional, together, without a version change): a path's records are
-consecutive in the map with ``bounce`` 2, 3, ... (a new path starts at 2), so that the albedo at every earlier
+consecutive in the map with ``bounce`` 2, 3, ... (a new path starts at 2; a null record, ``record_floor`` below, repeats
+the number of the collision after it), so that the albedo at every earlier
 collision of a record's path can be looked up again (the first collision is not stored: ``prev_scalar`` of the
 record at 2 holds its scalar). An edit of the transfer function's albedo alone then reweights every record's power
 exactly instead of retracing (:mod:`photon_fields.runtime.photons.albedo_reweight`).
@@ -42,6 +43,12 @@ cannot be compared), and readers of version 1 that predate it ignore metadata ke
 (``Scene.light_identities``), so that a map can answer for the same lights with their flux rescaled
 (:mod:`photon_fields.runtime.scene.light_rescale`); a map without it is read as before (no rescale), and a reader
 from before it refuses the key, naming it.
+``record_floor`` (2026-11-27), optional and without a version change: the record floor q in [0, 1) the map was
+traced with (:data:`RECORD_FLOOR`; absent: 0, records at real collisions only). With q > 0 the map also holds
+records at null collisions (``position``, ``direction``, ``power``, ``bounce`` and ``prev_scalar`` those of the real
+collision the record precedes), and a record at x weighs Phi / max(sigma_t(x), q majorant(x)) instead of
+Phi / sigma_t(x) (:mod:`photon_fields.runtime.photons.photon_path`). A reader from before it refuses the key, naming
+it: it would weigh the null records wrongly.
 """
 
 from __future__ import annotations
@@ -78,11 +85,16 @@ PHOTON_MAP_ARRAYS = {"position": ("float32", 3), "direction": ("float32", 3), "p
 PHOTON_MAP_OPTIONAL_ARRAYS = {"light": ("uint8", 0), "bounce": ("uint8", 0), "prev_scalar": ("float32", 0)}
 #: Lights a map can tell apart (its ``light`` array is uint8); a scene with more is traced without the array.
 MAX_LIGHTS = 255
+#: Photon tracing's record floor q (:mod:`photon_fields.runtime.photons.photon_path`): besides its real collisions a
+#: photon is recorded at null collisions, so that a record is made with probability max(sigma_t / majorant, q) and
+#: weighs at most Phi / (q majorant). 0: real collisions only (maps traced before 2026-11-27). The value was chosen by
+#: the fields' mean L_i over g against the path tracer's (docs/training.md, "Records with a floor").
+RECORD_FLOOR = 0.1
 #: Metadata keys a photon map must have, and the ones it may have besides.
 PHOTON_MAP_META_REQUIRED: tuple[str, ...] = ("format", "version", "scene_fingerprint", "phases", "emitted")
 PHOTON_MAP_META_KEYS: tuple[str, ...] = (*PHOTON_MAP_META_REQUIRED, "stored", "per_phase", "seed", "max_bounces",
                                          "trace_seconds", "scene_name", "emitted_per_phase", "scene_parts",
-                                         "lights")
+                                         "lights", "record_floor")
 #: The file layout above, and its reader (:mod:`photon_fields.models_spec.npz_manifest`).
 PHOTON_MAP_NPZ = NpzManifestFormat(kind="photon map", format=PHOTON_MAP_FORMAT, version=PHOTON_MAP_VERSION,
                                    entry="meta", label="metadata", keys=PHOTON_MAP_META_KEYS,

@@ -14,7 +14,9 @@ a' (its survival q_j > 0 wherever a' > 0), so
     Phi'_k = Phi_k prod_{j<k} a'(x_j) / a(x_j)
 
 is an unbiased record of the edited scene: the same paths, each record reweighted. The map holds, per record, the
-collision's number along its path (``bounce``; a path's records are consecutive, the first at 2) and the scalar at
+collision's number along its path (``bounce``; a path's records are consecutive, the first at 2; a null record of a
+map traced with a record floor, :mod:`photon_fields.runtime.photons.photon_path`, has the number of the collision it
+precedes, and so its earlier collisions) and the scalar at
 the path's previous collision (``prev_scalar``; the first collision is not stored, so that is where its scalar is
 kept), which is all the product needs: a' and a are the transfer functions' albedo of that scalar. Where an old
 albedo channel is 0 and the new one is not, the paths hold no information about the new light (the roulette killed
@@ -49,8 +51,11 @@ def _path_factors(bounce: np.ndarray, prev: np.ndarray, old_lut: np.ndarray, new
     one is not (no reweighting can recover that light)."""
     f0 = f1 = f2 = 1.0
     for i in range(bounce.shape[0]):
-        if bounce[i] <= 2:  # a new path
+        if bounce[i] <= 2:  # a new path, or a record before a path's second real collision: one factor
             f0 = f1 = f2 = 1.0
+        elif bounce[i] == bounce[i - 1]:  # a null record and the collision it precedes: the same earlier ones
+            out[i, 0], out[i, 1], out[i, 2] = f0, f1, f2
+            continue
         a0, a1, a2 = _albedo_of(old_lut, categorical, prev[i])
         b0, b1, b2 = _albedo_of(new_lut, categorical, prev[i])
         if (a0 <= 0.0 < b0) or (a1 <= 0.0 < b1) or (a2 <= 0.0 < b2):

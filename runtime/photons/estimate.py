@@ -48,9 +48,10 @@ from photon_fields.runtime.photons.knn import indexed_radiance
 from photon_fields.runtime.photons.phase_window import check_window, window_weights
 from photon_fields.runtime.photons.photon_grid import PhotonIndex, build_photon_index
 from photon_fields.runtime.photons.photon_map import PhotonMap
+from photon_fields.runtime.photons.photon_path import record_densities
 from photon_fields.runtime.scene.light_rescale import rescale_note, scene_rescale
 from photon_fields.runtime.scene.scene import Scene
-from photon_fields.runtime.transport.medium import Medium, extinction_at, extinction_batch
+from photon_fields.runtime.transport.medium import Medium, extinction_at
 
 DEFAULT_K = 1024
 DEFAULT_RADIUS = 0.05
@@ -155,12 +156,15 @@ class PhotonMapEstimator:
         self.found: list[np.ndarray] = []  # photons used per query, for statistics
 
     def _photon_sigma(self) -> np.ndarray:
-        """sigma_t at every photon of the map (n,), looked up once for all the search structures (a photon is in
-        the kernel of ~7 windows), in chunks of :data:`_SIGMA_CHUNK` photons (bounded memory)."""
+        """The record density per unit fluence at every photon of the map (n,): sigma_t, or with the map's record
+        floor max(sigma_t, floor majorant) (:func:`photon_fields.runtime.photons.photon_path.record_densities`),
+        looked up once for all the search structures (a photon is in the kernel of ~7 windows), in chunks of
+        :data:`_SIGMA_CHUNK` photons (bounded memory)."""
         if self._sigma is None:
-            pos = self.pmap.position
+            pos, floor = self.pmap.position, self.pmap.record_floor
             self._sigma = np.concatenate([
-                extinction_batch(self.medium, np.ascontiguousarray(pos[i:i + _SIGMA_CHUNK].astype(np.float64).T))
+                record_densities(self.medium, np.ascontiguousarray(pos[i:i + _SIGMA_CHUNK].astype(np.float64).T),
+                                 floor)
                 for i in range(0, len(pos), _SIGMA_CHUNK)] or [np.zeros(0)])
         return self._sigma
 

@@ -80,6 +80,12 @@ class PhotonMap:
         return dict(parts) if isinstance(parts, dict) else None
 
     @property
+    def record_floor(self) -> float:
+        """The record floor q the map was traced with (``meta["record_floor"]``, 0 for a map without one): what
+        its records' weights divide by (:func:`photon_fields.runtime.photons.photon_path.record_densities`)."""
+        return float(self.meta.get("record_floor", 0.0))
+
+    @property
     def lights(self) -> list[dict[str, Any]] | None:
         """The lights traced with, as the scene's fingerprint hashes them (``meta["lights"]``), None for older maps."""
         lights = self.meta.get("lights")
@@ -257,6 +263,9 @@ def _check_meta_values(meta: dict[str, Any], what: str) -> tuple[tuple[float, ..
         raise InputError(f"{what} metadata", f"'scene_fingerprint' must be a sha256 hex string, got {fp!r}")
     if "scene_parts" in meta:
         _check_parts(meta["scene_parts"], f"{what} metadata scene_parts")
+    floor = meta.get("record_floor", 0.0)
+    if isinstance(floor, bool) or not isinstance(floor, (int, float)) or not 0.0 <= floor < 1.0:
+        raise InputError(f"{what} metadata", f"'record_floor' must be a number in [0, 1), got {floor!r}")
     emitted = meta["emitted"]
     if isinstance(emitted, bool) or not isinstance(emitted, int) or emitted <= 0:
         raise InputError(what, f"photon map metadata has no positive 'emitted' count (got {emitted!r})")

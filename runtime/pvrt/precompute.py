@@ -142,7 +142,7 @@ def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: flo
     vals = np.empty(3)
     dvec = np.empty(3)
     hit_pos, hit_dir, hit_pow = np.empty((max_bounces, 3)), np.empty((max_bounces, 3)), np.empty((max_bounces, 3))
-    hit_scalar = np.empty(max_bounces)
+    hit_coll, hit_scalar = np.empty(max_bounces, dtype=np.int64), np.empty(max_bounces)
     cos_h = math.cos(h)
     if is_dsf:
         ax, ay, az = dirs[k, 0], dirs[k, 1], dirs[k, 2]
@@ -175,8 +175,8 @@ def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: flo
         st, u4 = next_float(st)
         ox, oy, oz, dx, dy, dz, _, _, _ = emit_photon(DIRECTIONAL, dvec, env, -1.0, cx, cy, cz, radius, u3, u4, 0.0,
                                                       0.0)
-        n, _ = trace_path(m, g, ox, oy, oz, dx, dy, dz, 1.0, 1.0, 1.0, st, max_bounces, hit_pos, hit_dir, hit_pow,
-                          hit_scalar)
+        n, _, _ = trace_path(m, g, ox, oy, oz, dx, dy, dz, 1.0, 1.0, 1.0, st, max_bounces, 0.0, hit_pos, hit_dir,
+                             hit_pow, hit_coll, hit_scalar)  # no floor: the records are the collisions
         for bounce in range(n):
             px, py, pz = hit_pos[bounce, 0], hit_pos[bounce, 1], hit_pos[bounce, 2]
             if extinction_at(m, px, py, pz) > 0.0:

@@ -69,13 +69,21 @@ def task_stride(tasks: int) -> int:
     while math.gcd(s, tasks) != 1:
         s += 1
     return s
-_DELTA, _RATIO, _RESAMPLE = 0, 1, 2
+_DELTA, _RATIO, _RESAMPLE, _RECORD = 0, 1, 2, 3
 
 
 @njit(cache=True, inline="always")
 def _cell_index(p: float, bmin: float, cells_per_unit: float, n: int) -> int:
     """Index of the macrocell holding coordinate ``p`` on one axis, clamped to the grid."""
     return min(max(int(math.floor((p - bmin) * cells_per_unit)), 0), n - 1)
+
+
+@njit(cache=True, inline="always")
+def majorant_at(m: Medium, x: float, y: float, z: float) -> float:
+    """The majorant of the macrocell holding the point (the rate of the tentative collisions there)."""
+    cx, cy, cz = m.majorant.shape
+    return m.majorant[_cell_index(x, m.bmin[0], cx / m.bsize[0], cx), _cell_index(y, m.bmin[1], cy / m.bsize[1], cy),
+                      _cell_index(z, m.bmin[2], cz / m.bsize[2], cz)]
 
 
 @njit(cache=True, inline="always")
@@ -141,10 +149,12 @@ def empty_run(m: Medium, x: float, y: float, z: float, dx: float, dy: float, dz:
 
 @njit(cache=True, inline="always")
 def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmin: float,
-           tmax: float, state: np.uint64, mode: int) -> tuple[float, float, float, np.uint64]:
+           tmax: float, state: np.uint64, mode: int, floor: float = 0.0) -> tuple[float, float, float, np.uint64]:
     """Shared walk, returning (t, W, T, state).
 
-    mode _DELTA: t = the real-collision distance (inf on escape). mode _RATIO: T = the transmittance estimate
+    mode _DELTA: t = the real-collision distance (inf on escape). mode _RECORD: delta tracking that also stops at
+    a null collision where sigma_t > 0 if its acceptance draw u is below ``floor`` (:func:`record_track`); W = 1 at
+    a real collision, 0 at such a null one. mode _RATIO: T = the transmittance estimate
     over [tmin, tmax]. mode _RESAMPLE: the ratio-tracking walk that also keeps one tentative collision t
     (inf if none scored) with W = sum of the scores (module docstring) and T its transmittance estimate.
 
@@ -226,10 +236,12 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
                 t += tau * inv_maj
                 tau = -1.0
                 sigma = extinction_at(m, ox + t * dx, oy + t * dy, oz + t * dz)
-                if mode == _DELTA:
+                if mode in (_DELTA, _RECORD):
                     state, u = next_float(state)
                     if u * maj < sigma:
-                        return t, w_sum, tr, state
+                        return t, 1.0, tr, state
+                    if mode == _RECORD and u < floor and sigma > 0.0:
+                        return t, 0.0, tr, state
                     continue
                 if mode == _RESAMPLE and sigma > 0.0:
                     w = tr * sigma * inv_maj
@@ -271,6 +283,19 @@ def delta_track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float
     """Distance to the next real collision in [tmin, tmax), or inf if the ray leaves without one."""
     t, _, _, state = _track(m, ox, oy, oz, dx, dy, dz, tmin, tmax, state, _DELTA)
     return t, state
+
+
+@njit(cache=True, inline="always")
+def record_track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmin: float,
+                 tmax: float, state: np.uint64, floor: float) -> tuple[float, bool, np.uint64]:
+    """Delta tracking that stops at the next *record* (photon tracing's collision estimator with a floor,
+    :mod:`photon_fields.runtime.photons.photon_path`): (t, real, state). A tentative collision at x with majorant
+    m is a record with probability max(sigma_t(x) / m, ``floor``) where sigma_t(x) > 0, decided by the one draw that
+    delta tracking makes there: real (the photon scatters) if u m < sigma_t(x), else a null record if u < floor.
+    Null records leave the flight's distribution unchanged: the caller resumes the walk from t (free flight is
+    memoryless). With floor 0 it is :func:`delta_track`, draw for draw. t is inf if the ray leaves first."""
+    t, w, _, state = _track(m, ox, oy, oz, dx, dy, dz, tmin, tmax, state, _RECORD, floor)
+    return t, w > 0.0, state
 
 
 @njit(cache=True, inline="always")

@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from photon_fields.models_spec import DEFAULT_MAP_PHASES, DEFAULT_PHOTONS
+from photon_fields.models_spec.photon_map import RECORD_FLOOR
 from photon_fields.runtime.cli.common import (
     OneLineArgumentParser,
     check_seed,
@@ -130,6 +131,9 @@ def _add_trace_options(t: argparse.ArgumentParser) -> None:
                    help="the phase set G (default: 39 narrow bins over [-0.95, 0.95], from which the cpu preset "
                         "trains any g in [-0.8, 0.8]; a few phases, e.g. -0.75 0 0.75, need --preset cpu-phases)")
     t.add_argument("--max-bounces", type=int, default=16, help="max collisions per photon path")
+    t.add_argument("--record-floor", type=float, default=RECORD_FLOOR,
+                   help="also record photons at null collisions, each tentative collision with probability at least "
+                        f"this (bounds every photon's weight; 0: real collisions only; default {RECORD_FLOOR})")
 
 
 def _add_fit_options(f: argparse.ArgumentParser) -> None:
@@ -166,18 +170,20 @@ def _add_fit_options(f: argparse.ArgumentParser) -> None:
 
 def cmd_trace(args: argparse.Namespace) -> int:
     from photon_fields.runtime.scene.scene import load_scene
-    from photon_fields.train.photons.tracing import check_phases, trace_photons
+    from photon_fields.train.photons.tracing import check_phases, check_record_floor, trace_photons
 
     out = Path(args.out)
     photons = parse_count(args.photons)
     phases = check_phases(args.phases if args.phases is not None else DEFAULT_MAP_PHASES, "--phases")
+    check_record_floor(args.record_floor, "--record-floor")
     check_seed(args.seed)
     set_threads(args.threads)
     scene = load_scene(args.scene)
     prepare_output(out, ".npz", force=args.force, what="a photon map")
     progress = open_progress(args, ("trace",))
     pmap = trace_photons(scene, photons, phases=phases, max_bounces=args.max_bounces, seed=args.seed,
-                         progress=not args.quiet, on_progress=stage_callback(progress, "trace"))
+                         progress=not args.quiet, on_progress=stage_callback(progress, "trace"),
+                         record_floor=args.record_floor)
     pmap.save(out)
     if progress is not None:
         progress.finish("done", f"photon map {out}")
@@ -276,10 +282,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_all(args: argparse.Namespace) -> int:
     from photon_fields.runtime.scene.scene import load_scene
-    from photon_fields.train.photons.tracing import check_phases, trace_photons
+    from photon_fields.train.photons.tracing import check_phases, check_record_floor, trace_photons
 
     photons = parse_count(args.photons)
     phases = check_phases(args.phases if args.phases is not None else DEFAULT_MAP_PHASES, "--phases")
+    check_record_floor(args.record_floor, "--record-floor")
     settings = _fit_settings(args)
     _set_all_threads(args.threads)
     scene = load_scene(args.scene)
@@ -287,7 +294,8 @@ def cmd_all(args: argparse.Namespace) -> int:
     _prepare_run_folder(out, args.force, ALL_OUTPUTS)
     progress = open_progress(args, ("trace", "fit", "export"))
     pmap = trace_photons(scene, photons, phases=phases, max_bounces=args.max_bounces, seed=args.seed,
-                         progress=not args.quiet, on_progress=stage_callback(progress, "trace"))
+                         progress=not args.quiet, on_progress=stage_callback(progress, "trace"),
+                         record_floor=args.record_floor)
     map_path = pmap.save(out / "map.npz")
     secs = pmap.metadata()["trace_seconds"]
     print(f"traced {len(pmap):,} photons in {secs:.2f} s -> {map_path}")

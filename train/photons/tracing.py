@@ -13,6 +13,10 @@ phases : sequence of g in [-1, 1] (default ``models_spec.DEFAULT_MAP_PHASES``: 3
     round-robin and every phase is traced until it holds ``photons / |G|`` records, so the phases are
     equally represented in the map ("equally distributed over ... the number of phases", Sec. 4.4)
     even though forward- and back-scattering photons leave different numbers of records per path.
+record_floor : float in [0, 1) (default ``models_spec.RECORD_FLOOR``)
+    Also record photons at null collisions, so that a tentative collision is a record with probability at least
+    this; every record's weight is then bounded (:mod:`photon_fields.runtime.photons.photon_path`, "Records with a
+    floor"). The records count towards ``photons`` like the others. 0: real collisions only.
 max_bounces : int >= 2 (default 16)
     Maximum number of collisions of a photon path. A record at collision k is the light that reaches a
     camera vertex through k scattering vertices, so ``max_bounces = 16`` matches the path tracer's
@@ -27,25 +31,25 @@ sampler are in ``runtime.transport.emitters`` (:func:`emission_fluxes`, :func:`e
 is aimed at the volume's bounding sphere (a point light's cone towards it, a disk of parallel rays across it
 for the directional and environment lights), so none is wasted on directions that cannot reach the volume.
 
-Transport (:func:`photon_fields.runtime.photons.photon_path.trace_path`, shared with the PVRT precomputation):
-free flights by delta tracking over the majorant grid; at each real collision the photon is
-recorded (from the second collision on, Alg. 1's "skip first interaction") with the power it *arrives*
-with, then Russian roulette with survival probability = max albedo component, and the surviving power
-is multiplied by albedo / survival (Jensen's photon tracing: powers stay nearly constant, which keeps
-the density estimate's variance low). Recording before the albedo differs from Alg. 1's listing on
-purpose: the albedo at the camera's vertex is applied at render time from the full-resolution
-transfer function, so the field only has to learn the smooth incident light (see
-``runtime.photons.estimate``). Record powers are divided by the number of paths emitted for their phase, so
-the records of each phase form a complete photon map on their own. Each record also keeps the index of the light its
-path started from (the map's ``light`` array): the map then holds each light's photon map apart, which a field with
-one output per light learns (:attr:`photon_fields.models_spec.encoding.FieldConfig.light_channels`); and its
-collision number along the path and the scalar at the path's previous collision, from which an edit of the albedo
-alone reweights the map exactly instead of retracing it (:mod:`photon_fields.runtime.photons.albedo_reweight`).
+Transport (:func:`photon_fields.runtime.photons.photon_path.trace_path`, shared with the PVRT precomputation): free
+flights by delta tracking over the majorant grid; at each real collision the photon is recorded (from the second
+collision on, Alg. 1's "skip first interaction"; with a record floor, also at some null collisions after the first) with
+the power it *arrives* with, then Russian roulette with survival probability = max albedo component, and the surviving
+power is multiplied by albedo / survival (Jensen's photon tracing: powers stay nearly constant, which keeps the density
+estimate's variance low). Recording before the albedo differs from Alg. 1's listing on purpose: the albedo at the
+camera's vertex is applied at render time from the full-resolution transfer function, so the field only has to learn the
+smooth incident light (see ``runtime.photons.estimate``). Record powers are divided by the number of paths emitted for
+their phase, so the records of each phase form a complete photon map on their own. Each record also keeps the index of
+the light its path started from (the map's ``light`` array): the map then holds each light's photon map apart, which a
+field with one output per light learns (:attr:`photon_fields.models_spec.encoding.FieldConfig.light_channels`); and its
+collision number along the path and the scalar at the path's previous collision, from which an edit of the albedo alone
+reweights the map exactly instead of retracing it (:mod:`photon_fields.runtime.photons.albedo_reweight`).
 """
 
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Callable, Sequence
 
@@ -53,7 +57,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.models_spec import DEFAULT_MAP_PHASES
-from photon_fields.models_spec.photon_map import MAX_LIGHTS
+from photon_fields.models_spec.photon_map import MAX_LIGHTS, RECORD_FLOOR
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.photons.photon_path import trace_path
@@ -70,6 +74,8 @@ CHUNK = 1 << 15  # photon paths per kernel call; fixed so results do not depend 
 #: Give up when the stored/emitted ratio says the target would need more than this many paths.
 MAX_EMITTED_PER_TARGET = 2000
 MIN_PATHS_BEFORE_GIVING_UP = 1 << 20
+#: Rows per path for null records (``record_floor`` > 0) beyond its real collisions' (``photon_path.trace_path``).
+NULL_ROWS = 32
 
 
 def light_fluxes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -82,15 +88,16 @@ def light_fluxes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
 @njit(cache=True)
 def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, power: np.ndarray, cos_max: np.ndarray,
                  light_cdf: np.ndarray, phases: np.ndarray, active: np.ndarray, seed: int, first: int, lo: int, hi: int,
-                 max_bounces: int,
+                 max_bounces: int, floor: float, slots: int,
                  out_pos: np.ndarray, out_dir: np.ndarray, out_pow: np.ndarray, out_phase: np.ndarray,
-                 out_light: np.ndarray, out_bounce: np.ndarray, out_prev: np.ndarray, out_count: np.ndarray) -> None:
+                 out_light: np.ndarray, out_bounce: np.ndarray, out_prev: np.ndarray, out_count: np.ndarray,
+                 out_lost: np.ndarray) -> None:
     """Paths lo..hi-1 of :func:`_trace_chunk`, serially (``TASK_ITEMS`` in the tracking module says why)."""
     cx, cy, cz = m.bmin[0] + 0.5 * m.bsize[0], m.bmin[1] + 0.5 * m.bsize[1], m.bmin[2] + 0.5 * m.bsize[2]
     radius = 0.5 * math.sqrt(m.bsize[0] ** 2 + m.bsize[1] ** 2 + m.bsize[2] ** 2)
-    slots = max_bounces - 1
-    hit_pos, hit_dir, hit_pow = np.empty((max_bounces, 3)), np.empty((max_bounces, 3)), np.empty((max_bounces, 3))
-    hit_scalar = np.empty(max_bounces)
+    rows = slots + 1  # the first collision's record too, which is not stored
+    hit_pos, hit_dir, hit_pow = np.empty((rows, 3)), np.empty((rows, 3)), np.empty((rows, 3))
+    hit_coll, hit_scalar = np.empty(rows, dtype=np.int64), np.empty(max_bounces)
     for i in range(lo, hi):
         st = stream_state(np.uint64(seed), np.uint64(first + i))
         st, u = next_float(st)
@@ -107,38 +114,42 @@ def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, powe
         g = phases[ph]
         br, bg, bb = power[li, 0] * sr, power[li, 1] * sg, power[li, 2] * sb
         count = 0
-        n, st = trace_path(m, g, ox, oy, oz, dx, dy, dz, br, bg, bb, st, max_bounces, hit_pos, hit_dir, hit_pow,
-                           hit_scalar)
-        for bounce in range(n):
-            if bounce >= 1:  # Alg. 1: the first interaction is direct light, not stored
+        n, st, lost = trace_path(m, g, ox, oy, oz, dx, dy, dz, br, bg, bb, st, max_bounces, floor, hit_pos, hit_dir,
+                                 hit_pow, hit_coll, hit_scalar)
+        for r in range(n):
+            c = hit_coll[r]
+            if c >= 2:  # Alg. 1: the first interaction (and the flight to it) is direct light, not stored
                 k = i * slots + count
-                for c in range(3):
-                    out_pos[k, c] = hit_pos[bounce, c]
-                    out_dir[k, c] = hit_dir[bounce, c]
-                    out_pow[k, c] = hit_pow[bounce, c]
+                for a in range(3):
+                    out_pos[k, a] = hit_pos[r, a]
+                    out_dir[k, a] = hit_dir[r, a]
+                    out_pow[k, a] = hit_pow[r, a]
                 out_phase[k] = ph
                 out_light[k] = li
-                out_bounce[k] = bounce + 1
-                out_prev[k] = hit_scalar[bounce - 1]  # the previous collision played its roulette on this
+                out_bounce[k] = c
+                out_prev[k] = hit_scalar[c - 2]  # the previous collision played its roulette on this
                 count += 1
         out_count[i] = count
+        out_lost[i] = lost
 
 
 @njit(cache=True, parallel=True)
 def _trace_chunk(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, power: np.ndarray, cos_max: np.ndarray,
                  light_cdf: np.ndarray, phases: np.ndarray, active: np.ndarray, seed: int, first: int, n: int,
-                 max_bounces: int,
+                 max_bounces: int, floor: float, slots: int,
                  out_pos: np.ndarray, out_dir: np.ndarray, out_pow: np.ndarray, out_phase: np.ndarray,
-                 out_light: np.ndarray, out_bounce: np.ndarray, out_prev: np.ndarray, out_count: np.ndarray) -> None:
+                 out_light: np.ndarray, out_bounce: np.ndarray, out_prev: np.ndarray, out_count: np.ndarray,
+                 out_lost: np.ndarray) -> None:
     """Trace photon paths first .. first + n - 1; path i scatters with phase active[i % len(active)],
     writes its records (with the index of the light it started from, the collision's number along the path and the
-    scalar at the path's previous collision) to slots [i * (max_bounces - 1), ...) and their
-    number to out_count[i]. ``env``: the
-    scene's environment map (its photons' power is scaled per channel by ``emit_photon``)."""
+    scalar at the path's previous collision) to slots [i * slots, ...) and their number to out_count[i], and the
+    number of null records it dropped for want of slots to out_lost[i] (``floor``: the record floor; ``slots``
+    >= max_bounces - 1, and more with a floor). ``env``: the scene's environment map (its photons' power is scaled
+    per channel by ``emit_photon``)."""
     for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
         _trace_paths(m, kind, vec, env, power, cos_max, light_cdf, phases, active, seed, first, task * TASK_ITEMS,
-                     min(n, (task + 1) * TASK_ITEMS), max_bounces, out_pos, out_dir, out_pow, out_phase, out_light,
-                     out_bounce, out_prev, out_count)
+                     min(n, (task + 1) * TASK_ITEMS), max_bounces, floor, slots, out_pos, out_dir, out_pow, out_phase,
+                     out_light, out_bounce, out_prev, out_count, out_lost)
 
 
 def _check_progress(scene: Scene, stored: np.ndarray, emitted: np.ndarray, quota: int) -> None:
@@ -163,10 +174,17 @@ def check_phases(phases: Sequence[float], what: str = "phases") -> tuple[float, 
     return gs
 
 
+def check_record_floor(q: float, what: str = "record_floor") -> float:
+    """A record floor (:mod:`photon_fields.runtime.photons.photon_path`): a number in [0, 1)."""
+    if isinstance(q, bool) or not isinstance(q, (int, float, np.floating)) or not 0.0 <= q < 1.0:
+        raise InputError(what, f"must be a number in [0, 1), got {q!r}")
+    return float(q)
+
+
 def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAULT_MAP_PHASES, max_bounces: int = 16,
                   seed: int = 0, progress: bool = True,
                   on_progress: Callable[[int, int], None] | None = None, deadline: float | None = None,
-                  min_photons: int = 0) -> PhotonMap:
+                  min_photons: int = 0, record_floor: float = RECORD_FLOOR) -> PhotonMap:
     """Alg. 1: trace photon paths until the map holds at least ``photons`` records. ``on_progress(done, total)``
     is called after every chunk with the records stored so far (e.g. a
     :class:`photon_fields.runtime.io.progress.ProgressFile`'s update). ``deadline`` (a ``time.perf_counter()``
@@ -192,7 +210,8 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
     # Unnormalized photon power: flux / P(light); divided by the number of its phase's paths at the end.
     with np.errstate(divide="ignore", invalid="ignore"):
         power = np.where(p_light[:, None] > 0, flux / p_light[:, None], 0.0)
-    slots = max_bounces - 1
+    record_floor = check_record_floor(record_floor)
+    slots = max_bounces - 1 + (NULL_ROWS if record_floor > 0 else 0)
     buf_pos = np.empty((CHUNK * slots, 3), dtype=np.float32)
     buf_dir = np.empty((CHUNK * slots, 3), dtype=np.float32)
     buf_pow = np.empty((CHUNK * slots, 3), dtype=np.float32)
@@ -201,6 +220,8 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
     buf_bounce = np.zeros(CHUNK * slots, dtype=np.uint8)
     buf_prev = np.zeros(CHUNK * slots, dtype=np.float32)
     counts = np.empty(CHUNK, dtype=np.int64)
+    lost = np.zeros(CHUNK, dtype=np.int64)
+    lost_total = 0
     quota = -(-photons // len(gs))
     stored = np.zeros(len(gs), dtype=np.int64)
     emitted_per_phase = np.zeros(len(gs), dtype=np.int64)
@@ -213,8 +234,10 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
         while np.any(stored < quota):
             active = np.flatnonzero(stored < quota).astype(np.int64)
             _trace_chunk(m, kind, vec, env, power, cos_max, light_cdf, g_arr, active, int(seed), first_path, CHUNK,
-                         max_bounces, buf_pos, buf_dir, buf_pow, buf_phase, buf_light, buf_bounce, buf_prev, counts)
+                         max_bounces, float(record_floor), slots, buf_pos, buf_dir, buf_pow, buf_phase, buf_light,
+                         buf_bounce, buf_prev, counts, lost)
             first_path += CHUNK
+            lost_total += int(lost.sum())
             for j, ph in enumerate(active):
                 paths = np.arange(j, CHUNK, len(active))  # this phase's paths in the chunk
                 cum = np.cumsum(counts[paths])
@@ -245,5 +268,10 @@ def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAU
     meta = {"seed": int(seed), "max_bounces": int(max_bounces), "trace_seconds": time.perf_counter() - t_start,
             "scene_name": scene.name, "emitted_per_phase": [int(e) for e in emitted_per_phase],
             "scene_parts": scene.fingerprint_parts(), "lights": scene.light_identities()}
+    if record_floor > 0:
+        meta["record_floor"] = float(record_floor)
+    if lost_total:
+        print(f"photon tracing: {lost_total} null records dropped (a path made more than {NULL_ROWS}); the map "
+              "is slightly dark where they were", file=sys.stderr)
     return PhotonMap(pos, dirs, pw, ph_idx, gs, scene.fingerprint(), emitted, meta, light=light, bounce=bounce,
                      prev_scalar=prev)

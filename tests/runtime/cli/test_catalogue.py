@@ -466,6 +466,8 @@ CASES += [
     (R, lambda a, d, o: ["--denoise", "wrls", *SIZE, "--out", str(o / "r.exr")], "--denoise wrls"),
     (T, lambda a, d, o: ["trace", "blobs", "--max-bounces", "1", "--out", str(o / "m.npz")], "max_bounces"),
     (T, lambda a, d, o: ["trace", "blobs", "--threads", "0", "--out", str(o / "m.npz")], "--threads"),
+    (T, lambda a, d, o: ["trace", "blobs", "--record-floor", "1", "--out", str(o / "m.npz")], "--record-floor"),
+    (T, lambda a, d, o: ["all", "blobs", "--record-floor", "nan", "--out", str(o / "run")], "--record-floor"),
     (T, lambda a, d, o: ["trace", "blobs", "--seed", HUGE_SEED, "--out", str(o / "m.npz")], "--seed"),
     (T, lambda a, d, o: ["trace", "blobs", "--progress-file", str(d / "no" / "p.json"), "--out", str(o / "m.npz")],
      "--progress-file"),

@@ -37,20 +37,28 @@ def scene_with(folder: Path, albedo: list[list[float]] | None = None, **tf_chang
 BLUER = [[0.6, 0.8, 0.95], [0.6, 0.8, 0.95], [0.3, 0.9, 0.99]]
 
 
-@pytest.fixture(scope="module")
-def base(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
+@pytest.fixture(scope="module", params=[0.0, 0.3], ids=["real-records", "record-floor"])
+def base(tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest):  # noqa: ANN201
+    """The scene and its map: records at real collisions only, or with null records too (a record floor,
+    ``runtime/photons/photon_path.py``), which carry the collision number and history of the collision they
+    precede."""
     scene = scene_with(tmp_path_factory.mktemp("albedo"))
-    return scene, trace_photons(scene, 40_000, phases=(0.0,), seed=4, progress=False)
+    return scene, trace_photons(scene, 40_000, phases=(0.0,), seed=4, progress=False, record_floor=request.param)
 
 
 def test_a_paths_records_are_consecutive_and_know_the_previous_collision(base) -> None:  # noqa: ANN001
-    """Records of a path follow each other with bounce 2, 3, ...; a record's prev_scalar is the scalar at the
-    previous record's position (the first collision's is kept at the record of bounce 2)."""
+    """Records of a path follow each other with bounce 2, 3, ... (a null record repeats the number of the real
+    collision after it); a record's prev_scalar is the scalar at the previous real collision: the last record
+    of the number before (the first collision's is kept at the records of bounce 2)."""
     scene, pmap = base
     m = scene.medium()
     b = pmap.bounce.astype(int)
-    assert b.min() == 2 and np.all((b[1:] == 2) | (b[1:] == b[:-1] + 1))
-    later = np.flatnonzero(b[1:] > 2) + 1
+    repeats = (b[1:] == b[:-1]) & (b[1:] > 2)
+    assert b.min() == 2 and np.all((b[1:] == 2) | (b[1:] == b[:-1] + 1) | repeats)
+    assert np.any(repeats) == (pmap.record_floor > 0)
+    same = np.flatnonzero(repeats) + 1  # a null record and the next record of its number: the same arriving power
+    np.testing.assert_array_equal(pmap.power[same], pmap.power[same - 1])
+    later = np.flatnonzero(b[1:] == b[:-1] + 1) + 1
     prev = np.array([scalar_at(m, *pmap.position[i - 1].astype(np.float64)) for i in later[:500]])
     np.testing.assert_allclose(pmap.prev_scalar[later[:500]], prev, rtol=1e-5, atol=1e-6)
 
@@ -65,7 +73,7 @@ def test_the_same_albedo_reweights_to_the_same_map(base, tmp_path: Path) -> None
 def test_an_albedo_edit_reweights_like_a_fresh_trace(base, tmp_path: Path) -> None:  # noqa: ANN001
     """The bluer scene: the reweighted map (whole, and thinned to half its paths) estimates what a map traced for
     it does (block z-scores over independent groups of points, per channel), and differs visibly from the
-    unedited map."""
+    unedited map; a null record's power changes as the collision's it precedes."""
     scene, pmap = base
     bluer = scene_with(tmp_path, BLUER)
     assert albedo_only(scene.medium(), bluer.medium())
@@ -88,6 +96,9 @@ def test_an_albedo_edit_reweights_like_a_fresh_trace(base, tmp_path: Path) -> No
         assert np.all(z < 4.0), z
     before = blocks(pmap).mean(1)
     assert want.mean(1)[0] < 0.9 * before[0] and want.mean(1)[2] > 1.05 * before[2]  # the edit shows
+    b = pmap.bounce.astype(int)
+    same = np.flatnonzero((b[1:] == b[:-1]) & (b[1:] > 2)) + 1  # a null record shares its collision's history
+    np.testing.assert_allclose(whole.power[same], whole.power[same - 1], rtol=1e-6)
 
 
 def test_what_cannot_be_reweighted(base, tmp_path: Path) -> None:  # noqa: ANN001

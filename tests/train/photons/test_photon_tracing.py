@@ -80,9 +80,9 @@ def test_directions_follow_hg_at_scattering(g_index: int) -> None:
     cos = []
     for chunk in range(3):
         _trace_chunk(m, kind, vec, scene.packed_environment_map(), flux, cos_max, np.array([1.0]), phases,
-                     np.array([g_index]), 9, chunk * CHUNK, CHUNK, max_b, pos, dirs, pw, ph,
+                     np.array([g_index]), 9, chunk * CHUNK, CHUNK, max_b, 0.0, slots, pos, dirs, pw, ph,
                      np.empty(CHUNK * slots, np.uint8), np.empty(CHUNK * slots, np.uint8),
-                     np.empty(CHUNK * slots, np.float32), cnt)
+                     np.empty(CHUNK * slots, np.float32), cnt, np.empty(CHUNK, np.int64))
         both = np.flatnonzero(cnt == 2)
         d1 = dirs[both * slots].astype(np.float64)
         d2 = dirs[both * slots + 1].astype(np.float64)
@@ -106,9 +106,9 @@ def test_tracing_kernel_refuses_an_unknown_light_kind() -> None:
     out = [np.empty((n * slots, 3), np.float32) for _ in range(3)]
     with pytest.raises((ValueError, SystemError)) as info:
         _trace_chunk(scene.medium(), np.array([99]), np.zeros((1, 3)), NO_ENV_MAP, np.ones((1, 3)), np.array([-1.0]),
-                     np.array([1.0]), np.array([0.0]), np.array([0]), 1, 0, n, max_b, *out,
+                     np.array([1.0]), np.array([0.0]), np.array([0]), 1, 0, n, max_b, 0.0, slots, *out,
                      np.empty(n * slots, np.uint8), np.empty(n * slots, np.uint8), np.empty(n * slots, np.uint8),
-                     np.empty(n * slots, np.float32), np.empty(n, np.int64))
+                     np.empty(n * slots, np.float32), np.empty(n, np.int64), np.empty(n, np.int64))
     assert "unknown light kind" in str(info.value) + repr(info.value.__cause__)
 
 
