@@ -12,7 +12,9 @@ radius : float (default ``DEFAULT_RADIUS`` = 0.05)
 
 What is estimated. Photons are stored at real collisions (density proportional to sigma_t times the
 fluence) with the power they arrive with (``photon_fields.train.photons.tracing``). Weighting each photon by
-``1 / sigma_t`` at its own position turns the collision density into the incident radiance, so
+``1 / sigma_t`` at its own position turns the collision density into the incident radiance (a map traced with a
+record floor q also holds records at null collisions, and its density is max(sigma_t, q majorant) times the
+fluence: that is then the divisor, :func:`photon_fields.runtime.photons.photon_path.record_densities`), so
 
     Q(x, d, g) = sum_n p_g(-omega_n . d) * (Phi_n / sigma_t(x_n)) / (4/3 pi r^3)
 
@@ -99,11 +101,11 @@ def _gather_bins(in_bins: np.ndarray, scale: np.ndarray, phase: np.ndarray, posi
                  direction: np.ndarray, power: np.ndarray, sigma: np.ndarray,
                  light: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The photons whose phase bin is in ``in_bins``, in the map's order: positions (float64), directions,
-    weights (power * scale[bin]) / sigma_t, in that order of operations (with scale 1, bit for bit the single-phase
-    weights), and their lights (``light`` of the map, or an empty array for none). One pass instead of a
-    boolean-mask gather per array (0.7 s of a 1M map's 17 window indices).
-    Photons sit at real collisions (sigma_t > 0 there); the floor only guards a map traced with another transfer
-    function, which the fingerprint check normally refuses."""
+    weights (power * scale[bin]) / sigma (the record density: sigma_t, or max(sigma_t, q majorant) with a record
+    floor), in that order of operations (with scale 1, bit for bit the single-phase weights), and their lights
+    (``light`` of the map, or an empty array for none). One pass instead of a boolean-mask gather per array (0.7 s of
+    a 1M map's 17 window indices). Photons sit where sigma_t > 0; the 1e-12 floor only guards a map traced with
+    another transfer function, which the fingerprint check normally refuses."""
     n = 0
     for i in range(phase.shape[0]):
         n += in_bins[phase[i]]
@@ -151,7 +153,7 @@ class PhotonMapEstimator:
         self.lights = int(lights)
         self._indices: dict[int, PhotonIndex] = {}
         self._windows: dict[float, PhotonIndex] = {}
-        self._sigma: np.ndarray | None = None  # sigma_t at every photon (_photon_sigma)
+        self._sigma: np.ndarray | None = None  # the record density at every photon (_photon_sigma)
         self._pattern = ball_pattern()
         self.found: list[np.ndarray] = []  # photons used per query, for statistics
 
