@@ -53,10 +53,19 @@ def cell_centre(grid: Grid, i: int, j: int, k: int) -> tuple[float, float, float
 
 
 @njit(cache=True, inline="always")
+def blend(v000: float, v100: float, v010: float, v110: float, v001: float, v101: float, v011: float, v111: float,
+          fx: float, fy: float, fz: float) -> float:
+    """The trilinear blend of a stencil's eight corner values (``vijk``: corner (i, j, k) of the stencil) at the
+    fractions (fx, fy, fz): x first, then y, then z."""
+    c00 = v000 * (1 - fx) + v100 * fx
+    c10 = v010 * (1 - fx) + v110 * fx
+    c01 = v001 * (1 - fx) + v101 * fx
+    c11 = v011 * (1 - fx) + v111 * fx
+    return (c00 * (1 - fy) + c10 * fy) * (1 - fz) + (c01 * (1 - fy) + c11 * fy) * fz
+
+
+@njit(cache=True, inline="always")
 def trilinear(vol: np.ndarray, i: int, j: int, k: int, fx: float, fy: float, fz: float) -> float:
     """``vol`` (gx, gy, gz) interpolated at the stencil (i, j, k, fx, fy, fz) of :func:`stencil`."""
-    c00 = vol[i, j, k] * (1 - fx) + vol[i + 1, j, k] * fx
-    c10 = vol[i, j + 1, k] * (1 - fx) + vol[i + 1, j + 1, k] * fx
-    c01 = vol[i, j, k + 1] * (1 - fx) + vol[i + 1, j, k + 1] * fx
-    c11 = vol[i, j + 1, k + 1] * (1 - fx) + vol[i + 1, j + 1, k + 1] * fx
-    return (c00 * (1 - fy) + c10 * fy) * (1 - fz) + (c01 * (1 - fy) + c11 * fy) * fz
+    return blend(vol[i, j, k], vol[i + 1, j, k], vol[i, j + 1, k], vol[i + 1, j + 1, k], vol[i, j, k + 1],
+                 vol[i + 1, j, k + 1], vol[i, j + 1, k + 1], vol[i + 1, j + 1, k + 1], fx, fy, fz)

@@ -36,7 +36,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.transport.cell_grid import Grid, cell_centre
+from photon_fields.runtime.transport.cell_grid import Grid, blend, cell_centre
 from photon_fields.runtime.transport.emitters import delta_light_direction
 from photon_fields.runtime.transport.marching import march_transmittance
 from photon_fields.runtime.transport.medium import Medium
@@ -101,11 +101,7 @@ def light_transmittance(v: np.ndarray, light: int, i: int, j: int, k: int, fx: f
     v011, v111 = v[i, j + 1, k + 1, light], v[i + 1, j + 1, k + 1, light]
     if min(min(min(v000, v100), min(v010, v110)), min(min(v001, v101), min(v011, v111))) < 0.0:
         return -1.0
-    c00 = v000 * (1 - fx) + v100 * fx
-    c10 = v010 * (1 - fx) + v110 * fx
-    c01 = v001 * (1 - fx) + v101 * fx
-    c11 = v011 * (1 - fx) + v111 * fx
-    return (c00 * (1 - fy) + c10 * fy) * (1 - fz) + (c01 * (1 - fy) + c11 * fy) * fz
+    return blend(v000, v100, v010, v110, v001, v101, v011, v111, fx, fy, fz)
 
 
 @njit(cache=True, inline="always")
