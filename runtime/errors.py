@@ -15,7 +15,7 @@ from typing import Any
 from photon_fields.models_spec.json_keys import keys_problem, unknown_keys_problem
 from photon_fields.models_spec.npz_manifest import NpzError
 
-__all__ = ["InputError", "check_keys", "unknown_keys_problem", "npz_errors_as_input"]
+__all__ = ["InputError", "check_choice", "check_keys", "unknown_keys_problem", "npz_errors_as_input"]
 
 
 class InputError(ValueError):
@@ -25,6 +25,13 @@ class InputError(ValueError):
         self.what = str(what)
         self.problem = " ".join(str(problem).split())  # keep it on one line
         super().__init__(f"{self.what}: {self.problem}")
+
+
+def check_choice(what: str, value: Any, choices: tuple[str, ...]) -> str:
+    """``value`` if it is one of ``choices``, else one line naming ``what`` and the choices."""
+    if value not in choices:
+        raise InputError(what, f"must be one of {', '.join(choices)}, got {value!r}")
+    return value
 
 
 def check_keys(d: Mapping[str, Any], allowed: Iterable[str], what: str, required: Iterable[str] = ()) -> None:

@@ -50,7 +50,7 @@ import time
 import numpy as np
 from numba import njit, prange
 
-from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.errors import check_choice
 from photon_fields.runtime.scene.lights import DIRECTIONAL
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.cell_grid import Grid, stencil
@@ -237,9 +237,7 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
     """Single scattering by ray marching (module docstring for the parameters). Layers L, L_e and L_d (L_i stays
     zero). ``skip_empty``: camera and shadow rays look nothing up in empty macrocells (the same image, sooner;
     False: every sample looked up, the reference the tests and ``bench_ray_marcher.py`` compare with)."""
-    if shadows not in SHADOWS:
-        raise InputError("--shadows", f"must be one of {', '.join(SHADOWS)}, got {shadows!r}")
-    use_volume = shadows == "volume"
+    use_volume = check_choice("--shadows", shadows, SHADOWS) == "volume"
     if shadow_step is None:
         shadow_step = DEFAULT_SHADOW_STEP if use_volume else 1.0
     env = scene_environment(scene)

@@ -20,7 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.errors import InputError, check_choice
 
 #: What a renderer can ask the command line to load: the flag that names the file, and what it is.
 INPUTS = {"map": ("--map", "a photon map (pfn-train trace SCENE --out map.npz)"),
@@ -55,12 +55,7 @@ def float_in(lo: float, hi: float, unit: str, *, open_low: bool = False) -> Call
 def one_of(choices: tuple[str, ...]) -> Callable[[str, Any], str]:
     """A check for a string option that must be one of ``choices``."""
 
-    def check(flag: str, value: Any) -> str:
-        if value not in choices:
-            raise InputError(flag, f"must be one of {', '.join(choices)}, got {value!r}")
-        return value
-
-    return check
+    return lambda flag, value: check_choice(flag, value, choices)
 
 
 def optional(check: Callable[[str, Any], Any]) -> Callable[[str, Any], Any]:

@@ -58,7 +58,7 @@ from typing import Protocol
 import numpy as np
 from numba import njit, prange
 
-from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.errors import check_choice
 from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.direct_light import LIGHT_SAMPLINGS, direct_light_batch
@@ -209,21 +209,14 @@ def _pack(counts: np.ndarray, block: int, src_pixel: np.ndarray, src_x: np.ndarr
                 albedo[c, o] = src_albedo[c, i]
 
 
-def _choice(what: str, name: str, choices: tuple[str, ...]) -> str:
-    """``name`` if it is one of ``choices``, else one line naming ``what`` and the choices."""
-    if name not in choices:
-        raise InputError(what, f"must be one of {', '.join(choices)}, got {name!r}")
-    return name
-
-
 def check_light_sampling(name: str) -> bool:
     """Whether ``name`` samples one light per vertex; refuses names not in :data:`LIGHT_SAMPLINGS` in one line."""
-    return _choice("light sampling", name, LIGHT_SAMPLINGS) == "one"
+    return check_choice("light sampling", name, LIGHT_SAMPLINGS) == "one"
 
 
 def check_camera_estimator(name: str) -> bool:
     """Whether ``name`` is the forced estimator; refuses names not in :data:`CAMERA_ESTIMATORS` in one line."""
-    return _choice("camera estimator", name, CAMERA_ESTIMATORS) == "forced"
+    return check_choice("camera estimator", name, CAMERA_ESTIMATORS) == "forced"
 
 
 def sample_first_interactions(scene: Scene, m: Medium, start: int, count: int, seed: int,
