@@ -99,7 +99,8 @@ CONFIGS: dict[str, Config] = {
     "default": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", g_window=PHASE_WINDOW,
                       about="the product's defaults: 39 phase bins (any g of [-0.8, 0.8] from a kernel in g), K = 32, "
                             "spline features, the direction features times g (since 2026-11-27), anneal, three "
-                            "quarters of the samples where cameras see the medium (half before 2026-11-27)"),
+                            "quarters of the samples where cameras see the medium (half before 2026-11-27), "
+                            "records with a floor of 0.1 (since 2026-11-27; floor0.0 is the map before)"),
     **{f"floor{q}": Config(DEFAULT_PHOTONS, DEFAULT_MAP_PHASES, "cpu", g_window=PHASE_WINDOW, record_floor=q,
                            about=f"the default with photons also recorded at null collisions, record floor {q}")
        for q in (0.0, 0.03, 0.1, 0.3)},

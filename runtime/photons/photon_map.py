@@ -263,13 +263,19 @@ def _check_meta_values(meta: dict[str, Any], what: str) -> tuple[tuple[float, ..
         raise InputError(f"{what} metadata", f"'scene_fingerprint' must be a sha256 hex string, got {fp!r}")
     if "scene_parts" in meta:
         _check_parts(meta["scene_parts"], f"{what} metadata scene_parts")
-    floor = meta.get("record_floor", 0.0)
-    if isinstance(floor, bool) or not isinstance(floor, (int, float)) or not 0.0 <= floor < 1.0:
-        raise InputError(f"{what} metadata", f"'record_floor' must be a number in [0, 1), got {floor!r}")
+    check_record_floor(meta.get("record_floor", 0.0), f"{what} metadata 'record_floor'")
     emitted = meta["emitted"]
     if isinstance(emitted, bool) or not isinstance(emitted, int) or emitted <= 0:
         raise InputError(what, f"photon map metadata has no positive 'emitted' count (got {emitted!r})")
     return phases, fp, emitted
+
+
+def check_record_floor(q: Any, what: str = "record_floor") -> float:
+    """A record floor (:mod:`photon_fields.runtime.photons.photon_path`): a number in [0, 1), as a float; one line
+    naming ``what`` otherwise. The one check of a map's metadata and of tracing's argument."""
+    if isinstance(q, bool) or not isinstance(q, (int, float, np.floating)) or not 0.0 <= q < 1.0:
+        raise InputError(what, f"must be a number in [0, 1), got {q!r}")
+    return float(q)
 
 
 def _check_parts(parts: Any, what: str) -> None:

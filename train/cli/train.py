@@ -169,8 +169,9 @@ def _add_fit_options(f: argparse.ArgumentParser) -> None:
 
 
 def cmd_trace(args: argparse.Namespace) -> int:
+    from photon_fields.runtime.photons.photon_map import check_record_floor
     from photon_fields.runtime.scene.scene import load_scene
-    from photon_fields.train.photons.tracing import check_phases, check_record_floor, trace_photons
+    from photon_fields.train.photons.tracing import check_phases, trace_photons
 
     out = Path(args.out)
     photons = parse_count(args.photons)
@@ -281,8 +282,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 
 def cmd_all(args: argparse.Namespace) -> int:
+    from photon_fields.runtime.photons.photon_map import check_record_floor
     from photon_fields.runtime.scene.scene import load_scene
-    from photon_fields.train.photons.tracing import check_phases, check_record_floor, trace_photons
+    from photon_fields.train.photons.tracing import check_phases, trace_photons
 
     photons = parse_count(args.photons)
     phases = check_phases(args.phases if args.phases is not None else DEFAULT_MAP_PHASES, "--phases")

@@ -59,7 +59,7 @@ from numba import njit, prange
 from photon_fields.models_spec import DEFAULT_MAP_PHASES
 from photon_fields.models_spec.photon_map import MAX_LIGHTS, RECORD_FLOOR
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.photons.photon_map import PhotonMap
+from photon_fields.runtime.photons.photon_map import PhotonMap, check_record_floor
 from photon_fields.runtime.photons.photon_path import trace_path
 from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
@@ -172,13 +172,6 @@ def check_phases(phases: Sequence[float], what: str = "phases") -> tuple[float, 
     if len(set(gs)) != len(gs):
         raise InputError(what, f"phase values must be distinct, got {list(phases)}")
     return gs
-
-
-def check_record_floor(q: float, what: str = "record_floor") -> float:
-    """A record floor (:mod:`photon_fields.runtime.photons.photon_path`): a number in [0, 1)."""
-    if isinstance(q, bool) or not isinstance(q, (int, float, np.floating)) or not 0.0 <= q < 1.0:
-        raise InputError(what, f"must be a number in [0, 1), got {q!r}")
-    return float(q)
 
 
 def trace_photons(scene: Scene, photons: int, *, phases: Sequence[float] = DEFAULT_MAP_PHASES, max_bounces: int = 16,
