@@ -42,7 +42,7 @@ def time_per_batch(sampler: TargetSampler, per_set: int, repeats: int, radius: f
                    mode: str | None = None) -> float:
     """Seconds per BATCH samples when ``per_set`` targets per search structure are estimated at once (median of
     ``repeats`` pools), positions drawn by ``mode`` (default: the sampler's)."""
-    n = per_set * len(sampler.phases)
+    n = per_set * sampler.sets
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -93,10 +93,10 @@ def main(argv: list[str] | None = None) -> None:
                 rows = {p: time_per_batch(sampler, p, args.repeats, 0.05) for p in args.per_set}
             base = rows[args.per_set[0]]
             key = f"{name}/{g_sampling}"
-            results[key] = {"structures": len(sampler.phases), "k": preset.k, "index_build_s": sampler.build_seconds,
+            results[key] = {"structures": len(sampler.indices), "k": preset.k, "index_build_s": sampler.build_seconds,
                             "ms_per_batch": {str(p): 1e3 * t for p, t in rows.items()},
                             "speedup": {str(p): base / t for p, t in rows.items()}, "other_cores": busy.other_cores}
-            print(f"{key}: {len(sampler.phases)} search structures, K {preset.k}, built in "
+            print(f"{key}: {len(sampler.indices)} search structures, K {preset.k}, built in "
                   f"{sampler.build_seconds:.1f} s; ms per {BATCH} targets: "
                   + ", ".join(f"{p} at once {1e3 * t:.1f} (x{base / t:.2f})" for p, t in rows.items()), flush=True)
             if args.samplings:

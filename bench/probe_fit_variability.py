@@ -43,10 +43,11 @@ HERE = Path(__file__).resolve().parent
 
 def seen_ratio(model: torch.nn.Module, sampler: TargetSampler, x: np.ndarray, d: np.ndarray, g: float,
                radius: float, rng: np.random.Generator) -> float:
-    """sum of the field's L over sum of its targets at (x, d, g), the photons from the windows next to g chosen as
-    the fit chooses them (``TargetSampler.sources``)."""
+    """sum of the field's L over sum of its targets at (x, d, g), the photons chosen as the fit chooses them (g's
+    own kernel from the binned index, or with phases ``TargetSampler.sources``)."""
     gg = np.full(x.shape[0], g)
-    q, _ = sampler.estimate(x, d, gg, sampler.sources(rng, gg), radius)
+    ph = np.zeros(x.shape[0], dtype=np.int64) if sampler.g_sampling == "window" else sampler.sources(rng, gg)
+    q, _ = sampler.estimate(x, d, gg, ph, radius)
     m = sampler.medium
     with torch.no_grad():
         L = model.radiance(torch.from_numpy(normalize_position(x, m.bmin, m.bsize)),

@@ -49,6 +49,15 @@ cell_size : float or None
     Grid cell edge; ``None`` picks the default rule of :mod:`photon_fields.runtime.photons.photon_grid`.
     Results never depend on it (only speed).
 
+Binned index
+------------
+A :class:`photon_fields.runtime.photons.photon_grid.PhotonIndex` with ``bin``/``bin_g``/``half_width`` holds the
+photons of many narrow phase bins at once (sorted by cell, then bin). The estimate at g then searches only the bins
+whose triangular weight 1 - |g_b - g| / half_width exceeds 1e-9 (a contiguous run: the bins are ranked by g, so each
+cell's share is one span) and multiplies each photon's weight by its bin's weight over the sum of those weights:
+the estimate over the weighted union of the kernel's bins (:mod:`photon_fields.runtime.photons.phase_window`),
+with the kernel centred at each query's own g. With every bin in the kernel a row of cells is still one span.
+
 Search algorithm
 ----------------
 Per query, the cells overlapping the r_max ball (clamped to the grid) are visited ring by ring around
@@ -101,6 +110,7 @@ from photon_fields.runtime.transport.phase import check_g, hg_eval
 _BLOCK = 64  # queries per work block
 _SLACK = 1e-9  # relative (to the cell size) safety margin at cell faces
 _FOUR_THIRDS_PI = 4.0 / 3.0 * math.pi
+_KERNEL_EPS = 1e-9  # a bin's kernel weight must exceed this to count (phase_window's _EPS)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -138,10 +148,11 @@ def _scan_chunk(pos: np.ndarray, j: int, n: int, x: float, y: float, z: float, d
 
 
 @njit(cache=True)
-def _search(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: float, dims: np.ndarray,
-            x: float, y: float, z: float, k: int, r_max: float, d2: np.ndarray, idx: np.ndarray,
-            tmp: np.ndarray) -> tuple[int, float]:
-    """K nearest photons of (x, y, z) within r_max into d2/idx (sorted-photon indices).
+def _search(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: float, dims: np.ndarray, nb: int,
+            bin_lo: int, bin_hi: int, x: float, y: float, z: float, k: int, r_max: float, d2: np.ndarray,
+            idx: np.ndarray, tmp: np.ndarray) -> tuple[int, float]:
+    """K nearest photons of (x, y, z) within r_max into d2/idx (sorted-photon indices), among the photons of bins
+    bin_lo..bin_hi of a grid of nb bins per cell (a plain grid: nb = 1, bin_lo = bin_hi = 0).
 
     Returns (m, kth): m = min(k, count within r_max) entries in d2/idx[:m], unordered; kth = the K-th
     distance^2 if m == k, else inf."""
@@ -170,6 +181,7 @@ def _search(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: floa
         return 0, math.inf  # the ball misses the grid box
     s_start = max(max(lx - cx, cx - hx, 0), max(ly - cy, cy - hy, 0), max(lz - cz, cz - hz, 0))
     s_end = max(max(cx - lx, hx - cx), max(cy - ly, hy - cy), max(cz - lz, hz - cz))
+    all_bins = bin_lo == 0 and bin_hi == nb - 1
     count = 0
     bound = r2max
     # After the loop, if finite: the K-th distance^2 lies in (lower, limit], n_lower candidates <= lower.
@@ -198,19 +210,27 @@ def _search(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: floa
                 # A shell row of ring s is one contiguous span of photons (cells z0..z1); an interior row
                 # contributes only its two end cells. One scanning site for both on purpose: each site of
                 # a call taking arrays costs numba reference-count traffic (~8 atomics) per span.
+                # With every bin of a cell wanted, cells za..zb are one span; otherwise one span per cell.
                 for part in range(1 if shell else 2):
                     za = z0 if shell else (cz - s if part == 0 else cz + s)
                     zb = z1 if shell else za
                     if za < z0 or zb > z1 or za > zb:
                         continue
-                    j = np.int64(cell_start[base + za])
-                    b = np.int64(cell_start[base + zb + 1])
-                    while j < b:
-                        if count == cap:
-                            count, bound = compact_to_k(d2, idx, count, k, tmp, bound)
-                        n = min(b - j, cap - count)  # cannot overflow the buffer
-                        count = _scan_chunk(pos, j, n, x, y, z, d2, idx, count, bound)
-                        j += n
+                    spans = 1 if all_bins else zb - za + 1
+                    for sp in range(spans):
+                        if all_bins:
+                            j = np.int64(cell_start[(base + za) * nb])
+                            b = np.int64(cell_start[(base + zb + 1) * nb])
+                        else:
+                            key = (base + za + sp) * nb
+                            j = np.int64(cell_start[key + bin_lo])
+                            b = np.int64(cell_start[key + bin_hi + 1])
+                        while j < b:
+                            if count == cap:
+                                count, bound = compact_to_k(d2, idx, count, k, tmp, bound)
+                            n = min(b - j, cap - count)  # cannot overflow the buffer
+                            count = _scan_chunk(pos, j, n, x, y, z, d2, idx, count, bound)
+                            j += n
         # Radius certainly covered by the cells searched so far (faces at the grid's edge: infinite).
         safe = math.inf
         if cx - s > 0:
@@ -311,7 +331,7 @@ def _worker_slots(w: int, nw: int, q: int) -> np.ndarray:
 
 @njit(cache=True, parallel=True)
 def _knn_query_kernel(pos: np.ndarray, order: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: float,
-                      dims: np.ndarray, queries: np.ndarray, qorder: np.ndarray, k: int,
+                      dims: np.ndarray, nb: int, queries: np.ndarray, qorder: np.ndarray, k: int,
                       r_max: float, nw: int, cap: int) -> tuple[np.ndarray, np.ndarray]:
     q = queries.shape[0]
     out_i = np.full((q, k), -1, dtype=np.int64)
@@ -320,8 +340,8 @@ def _knn_query_kernel(pos: np.ndarray, order: np.ndarray, cell_start: np.ndarray
     for w in prange(nw):
         for t in _worker_slots(w, nw, q):
             i = qorder[t]
-            m, _ = _search(pos, cell_start, origin, h, dims, queries[i, 0], queries[i, 1], queries[i, 2], k,
-                           r_max, d2[w], idx[w], tmp[w])
+            m, _ = _search(pos, cell_start, origin, h, dims, nb, 0, nb - 1, queries[i, 0], queries[i, 1],
+                           queries[i, 2], k, r_max, d2[w], idx[w], tmp[w])
             heapsort(d2[w], idx[w], m)
             for j in range(m):
                 out_d[i, j] = d2[w, j]
@@ -329,23 +349,58 @@ def _knn_query_kernel(pos: np.ndarray, order: np.ndarray, cell_start: np.ndarray
     return out_i, out_d
 
 
+@njit(cache=True)
+def _kernel_bins(bin_g: np.ndarray, half_width: float, g: float) -> tuple[int, int, float]:
+    """The bins b0..b1 of g's triangular kernel (weight 1 - |g_b - g| / h above 1e-9, as
+    :func:`photon_fields.runtime.photons.phase_window.window_weights`) and 1 / their weights' sum; (0, -1, 0)
+    when no bin lies inside the kernel. ``bin_g`` ascending."""
+    b0 = -1
+    b1 = -1
+    total = 0.0
+    for b in range(bin_g.shape[0]):
+        w = 1.0 - abs(bin_g[b] - g) / half_width
+        if w > _KERNEL_EPS:
+            if b0 < 0:
+                b0 = b
+            b1 = b
+            total += w
+    if b0 < 0:
+        return np.int64(0), np.int64(-1), 0.0
+    return np.int64(b0), np.int64(b1), 1.0 / total
+
+
 @njit(cache=True, parallel=True)
 def _radiance_kernel(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: float, dims: np.ndarray,
-                     dirs: np.ndarray, wts: np.ndarray, light: np.ndarray, lights: int, queries: np.ndarray,
-                     view: np.ndarray, qorder: np.ndarray, g: np.ndarray, k: int, r_max: float, nw: int,
+                     nb: int, dirs: np.ndarray, wts: np.ndarray, light: np.ndarray, lights: int, rank: np.ndarray,
+                     bin_g: np.ndarray, half_width: float, queries: np.ndarray, view: np.ndarray, qorder: np.ndarray,
+                     g: np.ndarray, k: int, r_max: float, nw: int,
                      cap: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     # lights > 1: photon j's weights go to the RGB columns 3 light[j] .. 3 light[j] + 2 of the estimate.
+    # half_width > 0 (a binned grid): the search reads the bins of the query's kernel in g, photon j's weights
+    # times its bin's kernel weight (rank[j]: the bin; bin_g: the bins' g).
     q = queries.shape[0]
     est = np.zeros((q, 3 * lights))
     radius = np.full(q, r_max)
     found = np.zeros(q, dtype=np.int64)
     d2, idx, tmp = _worker_scratch(nw, cap)
     acc = np.empty((nw, 3 * lights))
+    binned = half_width > 0.0
     for w in prange(nw):
         for t in _worker_slots(w, nw, q):
             i = qorder[t]
-            m, kth = _search(pos, cell_start, origin, h, dims, queries[i, 0], queries[i, 1], queries[i, 2], k,
-                             r_max, d2[w], idx[w], tmp[w])
+            gi = g[i]
+            b0 = 0
+            b1 = nb - 1
+            inv_total = 1.0
+            if binned:
+                kernel = _kernel_bins(bin_g, half_width, gi)
+                b0 = kernel[0]
+                b1 = kernel[1]
+                inv_total = kernel[2]
+                if b1 < b0:
+                    continue  # no bin within the kernel: no photon
+            m, kth = _search(pos, cell_start, origin, h, dims, nb, b0, b1, queries[i, 0], queries[i, 1],
+                             queries[i, 2], k, r_max, d2[w], idx[w], tmp[w])
             found[i] = m
             if m == 0:
                 continue
@@ -361,7 +416,9 @@ def _radiance_kernel(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray
                     skip = -1.0  # only one photon, even when several tie at the K-th distance
                     continue
                 j = np.uint64(idx[w, jj])
-                p = hg_eval(g[i], -(dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz))
+                p = hg_eval(gi, -(dirs[j, 0] * vx + dirs[j, 1] * vy + dirs[j, 2] * vz))
+                if binned:
+                    p *= (1.0 - abs(bin_g[rank[j]] - gi) / half_width) * inv_total
                 col = 3 * np.int64(light[j]) if lights > 1 else 0
                 acc[w, col] += p * wts[j, 0]
                 acc[w, col + 1] += p * wts[j, 1]
@@ -423,7 +480,7 @@ def knn_query(grid: PhotonGrid, queries: np.ndarray, k: int, r_max: float = math
     estimate over many queries."""
     qs, k, r = _check_query_args(queries, k, r_max)
     return _knn_query_kernel(grid.positions, grid.order, grid.cell_start, grid.origin, float(grid.cell_size),
-                             grid.dims, qs, _morton_order(grid, qs), k, r, _n_workers(qs.shape[0]),
+                             grid.dims, int(grid.bins), qs, _morton_order(grid, qs), k, r, _n_workers(qs.shape[0]),
                              _capacity(k, grid.order.shape[0]))
 
 
@@ -457,9 +514,12 @@ def indexed_radiance(index: PhotonIndex, queries: np.ndarray, view_dirs: np.ndar
         raise ValueError(f"view_dirs must have shape {qs.shape} like queries, got {vd.shape}")
     grid = index.grid
     light = np.zeros(0, np.uint8) if index.light is None else index.light
+    rank = np.zeros(0, np.uint8) if index.bin is None else index.bin
+    bin_g = np.zeros(0) if index.bin_g is None else index.bin_g
     return _radiance_kernel(grid.positions, grid.cell_start, grid.origin, float(grid.cell_size), grid.dims,
-                            index.directions, index.weights, light, index.lights, qs, vd, _morton_order(grid, qs),
-                            _per_query_g(g, qs), k, r, _n_workers(qs.shape[0]), _capacity(k, grid.order.shape[0]))
+                            int(grid.bins), index.directions, index.weights, light, index.lights, rank, bin_g,
+                            float(index.half_width), qs, vd, _morton_order(grid, qs), _per_query_g(g, qs), k, r,
+                            _n_workers(qs.shape[0]), _capacity(k, grid.order.shape[0]))
 
 
 def knn_radiance(grid: PhotonGrid, directions: np.ndarray, weights: np.ndarray, queries: np.ndarray,

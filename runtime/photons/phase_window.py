@@ -13,6 +13,12 @@ of a medium whose earlier scatterings used a g drawn from the kernel around g. T
 sharpest dependence on g (L_i is strongly convex in g near |g| = 0.75), is exact: the estimate evaluates the
 phase function at the query's own g for every photon. Only the earlier bounces are averaged over the kernel.
 
+The estimate reads one search structure for every g (:meth:`photon_fields.runtime.photons.estimate.
+PhotonMapEstimator.binned_index`): the map's photons sorted by grid cell and, inside a cell, by bin, so the search
+at g scans, in each cell, the run of g's kernel bins, and weighs each photon by its bin's kernel weight. That is
+the estimate over the weighted union of the bins above with the kernel centred at g itself, and it holds each
+photon once.
+
 Why a window and not one narrow bin: the estimate's bias at dense surfaces grows with the KNN ball, and the
 ball grows as photons per map shrink; a window of ~7 bins holds about as many photons as one phase of today's
 five-phase map, so the ball stays as small. Why triangular: for a window inside the bins' range the kernel is

@@ -20,7 +20,12 @@ clustered photons (bench/bench_knn.py data, K = 1024, r_max 0.01 to 0.1) the sea
 within the measurement noise (~15 %) for occupancies between ~15 and ~100, and 30-50 % higher at 5 or
 240 for the saturated radii; 32 sits in the middle of the flat range on a log scale.
 
-The number of cells is capped at ``max(4096, 4 n)`` (cell_start, int32 below 2^31 photons, then costs at most
+Binned grids: with a bin per photon (its phase bin, ranked by g), photons are sorted by ``cell * bins + bin`` and
+``cell_start`` has an entry per (cell, bin), so the photons of a run of bins in one cell are one span; the cell size
+then targets an occupancy counted over every bin (the caller's ``occupancy``: several times TARGET_OCCUPANCY, since
+a search reads only a kernel's share of each cell).
+
+The number of cells is capped at ``max(4096, 4 n) / bins`` (cell_start, int32 below 2^31 photons, then costs at most
 16 bytes per photon), which enlarges h when needed, a requested one included: strongly clustered maps with far
 outliers reach the cap before the target occupancy and pay in scanning, not in correctness. n = 0 or
 a zero-size bounding box gives a single cell (edge 1 unless requested).
@@ -62,6 +67,9 @@ class PhotonGrid(NamedTuple):
     origin: np.ndarray  # (3,) float64
     cell_size: float
     dims: np.ndarray  # (3,) int64
+    #: Bins per cell: photons are sorted by (cell, bin) and ``cell_start[c * bins + b]`` starts bin b of cell c, so
+    #: a search can read any contiguous run of bins of a cell as one span (1: one run per cell, a plain grid).
+    bins: int = 1
 
 
 class PhotonIndex(NamedTuple):
@@ -74,6 +82,14 @@ class PhotonIndex(NamedTuple):
     light: np.ndarray | None = None
     #: The estimates' lights: 1, or with ``light`` the number of lights they keep apart (3 columns each).
     lights: int = 1
+    #: (n,) uint8, grid order: each photon's phase bin, ranked by the bins' g (a binned grid, ``grid.bins`` > 1), or
+    #: None. With ``bin_g`` and ``half_width`` the estimate at g reads only the bins within half_width of g, each
+    #: weighted by the triangular kernel (:mod:`photon_fields.runtime.photons.phase_window`).
+    bin: np.ndarray | None = None
+    #: (bins,) float64, ascending: the g of each bin rank.
+    bin_g: np.ndarray | None = None
+    #: The kernel's half-width in g (> 0 with ``bin``).
+    half_width: float = 0.0
 
 
 @njit(cache=True)
@@ -124,10 +140,11 @@ def _cap_cell_size(extent: np.ndarray, h: float, max_cells: int) -> float:
     return hi
 
 
-def _default_cell_size(pos: np.ndarray, origin: np.ndarray, extent: np.ndarray, max_cells: int) -> float:
-    """The default rule of the module docstring: photon-weighted occupancy ~ TARGET_OCCUPANCY."""
+def _default_cell_size(pos: np.ndarray, origin: np.ndarray, extent: np.ndarray, max_cells: int,
+                       target: float = TARGET_OCCUPANCY) -> float:
+    """The default rule of the module docstring: photon-weighted occupancy ~ ``target`` (TARGET_OCCUPANCY)."""
     n = pos.shape[0]
-    target_cells = max(1, int(n / TARGET_OCCUPANCY))
+    target_cells = max(1, int(n / target))
     # Bounding-box average first: the smallest h with at most n / m cells (bisection from far below it;
     # degenerate axes count one cell, so flat or linear maps get a sensible h too).
     h = _cap_cell_size(extent, float(extent.max()) * 1e-6, target_cells)
@@ -135,15 +152,18 @@ def _default_cell_size(pos: np.ndarray, origin: np.ndarray, extent: np.ndarray, 
         dims = _dims_for(extent, h)
         counts = np.bincount(_cell_ids(pos, origin, 1.0 / h, dims)).astype(np.float64)
         occupancy = float(counts @ counts) / n
-        h_new = _cap_cell_size(extent, h * (TARGET_OCCUPANCY / occupancy) ** (1.0 / 3.0), max_cells)
+        h_new = _cap_cell_size(extent, h * (target / occupancy) ** (1.0 / 3.0), max_cells)
         if abs(h_new / h - 1.0) < 0.05:
             break
         h = h_new
     return h
 
 
-def build_photon_grid(positions: np.ndarray, cell_size: float | None = None) -> PhotonGrid:
-    """Counting-sort photons into a uniform grid over their bounding box (see the module docstring)."""
+def build_photon_grid(positions: np.ndarray, cell_size: float | None = None, bin_rank: np.ndarray | None = None,
+                      bins: int = 1, occupancy: float = TARGET_OCCUPANCY) -> PhotonGrid:
+    """Counting-sort photons into a uniform grid over their bounding box (see the module docstring); with
+    ``bin_rank`` (n,) ints below ``bins``, by (cell, bin): a binned grid (:attr:`PhotonGrid.bins`). ``occupancy``:
+    the default cell size's target photons per cell (counting every bin)."""
     pos = np.asarray(positions)
     if pos.ndim != 2 or pos.shape[1] != 3:
         raise ValueError(f"positions must have shape (n, 3), got {pos.shape}")
@@ -153,38 +173,55 @@ def build_photon_grid(positions: np.ndarray, cell_size: float | None = None) -> 
         raise ValueError("positions must be finite")
     if cell_size is not None and not (math.isfinite(cell_size) and cell_size > 0.0):
         raise ValueError(f"cell_size must be a positive finite number, got {cell_size!r}")
+    bins = int(bins)
+    if bin_rank is not None and (bin_rank.shape != (n,) or (n and (int(bin_rank.min()) < 0
+                                                                  or int(bin_rank.max()) >= bins))):
+        raise ValueError(f"bin_rank must be (n,) ints in [0, {bins})")
     if n == 0:
-        return PhotonGrid(pos, np.zeros(0, dtype=np.int64), np.zeros(2, dtype=np.int64), np.zeros(3), 1.0,
-                          np.ones(3, dtype=np.int64))
+        return PhotonGrid(pos, np.zeros(0, dtype=np.int64), np.zeros(bins + 1, dtype=np.int64), np.zeros(3), 1.0,
+                          np.ones(3, dtype=np.int64), bins)
     origin = pos.min(axis=0).astype(np.float64)
     extent = pos.max(axis=0).astype(np.float64) - origin
-    max_cells = max(_MIN_CELL_CAP, _CELLS_PER_PHOTON_CAP * n)
+    max_cells = max(_MIN_CELL_CAP, _CELLS_PER_PHOTON_CAP * n) // bins  # cell_start holds cells x bins entries
     if extent.max() <= 0.0:
         h = float(cell_size) if cell_size is not None else 1.0  # all photons in one spot: one cell
     elif cell_size is None:
-        h = _default_cell_size(pos, origin, extent, max_cells)
+        h = _default_cell_size(pos, origin, extent, max(1, max_cells), float(occupancy))
     else:
-        h = _cap_cell_size(extent, float(cell_size), max_cells)
+        h = _cap_cell_size(extent, float(cell_size), max(1, max_cells))
     dims = _dims_for(extent, h)
-    order, start = _counting_sort(_cell_ids(pos, origin, 1.0 / h, dims), int(np.prod(dims)))
+    key = _cell_ids(pos, origin, 1.0 / h, dims)
+    if bin_rank is not None:
+        key = key * bins + np.asarray(bin_rank, np.int64)
+    order, start = _counting_sort(key, int(np.prod(dims)) * bins)
     if n < np.iinfo(np.int32).max:
         start = start.astype(np.int32)  # up to 4 cells per photon: half the memory of int64
-    return PhotonGrid(np.ascontiguousarray(pos[order]), order, start, origin, float(h), dims)
+    return PhotonGrid(np.take(pos, order, axis=0), order, start, origin, float(h), dims, bins)
 
 
 def build_photon_index(positions: np.ndarray, directions: np.ndarray, weights: np.ndarray,
                        cell_size: float | None = None, light: np.ndarray | None = None,
-                       lights: int = 1) -> PhotonIndex:
+                       lights: int = 1, bin_rank: np.ndarray | None = None, bin_g: np.ndarray | None = None,
+                       half_width: float = 0.0, occupancy: float = TARGET_OCCUPANCY) -> PhotonIndex:
     """Grid + attributes gathered once into grid order (all inputs in the same, original order). ``light`` (n,)
     with ``lights`` > 1: the estimates keep the lights' parts apart (:func:`photon_fields.runtime.photons.knn.
-    indexed_radiance`)."""
-    grid = build_photon_grid(positions, cell_size)
-    if lights == 1:
-        return PhotonIndex(grid, *gather_attributes(grid, directions, weights))
-    if light is None or light.shape != (grid.order.shape[0],) or (light.size and int(light.max()) >= lights):
+    indexed_radiance`). ``bin_rank`` (n,) with ``bin_g`` (the bins' g, ascending) and ``half_width`` > 0: a binned
+    index, whose estimate at g reads the bins of g's kernel (:class:`PhotonIndex`); ``occupancy`` then names the
+    photons per cell of all bins together."""
+    binned = bin_rank is not None
+    if binned:
+        bin_g = np.ascontiguousarray(bin_g, dtype=np.float64)
+        if (bin_g.ndim != 1 or not 1 <= bin_g.size <= 256 or np.any(np.diff(bin_g) <= 0.0)
+                or not half_width > 0.0):
+            raise ValueError("a binned index needs 1-256 ascending bin_g and half_width > 0")
+    grid = build_photon_grid(positions, cell_size, bin_rank, len(bin_g) if binned else 1, occupancy)
+    n = grid.order.shape[0]
+    if lights != 1 and (light is None or light.shape != (n,) or (light.size and int(light.max()) >= lights)):
         raise ValueError(f"light must be (n,) indices below lights = {lights}")
     return PhotonIndex(grid, *gather_attributes(grid, directions, weights),
-                       np.take(np.asarray(light, np.uint8), grid.order), int(lights))
+                       np.take(np.asarray(light, np.uint8), grid.order) if lights != 1 else None, int(lights),
+                       np.take(np.asarray(bin_rank, np.uint8), grid.order) if binned else None,
+                       bin_g if binned else None, float(half_width) if binned else 0.0)
 
 
 def gather_attributes(grid: PhotonGrid, directions: np.ndarray,
@@ -196,5 +233,5 @@ def gather_attributes(grid: PhotonGrid, directions: np.ndarray,
         a = np.asarray(a)
         if a.shape != (n, 3):
             raise ValueError(f"{name} must have shape ({n}, 3) like the grid's positions, got {a.shape}")
-        out.append(np.take(a, grid.order, axis=0).astype(np.float32))  # np.take: ~3x faster than a[order] here
+        out.append(np.take(a, grid.order, axis=0).astype(np.float32, copy=False))  # np.take: ~3x faster than a[order]
     return out[0], out[1]

@@ -24,10 +24,13 @@ Every training step draws a fresh batch (Sec. 3.3: "regenerate a new batch ... f
   PHASE_BINS) with the arcsine density 1 / (pi sqrt((g - lo)(hi - g))) (Chebyshev's, g = lo + (hi - lo)
   (1 - cos(pi u)) / 2: the ends, where L_i changes fastest with g and a fit is held from one side only, get
   more samples; uniform g left the field 11-15 % off at g = -0.75 on blobs, docs/training.md), the photons
-  from the triangular kernel of half-width PHASE_WINDOW around one of the two window centres next to g
-  (centres at most :data:`WINDOW_STRIDE` apart, chosen with the tent weights, so the kernel's mean is g), the
-  phase function at g itself. Nothing is interpolated between distant phases: the earlier bounces are averaged
-  over a window of +-0.15 (+ the centre spacing), the last bounce is exact;
+  from the triangular kernel of half-width PHASE_WINDOW centred at g itself (one search structure answers every
+  g: :meth:`photon_fields.runtime.photons.estimate.PhotonMapEstimator.binned_index`), the phase function at g
+  itself. Nothing is interpolated between distant phases: the earlier bounces are averaged over +-0.15 of g,
+  the last bounce is exact. (Until 2026-11-27 the kernel sat on one of the two prebuilt window centres 0.1 apart
+  next to g, chosen with tent weights: its mean was g, but the mixture is a wider kernel, whose average of the
+  light's earlier bounces was ~0.8 % bright where L_i is convex in g, at the ends of the range; and the 17
+  windows held each photon ~2.2 times.)
 
 and the target is Q(x, d, g) of :class:`photon_fields.runtime.photons.estimate.PhotonMapEstimator` (Eq. 5 with 1/sigma_t
 photon weights and the support-fraction boundary correction) with K photons and the schedule's current
@@ -58,10 +61,11 @@ lights : int (default 1)
     each light's part apart (n, 3 lights), from the same search (:class:`PhotonMapEstimator`'s ``lights``).
 
 Targets ahead. The estimates are computed for several steps' batches at once (:data:`TARGETS_PER_SET` per
-phase or window, :meth:`TargetSampler.sample` then hands them out a batch at a time): every sample is still
-drawn fresh and used once, but a search structure answers ~4000 queries per call instead of a batch's share
-(256 of 4096 with 16 windows), and the Morton-ordered queries then find their photons in cache. The pool
-is dropped when the schedule's radius changes. Measured in bench/README.md ("Targets ahead").
+phase, or :data:`BINNED_POOL_SETS` times that from the binned index; :meth:`TargetSampler.sample` then hands them
+out a batch at a time): every sample is still drawn fresh and used once, but a search structure answers many
+queries per call instead of a batch's share (256 of 4096 with 16 phases), and the Morton-ordered queries then
+find their photons in cache (the binned index took 1.6x as long per query in calls of 4096 as in one call of
+65536). The pool is dropped when the schedule's radius changes. Measured in bench/README.md ("Targets ahead").
 
 Timing: every :meth:`TargetSampler.sample` adds its wall time to ``seconds`` (the time of the estimates it
 computed, in the step that needed them) and its batch size to ``queries``; ``estimated`` counts the targets
@@ -94,13 +98,15 @@ SAMPLING_MODES = ("box", "support", "visible")
 #: quarters of the samples where cameras look").
 VISIBLE_SHARE = 0.75
 #: ``sampling="visible"``: samples per traced collision. Each copy of a point gets its own g, hence its target
-#: from the photons of another phase window: nearly independent targets for a quarter of the rays (on a sparse
+#: from the photons of another kernel in g: nearly independent targets for a quarter of the rays (on a sparse
 #: medium most rays leave without a collision, and tracing them costs more than the targets).
 VISIBLE_REUSE = 4
 G_SAMPLING_MODES = ("discrete", "continuous", "mixed", "window")
-#: Largest spacing of the window centres of ``g_sampling="window"`` (the targets' kernels in g).
-WINDOW_STRIDE = 0.1
-#: Targets computed at once per phase (or window) of the map: the pool :meth:`TargetSampler.sample` serves from.
+#: ``g_sampling="window"``: the pool of the binned index (one structure for every g) holds this many sets of
+#: :data:`TARGETS_PER_SET` targets.
+BINNED_POOL_SETS = 16
+#: Targets computed at once per phase of the map (per set of the binned index's pool): the pool
+#: :meth:`TargetSampler.sample` serves from.
 TARGETS_PER_SET = 4096
 _MAX_REJECTION_DRAWS = 1 << 26  # candidates before giving up on an (almost) empty support
 
@@ -163,13 +169,12 @@ class TargetSampler:
         t0 = time.perf_counter()
         self.pmap, self.medium, self.k, self.psi, self.sampling = pmap, medium, int(k), float(psi), sampling
         self.lights = int(lights)
-        # The estimator owns the search structures (weights Phi / sigma_t): build every phase's (or every
-        # window's) once, now.
+        # The estimator owns the search structures (weights Phi / sigma_t): build every phase's (or the binned
+        # index of every g) once, now.
         if g_sampling == "window":
-            lo, hi = window_range(pmap.phases, PHASE_WINDOW)
             self.estimator = PhotonMapEstimator(pmap, medium, k=k, g_window=PHASE_WINDOW, lights=lights)
-            self.phases = np.linspace(lo, hi, max(2, int(np.ceil((hi - lo) / WINDOW_STRIDE - 1e-9)) + 1))
-            self.indices = [self.estimator.window_index(c) for c in self.phases]
+            self.phases = np.array(window_range(pmap.phases, PHASE_WINDOW))  # the g range: its ends
+            self.indices = [self.estimator.binned_index()]
         else:
             self.estimator = PhotonMapEstimator(pmap, medium, k=k, lights=lights)
             self.phases = np.asarray(pmap.phases, dtype=np.float64)
@@ -185,6 +190,8 @@ class TargetSampler:
         self.queries = 0
         self.estimated = 0
         self.per_set = max(1, int(per_set))
+        #: Sets of ``per_set`` targets per pool: one per search structure, or BINNED_POOL_SETS of the binned index.
+        self.sets = BINNED_POOL_SETS if g_sampling == "window" else len(self.indices)
         self._pool: tuple[np.ndarray, ...] = ()
         self._pool_radius = -1.0
         self._pool_next = 0
@@ -227,8 +234,8 @@ class TargetSampler:
 
     def draw(self, rng: np.random.Generator, n: int,
              mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """World positions (n, 3), unit travel directions (n, 3), g (n,) and the indices (n,) of the phases (or
-        windows) whose photons estimate each target."""
+        """World positions (n, 3), unit travel directions (n, 3), g (n,) and the indices (n,) of the search
+        structures (phases, or the one binned index) whose photons estimate each target."""
         if mode == "visible":
             seen = int(round(VISIBLE_SHARE * n))
             xv, dv = visible_points(self.medium, rng, -(-seen // VISIBLE_REUSE))
@@ -245,6 +252,7 @@ class TargetSampler:
         u = rng.random(n)
         if self.g_sampling == "window":  # arcsine density: more samples towards the ends of the range
             u = 0.5 * (1.0 - np.cos(np.pi * u))
+            return x, d, lo + u * (hi - lo), np.zeros(n, dtype=np.int64)  # one structure: g's own kernel
         g = lo + u * (hi - lo)
         if self.g_sampling == "mixed":  # half of the samples exactly at a phase
             at_phase = rng.random(n) < 0.5
@@ -252,9 +260,9 @@ class TargetSampler:
         return x, d, g, self.sources(rng, g)
 
     def sources(self, rng: np.random.Generator, g: np.ndarray) -> np.ndarray:
-        """The indices (n,) of the phases (or windows) whose photons estimate the targets at g (n,) in the
-        continuous modes: one of the two next to g, chosen with the tent weights (so the targets' mean is their
-        interpolation, or with windows a kernel whose mean is g)."""
+        """The indices (n,) of the phases whose photons estimate the targets at g (n,) in the continuous and
+        mixed modes: one of the two next to g, chosen with the tent weights (so the targets' mean is their
+        interpolation)."""
         order = np.argsort(self.phases, kind="stable")
         sg = self.phases[order]
         i = np.clip(np.searchsorted(sg, g, side="right") - 1, 0, len(sg) - 2)
@@ -266,12 +274,12 @@ class TargetSampler:
     def estimate(self, x: np.ndarray, d: np.ndarray, g: np.ndarray, ph: np.ndarray,
                  radius: float) -> tuple[np.ndarray, np.ndarray]:
         """Q (n, 3 lights) float64 (each light's part apart with ``lights`` > 1) and photons used (n,) at world points
-        x (n, 3), directions d (n, 3), phase function coefficients g (n,), from the photons of phases (or windows)
-        ph (n,)."""
+        x (n, 3), directions d (n, 3), phase function coefficients g (n,), from the search structures ph (n,)
+        (:meth:`draw`)."""
         n = x.shape[0]
         q = np.zeros((n, 3 * self.lights))
         found = np.zeros(n, dtype=np.int64)
-        for p in range(len(self.phases)):
+        for p in range(len(self.indices)):
             sel = np.flatnonzero(ph == p)
             if sel.size == 0:
                 continue
@@ -298,7 +306,7 @@ class TargetSampler:
     def _refill(self, n: int, radius: float) -> None:
         """Draw and estimate the next pool: a whole number of batches of n, about ``per_set`` per search
         structure."""
-        size = n * max(1, round(self.per_set * len(self.phases) / n))
+        size = n * max(1, round(self.per_set * self.sets / n))
         x, d, g, ph = self.draw(self.rng, size, self.sampling)
         q, found = self.estimate(x, d, g, ph, radius)
         self._pool, self._pool_radius, self._pool_next = (x, d, g, q, found), radius, 0

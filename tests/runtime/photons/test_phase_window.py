@@ -4,6 +4,7 @@ weighted sum of the bins' estimates, and its convergence to the path tracer at a
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.estimate import PhotonMapEstimator
 from photon_fields.runtime.photons.knn import indexed_radiance
 from photon_fields.runtime.photons.phase_window import check_window, map_window, window_range, window_weights
+from photon_fields.runtime.photons.photon_grid import build_photon_index
 from photon_fields.runtime.renderers.path_tracer import render_path_traced
 from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 from photon_fields.runtime.scene.lights import DirectionalLight
@@ -78,13 +80,53 @@ def test_window_estimate_is_the_weighted_sum_of_the_bins_estimates(thin_scene: S
     d = rng.normal(size=(200, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     g = 0.62
-    window, _, _ = indexed_radiance(est.window_index(g), x, d, g, 1 << 16, 0.08)
+    window, _, _ = indexed_radiance(est.binned_index(), x, d, g, 1 << 16, 0.08)
     idx, w = window_weights(BINS, g, PHASE_WINDOW)
     mixed = sum(wb * indexed_radiance(est.index(int(b)), x, d, g, 1 << 16, 0.08)[0] for b, wb in zip(idx, w,
                                                                                                    strict=True))
     assert window.mean() > 0
     # rtol 1e-6: the two sides round their (differently scaled) photon weights to float32 (photon_grid.PhotonIndex).
     np.testing.assert_allclose(window, mixed, rtol=1e-6, atol=1e-12 * window.max())
+
+
+@pytest.mark.parametrize("lights", [1, 2])
+def test_binned_index_is_the_union_of_the_kernels_bins(thin_scene: Scene, lights: int) -> None:
+    """With an adaptive radius (K = 24, far below the photons in r_max), the binned index's estimate at g is the
+    estimate over a plain index of the kernel's bins, each photon weighted by its bin's normalized kernel weight:
+    the same K nearest photons, the same radius, the same sum. At g in the middle of the bins, between two bins,
+    at a traced bin (where the kernel's end bins weigh 0) and where the window is cut by the bins' range; one g per
+    query equals the scalar calls; and each photon is held once."""
+    scene = replace(thin_scene, lights=(*thin_scene.lights, DirectionalLight([0.3, -1.0, 0.5], [1, 0.5, 0.2], 2.0)),
+                    _cache={})
+    pmap = trace_photons(scene, 30_000, phases=BINS, seed=6, progress=False)
+    m = scene.medium()
+    est = PhotonMapEstimator(pmap, m, k=24, radius=0.2, g_window=PHASE_WINDOW, lights=lights)
+    binned = est.binned_index()
+    assert len(binned.grid.order) == len(pmap) and binned.grid.bins == len(BINS)
+    rng = np.random.default_rng(2)
+    x = m.bmin + (0.1 + 0.8 * rng.random((300, 3))) * m.bsize
+    d = rng.normal(size=(300, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    sigma = est._photon_sigma()
+    for g in (0.62, 0.625, 0.6, 0.45, 0.84):
+        idx, w = window_weights(BINS, g, PHASE_WINDOW)
+        scale = np.zeros(len(BINS))
+        scale[idx] = w
+        keep = scale[pmap.phase] > 0
+        union = build_photon_index(pmap.position[keep], pmap.direction[keep],
+                                   pmap.power[keep] * scale[pmap.phase[keep], None] / sigma[keep, None],
+                                   light=pmap.light[keep], lights=lights)
+        want, r_want, f_want = indexed_radiance(union, x, d, g, 24, 0.2)
+        got, r_got, f_got = indexed_radiance(binned, x, d, g, 24, 0.2)
+        assert (f_got == 24).mean() > 0.9 and want.mean() > 0
+        np.testing.assert_array_equal(f_got, f_want)
+        np.testing.assert_array_equal(r_got, r_want)
+        np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-12 * want.max())  # float32 weights on both sides
+    gs = rng.uniform(0.55, 0.7, 300)
+    per_query = indexed_radiance(binned, x, d, gs, 24, 0.2)[0]
+    one_by_one = np.concatenate([indexed_radiance(binned, x[i:i + 1], d[i:i + 1], gs[i], 24, 0.2)[0]
+                                 for i in range(300)])
+    np.testing.assert_allclose(per_query, one_by_one, rtol=1e-12)
 
 
 def test_windowed_photon_map_converges_to_path_tracer_between_bins(thin_scene: Scene) -> None:
