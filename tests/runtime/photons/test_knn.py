@@ -115,6 +115,25 @@ def test_knn_query_matches_ckdtree(rng: np.random.Generator) -> None:
             np.testing.assert_allclose(np.sqrt(d2), np.asarray(dist).reshape(len(qs), k), rtol=1e-12)
 
 
+def test_binned_grid_query_searches_every_bin(rng: np.random.Generator) -> None:
+    """A grid sorted by (cell, bin) answers a plain KNN query over all its bins like the k-d tree: its rows of cells
+    span every bin, and the bins of a cell are no gap in them. Each cell's bins are a contiguous, ordered run."""
+    pts = clustered(4000, rng)
+    bins = rng.integers(0, 7, pts.shape[0])
+    qs = queries_for(pts, rng, 150)
+    tree = cKDTree(pts)
+    for cell_size in (None, 0.03):
+        grid = build_photon_grid(pts, cell_size, bins, 7)
+        assert grid.bins == 7 and grid.cell_start.shape == (int(np.prod(grid.dims)) * 7 + 1,)
+        b = bins[grid.order]
+        run = np.repeat(np.arange(grid.cell_start.shape[0] - 1) % 7, np.diff(grid.cell_start))
+        np.testing.assert_array_equal(b, run)  # photon i lies in the (cell, bin) slot cell_start says
+        for k, r_max in [(16, 0.04), (200, math.inf)]:
+            _, d2 = knn_query(grid, qs, k, r_max)
+            dist, _ = tree.query(qs, k=k, distance_upper_bound=r_max)
+            np.testing.assert_allclose(np.sqrt(d2), np.asarray(dist).reshape(len(qs), k), rtol=1e-12)
+
+
 def test_duplicates_and_ties_compare_distance_sets() -> None:
     # Photons on a coarse integer lattice, each point three times: distances are exact small integers and
     # ties are everywhere, so only the distance lists (and each index's own distance) are compared.
