@@ -174,6 +174,8 @@ def build_photon_grid(positions: np.ndarray, cell_size: float | None = None, bin
     if cell_size is not None and not (math.isfinite(cell_size) and cell_size > 0.0):
         raise ValueError(f"cell_size must be a positive finite number, got {cell_size!r}")
     bins = int(bins)
+    if bins > 1 and bin_rank is None:
+        raise ValueError(f"a grid of {bins} bins per cell needs each photon's bin_rank")
     if bin_rank is not None and (bin_rank.shape != (n,) or (n and (int(bin_rank.min()) < 0
                                                                   or int(bin_rank.max()) >= bins))):
         raise ValueError(f"bin_rank must be (n,) ints in [0, {bins})")
