@@ -69,7 +69,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--scenes", nargs="*", default=["vortex", "shell"], help="builtin scenes")
     ap.add_argument("--photons", type=int, default=5_000_000)
     ap.add_argument("--per-set", type=int, nargs="*", default=[256, 512, 1024, 2048, 4096],
-                    help="targets per phase or window computed at once; the first is the baseline")
+                    help="targets per phase (or per set of the binned index's pool) computed at once; the first is "
+                         "the baseline")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--discrete", action="store_true", help="also the five-phase map with discrete g (cpu-phases)")
     ap.add_argument("--samplings", nargs="*", default=[],
