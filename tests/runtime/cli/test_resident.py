@@ -186,9 +186,12 @@ def test_interrupting_the_client_interrupts_the_job(server: Server, tmp_path: Pa
     if where == "in-process":
         args.append("--no-resident")
     before = server.jobs()
+    # A client in a terminal's foreground: SIGINT at its default even when this run was started in the background
+    # of a shell without job control (which starts it ignored, and an ignored SIGINT is inherited across exec).
     proc = subprocess.Popen([script("pfn-render"), *args], cwd=tmp_path,
                             env=environment(server.folder, PFN_PROGRESS_SECONDS="0"), stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     assert proc.stderr is not None
     ready, _, _ = select.select([proc.stderr], [], [], WAIT_S)
     first = proc.stderr.readline() if ready else ""
