@@ -3,9 +3,9 @@
 The photon-map training targets (paper Eq. 5) need, per query point, the K = 1024 nearest photons within
 r_max and the HG-weighted sum of their powers. This benchmark times that whole estimate:
 
-- grid: :func:`runtime.photons.knn.knn_radiance` (uniform-grid ring search fused with the estimate; ``prange``
+- grid: :func:`runtime.photons.knn_radiance.knn_radiance` (uniform-grid ring search fused with the estimate; ``prange``
   over query blocks, so it uses all numba threads). It gathers directions/weights into grid order on
-  every call, and that copy is timed; ``grid_presorted`` is :func:`runtime.photons.knn.indexed_radiance` on a
+  every call, and that copy is timed; ``grid_presorted`` is :func:`runtime.photons.knn_radiance.indexed_radiance` on a
   :class:`runtime.photons.photon_grid.PhotonIndex` built once (what a training loop over a fixed map would use);
 - kdtree_w1 / kdtree_wall: ``cKDTree.query(k=K, distance_upper_bound=r, workers=1 / -1)`` followed by a
   vectorized numpy evaluation of the same estimate. Queries go through in chunks of ``--chunk`` so
@@ -57,7 +57,7 @@ import numpy as np
 from common import machine_info, write_report
 from scipy.spatial import cKDTree
 
-from photon_fields.runtime.photons.knn import indexed_radiance, knn_radiance
+from photon_fields.runtime.photons.knn_radiance import indexed_radiance, knn_radiance
 from photon_fields.runtime.photons.photon_grid import build_photon_grid, build_photon_index
 from photon_fields.runtime.transport.phase import INV_4PI
 

@@ -19,7 +19,7 @@ fluence: that is then the divisor, :func:`photon_fields.runtime.photons.photon_p
     Q(x, d, g) = sum_n p_g(-omega_n . d) * (Phi_n / sigma_t(x_n)) / (4/3 pi r^3)
 
 (the sum over the photons strictly inside the ball, whose radius is the K-th photon's distance: that photon
-is left out, which makes the estimate unbiased at any K, :mod:`photon_fields.runtime.photons.knn`)
+is left out, which makes the estimate unbiased at any K, :mod:`photon_fields.runtime.photons.knn_radiance`)
 estimates the in-scattered radiance that has already scattered at least once, *before* the albedo at
 x, which the renderer applies from the transfer function at full resolution
 (:mod:`photon_fields.runtime.wavefront.first_interaction`).
@@ -46,7 +46,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.photons.knn import indexed_radiance
+from photon_fields.runtime.photons.knn_radiance import indexed_radiance
 from photon_fields.runtime.photons.phase_window import check_window, window_weights
 from photon_fields.runtime.photons.photon_grid import TARGET_OCCUPANCY, PhotonIndex, build_photon_index
 from photon_fields.runtime.photons.photon_map import PhotonMap
@@ -208,9 +208,9 @@ class PhotonMapEstimator:
     def binned_index(self) -> PhotonIndex:
         """The search structure of every photon of the map, sorted by cell and phase bin, with weights
         Phi / sigma_t(x_n): the estimate at any g reads the bins of its own kernel in g, each bin's photons weighted
-        by its kernel weight (:func:`photon_fields.runtime.photons.knn.indexed_radiance`), which is the estimate
-        over the union of those bins (module docstring) with the kernel centred at g itself. Needs ``g_window``;
-        built once, and holds each photon once (a structure per window held each ~2.2 times)."""
+        by its kernel weight (:func:`photon_fields.runtime.photons.knn_radiance.indexed_radiance`), which is the
+        estimate over the union of those bins (module docstring) with the kernel centred at g itself. Needs
+        ``g_window``; built once, and holds each photon once (a structure per window held each ~2.2 times)."""
         if self.g_window is None:
             raise ValueError("binned_index needs an estimator with a g_window")
         if self._binned is None:

@@ -1,5 +1,6 @@
-"""Photons counting-sorted into a uniform grid: the search structure of the K-nearest-photon search and the
-radiance estimate (:mod:`photon_fields.runtime.photons.knn`), built once per photon map or phase window.
+"""Photons counting-sorted into a uniform grid: the search structure of the K-nearest-photon search
+(:mod:`photon_fields.runtime.photons.knn`) and the radiance estimate
+(:mod:`photon_fields.runtime.photons.knn_radiance`), built once per photon map or phase window.
 
 Grid
 ----
@@ -206,10 +207,10 @@ def build_photon_index(positions: np.ndarray, directions: np.ndarray, weights: n
                        lights: int = 1, bin_rank: np.ndarray | None = None, bin_g: np.ndarray | None = None,
                        half_width: float = 0.0, occupancy: float = TARGET_OCCUPANCY) -> PhotonIndex:
     """Grid + attributes gathered once into grid order (all inputs in the same, original order). ``light`` (n,)
-    with ``lights`` > 1: the estimates keep the lights' parts apart (:func:`photon_fields.runtime.photons.knn.
-    indexed_radiance`). ``bin_rank`` (n,) with ``bin_g`` (the bins' g, ascending) and ``half_width`` > 0: a binned
-    index, whose estimate at g reads the bins of g's kernel (:class:`PhotonIndex`); ``occupancy`` then names the
-    photons per cell of all bins together."""
+    with ``lights`` > 1: the estimates keep the lights' parts apart (:func:`photon_fields.runtime.photons.
+    knn_radiance.indexed_radiance`). ``bin_rank`` (n,) with ``bin_g`` (the bins' g, ascending) and ``half_width``
+    > 0: a binned index, whose estimate at g reads the bins of g's kernel (:class:`PhotonIndex`); ``occupancy``
+    then names the photons per cell of all bins together."""
     binned = bin_rank is not None
     if binned:
         bin_g = np.ascontiguousarray(bin_g, dtype=np.float64)

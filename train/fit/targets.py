@@ -84,7 +84,7 @@ from numba import njit, prange
 from photon_fields.models_spec.encoding import direction_input, encode_radiance, normalize_position
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.estimate import DEFAULT_K, PhotonMapEstimator, ball_pattern, support_fraction
-from photon_fields.runtime.photons.knn import indexed_radiance
+from photon_fields.runtime.photons.knn_radiance import indexed_radiance
 from photon_fields.runtime.photons.phase_window import PHASE_WINDOW, check_window, window_range
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.transport.medium import Medium, extinction_at

@@ -1,4 +1,5 @@
-"""K-nearest-photon search and the fused radiance estimate (runtime.photons.knn) against brute-force references.
+"""K-nearest-photon search and the fused radiance estimate (runtime.photons.knn and knn_radiance) against
+brute-force references.
 
 The references compute every query-photon distance with numpy, so the data sets stay small (a few
 thousand photons); the grid is still exercised with cells much smaller and much larger than the K-th
@@ -14,7 +15,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from photon_fields.runtime.photons.knn import indexed_radiance, knn_query, knn_radiance
+from photon_fields.runtime.photons.knn import knn_query
+from photon_fields.runtime.photons.knn_radiance import indexed_radiance, knn_radiance
 from photon_fields.runtime.photons.photon_grid import TARGET_OCCUPANCY, build_photon_grid, build_photon_index
 
 CELL_SIZES = [None, 0.004, 0.03, 0.2, 5.0]  # 0.004 hits the cell-count cap; 5.0 is a single cell
@@ -58,7 +60,7 @@ def brute_knn(points: np.ndarray, queries: np.ndarray, k: int, r_max: float) -> 
 
 def brute_radiance(points: np.ndarray, dirs: np.ndarray, wts: np.ndarray, queries: np.ndarray, view: np.ndarray,
                    g: float, k: int, r_max: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The estimate of the photon_fields.runtime.photons.knn docstring, photon by photon."""
+    """The estimate of the photon_fields.runtime.photons.knn_radiance docstring, photon by photon."""
     idx, d2 = brute_knn(points, queries, k, r_max)
     est = np.zeros((len(queries), 3))
     radius = np.full(len(queries), r_max)

@@ -13,7 +13,7 @@ from conftest import constant_tf, small_camera, smooth_field
 from photon_fields.models_spec import DEFAULT_PHASES, PHASE_BINS, PHASE_WINDOW
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.estimate import PhotonMapEstimator
-from photon_fields.runtime.photons.knn import indexed_radiance
+from photon_fields.runtime.photons.knn_radiance import indexed_radiance
 from photon_fields.runtime.photons.phase_window import check_window, map_window, window_range, window_weights
 from photon_fields.runtime.photons.photon_grid import build_photon_index
 from photon_fields.runtime.renderers.path_tracer import render_path_traced
