@@ -42,3 +42,24 @@ def test_mutation_check_table_applies() -> None:
             path, _, name = node.partition("::")
             func = name.split("[")[0]
             assert re.search(rf"^def {func}\(", (ROOT / path).read_text(), re.MULTILINE), node
+
+
+def test_cli_help_names_every_builtin_scene() -> None:
+    """A CLI's help that lists the builtin scenes lists all of them (pfn-train's listed three of four)."""
+    from photon_fields.runtime.cli.render import build_parser as render_parser
+    from photon_fields.runtime.scene.scene import BUILTIN_SCENES
+    from photon_fields.runtime.viewer.cli import build_parser as view_parser
+    from photon_fields.train.cli.train import build_parser as train_parser
+
+    def actions(parser):  # the parser's arguments, its subcommands' included
+        for action in parser._actions:
+            yield action
+            if isinstance(action.choices, dict):  # subcommands
+                for sub in action.choices.values():
+                    yield from actions(sub)
+
+    lists = [(a.dest, m) for parser in (render_parser(), view_parser(), train_parser()) for a in actions(parser)
+             for m in re.findall(r"builtin scenes? (?:name )?\(([a-z, ]+)\)", a.help or "")]
+    assert len(lists) >= 3
+    wrong = [(dest, names) for dest, names in lists if set(names.split(", ")) != set(BUILTIN_SCENES)]
+    assert not wrong, wrong

@@ -124,7 +124,7 @@ def _add_update_parser(sub: argparse._SubParsersAction) -> None:
 
 def _add_trace_options(t: argparse.ArgumentParser) -> None:
     """The scene and photon-tracing options of ``trace`` and ``all``."""
-    t.add_argument("scene", help="builtin scene name (vortex, blobs, shell) or a scene JSON file")
+    t.add_argument("scene", help="builtin scene name (vortex, blobs, shell, head) or a scene JSON file")
     t.add_argument("--photons", default=f"{DEFAULT_PHOTONS // 1_000_000}M",
                    help="records to store, e.g. 1M, 250k")
     t.add_argument("--phases", type=float, nargs="+", default=None,
