@@ -40,9 +40,12 @@ pipeline : overlap the two halves: onnxruntime runs chunk k in a worker thread (
     could run side by side on one core each (``pipeline=True, threads=1``).
 
 Query pipeline, per chunk of ``chunk`` queries, into one reused float32 buffer (chunk, W):
-``normalize_position`` + position hash encoding into columns ``[0, Lp Fp)``; ``direction_input`` + direction
-encoding into ``[Lp Fp, Lp Fp + Ld Fd)`` (``runtime.field.hashgrid.encode(out=buf, col=...)``: no concatenation
-copy); g into the last column; ``InferenceSession.run`` on the buffer. Eq. 7 (``decode_radiance`` of
+the normalized position + position hash encoding into columns ``[0, Lp Fp)``; ``direction_input`` + direction
+encoding into ``[Lp Fp, Lp Fp + Ld Fd)`` (``runtime.field.hashgrid.encode(out=buf,
+col=...)``: no concatenation copy); those columns times g where the direction gain says so, and the phase features
+into the last columns (numba loops without numpy's temporaries, :mod:`photon_fields.runtime.field.inputs`, equal to
+:mod:`photon_fields.models_spec.encoding`'s functions bit for bit); ``InferenceSession.run`` on the buffer. The
+direction timer includes the gains and the phase features. Eq. 7 (``decode_radiance`` of
 :mod:`photon_fields.models_spec.encoding`, the same function training's targets are checked with) runs once over the
 whole result. ``field.timers`` accumulates seconds per stage over calls (``reset()`` clears them). Where the
 time goes, and the measurements behind each default, are in bench/README.md (``bench_field.py``).
@@ -64,12 +67,12 @@ from photon_fields.models_spec.encoding import (
     decode_radiance,
     direction_gains,
     direction_input,
-    normalize_position,
     phase_features,
 )
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.field.bundle_reader import read_bundle
 from photon_fields.runtime.field.hashgrid import encode
+from photon_fields.runtime.field.inputs import finish_rows, normalized_positions
 from photon_fields.runtime.field.session import make_session
 from photon_fields.runtime.scene.light_rescale import rescale_note
 from photon_fields.runtime.threads import check_threads, numba_threads
@@ -202,16 +205,16 @@ class PhotonField:
         cfg, t = self.config, self.timers
         t0 = time.perf_counter()
         try:
-            encode(cfg.position, self.position_table, normalize_position(x, self.bmin, self.bsize), out=buf)
+            encode(cfg.position, self.position_table, normalized_positions(x, self.bmin, self.bsize), out=buf)
             t1 = time.perf_counter()
             encode(cfg.direction, self.direction_table, direction_input(omega), out=buf, col=self._dir_col)
         except ValueError as exc:  # non-finite or absurdly far positions / directions
             raise InputError("query", str(exc)) from None
-        gains = direction_gains(ga, cfg.direction_gain)
-        if gains is not None:
-            buf[:, self._dir_col:self._phase_col] *= gains
+        # One g for the chunk (a rendered frame): one gain, one row of phase features for every row.
+        g = ga[:1] if ga.shape[0] > 1 and bool((ga == ga[0]).all()) else ga
+        finish_rows(buf, self._dir_col, self._phase_col, direction_gains(g, cfg.direction_gain),
+                    phase_features(g, cfg.phases, cfg.phase_encoding))
         t2 = time.perf_counter()
-        buf[:, self._phase_col:] = phase_features(ga, cfg.phases, cfg.phase_encoding)
         t.encode_position_s += t1 - t0
         t.encode_direction_s += t2 - t1
 
