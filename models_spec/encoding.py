@@ -128,9 +128,9 @@ def decode_radiance(Lp: np.ndarray, psi: float = DEFAULT_PSI) -> np.ndarray:
         return np.power(10.0, -np.asarray(Lp, dtype=np.float64) * p).astype(np.float32)
 
 
-def normalize_position(x_world: np.ndarray, bmin: np.ndarray, bsize: np.ndarray) -> np.ndarray:
-    """World positions (n, 3) -> float32 (n, 3) in [0, 1]^3: ``(x - bmin) / bsize`` per axis (float64, then
-    one rounding). Points outside the box map outside [0, 1] (the hash grid accepts them)."""
+def box_arguments(x_world: np.ndarray, bmin: np.ndarray, bsize: np.ndarray) -> tuple[np.ndarray, ...]:
+    """:func:`normalize_position`'s arguments checked and as float64: x (n, 3), bmin (3,), bsize (3,) (also what
+    the runtime's numba twin, ``runtime.field.inputs.normalized_positions``, computes from)."""
     x = np.asarray(x_world, dtype=np.float64)
     if x.ndim != 2 or x.shape[1] != 3:
         raise ValueError(f"x_world must have shape (n, 3), got {x.shape}")
@@ -138,6 +138,13 @@ def normalize_position(x_world: np.ndarray, bmin: np.ndarray, bsize: np.ndarray)
     size = np.asarray(bsize, dtype=np.float64).reshape(3)
     if not np.all(size > 0):
         raise ValueError(f"bsize must be positive, got {size}")
+    return x, lo, size
+
+
+def normalize_position(x_world: np.ndarray, bmin: np.ndarray, bsize: np.ndarray) -> np.ndarray:
+    """World positions (n, 3) -> float32 (n, 3) in [0, 1]^3: ``(x - bmin) / bsize`` per axis (float64, then
+    one rounding). Points outside the box map outside [0, 1] (the hash grid accepts them)."""
+    x, lo, size = box_arguments(x_world, bmin, bsize)
     return ((x - lo) / size).astype(np.float32)
 
 

@@ -23,25 +23,21 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from photon_fields.models_spec.encoding import box_arguments
+
 
 @njit(cache=True)
 def _normalize_kernel(x: np.ndarray, lo: np.ndarray, size: np.ndarray, out: np.ndarray) -> None:
     for i in range(x.shape[0]):
         for a in range(3):
-            out[i, a] = np.float32((np.float64(x[i, a]) - lo[a]) / size[a])
+            out[i, a] = np.float32((x[i, a] - lo[a]) / size[a])
 
 
 def normalized_positions(x_world: np.ndarray, bmin: np.ndarray, bsize: np.ndarray) -> np.ndarray:
     """World positions (n, 3) -> float32 (n, 3), equal to ``normalize_position(x_world, bmin, bsize)``."""
-    x = np.ascontiguousarray(x_world)
-    if x.ndim != 2 or x.shape[1] != 3:
-        raise ValueError(f"x_world must have shape (n, 3), got {x.shape}")
-    lo = np.asarray(bmin, dtype=np.float64).reshape(3)
-    size = np.asarray(bsize, dtype=np.float64).reshape(3)
-    if not np.all(size > 0):
-        raise ValueError(f"bsize must be positive, got {size}")
+    x, lo, size = box_arguments(x_world, bmin, bsize)
     out = np.empty((x.shape[0], 3), np.float32)
-    _normalize_kernel(x.astype(np.float64, copy=False), lo, size, out)
+    _normalize_kernel(np.ascontiguousarray(x), lo, size, out)
     return out
 
 
