@@ -29,6 +29,10 @@ with their spread: one seed's mean moves by a few percent (docs/training.md), so
 several. The summary's worst mean error is then that of the seed mean (the systematic error), next to the
 worst single seed; the photon map and ``--converged`` are evaluated for the first seed only.
 
+``--orbit DEG`` looks from the scene's camera orbited about its target (references cached apart): a field's error
+can depend on the side it is seen from (``probe_field_directions.py``: head's unlit side), which the scene's own
+camera alone does not show; the fields are the same (a fit does not depend on the camera).
+
 Output: tables on stdout and JSON (default ``bench/results/fidelity.json``) with the machine record.
 """
 
@@ -60,6 +64,7 @@ from photon_fields.runtime.eval.metrics import relative_l2, ssim  # noqa: E402
 from photon_fields.runtime.photons.phase_window import window_range  # noqa: E402
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
 from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped  # noqa: E402
+from photon_fields.runtime.scene.camera import orbit_camera  # noqa: E402
 from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
 from photon_fields.runtime.wavefront.first_interaction import render_first_interaction  # noqa: E402
 from photon_fields.train.eval.field_images import TorchFieldEstimator  # noqa: E402
@@ -140,9 +145,14 @@ CONFIGS: dict[str, Config] = {
 }
 
 
-def reference_li(scene: Scene, g: float, size: int, spp: int, work: Path) -> np.ndarray:
-    """The path tracer's L_i at g, cached in ``work``."""
-    path = work / f"ref_{scene.name}_{size}_{spp}_{g:+.3f}.npy"
+def view_tag(orbit: float) -> str:
+    """What the cached references' names add for a camera orbited by ``orbit`` degrees ("" for the scene's own)."""
+    return f"_orbit{orbit:g}" if orbit else ""
+
+
+def reference_li(scene: Scene, g: float, size: int, spp: int, work: Path, tag: str = "") -> np.ndarray:
+    """The path tracer's L_i at g, cached in ``work`` (``tag``: :func:`view_tag` of the scene's camera)."""
+    path = work / f"ref_{scene.name}_{size}_{spp}_{g:+.3f}{tag}.npy"
     if not path.exists():
         t0 = time.perf_counter()
         li = render_path_traced(scene.with_overrides(g=g, width=size, height=size), spp=spp, seed=1234,
@@ -202,7 +212,7 @@ def score(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], config:
     radius = final_radius(settings)
     rows = []
     for g in gs:
-        ref = reference_li(scene, g, args.size, args.ref_spp, work)
+        ref = reference_li(scene, g, args.size, args.ref_spp, work, view_tag(args.orbit))
         view = scene.with_overrides(g=g, width=args.size, height=args.size)
         li = render_first_interaction(view, estimator, spp=args.spp, seed=7, progress=False).layers["L_i"]
         row: dict[str, Any] = {"g": g, "in_G": bool(np.any(np.isclose(model.cfg.phases, g))),
@@ -264,7 +274,8 @@ def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], con
     view = scene.with_overrides(width=args.size, height=args.size)
     halves = []
     for seed in (4321, 4322):
-        path = work / f"refL_{scene.name}_{args.size}_{args.converged_spp}_{scene.g:+.3f}_{seed}.npy"
+        tag = view_tag(args.orbit)
+        path = work / f"refL_{scene.name}_{args.size}_{args.converged_spp}_{scene.g:+.3f}_{seed}{tag}.npy"
         if not path.exists():
             np.save(path, render_path_traced(view, spp=args.converged_spp, seed=seed, progress=False).layers["L"])
         halves.append(np.load(path))
@@ -315,6 +326,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", type=int, nargs="*", default=None,
                     help="fit one field per seed and average the field's figures over them (default: --seed)")
     ap.add_argument("--work", type=Path, default=DEFAULT_WORK)
+    ap.add_argument("--orbit", type=float, default=0.0,
+                    help="the scene's camera orbited by this many degrees about its target (180: from the other "
+                         "side; a field's error can depend on the side it is seen from, probe_field_directions.py)")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = ap.parse_args(argv)
     unknown = [c for c in args.configs if c not in CONFIGS]
@@ -324,6 +338,8 @@ def main(argv: list[str] | None = None) -> None:
     results: dict[str, Any] = {}
     for name in parse_scenes(args.scenes):
         scene = builtin_scene(name)
+        if args.orbit:  # the fields do not depend on the camera (nor does the cached run): only the view moves
+            scene = scene.with_overrides(camera=orbit_camera(scene.camera, args.orbit))
         for cname in args.configs:
             config = CONFIGS[cname]
             per_seed, first = [], None
@@ -337,7 +353,8 @@ def main(argv: list[str] | None = None) -> None:
                 first = first or (pmap, model, facts)
             pmap, model, facts = first
             rows = over_seeds(per_seed)
-            entry = {**facts, "seeds": args.seeds or [args.seed], "rows": rows, "summary": summarize(rows)}
+            entry = {**facts, "seeds": args.seeds or [args.seed], "orbit": args.orbit, "rows": rows,
+                     "summary": summarize(rows)}
             if args.converged:
                 entry["converged"] = converged(scene, pmap, model, facts["settings"], config, args, args.work)
             results[f"{name}/{cname}"] = entry
