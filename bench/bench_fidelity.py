@@ -273,8 +273,8 @@ def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], con
     path tracer at 1 / 4 spp (+ OIDN) against a high-spp path-traced L."""
     view = scene.with_overrides(width=args.size, height=args.size)
     halves = []
+    tag = view_tag(args.orbit)
     for seed in (4321, 4322):
-        tag = view_tag(args.orbit)
         path = work / f"refL_{scene.name}_{args.size}_{args.converged_spp}_{scene.g:+.3f}_{seed}{tag}.npy"
         if not path.exists():
             np.save(path, render_path_traced(view, spp=args.converged_spp, seed=seed, progress=False).layers["L"])

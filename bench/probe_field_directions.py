@@ -79,6 +79,7 @@ def main(argv: list[str] | None = None) -> None:
         m = scene.medium()
         x, d = visible_points(m, np.random.default_rng(12345), args.points)
         cos = d @ light_axis(scene)
+        xt, dt = np.ascontiguousarray(x.T), np.ascontiguousarray(d.T)  # the estimators' (3, n) layout
         rows = []
         for seed in args.seeds:
             pmap, model, facts = train(scene, args.config, config, args.work, seed)
@@ -86,8 +87,8 @@ def main(argv: list[str] | None = None) -> None:
             target = PhotonMapEstimator(pmap, m, k=s["k"], radius=final_radius(s), g_window=config.g_window)
             field = TorchFieldEstimator(model, m)
             for g in args.gs:
-                q = target(x.T.copy(), d.T.copy(), g).sum(axis=0)
-                f = field(x.T.copy(), d.T.copy(), g).sum(axis=0)
+                q = target(xt, dt, g).sum(axis=0)
+                f = field(xt, dt, g).sum(axis=0)
                 row = {"seed": seed, "g": g, **ratios(f, q, cos)}
                 rows.append(row)
                 cells = " ".join(f"{b['ratio']:.3f}" if b["ratio"] is not None else "  -  " for b in row["bins"])

@@ -28,7 +28,6 @@ def test_finish_rows_equals_the_numpy_columns(encoding: str, gain: str) -> None:
     """The direction columns times g and the phase features, per-query g and one g for all (one phase row copied)."""
     rng = np.random.default_rng(2)
     n, dir_col, dirs = 5000, 32, 12
-    phases = PHASES if encoding != "scalar" else ()
     width = dir_col + dirs + phase_features(np.zeros(1), PHASES, encoding).shape[1]
     base = rng.standard_normal((n, width)).astype(np.float32)
     for g in (rng.uniform(-1, 1, n).astype(np.float32), np.full(n, 0.35, np.float32)):
@@ -36,11 +35,10 @@ def test_finish_rows_equals_the_numpy_columns(encoding: str, gain: str) -> None:
         gains = direction_gains(g, gain)
         if gains is not None:
             want[:, dir_col:dir_col + dirs] *= gains
-        want[:, dir_col + dirs:] = phase_features(g, phases or PHASES, encoding)
+        want[:, dir_col + dirs:] = phase_features(g, PHASES, encoding)
         got = base.copy()
         one = g[:1] if (g == g[0]).all() else g
-        finish_rows(got, dir_col, dir_col + dirs, direction_gains(one, gain), phase_features(one, phases or PHASES,
-                                                                                             encoding))
+        finish_rows(got, dir_col, dir_col + dirs, direction_gains(one, gain), phase_features(one, PHASES, encoding))
         np.testing.assert_array_equal(got, want)
     with pytest.raises(ValueError, match="do not fit"):
         finish_rows(base, dir_col, dir_col + dirs, np.ones(3, np.float32), np.zeros((1, width - dir_col - dirs)))
