@@ -29,9 +29,12 @@ with their spread: one seed's mean moves by a few percent (docs/training.md), so
 several. The summary's worst mean error is then that of the seed mean (the systematic error), next to the
 worst single seed; the photon map and ``--converged`` are evaluated for the first seed only.
 
-``--orbit DEG`` looks from the scene's camera orbited about its target (references cached apart): a field's error
-can depend on the side it is seen from (``probe_field_directions.py``: head's unlit side), which the scene's own
-camera alone does not show; the fields are the same (a fit does not depend on the camera).
+``--orbits DEG ...`` (default: 0 180) scores every field from each of these views, the scene's camera orbited about
+its target (0: the scene's own; references cached apart): a field's error can depend on the side it is seen from
+(``probe_field_directions.py``: head's unlit side was 10-18 % dark), which one camera alone does not show. The
+fields are the same for every view (a fit does not depend on the camera); each view gets its own entry and
+summary (``results["scene/config"]`` for the scene's own camera, ``"scene/config@180"`` for the other side) and
+the worst over the views is printed last. ``--converged`` uses the first view only.
 
 Output: tables on stdout and JSON (default ``bench/results/fidelity.json``) with the machine record.
 """
@@ -205,14 +208,14 @@ def map_answers(pmap: Any, config: Config, g: float) -> bool:
 
 
 def score(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], config: Config, gs: list[float],
-          args: argparse.Namespace, work: Path, with_map: bool = True) -> list[dict[str, Any]]:
+          args: argparse.Namespace, work: Path, orbit: float = 0.0, with_map: bool = True) -> list[dict[str, Any]]:
     """Field and (``with_map``) photon-map L_i against the reference at every g (in_G: g is one of the field's
-    phases G)."""
+    phases G), seen by ``scene``'s camera (orbited by ``orbit`` degrees: the references' cache tag)."""
     estimator = TorchFieldEstimator(model, scene.medium())
     radius = final_radius(settings)
     rows = []
     for g in gs:
-        ref = reference_li(scene, g, args.size, args.ref_spp, work, view_tag(args.orbit))
+        ref = reference_li(scene, g, args.size, args.ref_spp, work, view_tag(orbit))
         view = scene.with_overrides(g=g, width=args.size, height=args.size)
         li = render_first_interaction(view, estimator, spp=args.spp, seed=7, progress=False).layers["L_i"]
         row: dict[str, Any] = {"g": g, "in_G": bool(np.any(np.isclose(model.cfg.phases, g))),
@@ -268,12 +271,12 @@ def converged_error(img: np.ndarray, noise: float, ref: np.ndarray, ref_noise: f
 
 
 def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], config: Config,
-              args: argparse.Namespace, work: Path) -> dict[str, Any]:
+              args: argparse.Namespace, work: Path, orbit: float = 0.0) -> dict[str, Any]:
     """Neural and photon-mapped L (the field's training targets, as an image) at ``--converged-neural-spp`` and the
     path tracer at 1 / 4 spp (+ OIDN) against a high-spp path-traced L."""
     view = scene.with_overrides(width=args.size, height=args.size)
     halves = []
-    tag = view_tag(args.orbit)
+    tag = view_tag(orbit)
     for seed in (4321, 4322):
         path = work / f"refL_{scene.name}_{args.size}_{args.converged_spp}_{scene.g:+.3f}_{seed}{tag}.npy"
         if not path.exists():
@@ -309,6 +312,36 @@ def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], con
     return out
 
 
+def result_key(scene: str, config: str, orbit: float) -> str:
+    """The results' key of a (scene, configuration) seen from the camera orbited by ``orbit`` degrees."""
+    return f"{scene}/{config}" + (f"@{orbit:g}" if orbit else "")
+
+
+def print_entry(entry: dict[str, Any]) -> None:
+    """One view's table: per g the field's mean (seed spread), rel. L2 and SSIM, the map's mean and rel. L2;
+    the summary; the converged figures if any."""
+    print(f"  view: camera orbited {entry['orbit']:g} degrees" if entry["orbit"] else "  view: the scene's camera")
+    for r in entry["rows"]:
+        pm = r.get("photon_map")
+        seeds = r["field"]["seed_means"]
+        spread = f" ({min(seeds):.3f}-{max(seeds):.3f})" if len(seeds) > 1 else ""
+        print(f"  g {r['g']:+.2f}{' (G)' if r['in_G'] else '    '}  "
+              f"field mean {r['field']['mean']:.3f}{spread} "
+              f"rel L2 {r['field']['rel_l2']:.3f} SSIM {r['field']['ssim']:.3f}"
+              + (f"   photon map mean {pm['mean']:.3f} rel L2 {pm['rel_l2']:.3f}" if pm else ""))
+    print("  " + ", ".join(f"{k} {v:.3f}" for k, v in entry["summary"].items()), flush=True)
+    if "converged" in entry:
+        c = entry["converged"]
+        print("  converged L: " + ", ".join(
+            f"{k} {c[k]['rel_l2']:.3f} (noise {c[k]['noise_rel_l2']:.3f}, "
+            f"without noise {c[k]['bias_rel_l2']:.3f})"
+            for k in ("neural", "neural_final_gather", "photon_map") if k in c))
+        print("  converged L rel L2: " + ", ".join(
+            f"{k} {v['rel_l2']:.3f}" + (f" (+OIDN {v['oidn']['rel_l2']:.3f})" if "oidn" in v else "")
+            for k, v in c.items() if k.startswith("pt_"))
+            + f"; reference noise {c['reference']['noise_rel_l2']:.3f}")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", nargs="*", help="builtin scenes (default: all)")
@@ -326,9 +359,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", type=int, nargs="*", default=None,
                     help="fit one field per seed and average the field's figures over them (default: --seed)")
     ap.add_argument("--work", type=Path, default=DEFAULT_WORK)
-    ap.add_argument("--orbit", type=float, default=0.0,
-                    help="the scene's camera orbited by this many degrees about its target (180: from the other "
-                         "side; a field's error can depend on the side it is seen from, probe_field_directions.py)")
+    ap.add_argument("--orbits", type=float, nargs="+", default=[0.0, 180.0],
+                    help="views: the scene's camera orbited by these many degrees about its target (0: its own, 180: "
+                         "from the other side; a field's error can depend on the side it is seen from, "
+                         "probe_field_directions.py)")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = ap.parse_args(argv)
     unknown = [c for c in args.configs if c not in CONFIGS]
@@ -338,46 +372,37 @@ def main(argv: list[str] | None = None) -> None:
     results: dict[str, Any] = {}
     for name in parse_scenes(args.scenes):
         scene = builtin_scene(name)
-        if args.orbit:  # the fields do not depend on the camera (nor does the cached run): only the view moves
-            scene = scene.with_overrides(camera=orbit_camera(scene.camera, args.orbit))
+        # The fields do not depend on the camera (nor does the cached run): only the view moves.
+        views = {orbit: scene.with_overrides(camera=orbit_camera(scene.camera, orbit)) if orbit else scene
+                 for orbit in args.orbits}
         for cname in args.configs:
             config = CONFIGS[cname]
-            per_seed, first = [], None
+            per_view: dict[float, list[list[dict[str, Any]]]] = {orbit: [] for orbit in views}
+            first = None
             for seed in args.seeds or [args.seed]:
                 pmap, model, facts = train(scene, cname, config, args.work, seed)
                 nodes = model.cfg.phases
                 midpoints = [(a + b) / 2 for a, b in zip(nodes[:-1], nodes[1:], strict=True)]
                 gs = args.gs if args.gs is not None else sorted({round(g, 6) for g in (*nodes, *BETWEEN, *midpoints)})
-                per_seed.append(score(scene, pmap, model, facts["settings"], config, gs, args, args.work,
-                                      with_map=first is None))
+                for orbit, view in views.items():
+                    per_view[orbit].append(score(view, pmap, model, facts["settings"], config, gs, args, args.work,
+                                                 orbit, with_map=first is None))
                 first = first or (pmap, model, facts)
             pmap, model, facts = first
-            rows = over_seeds(per_seed)
-            entry = {**facts, "seeds": args.seeds or [args.seed], "orbit": args.orbit, "rows": rows,
-                     "summary": summarize(rows)}
-            if args.converged:
-                entry["converged"] = converged(scene, pmap, model, facts["settings"], config, args, args.work)
-            results[f"{name}/{cname}"] = entry
             print(f"{name} / {cname}: trace {facts['trace_s']:.1f} s, fit {facts['fit_s']:.0f} s")
-            for r in rows:
-                pm = r.get("photon_map")
-                seeds = r["field"]["seed_means"]
-                spread = f" ({min(seeds):.3f}-{max(seeds):.3f})" if len(seeds) > 1 else ""
-                print(f"  g {r['g']:+.2f}{' (G)' if r['in_G'] else '    '}  "
-                      f"field mean {r['field']['mean']:.3f}{spread} "
-                      f"rel L2 {r['field']['rel_l2']:.3f} SSIM {r['field']['ssim']:.3f}"
-                      + (f"   photon map mean {pm['mean']:.3f} rel L2 {pm['rel_l2']:.3f}" if pm else ""))
-            print("  " + ", ".join(f"{k} {v:.3f}" for k, v in entry["summary"].items()), flush=True)
-            if "converged" in entry:
-                c = entry["converged"]
-                print("  converged L: " + ", ".join(
-                    f"{k} {c[k]['rel_l2']:.3f} (noise {c[k]['noise_rel_l2']:.3f}, "
-                    f"without noise {c[k]['bias_rel_l2']:.3f})"
-                    for k in ("neural", "neural_final_gather", "photon_map") if k in c))
-                print("  converged L rel L2: " + ", ".join(
-                    f"{k} {v['rel_l2']:.3f}" + (f" (+OIDN {v['oidn']['rel_l2']:.3f})" if "oidn" in v else "")
-                    for k, v in c.items() if k.startswith("pt_"))
-                    + f"; reference noise {c['reference']['noise_rel_l2']:.3f}")
+            for orbit, per_seed in per_view.items():
+                rows = over_seeds(per_seed)
+                entry = {**facts, "seeds": args.seeds or [args.seed], "orbit": orbit, "rows": rows,
+                         "summary": summarize(rows)}
+                if args.converged and orbit == args.orbits[0]:
+                    entry["converged"] = converged(views[orbit], pmap, model, facts["settings"], config, args,
+                                                   args.work, orbit)
+                results[result_key(name, cname, orbit)] = entry
+                print_entry(entry)
+            if len(views) > 1:
+                summaries = [results[result_key(name, cname, o)]["summary"] for o in views]
+                worst = {k: max(s[k] for s in summaries) for k in summaries[0] if k.startswith("worst_")}
+                print("  worst over the views: " + ", ".join(f"{k} {v:.3f}" for k, v in worst.items()), flush=True)
     write_report(args.out, "fidelity", finish_info(info, {}),
                  {k: v for k, v in vars(args).items() if k not in ("work", "out")} | {"work": str(args.work)},
                  configs={k: {"photons": c.photons, "phases": list(c.phases), "preset": c.preset,
