@@ -10,6 +10,7 @@ import pytest  # noqa: E402
 from photon_fields.models_spec.encoding import (  # noqa: E402
     DEFAULT_PSI,
     FieldConfig,
+    cubic_bspline,
     decode_radiance,
     direction_gains,
     direction_input,
@@ -163,6 +164,22 @@ def test_phase_features_splines_are_smooth_cubic_b_spline_weights() -> None:
         FieldConfig(phases=(-0.75, 0.0, 0.5), phase_encoding="spline")
     cfg = FieldConfig(phases=phases, phase_encoding="spline")
     assert cfg.phase_dims == 8 and FieldConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+
+
+def test_spline_weights_equal_b_at_every_node_bit_for_bit() -> None:
+    """The spline weights evaluate B only at the four nodes around g; they must equal B(t - j) at every node j (with
+    the nodes outside G folded into the end columns) bit for bit, also at nodes, at the ends, beyond them and for
+    non-finite g: the definition, evaluated densely here."""
+    rng = np.random.default_rng(1)
+    for phases in (tuple(np.linspace(-0.8, 0.8, 16)), tuple(np.linspace(-0.75, 0.75, 7).round(6)), (-0.5, 0.5)):
+        p = np.asarray(phases)
+        g = np.concatenate([rng.uniform(-1.2, 1.2, 20000), p, (p[:-1] + p[1:]) / 2, [np.nan, -np.inf, np.inf]])
+        t = (np.clip(g, p[0], p[-1]) - p[0]) / ((p[-1] - p[0]) / (p.size - 1))
+        dense = cubic_bspline(t[:, None] - np.arange(p.size)[None, :])
+        dense[:, 0] += cubic_bspline(t + 1.0)
+        dense[:, -1] += cubic_bspline(t - p.size)
+        fast = phase_features(g, phases, "spline")[:, 1:]
+        np.testing.assert_array_equal(fast.view(np.int32), dense.astype(np.float32).view(np.int32))
 
 
 def test_field_config_phase_encoding() -> None:
