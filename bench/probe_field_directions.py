@@ -1,7 +1,8 @@
 """Probe: the field against its own photon map over every direction a camera could see a point from.
 
-``bench_fidelity.py`` judges a field by one camera per scene, so a field whose error depends on the view direction
-reads as bright or dark depending on where that camera stands, and one seed's mean moves by a few percent. This
+``bench_fidelity.py`` judges a field by a few cameras per scene (the scene's own and the other side, ``--orbits``),
+so a field whose error depends on the view direction reads as bright or dark depending on where they stand, and one
+seed's mean moves by a few percent. This
 probe asks the field and its training target the same question at many points at once: N visible points (the
 first collisions of rays entering the volume from every direction, with those rays' directions: three quarters of
 the training samples are drawn so, ``train/fit/visible_points.py``) and, per g, the ratio of the field's mean L_i
