@@ -12,7 +12,9 @@
   and its cubic B-spline weights on 16 nodes (~0.1 apart: five nodes could not follow shell's dip in g at -0.6),
   K = 32 photons per target (K = 64's ball reached from lit surfaces into the darker inside: its maps were 2-3 % dark
   on shell and head), the direction features times g (the field is isotropic at g = 0, as the light is; without
-  it fields came out dark around g = 0), and a harder learning-rate anneal. Needs a map of
+  it fields came out dark around g = 0), a harder learning-rate anneal, and 1600 steps of 2048 samples (twice the
+  optimizer steps of 800 x 4096 for the same samples: the parts of the field whose targets are small, such as a skull's
+  unlit side, converge late; docs/training.md "Both sides"). Needs a map of
   :data:`photon_fields.models_spec.photon_map.PHASE_BINS` (what ``pfn-train trace`` makes by default).
 - ``cpu-phases``: ``cpu`` as it was before the kernel in g: trains at the map's phases only (the paper's way,
   any map of a few phases), scalar g, the paper's anneal.
@@ -98,7 +100,7 @@ PRESETS: dict[str, Preset] = {
                     schedule="staggered", sampling="box", loss="log",
                     about="Sec. 3.4/3.5 as published (hours on 2 CPU cores)"),
     "cpu": replace(_CPU_PHASES, phase_encoding="spline", g_sampling="window", phase_nodes=16, lr_decay_start=0.5,
-                   lr_decay_every=10, sampling="visible", k=32, direction_gain="g",
+                   lr_decay_every=10, sampling="visible", k=32, direction_gain="g", steps=1600, batch=1 << 11,
                    about="the default: any g from a kernel in g over a map in narrow phase bins; ~1 min on 2 cores"),
     "cpu-phases": _CPU_PHASES,
     "cpu-tent": replace(_CPU_PHASES, phase_encoding="tent", g_sampling="continuous",
