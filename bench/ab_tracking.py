@@ -111,7 +111,9 @@ def ab_stages(args: argparse.Namespace) -> int:
             calls, outputs = {}, {}
             for side, pkg in sides.items():
                 calls[side], outputs[side] = _stage_calls(pkg, name, args.size)
-            same = {k: np.array_equal(outputs["base"][k], outputs["new"][k]) for k in outputs["new"]}
+            for side in sides:  # the stages both sides have
+                calls[side] = {k: v for k, v in calls[side].items() if k in calls["base"]}
+            same = {k: np.array_equal(outputs["base"][k], outputs["new"][k]) for k in calls["base"]}
             times: dict[str, dict[str, list[float]]] = {side: {"first": [], "nee": []} for side in sides}
             for a in range(args.alternations):
                 for side in (("base", "new") if a % 2 else ("new", "base")):
@@ -119,7 +121,7 @@ def ab_stages(args: argparse.Namespace) -> int:
                         t0 = time.perf_counter()
                         call()
                         times[side][stage].append(time.perf_counter() - t0)
-            for stage in ("first", "nee"):
+            for stage in calls["base"]:
                 b, n = (np.array(times[k][stage]) for k in sides)
                 print(f"{name:7s} {stage:5s} base median {np.median(b) * 1e3:7.2f} ms | new {np.median(n) * 1e3:7.2f} "
                       f"ms | new/base median {np.median(n) / np.median(b):.3f}, first quartile "
@@ -135,7 +137,9 @@ def _stage_calls(pkg: str, name: str, size: int) -> tuple[dict[str, Any], dict[s
     nee = importlib.import_module(f"{pkg}.runtime.transport.direct_light")
     scene = importlib.import_module(f"{pkg}.runtime.scene.scene").builtin_scene(name).with_overrides(width=size,
                                                                                                     height=size)
-    m, (kind, vec, rgb), env = scene.medium(), scene.packed_lights(), scene.packed_environment_map()
+    m, (kind, vec, rgb) = scene.medium(), scene.packed_lights()
+    # A base from before environment maps (2026-11-24 and earlier) has no NEE of this signature: first only.
+    env = scene.packed_environment_map() if hasattr(scene, "packed_environment_map") else None
     n = size * size
     scratch, status, transmit = fim.FirstInteractions.empty(n), np.empty(n, np.uint8), np.empty(n)
 
@@ -150,6 +154,8 @@ def _stage_calls(pkg: str, name: str, size: int) -> tuple[dict[str, Any], dict[s
         return nee.direct_light_batch(m, kind, vec, rgb, env, scene.g, found.x, found.d, found.rng.copy(), False,
                                       *one_light)
 
+    if env is None:
+        return {"first": first}, {"first": found.x.copy()}
     return {"first": first, "nee": direct}, {"first": found.x.copy(), "nee": direct()}
 
 

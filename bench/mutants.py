@@ -51,6 +51,7 @@ LIGHTS = "tests/runtime/photons/test_light_kinds.py::test_photon_map_li_matches_
 EMITTERS = "tests/runtime/transport/test_emitters.py"
 TRACING = "tests/train/photons/test_photon_tracing.py"
 CAMERA = "tests/runtime/wavefront/test_camera_estimators.py"
+DEPTH = "tests/runtime/wavefront/test_depth_bounds.py"
 VSESSION = "tests/runtime/viewer/test_viewer_session.py"
 GATHER = "tests/runtime/wavefront/test_final_gather.py"
 VGATHER = "tests/runtime/viewer/test_viewer_gather.py"
@@ -656,6 +657,20 @@ MUTANTS: tuple[Mutant, ...] = (
            "        if False:\n",
            ("tests/runtime/cli/test_resident.py::test_another_environment_renders_in_process",),
            "a resident server renders with another thread count or threading layer than the client asked for"),
+    Mutant("depth_bounds_rect_short", "runtime/wavefront/depth_bounds.py", "a0 = max(math.floor(umin) - 1, 0)",
+           "a0 = max(math.floor(umin) + 1, 0)",
+           (f"{DEPTH}::test_every_ray_meets_the_medium_within_its_tiles_bounds",),
+           "a macrocell's projected rectangle misses the pixels on its left edge: their rays skip medium"),
+    Mutant("depth_bounds_behind_dropped", "runtime/wavefront/depth_bounds.py",
+           "                    all_near, all_far = min(all_near, lo), max(all_far, hi)\n",
+           "                    pass\n",
+           (f"{DEPTH}::test_every_ray_meets_the_medium_within_its_tiles_bounds",
+            f"{DEPTH}::test_bounds_change_no_sample_from_inside_the_volume"),
+           "macrocells behind the eye's image plane (the eye inside the volume) are left out of every tile's bounds"),
+    Mutant("depth_bounds_walk_starts_late", "runtime/wavefront/first_interaction.py",
+           "tmin = max(0.0, near[ty, tx] - entry)", "tmin = max(0.0, near[ty, tx] - entry + 0.02)",
+           (f"{DEPTH}::test_bounds_change_no_sample_on_embedded_scenes",),
+           "the first-interaction walk starts after its tile's near bound: rays skip the front of the medium"),
 )
 
 

@@ -61,6 +61,10 @@ from photon_fields.runtime.transport.phase import check_g
 _SCENE_KEYS = {"name", "volume", "transfer_function", "lights", "camera", "phase"}
 
 
+#: The dicts :meth:`Scene.shared_cache` keeps, carried over by :meth:`Scene.with_overrides`.
+SHARED_CACHES = ("light_volumes", "depth_bounds")
+
+
 @dataclass(frozen=True, eq=False)
 class Scene:
     volume: Volume
@@ -120,8 +124,12 @@ class Scene:
         return self._cache["medium"]
 
     def shared_cache(self, key: str) -> dict[Any, Any]:
-        """A dict kept with the scene for what depends on its medium and lights only (the ray marcher's light
-        volumes, ``"light_volumes"``), carried over by :meth:`with_overrides`, which changes neither."""
+        """A dict kept with the scene for what depends on its medium and lights, and on nothing else or on what
+        its keys name (the ray marcher's light volumes, ``"light_volumes"``; the camera walks' depth bounds per
+        camera, ``"depth_bounds"``): one of :data:`SHARED_CACHES`, carried over by :meth:`with_overrides`, which
+        changes neither medium nor lights."""
+        if key not in SHARED_CACHES:
+            raise ValueError(f"unknown shared cache {key!r} (one of {SHARED_CACHES})")
         return self._cache.setdefault(key, {})
 
     def packed_lights(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -168,7 +176,8 @@ class Scene:
             cam = cam.with_resolution(cam.width if width is None else width,
                                       cam.height if height is None else height)
         new = replace(self, g=self.g if g is None else g, camera=cam, _cache={})
-        new._cache["light_volumes"] = self.shared_cache("light_volumes")  # one dict: later volumes are shared too
+        for key in SHARED_CACHES:  # one dict each: what either scene adds later is shared too
+            new._cache[key] = self.shared_cache(key)
         for key in ("medium", "fingerprint", "fingerprint_parts", "lights", "env_map"):  # none depend on g or camera
             if key in self._cache:
                 new._cache[key] = self._cache[key]

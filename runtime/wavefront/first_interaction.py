@@ -63,7 +63,7 @@ from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.direct_light import LIGHT_SAMPLINGS, direct_light_batch
 from photon_fields.runtime.transport.medium import Medium, albedo_at
-from photon_fields.runtime.transport.tracking import camera_collision
+from photon_fields.runtime.transport.tracking import camera_collision, task_stride
 from photon_fields.runtime.wavefront.batches import (
     DEFAULT_BATCH,
     Environment,
@@ -73,6 +73,7 @@ from photon_fields.runtime.wavefront.batches import (
     finish,
     scene_environment,
 )
+from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.final_gather import gather_indirect
 from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box
@@ -132,9 +133,10 @@ class FirstInteractions:
 @njit(cache=True)
 def _first_interactions_block(m: Medium, eye: np.ndarray, origin: np.ndarray, du: np.ndarray, dv: np.ndarray,
                               width: int, n_pixels: int, start: int, count: int, s0: np.uint64, block: int, b: int,
-                              forced: bool, w_min: float, pixel: np.ndarray, x: np.ndarray, d: np.ndarray,
-                              albedo: np.ndarray, rng: np.ndarray, weight: np.ndarray, status: np.ndarray,
-                              transmit: np.ndarray, counts: np.ndarray) -> None:
+                              forced: bool, w_min: float, near: np.ndarray, far: np.ndarray, tile: int,
+                              pixel: np.ndarray, x: np.ndarray, d: np.ndarray, albedo: np.ndarray, rng: np.ndarray,
+                              weight: np.ndarray, status: np.ndarray, transmit: np.ndarray,
+                              counts: np.ndarray) -> None:
     """Task ``b`` of :func:`_first_interactions`, serially (``TASK_ITEMS`` in tracking.py says why the parallel
     kernel only calls this)."""
     k = b * block
@@ -147,7 +149,16 @@ def _first_interactions_block(m: Medium, eye: np.ndarray, origin: np.ndarray, du
             status[i] = MISSED_BOX
             continue
         inside += 1
-        t, w, transmit[i], s = camera_collision(m, ox, oy, oz, dx, dy, dz, 0.0, tmax, s, forced, w_min)
+        # The walk only where the tile's rays can meet an occupied macrocell (depth_bounds.py): the same samples.
+        ty = (p // width) // tile
+        tx = (p % width) // tile
+        entry = (ox - eye[0]) * dx + (oy - eye[1]) * dy + (oz - eye[2]) * dz
+        tmin = max(0.0, near[ty, tx] - entry)
+        tmax = min(tmax, far[ty, tx] - entry)
+        if not tmin < tmax:
+            status[i] = ESCAPED
+            continue
+        t, w, transmit[i], s = camera_collision(m, ox, oy, oz, dx, dy, dz, tmin, tmax, s, forced, w_min)
         if not math.isfinite(t):
             status[i] = ESCAPED
             continue
@@ -169,8 +180,9 @@ def _first_interactions_block(m: Medium, eye: np.ndarray, origin: np.ndarray, du
 @njit(cache=True, parallel=True)
 def _first_interactions(m: Medium, eye: np.ndarray, origin: np.ndarray, du: np.ndarray, dv: np.ndarray, width: int,
                         n_pixels: int, start: int, count: int, seed: int, block: int, forced: bool, w_min: float,
-                        pixel: np.ndarray, x: np.ndarray, d: np.ndarray, albedo: np.ndarray, rng: np.ndarray,
-                        weight: np.ndarray, status: np.ndarray, transmit: np.ndarray) -> np.ndarray:
+                        near: np.ndarray, far: np.ndarray, tile: int, pixel: np.ndarray, x: np.ndarray, d: np.ndarray,
+                        albedo: np.ndarray, rng: np.ndarray, weight: np.ndarray, status: np.ndarray,
+                        transmit: np.ndarray) -> np.ndarray:
     """Work items ``start .. start + count - 1``: camera ray, clip, tracking, albedo, in one pass per item.
 
     ``forced`` False ("delta"): delta tracking, the same inlined arithmetic as ``generate_camera_rays`` ->
@@ -183,9 +195,11 @@ def _first_interactions(m: Medium, eye: np.ndarray, origin: np.ndarray, du: np.n
     nblocks = (count + block - 1) // block
     counts = np.zeros((nblocks, 2), np.int64)
     s0 = np.uint64(seed)
-    for b in prange(nblocks):
+    stride = task_stride(nblocks)
+    for task in prange(nblocks):
+        b = (task * stride) % nblocks
         _first_interactions_block(m, eye, origin, du, dv, width, n_pixels, start, count, s0, block, b, forced, w_min,
-                                  pixel, x, d, albedo, rng, weight, status, transmit, counts)
+                                  near, far, tile, pixel, x, d, albedo, rng, weight, status, transmit, counts)
     return counts
 
 
@@ -221,7 +235,7 @@ def check_camera_estimator(name: str) -> bool:
 
 def sample_first_interactions(scene: Scene, m: Medium, start: int, count: int, seed: int,
                               scratch: FirstInteractions, status: np.ndarray, transmit: np.ndarray,
-                              camera: str = DEFAULT_CAMERA_ESTIMATOR) -> np.ndarray:
+                              camera: str = DEFAULT_CAMERA_ESTIMATOR, depth_bounds: bool = True) -> np.ndarray:
     """Stages 1-2 fused: for work items ``start .. start + count - 1`` generate the jittered camera ray, clip it
     to the volume box, sample its first interaction with the ``camera`` estimator (:data:`CAMERA_ESTIMATORS`)
     and look up the albedo there, in one numba pass that writes only the interacting items (into ``scratch``,
@@ -232,14 +246,19 @@ def sample_first_interactions(scene: Scene, m: Medium, start: int, count: int, s
     Why fused: the separate stages built a RayBatch of every camera ray (8 arrays, most of them unused
     here), clipped it, compacted it, tracked it and compacted again; the rays that miss the box or escape
     (70-90 % on the builtin scenes) only cost their tracking; what is left is the tracking itself, the path
-    tracer's first bounce."""
+    tracer's first bounce.
+
+    ``depth_bounds``: each ray walks only the part of it where its tile of the image can meet an occupied macrocell
+    (:mod:`photon_fields.runtime.wavefront.depth_bounds`, computed once per scene object); the same samples, bit
+    for bit, as the walk of the whole ray (False)."""
     forced = check_camera_estimator(camera)
     cam = scene.camera
     origin, du, dv = cam.image_plane()
+    bounds = depth_bounds_for(scene, m) if depth_bounds else unbounded()
     return _first_interactions(m, np.ascontiguousarray(cam.eye, dtype=np.float64), origin, du, dv, cam.width,
                                cam.width * cam.height, int(start), int(count), int(seed), _BLOCK, forced,
-                               FORCED_MIN_WEIGHT, scratch.pixel, scratch.x, scratch.d, scratch.albedo, scratch.rng,
-                               scratch.weight, status, transmit)
+                               FORCED_MIN_WEIGHT, bounds.near, bounds.far, bounds.tile, scratch.pixel, scratch.x,
+                               scratch.d, scratch.albedo, scratch.rng, scratch.weight, status, transmit)
 
 
 def compact_first_interactions(scratch: FirstInteractions, counts: np.ndarray) -> FirstInteractions:
