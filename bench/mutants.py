@@ -86,8 +86,9 @@ MUTANTS: tuple[Mutant, ...] = (
             f"{TRACING}::test_distant_point_light_carries_the_power_of_a_directional_light"),
            "point-light photons keep the full 4 pi I although only the cone towards the volume is sampled "
            "(5.2x too strong for a light at distance 1.1)"),
-    Mutant("default_psi", "runtime/field/field.py", "L = decode_radiance(Lp, self.config.psi)",
-           "L = decode_radiance(Lp)",
+    Mutant("default_psi", "runtime/field/field.py",
+           "L = decode_lights(Lp, self.config.psi, self.light_channels, scale)",
+           "L = decode_lights(Lp, 5.0, self.light_channels, scale)",
            ("tests/runtime/field/test_bundle.py::test_bundle_decodes_with_its_own_psi",
             "tests/runtime/field/test_bundle.py::test_fit_records_its_psi_and_the_bundle_decodes_with_it"),
            "the runtime decodes Eq. 7 with the default psi = 5 instead of the bundle's"),
@@ -587,7 +588,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "one light's power among several rescales the whole L_i by that light's ratio (wrong wherever the "
            "other light dominates)"),
     Mutant("rescaled_bundle_not_rescaled", "runtime/field/field.py",
-           "            L *= scale.reshape(OUTPUT_CHANNELS)\n", "            pass\n",
+           "        scale = self.light_scale\n", "        scale = None\n",
            ("tests/runtime/field/test_light_rescale.py::test_a_bundle_answers_for_its_lights_rescaled",),
            "a bundle loaded for a brighter light renders the trained light's L_i (the issue's 40 % too dark)"),
     Mutant("rescaled_map_keeps_its_power", "runtime/photons/photon_map.py",
@@ -608,8 +609,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "col = 3 * np.int64(light[j]) if lights > 1 else 0", "col = 0",
            ("tests/runtime/field/test_per_light.py::test_the_parts_sum_to_the_estimate_and_each_is_its_lights",),
            "every photon counts for the first light: the per-light targets put the whole L_i on one light"),
-    Mutant("per_light_factors_ignored", "runtime/field/field.py",
-           "            if factors is not None:\n                part = part * factors[light]\n", "",
+    Mutant("per_light_factors_ignored", "runtime/field/outputs.py",
+           "v = v * factors[light, c]", "v = v * factors[0, c]",
            ("tests/runtime/field/test_per_light.py::test_a_field_sums_its_lights_parts_with_their_factors",),
            "a field that keeps its lights apart ignores a light's edited power: L_i as trained"),
     Mutant("per_light_loss_on_own_part", "train/fit/loss.py",
@@ -671,6 +672,11 @@ MUTANTS: tuple[Mutant, ...] = (
            "tmin = max(0.0, near[ty, tx] - entry)", "tmin = max(0.0, near[ty, tx] - entry + 0.02)",
            (f"{DEPTH}::test_bounds_change_no_sample_on_embedded_scenes",),
            "the first-interaction walk starts after its tile's near bound: rays skip the front of the medium"),
+    Mutant("decode_all_fast_math", "runtime/field/outputs.py", '@njit(cache=True, fastmath={"afn", "nnan"})',
+           "@njit(cache=True, fastmath=True)",
+           ("tests/runtime/field/test_outputs.py::test_decode_lights_equals_numpy_bit_for_bit",),
+           "the decode's sums contracted into fused multiply-adds: the field's output differs from numpy's in last "
+           "bits"),
 )
 
 

@@ -73,6 +73,7 @@ from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.field.bundle_reader import read_bundle
 from photon_fields.runtime.field.hashgrid import encode
 from photon_fields.runtime.field.inputs import finish_rows, normalized_positions
+from photon_fields.runtime.field.outputs import decode_lights
 from photon_fields.runtime.field.session import make_session
 from photon_fields.runtime.scene.light_rescale import rescale_note
 from photon_fields.runtime.threads import check_threads, numba_threads
@@ -278,33 +279,13 @@ class PhotonField:
         each times its factor."""
         Lp = self.query_encoded(x, omega, g)
         t0 = time.perf_counter()
-        L = decode_radiance(Lp, self.config.psi)
         scale = self.light_scale
         if light_scale is not None:
             edit = np.asarray(light_scale, np.float32)
             scale = edit if scale is None else scale * edit
-        if self.light_channels > 1:
-            L = self._sum_lights(L, scale)
-        elif scale is not None:
-            L *= scale.reshape(OUTPUT_CHANNELS)
+        L = decode_lights(Lp, self.config.psi, self.light_channels, scale)
         self.timers.decode_s += time.perf_counter() - t0
         return L
-
-    def _sum_lights(self, parts: np.ndarray, scale: np.ndarray | None) -> np.ndarray:
-        """The lights' parts (N, 3 C) summed, each times its factor (``scale`` (3,) or (C, 3), None: 1), float32 (N,
-        3). Column slices, one light at a time: a reduction over the middle axis of (N, C, 3) or an einsum took
-        ~5 ms per 512x512 frame (bench/README.md)."""
-        factors = None if scale is None else np.broadcast_to(scale, (self.light_channels, OUTPUT_CHANNELS))
-        out = np.empty((parts.shape[0], OUTPUT_CHANNELS), np.float32)
-        for light in range(self.light_channels):
-            part = parts[:, OUTPUT_CHANNELS * light:OUTPUT_CHANNELS * (light + 1)]
-            if factors is not None:
-                part = part * factors[light]
-            if light == 0:
-                out[:] = part
-            else:
-                out += part
-        return out
 
     def query_lights(self, x: Any, omega: Any, g: Any) -> np.ndarray:
         """Each light's part of Q float32 (N, C, 3) as trained (no ``light_scale``), C = :attr:`light_channels`."""
