@@ -59,8 +59,9 @@ from photon_fields.runtime.transport.rng import next_float
 
 RR_THRESHOLD = 0.05
 #: The camera walk's transmittance estimate below which it finishes the ray by delta tracking (module docstring,
-#: "the rest of an opaque ray"): 0.3 made the 512x512 first interactions 8-16 % cheaper on the embedded scenes with
-#: the 1-spp frames' noise within 0.5 % (bench/README.md); 0.6 added 2-4 % noise on blobs and vortex.
+#: "the rest of an opaque ray"): 0.3 made the 512x512 first interactions 4-11 % cheaper on the embedded scenes
+#: (alternated A/B) with the 1-spp frames' noise within 0.5 % (bench/README.md); 0.6 added 2-4 % noise on blobs
+#: and vortex.
 CAMERA_SWITCH = 0.3
 #: Items per task of the parallel kernels whose per-item work inlines a tracking walk: ``prange`` runs over tasks
 #: and each task calls a serial kernel over its items. numba's parfor passes then see a loop body of one call,
