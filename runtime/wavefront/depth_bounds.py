@@ -44,8 +44,11 @@ TILE = 4
 MARGIN = 1e-7
 #: Cameras whose bounds :func:`depth_bounds_for` keeps per medium.
 KEPT = 8
-#: Depth along the view axis (world units) at or below which a corner counts as behind the eye.
-_BEHIND = 1e-9
+#: Depth along the view axis (world units) at or below which a corner counts as behind the eye (and widens every
+#: tile): above it, a corner's pixel coordinates stay far inside int64 when floored.
+_BEHIND = 1e-6
+#: Pixel coordinates are clamped to +-this before flooring (a corner just in front of the eye projects far away).
+_FAR_PIXEL = float(1 << 40)
 
 
 @dataclass(frozen=True)
@@ -114,6 +117,8 @@ def _rasterize(majorant: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, eye: n
                     if depth <= _BEHIND:
                         behind = True
                         break
+                    u = min(max(u, -_FAR_PIXEL), _FAR_PIXEL)
+                    v = min(max(v, -_FAR_PIXEL), _FAR_PIXEL)
                     umin, umax = min(umin, u), max(umax, u)
                     vmin, vmax = min(vmin, v), max(vmax, v)
                 if behind:

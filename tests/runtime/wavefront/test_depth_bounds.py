@@ -88,6 +88,25 @@ def test_every_ray_meets_the_medium_within_its_tiles_bounds(view: str) -> None:
     assert np.all(np.isfinite(near[crosses])), "a tile marked empty has a ray that meets the medium"
 
 
+def test_bounds_hold_for_an_eye_on_a_macrocell_plane() -> None:
+    """The eye exactly on a plane between macrocells, looking along it and across it: corners at depth 0 and just
+    in front of the eye (projected far outside the image) must widen the bounds, not drop the macrocell."""
+    m = _sparse_medium()
+    h = m.bsize / np.array(m.majorant.shape)
+    eye = m.bmin + 0.5 * m.bsize
+    eye[2] = m.bmin[2] + 17 * h[2]
+    for target in (eye + np.array([0.0, 0.0, -1.0]), eye + np.array([1.0, 0.3, 0.0]), eye + np.array([0.4, 0.0, 1e-6])):
+        camera = Camera(eye, target, [0.0, 1.0, 0.0], 80.0, 29, 23)
+        bounds = camera_depth_bounds(m, camera)
+        pix, d = _jittered_rays(camera, 8, seed=3)
+        first, last = _occupied_spans(m, camera.eye, d)
+        crosses = np.isfinite(first)
+        near = bounds.near[pix[1] // bounds.tile, pix[0] // bounds.tile]
+        far = bounds.far[pix[1] // bounds.tile, pix[0] // bounds.tile]
+        assert crosses.any()
+        assert np.all(near[crosses] <= first[crosses]) and np.all(far[crosses] >= last[crosses]), target
+
+
 def _items(scene: Scene, camera: str, depth_bounds: bool) -> tuple[np.ndarray, ...]:
     """Everything the fused kernel writes for one 1-spp batch."""
     m, n = scene.medium(), scene.camera.width * scene.camera.height
