@@ -34,7 +34,9 @@ its target (0: the scene's own; references cached apart): a field's error can de
 (``probe_field_directions.py``: head's unlit side was 10-18 % dark), which one camera alone does not show. The
 fields are the same for every view (a fit does not depend on the camera); each view gets its own entry and
 summary (``results["scene/config"]`` for the scene's own camera, ``"scene/config@180"`` for the other side) and
-the worst over the views is printed last. ``--converged`` uses the first view only.
+the worst over the views is printed last. ``--converged`` uses the first view only. ``--gathered-map`` also
+scores the photon map one real bounce away (``render_photon_mapped(..., final_gather_after=0)``): what targets
+gathered before the map would teach the field (docs/training.md, "Where the kernel estimate stops").
 
 Output: tables on stdout and JSON (default ``bench/results/fidelity.json``) with the machine record.
 """
@@ -210,7 +212,8 @@ def map_answers(pmap: Any, config: Config, g: float) -> bool:
 def score(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], config: Config, gs: list[float],
           args: argparse.Namespace, work: Path, orbit: float = 0.0, with_map: bool = True) -> list[dict[str, Any]]:
     """Field and (``with_map``) photon-map L_i against the reference at every g (in_G: g is one of the field's
-    phases G), seen by ``scene``'s camera (orbited by ``orbit`` degrees: the references' cache tag)."""
+    phases G), seen by ``scene``'s camera (orbited by ``orbit`` degrees: the references' cache tag); with
+    ``--gathered-map`` the map's L_i after one real bounce too (``photon_map_gathered``)."""
     estimator = TorchFieldEstimator(model, scene.medium())
     radius = final_radius(settings)
     rows = []
@@ -224,6 +227,10 @@ def score(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], config:
             pm = render_photon_mapped(view, pmap, k=settings["k"], radius=radius, spp=args.spp, seed=7,
                                       progress=False, g_window=config.g_window, final_gather_after=None).layers["L_i"]
             row["photon_map"] = compare(pm, ref)
+            if args.gathered_map:  # the map one real bounce away: what gathered training targets would learn
+                pm = render_photon_mapped(view, pmap, k=settings["k"], radius=radius, spp=args.spp, seed=7,
+                                          progress=False, g_window=config.g_window, final_gather_after=0)
+                row["photon_map_gathered"] = compare(pm.layers["L_i"], ref)
         rows.append(row)
     return rows
 
@@ -322,13 +329,14 @@ def print_entry(entry: dict[str, Any]) -> None:
     the summary; the converged figures if any."""
     print(f"  view: camera orbited {entry['orbit']:g} degrees" if entry["orbit"] else "  view: the scene's camera")
     for r in entry["rows"]:
-        pm = r.get("photon_map")
+        pm, gm = r.get("photon_map"), r.get("photon_map_gathered")
         seeds = r["field"]["seed_means"]
         spread = f" ({min(seeds):.3f}-{max(seeds):.3f})" if len(seeds) > 1 else ""
         print(f"  g {r['g']:+.2f}{' (G)' if r['in_G'] else '    '}  "
               f"field mean {r['field']['mean']:.3f}{spread} "
               f"rel L2 {r['field']['rel_l2']:.3f} SSIM {r['field']['ssim']:.3f}"
-              + (f"   photon map mean {pm['mean']:.3f} rel L2 {pm['rel_l2']:.3f}" if pm else ""))
+              + (f"   photon map mean {pm['mean']:.3f} rel L2 {pm['rel_l2']:.3f}" if pm else "")
+              + (f"   gathered {gm['mean']:.3f} / {gm['rel_l2']:.3f}" if gm else ""))
     print("  " + ", ".join(f"{k} {v:.3f}" for k, v in entry["summary"].items()), flush=True)
     if "converged" in entry:
         c = entry["converged"]
@@ -351,6 +359,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--spp", type=int, default=32, help="field and photon-map samples per pixel")
     ap.add_argument("--ref-spp", type=int, default=512, help="path-traced reference L_i samples per pixel")
     ap.add_argument("--converged", action="store_true", help="also the converged L against denoised path tracing")
+    ap.add_argument("--gathered-map", action="store_true",
+                    help="also the photon map's L_i one real bounce away (final gather): gathered targets' truth")
     ap.add_argument("--converged-spp", type=int, default=2048,
                     help="path-traced reference L: two independent renders at this spp, averaged")
     ap.add_argument("--converged-neural-spp", type=int, default=256,
