@@ -12,7 +12,7 @@ Layers (each RGB, float64 accumulators, divided by the sample count on read-out)
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 LAYERS = ("L_e", "L_d", "L_i")
 
@@ -79,12 +79,19 @@ def _add_at_distinct(acc: np.ndarray, pixel: np.ndarray, rgb: np.ndarray, weight
             acc[2, p] += rgb[2, i]
 
 
-@njit(cache=True)
+#: Pixels per task of :func:`_mean_layers`.
+_MEAN_BLOCK = 16384
+
+
+@njit(cache=True, parallel=True)
 def _mean_layers(acc_e: np.ndarray, acc_d: np.ndarray, acc_i: np.ndarray, scale: float, e: np.ndarray, d: np.ndarray,
                  i: np.ndarray, total: np.ndarray) -> None:
-    for p in range(acc_e.shape[1]):
-        for c in range(3):
-            e[p, c] = np.float32(acc_e[c, p] * scale)
-            d[p, c] = np.float32(acc_d[c, p] * scale)
-            i[p, c] = np.float32(acc_i[c, p] * scale)
-            total[p, c] = (e[p, c] + d[p, c]) + i[p, c]
+    # In blocks of pixels, one parallel region: the read-out of a 512x512 film streams 19 MB of accumulators.
+    n = acc_e.shape[1]
+    for block in prange((n + _MEAN_BLOCK - 1) // _MEAN_BLOCK):
+        for p in range(block * _MEAN_BLOCK, min(n, (block + 1) * _MEAN_BLOCK)):
+            for c in range(3):
+                e[p, c] = np.float32(acc_e[c, p] * scale)
+                d[p, c] = np.float32(acc_d[c, p] * scale)
+                i[p, c] = np.float32(acc_i[c, p] * scale)
+                total[p, c] = (e[p, c] + d[p, c]) + i[p, c]

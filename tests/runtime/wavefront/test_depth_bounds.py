@@ -2,7 +2,8 @@
 
 - Brute force: every jittered camera ray that crosses an occupied macrocell enters the first no nearer than its
   tile's ``near`` and leaves the last no farther than its ``far``, and a tile with ``near`` = inf has no such ray;
-  for cameras outside the box, close to it with a wide view, and inside it (corners behind the eye).
+  for cameras outside the box, close to it with a wide view, and inside it (corners behind the eye), on a sparse
+  medium and a solid one whose interior macrocells are not rasterized (the eye also in its cavity and in its wall).
 - Bit for bit: the fused first-interaction kernel gives the same items, weights, random states, statuses and
   transmittances with the bounds as with the walk of the whole ray, for both camera estimators, on the embedded
   scenes and from inside the volume, and the bounds do skip rays there (tiles with nothing to meet).
@@ -35,6 +36,22 @@ def _sparse_medium() -> Medium:
     vol = make_volume(raw, spacing=(1.0, 1.3, 0.8), window=(0.0, 1.0), name="sparse")
     return build_medium(vol, TransferFunction(np.array([0.0, 0.62, 1.0]), np.full((3, 3), 0.8),
                                               np.array([0.0, 0.0, 1.0]), 30.0))
+
+
+def _solid_medium() -> Medium:
+    """A solid ball (most of its macrocells interior: the bounds rasterize only the boundary ones) with an empty
+    cavity at the centre of the box, a bump on its side, in a box that is not a cube."""
+    n = np.array([30, 26, 34])
+    p = (np.stack(np.meshgrid(*[np.arange(k) + 0.5 for k in n], indexing="ij"), axis=-1) - 0.5 * n) / n.max()
+    r = np.linalg.norm(p, axis=-1)
+    bump = np.linalg.norm(p - np.array([0.3, 0.1, 0.0]), axis=-1)
+    raw = ((r < 0.42) & (r > 0.14)) | (bump < 0.12)
+    vol = make_volume(raw.astype(float), spacing=(1.0, 1.1, 0.9), window=(0.0, 1.0), name="solid")
+    return build_medium(vol, TransferFunction(np.array([0.0, 0.5, 1.0]), np.full((3, 3), 0.8),
+                                              np.array([0.0, 0.0, 1.0]), 30.0))
+
+
+_MEDIA = {"sparse": _sparse_medium, "solid": _solid_medium}
 
 
 def _jittered_rays(camera: Camera, per_pixel: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -72,17 +89,26 @@ def _occupied_spans(m: Medium, eye: np.ndarray, d: np.ndarray) -> tuple[np.ndarr
     return first, last
 
 
-@pytest.mark.parametrize("view", list(_CAMERAS))
-def test_every_ray_meets_the_medium_within_its_tiles_bounds(view: str) -> None:
-    m = _sparse_medium()
-    camera = _CAMERAS[view]
+@pytest.mark.parametrize("medium", list(_MEDIA))
+@pytest.mark.parametrize("view", [*_CAMERAS, "cavity", "in-solid"])
+def test_every_ray_meets_the_medium_within_its_tiles_bounds(view: str, medium: str) -> None:
+    m = _MEDIA[medium]()
+    centre = m.bmin + 0.5 * m.bsize
+    if view == "cavity":  # the eye in empty space enclosed by occupied macrocells
+        camera = Camera(centre + 0.02, m.bmin + 0.3 * m.bsize, [0.0, 1.0, 0.0], 90.0, 31, 27)
+    elif view == "in-solid":  # the eye in the solid ball's wall (an interior macrocell of the solid medium)
+        camera = Camera(centre + np.array([0.0, 0.0, 0.27]), centre + np.array([0.3, 0.1, 0.0]), [0.0, 1.0, 0.0],
+                        75.0, 31, 27)
+    else:
+        camera = _CAMERAS[view]
     bounds = camera_depth_bounds(m, camera)
     pix, d = _jittered_rays(camera, 6, seed=len(view))
     first, last = _occupied_spans(m, camera.eye, d)
     near = bounds.near[pix[1] // bounds.tile, pix[0] // bounds.tile]
     far = bounds.far[pix[1] // bounds.tile, pix[0] // bounds.tile]
     crosses = np.isfinite(first)
-    assert 0.05 < crosses.mean() < 1.0 or view == "inside", f"a poor test view: {crosses.mean():.2f} of rays cross"
+    inside = view in ("inside", "cavity", "in-solid")
+    assert 0.05 < crosses.mean() < 1.0 or inside, f"a poor test view: {crosses.mean():.2f} of rays cross"
     assert np.all(near[crosses] <= first[crosses]), "a ray meets an occupied macrocell before its tile's near bound"
     assert np.all(far[crosses] >= last[crosses]), "a ray leaves an occupied macrocell after its tile's far bound"
     assert np.all(np.isfinite(near[crosses])), "a tile marked empty has a ray that meets the medium"
