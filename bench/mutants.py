@@ -673,6 +673,11 @@ MUTANTS: tuple[Mutant, ...] = (
            "                    if depth > _BEHIND:\n", "                    if True:\n",
            (f"{DEPTH}::test_every_ray_meets_the_medium_within_its_tiles_bounds",),
            "interior macrocells are skipped even where they hold the eye: its rays start inside the medium late"),
+    Mutant("depth_map_neighbour_tile", "runtime/denoise/depth.py",
+           "tx = min(int(cx) // tile, ntx - 1)", "tx = min(int(cx) // tile + 1, ntx - 1)",
+           ("tests/runtime/denoise/test_wrls_reprojection.py::"
+            "test_depth_walks_within_tile_bounds_give_the_whole_walks_depths",),
+           "a depth ray reads the depth bounds of the tile to its right: it skips medium or misses it"),
     Mutant("depth_bounds_walk_starts_late", "runtime/wavefront/first_interaction.py",
            "tmin = max(0.0, near[ty, tx] - entry)", "tmin = max(0.0, near[ty, tx] - entry + 0.02)",
            (f"{DEPTH}::test_bounds_change_no_sample_on_embedded_scenes",),

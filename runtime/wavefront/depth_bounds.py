@@ -155,7 +155,15 @@ def _rasterize(majorant: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, view: 
 
 def camera_depth_bounds(m: Medium, camera: Camera, tile: int = TILE) -> DepthBounds:
     """The depth bounds of ``camera``'s tiles over ``m``'s occupied macrocells (module docstring)."""
-    near, far = _rasterize(m.majorant, m.bmin, m.bsize, pack_view(camera), int(tile))
+    return grid_depth_bounds(m.majorant, m.bmin, m.bsize, camera, tile)
+
+
+def grid_depth_bounds(grid: np.ndarray, bmin: np.ndarray, size: np.ndarray, camera: Camera,
+                      tile: int = TILE) -> DepthBounds:
+    """The depth bounds of ``camera``'s tiles over the cells > 0 of any ``grid`` of equal boxes spanning
+    ``[bmin, bmin + size]`` (the majorant grid, or the depth maps' coarse extinction)."""
+    near, far = _rasterize(np.ascontiguousarray(grid, np.float64), np.asarray(bmin, np.float64),
+                           np.asarray(size, np.float64), pack_view(camera), int(tile))
     return DepthBounds(int(tile), near, far)
 
 

@@ -128,6 +128,27 @@ def test_depth_leaping_over_empty_cells_gives_the_cell_by_cell_depths(name: str)
         np.testing.assert_allclose(a[np.isfinite(a)], b[np.isfinite(b)], rtol=1e-6)
 
 
+@pytest.mark.parametrize("name", ["vortex", "shell", "head", "odd"])
+def test_depth_walks_within_tile_bounds_give_the_whole_walks_depths(name: str) -> None:
+    """Each depth ray is walked only within its tile's depth bounds over the coarse cells with medium (none in an
+    empty tile): the depths of the walk through the whole box, on the embedded scenes from three views (one of them
+    inside the volume) and on a volume whose coarse grid reaches past its box (odd voxel counts)."""
+    from photon_fields.runtime.scene.scene import builtin_scene
+
+    scene = builtin_scene("blobs" if name == "odd" else name, resolution=47 if name == "odd" else 48)
+    scene = scene.with_overrides(width=44, height=36)
+    medium = scene.medium()
+    for stride in (1, 2):
+        bounded, whole = DepthEstimator(medium, stride=stride), DepthEstimator(medium, stride=stride, bounds=False)
+        inside = Camera(medium.bmin + 0.45 * medium.bsize, medium.bmin + 0.9 * medium.bsize, [0.0, 1.0, 0.0], 80.0,
+                        44, 36)
+        for cam in (orbit_camera(scene.camera, 0.0), orbit_camera(scene.camera, 137.0), inside):
+            a, b = bounded.depth(cam), whole.depth(cam)
+            np.testing.assert_array_equal(np.isinf(a), np.isinf(b))
+            assert 20 < np.isfinite(a).sum() < a.size or cam is inside, "nothing or everything seen: a poor view"
+            np.testing.assert_allclose(a[np.isfinite(a)], b[np.isfinite(b)], rtol=1e-9)
+
+
 def test_depth_stride_gives_each_block_its_centre_ray_depth(box) -> None:  # noqa: ANN001
     cam = camera(41, 29)  # odd sizes: partial blocks at the right and bottom
     view = pack_view(cam)
