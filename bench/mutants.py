@@ -678,6 +678,10 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/denoise/test_wrls_reprojection.py::"
             "test_depth_walks_within_tile_bounds_give_the_whole_walks_depths",),
            "a depth ray reads the depth bounds of the tile to its right: it skips medium or misses it"),
+    Mutant("wrls_clamp_rows_fixed", "runtime/denoise/wrls_kernels.py",
+           "_rows_extreme(hmin[i:i + 2 * clamp_r + 1]", "_rows_extreme(hmin[i:i + 3]",
+           ("tests/runtime/denoise/test_wrls_reference.py::test_kernels_match_a_float64_reference",),
+           "Psi's lower bound takes three filtered rows whatever the clamp radius"),
     Mutant("depth_bounds_walk_starts_late", "runtime/wavefront/first_interaction.py",
            "tmin = max(0.0, near[ty, tx] - entry)", "tmin = max(0.0, near[ty, tx] - entry + 0.02)",
            (f"{DEPTH}::test_bounds_change_no_sample_on_embedded_scenes",),

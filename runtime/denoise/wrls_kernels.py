@@ -1,8 +1,8 @@
 """The WRLS denoiser's numba kernels, two parallel regions per frame (:mod:`photon_fields.runtime.denoise.wrls`
-says what each stage computes and why, with the paper's equation numbers): :func:`temporal` (per row, the pixel
-reconstruction filter and Psi's bounds of :func:`_prepare_row`, then reprojection, Eq. 12 feature, Eq. 13 weight,
-wRLS update Eq. 8-11 / 14) and :func:`spatial` (the 5x5 blend of the neighbours' models). The state layout they
-share is defined here.
+says what each stage computes and why, with the paper's equation numbers): :func:`temporal` (per block of rows, the
+pixel reconstruction filter and Psi's bounds of :func:`_prepare_rows`, then per pixel reprojection, Eq. 12 feature,
+Eq. 13 weight, wRLS update Eq. 8-11 / 14) and :func:`spatial` (the 5x5 blend of the neighbours' models). The state
+layout they share is defined here.
 """
 
 from __future__ import annotations
@@ -27,6 +27,9 @@ PLANES = 29
 # vectorize); so frames are checked finite first, and background depths are -1 inside the kernels, not inf.
 _FAST = True
 P_MAX_TRACE = 1e6  # the cap on trace(P) against covariance wind-up (in temporal)
+#: Rows per task of :func:`temporal`: the reconstruction filter and Psi's bounds filter each row of a task once,
+#: plus a margin of ``2 (clamp_radius + r)`` rows shared with the neighbouring tasks.
+ROWS_PER_TASK = 8
 
 
 
@@ -34,23 +37,26 @@ P_MAX_TRACE = 1e6  # the cap on trace(P) against covariance wind-up (in temporal
 
 
 @njit(cache=True, inline="always")
-def _prepare_row(frame: np.ndarray, taps: np.ndarray, inv_scale: np.float32, clamp_r: int, y: int,
-                 rows: np.ndarray, filt: np.ndarray, hrow: np.ndarray, hmin: np.ndarray, hmax: np.ndarray,
-                 tmp: np.ndarray, prep: np.ndarray) -> None:
-    """Stage 1 and Psi's bounds for row ``y``, as planes: ``prep[c]`` the frame through the separable Gaussian
-    pixel reconstruction filter (weights ``taps``, summing to 1, the image extended by its edge pixels) in units
-    of the first frame's mean radiance, ``prep[3 + c]`` / ``prep[6 + c]`` the min / max of ``prep[c]`` over the
-    ``(2 clamp_r + 1)^2`` neighbourhood (rows beyond the image: the filter of the edge-extended frame; columns:
-    the edge-extended filter). The rows it needs are deinterleaved into padded buffers (``rows`` (2 (clamp_r +
-    r) + 1, W + 2 r), ``filt`` (2 clamp_r + 1, W + 2 clamp_r), ``hrow``, ``hmin``, ``hmax``, ``tmp``: scratch
-    of the caller's thread), after which every loop runs over contiguous x and vectorizes."""
+def _prepare_rows(frame: np.ndarray, taps: np.ndarray, inv_scale: np.float32, clamp_r: int, y0: int, y1: int,
+                  row: np.ndarray, hrow: np.ndarray, filt: np.ndarray, hmin: np.ndarray, hmax: np.ndarray,
+                  tmp: np.ndarray, prep: np.ndarray) -> None:
+    """Stage 1 and Psi's bounds for rows ``y0 .. y1 - 1``, as planes: ``prep[y - y0, c]`` the frame through the
+    separable Gaussian pixel reconstruction filter (weights ``taps``, summing to 1, the image extended by its edge
+    pixels) in units of the first frame's mean radiance, ``prep[y - y0, 3 + c]`` / ``prep[y - y0, 6 + c]`` the
+    min / max of it over the ``(2 clamp_r + 1)^2`` neighbourhood (rows beyond the image: the filter of the
+    edge-extended frame; columns: the edge-extended filter). Each row of the block and its margins is filtered
+    once (a block shares all but its margins with its neighbours' rows): ``hrow`` (n + 2 (clamp_r + r), W) the
+    horizontally filtered rows, ``filt`` (n + 2 clamp_r, W + 2 clamp_r) the filtered rows, ``hmin`` / ``hmax``
+    (n + 2 clamp_r, W) their horizontal window extremes, ``row`` (W + 2 r) and ``tmp`` (W): scratch of the
+    caller's thread. Every loop runs over contiguous x and vectorizes."""
     height, width, _ = frame.shape
     r = taps.shape[0] // 2
-    nrow = 2 * (clamp_r + r) + 1
+    n = y1 - y0
+    nh = n + 2 * (clamp_r + r)
+    nf = n + 2 * clamp_r
     for c in range(3):
-        for j in range(nrow):
-            yi = min(max(y - clamp_r - r + j, 0), height - 1)
-            row = rows[j]
+        for j in range(nh):  # virtual row y0 - clamp_r - r + j, read from the edge-extended frame
+            yi = min(max(y0 - clamp_r - r + j, 0), height - 1)
             for x in range(width):
                 row[r + x] = frame[yi, x, c] * inv_scale
             for k in range(r):
@@ -64,7 +70,7 @@ def _prepare_row(frame: np.ndarray, taps: np.ndarray, inv_scale: np.float32, cla
                 src = row[k:k + width]
                 for x in range(width):
                     h[x] += tk * src[x]
-        for j in range(2 * clamp_r + 1):
+        for j in range(nf):  # filtered virtual row y0 - clamp_r + j
             f = filt[j, clamp_r:clamp_r + width]
             for x in range(width):
                 f[x] = 0.0
@@ -77,18 +83,18 @@ def _prepare_row(frame: np.ndarray, taps: np.ndarray, inv_scale: np.float32, cla
             for k in range(clamp_r):
                 fr[k] = fr[clamp_r]
                 fr[clamp_r + width + k] = fr[clamp_r + width - 1]
-        centre = filt[clamp_r, clamp_r:clamp_r + width]
-        out = prep[c]
-        for x in range(width):
-            out[x] = centre[x]
-        # Psi's bounds, separably: per filtered row the min / max over the horizontal window, then over the
-        # rows. Every loop writes one array from two others (a form LLVM vectorizes: an in-place
-        # lo[x] = min(lo[x], v) does not), ping-ponging between buffers.
-        for j in range(2 * clamp_r + 1):
-            _window_extreme(filt[j], clamp_r, width, hmin[j], tmp, True)
-            _window_extreme(filt[j], clamp_r, width, hmax[j], tmp, False)
-        _rows_extreme(hmin, prep[3 + c], tmp, True)
-        _rows_extreme(hmax, prep[6 + c], tmp, False)
+            # Psi's bounds, separably: per filtered row the min / max over the horizontal window, then over the
+            # rows. Every loop writes one array from two others (a form LLVM vectorizes: an in-place
+            # lo[x] = min(lo[x], v) does not), ping-ponging between buffers.
+            _window_extreme(fr, clamp_r, width, hmin[j], tmp, True)
+            _window_extreme(fr, clamp_r, width, hmax[j], tmp, False)
+        for i in range(n):
+            out = prep[i, c]
+            centre = filt[i + clamp_r, clamp_r:clamp_r + width]
+            for x in range(width):
+                out[x] = centre[x]
+            _rows_extreme(hmin[i:i + 2 * clamp_r + 1], prep[i, 3 + c], tmp, True)
+            _rows_extreme(hmax[i:i + 2 * clamp_r + 1], prep[i, 6 + c], tmp, False)
 
 
 @njit(cache=True, inline="always")
@@ -166,138 +172,154 @@ def _gather(prev: np.ndarray, prev_depth: np.ndarray, qx: float, qy: float, dist
     return wsum
 
 
+@njit(cache=True, inline="always")
+def _update_row(prep: np.ndarray, y: int, width: int, pad: int, prev: np.ndarray, cur: np.ndarray,
+                planes: np.ndarray, found_out: np.ndarray, have_prev: bool, moving: bool, view_cur: np.ndarray,
+                view_prev: np.ndarray, depth: np.ndarray, prev_depth: np.ndarray, alpha: float, lam: float,
+                inv_h2: float, inv_lam: float, eps: float, prior: float, history_pred: bool, depth_tol: float,
+                hist: np.ndarray) -> None:
+    """Stages 2-4 for the pixels of row ``y``, from its prepared planes ``prep`` (:func:`_prepare_rows`)."""
+    height = depth.shape[0]
+    for x in range(width):
+        i0 = prep[0, x]
+        i1 = prep[1, x]
+        i2 = prep[2, x]
+        # Stage 2: reprojection, q = pi(v_j).
+        found = 0.0
+        if have_prev:
+            if moving:
+                qx, qy, dist, front = reproject_pixel(view_cur, view_prev, x, y, float(depth[y, x]))
+                if front and 0.0 <= qx < width and 0.0 <= qy < height:
+                    found = _gather(prev, prev_depth, qx, qy, dist, depth_tol, hist)
+            else:
+                for k in range(STATE):
+                    hist[k] = prev[y, x, k]
+                found = 1.0
+        found_out[y, x] = found
+        # Stage 3: the temporal feature, Eq. 12, with the clamped history Psi[z_q(t-1), I~_j(t)].
+        if found > 0.0:
+            c0 = min(max(hist[_Z], prep[3, x]), prep[6, x])
+            c1 = min(max(hist[_Z + 1], prep[4, x]), prep[7, x])
+            c2 = min(max(hist[_Z + 2], prep[5, x]), prep[8, x])
+            z0 = alpha * c0 + (1.0 - alpha) * i0
+            z1 = alpha * c1 + (1.0 - alpha) * i1
+            z2 = alpha * c2 + (1.0 - alpha) * i2
+        else:  # restart: no history, the initial model beta = [0, e_c], P(0) = prior I
+            c0, c1, c2 = i0, i1, i2
+            z0, z1, z2 = i0, i1, i2
+            for k in range(_B, STATE):
+                hist[k] = 0.0
+            hist[_B + 1] = 1.0
+            hist[_B + 6] = 1.0
+            hist[_B + 11] = 1.0
+            hist[_P] = prior
+            hist[_P + 4] = prior
+            hist[_P + 7] = prior
+            hist[_P + 9] = prior
+        # Stage 4: wRLS. Predictor p = [1, p1, p2, p3] (Eq. 5): the clamped history ("history") or z_j(t).
+        if history_pred:
+            p1, p2, p3 = c0, c1, c2
+        else:
+            p1, p2, p3 = z0, z1, z2
+        # Eq. 13.
+        ni = math.sqrt(i0 * i0 + i1 * i1 + i2 * i2)
+        nz = math.sqrt(z0 * z0 + z1 * z1 + z2 * z2)
+        den = min(ni, nz) + eps
+        w = math.exp(-((i0 - z0) ** 2 + (i1 - z1) ** 2 + (i2 - z2) ** 2) / (den * den) * inv_h2)
+        # P p^T with P's upper triangle [00 01 02 03 11 12 13 22 23 33].
+        s00, s01, s02, s03 = hist[_P], hist[_P + 1], hist[_P + 2], hist[_P + 3]
+        s11, s12, s13 = hist[_P + 4], hist[_P + 5], hist[_P + 6]
+        s22, s23, s33 = hist[_P + 7], hist[_P + 8], hist[_P + 9]
+        v0 = s00 + s01 * p1 + s02 * p2 + s03 * p3
+        v1 = s01 + s11 * p1 + s12 * p2 + s13 * p3
+        v2 = s02 + s12 * p1 + s22 * p2 + s23 * p3
+        v3 = s03 + s13 * p1 + s23 * p2 + s33 * p3
+        # Eq. 14 times w / w: q = w P p^T / (lambda + w p P p^T); p P p^T >= 0 for the positive definite P,
+        # also after float32 rounding.
+        g = w / (lam + w * max(v0 + p1 * v1 + p2 * v2 + p3 * v3, 0.0))
+        q0, q1, q2, q3 = g * v0, g * v1, g * v2, g * v3
+        # Eq. 8 (a priori error) and Eq. 9, per channel.
+        for c in range(3):
+            b = _B + 4 * c
+            ic = i0 if c == 0 else (i1 if c == 1 else i2)
+            e = ic - (hist[b] + hist[b + 1] * p1 + hist[b + 2] * p2 + hist[b + 3] * p3)
+            b0 = hist[b] + q0 * e
+            b1 = hist[b + 1] + q1 * e
+            b2 = hist[b + 2] + q2 * e
+            b3 = hist[b + 3] + q3 * e
+            cur[y, x, b] = b0
+            cur[y, x, b + 1] = b1
+            cur[y, x, b + 2] = b2
+            cur[y, x, b + 3] = b3
+            planes[_B + 4 * c, y, pad + x] = b0
+            planes[_B + 4 * c + 1, y, pad + x] = b1
+            planes[_B + 4 * c + 2, y, pad + x] = b2
+            planes[_B + 4 * c + 3, y, pad + x] = b3
+        # Eq. 11: P(t) = (P - q p P) / lambda; q p P = q v^T is symmetric. A pixel whose samples all get w ~ 0
+        # would see P grow as lambda^-t without bound (RLS "covariance wind-up", float32 overflow after ~40k
+        # frames): P is scaled back to a trace of P_MAX_TRACE, which keeps it positive definite.
+        t00 = s00 - q0 * v0
+        t11 = s11 - q1 * v1
+        t22 = s22 - q2 * v2
+        t33 = s33 - q3 * v3
+        k = inv_lam
+        trace = (t00 + t11 + t22 + t33) * inv_lam
+        if trace > P_MAX_TRACE:
+            k *= P_MAX_TRACE / trace
+        cur[y, x, _P] = t00 * k
+        cur[y, x, _P + 1] = (s01 - q0 * v1) * k
+        cur[y, x, _P + 2] = (s02 - q0 * v2) * k
+        cur[y, x, _P + 3] = (s03 - q0 * v3) * k
+        cur[y, x, _P + 4] = t11 * k
+        cur[y, x, _P + 5] = (s12 - q1 * v2) * k
+        cur[y, x, _P + 6] = (s13 - q1 * v3) * k
+        cur[y, x, _P + 7] = t22 * k
+        cur[y, x, _P + 8] = (s23 - q2 * v3) * k
+        cur[y, x, _P + 9] = t33 * k
+        cur[y, x, _Z] = z0
+        cur[y, x, _Z + 1] = z1
+        cur[y, x, _Z + 2] = z2
+        planes[_Z, y, pad + x] = z0
+        planes[_Z + 1, y, pad + x] = z1
+        planes[_Z + 2, y, pad + x] = z2
+        planes[_N, y, pad + x] = nz
+        planes[_F, y, pad + x] = p1
+        planes[_F + 1, y, pad + x] = p2
+        planes[_F + 2, y, pad + x] = p3
+
+
 @njit(cache=True, parallel=True, fastmath=_FAST)
 def temporal(frame: np.ndarray, taps: np.ndarray, inv_scale: np.float32, clamp_r: int, prev: np.ndarray,
              cur: np.ndarray, planes: np.ndarray, found_out: np.ndarray, have_prev: bool, moving: bool,
              view_cur: np.ndarray, view_prev: np.ndarray, depth: np.ndarray, prev_depth: np.ndarray, alpha: float,
              lam: float, h: float, eps: float, prior: float, history_pred: bool, depth_tol: float) -> None:
-    """Stages 1-4 for every pixel, one row at a time: the row's reconstructed frame and Psi's bounds
-    (:func:`_prepare_row`), then reproject, Eq. 12, Eq. 13, Eq. 14 / 8 / 9 / 11; writes the new state ``cur``,
+    """Stages 1-4 for every pixel, in tasks of :data:`ROWS_PER_TASK` rows: the rows' reconstructed frame and Psi's
+    bounds (:func:`_prepare_rows`), then per pixel reproject, Eq. 12, Eq. 13, Eq. 14 / 8 / 9 / 11
+    (:func:`_update_row`); writes the new state ``cur``,
     the spatial filter's ``planes`` (columns offset by their padding, which stays 0) and the history weight
     found (0: restarted) into ``found_out``. One parallel region: the reconstructed frame never goes to
     memory."""
     height, width, _ = frame.shape
     pad = (planes.shape[2] - width) // 2
     r = taps.shape[0] // 2
-    nrow = 2 * (clamp_r + r) + 1
     inv_h2 = 1.0 / (h * h)
     inv_lam = 1.0 / lam
-    for y in prange(height):
+    for block in prange((height + ROWS_PER_TASK - 1) // ROWS_PER_TASK):
+        y0 = block * ROWS_PER_TASK
+        y1 = min(height, y0 + ROWS_PER_TASK)
         hist = np.empty(STATE)
-        rows = np.empty((nrow, width + 2 * r), dtype=np.float32)
-        filt = np.empty((2 * clamp_r + 1, width + 2 * clamp_r), dtype=np.float32)
-        hrow = np.empty((nrow, width), dtype=np.float32)
-        hmin = np.empty((2 * clamp_r + 1, width), dtype=np.float32)
-        hmax = np.empty((2 * clamp_r + 1, width), dtype=np.float32)
+        row = np.empty(width + 2 * r, dtype=np.float32)
+        hrow = np.empty((ROWS_PER_TASK + 2 * (clamp_r + r), width), dtype=np.float32)
+        filt = np.empty((ROWS_PER_TASK + 2 * clamp_r, width + 2 * clamp_r), dtype=np.float32)
+        hmin = np.empty((ROWS_PER_TASK + 2 * clamp_r, width), dtype=np.float32)
+        hmax = np.empty((ROWS_PER_TASK + 2 * clamp_r, width), dtype=np.float32)
         tmp = np.empty(width, dtype=np.float32)
-        prep = np.empty((9, width), dtype=np.float32)
-        _prepare_row(frame, taps, inv_scale, clamp_r, y, rows, filt, hrow, hmin, hmax, tmp, prep)
-        for x in range(width):
-            i0 = prep[0, x]
-            i1 = prep[1, x]
-            i2 = prep[2, x]
-            # Stage 2: reprojection, q = pi(v_j).
-            found = 0.0
-            if have_prev:
-                if moving:
-                    qx, qy, dist, front = reproject_pixel(view_cur, view_prev, x, y, float(depth[y, x]))
-                    if front and 0.0 <= qx < width and 0.0 <= qy < height:
-                        found = _gather(prev, prev_depth, qx, qy, dist, depth_tol, hist)
-                else:
-                    for k in range(STATE):
-                        hist[k] = prev[y, x, k]
-                    found = 1.0
-            found_out[y, x] = found
-            # Stage 3: the temporal feature, Eq. 12, with the clamped history Psi[z_q(t-1), I~_j(t)].
-            if found > 0.0:
-                c0 = min(max(hist[_Z], prep[3, x]), prep[6, x])
-                c1 = min(max(hist[_Z + 1], prep[4, x]), prep[7, x])
-                c2 = min(max(hist[_Z + 2], prep[5, x]), prep[8, x])
-                z0 = alpha * c0 + (1.0 - alpha) * i0
-                z1 = alpha * c1 + (1.0 - alpha) * i1
-                z2 = alpha * c2 + (1.0 - alpha) * i2
-            else:  # restart: no history, the initial model beta = [0, e_c], P(0) = prior I
-                c0, c1, c2 = i0, i1, i2
-                z0, z1, z2 = i0, i1, i2
-                for k in range(_B, STATE):
-                    hist[k] = 0.0
-                hist[_B + 1] = 1.0
-                hist[_B + 6] = 1.0
-                hist[_B + 11] = 1.0
-                hist[_P] = prior
-                hist[_P + 4] = prior
-                hist[_P + 7] = prior
-                hist[_P + 9] = prior
-            # Stage 4: wRLS. Predictor p = [1, p1, p2, p3] (Eq. 5): the clamped history ("history") or z_j(t).
-            if history_pred:
-                p1, p2, p3 = c0, c1, c2
-            else:
-                p1, p2, p3 = z0, z1, z2
-            # Eq. 13.
-            ni = math.sqrt(i0 * i0 + i1 * i1 + i2 * i2)
-            nz = math.sqrt(z0 * z0 + z1 * z1 + z2 * z2)
-            den = min(ni, nz) + eps
-            w = math.exp(-((i0 - z0) ** 2 + (i1 - z1) ** 2 + (i2 - z2) ** 2) / (den * den) * inv_h2)
-            # P p^T with P's upper triangle [00 01 02 03 11 12 13 22 23 33].
-            s00, s01, s02, s03 = hist[_P], hist[_P + 1], hist[_P + 2], hist[_P + 3]
-            s11, s12, s13 = hist[_P + 4], hist[_P + 5], hist[_P + 6]
-            s22, s23, s33 = hist[_P + 7], hist[_P + 8], hist[_P + 9]
-            v0 = s00 + s01 * p1 + s02 * p2 + s03 * p3
-            v1 = s01 + s11 * p1 + s12 * p2 + s13 * p3
-            v2 = s02 + s12 * p1 + s22 * p2 + s23 * p3
-            v3 = s03 + s13 * p1 + s23 * p2 + s33 * p3
-            # Eq. 14 times w / w: q = w P p^T / (lambda + w p P p^T); p P p^T >= 0 for the positive definite P,
-            # also after float32 rounding.
-            g = w / (lam + w * max(v0 + p1 * v1 + p2 * v2 + p3 * v3, 0.0))
-            q0, q1, q2, q3 = g * v0, g * v1, g * v2, g * v3
-            # Eq. 8 (a priori error) and Eq. 9, per channel.
-            for c in range(3):
-                b = _B + 4 * c
-                ic = i0 if c == 0 else (i1 if c == 1 else i2)
-                e = ic - (hist[b] + hist[b + 1] * p1 + hist[b + 2] * p2 + hist[b + 3] * p3)
-                b0 = hist[b] + q0 * e
-                b1 = hist[b + 1] + q1 * e
-                b2 = hist[b + 2] + q2 * e
-                b3 = hist[b + 3] + q3 * e
-                cur[y, x, b] = b0
-                cur[y, x, b + 1] = b1
-                cur[y, x, b + 2] = b2
-                cur[y, x, b + 3] = b3
-                planes[_B + 4 * c, y, pad + x] = b0
-                planes[_B + 4 * c + 1, y, pad + x] = b1
-                planes[_B + 4 * c + 2, y, pad + x] = b2
-                planes[_B + 4 * c + 3, y, pad + x] = b3
-            # Eq. 11: P(t) = (P - q p P) / lambda; q p P = q v^T is symmetric. A pixel whose samples all get w ~ 0
-            # would see P grow as lambda^-t without bound (RLS "covariance wind-up", float32 overflow after ~40k
-            # frames): P is scaled back to a trace of P_MAX_TRACE, which keeps it positive definite.
-            t00 = s00 - q0 * v0
-            t11 = s11 - q1 * v1
-            t22 = s22 - q2 * v2
-            t33 = s33 - q3 * v3
-            k = inv_lam
-            trace = (t00 + t11 + t22 + t33) * inv_lam
-            if trace > P_MAX_TRACE:
-                k *= P_MAX_TRACE / trace
-            cur[y, x, _P] = t00 * k
-            cur[y, x, _P + 1] = (s01 - q0 * v1) * k
-            cur[y, x, _P + 2] = (s02 - q0 * v2) * k
-            cur[y, x, _P + 3] = (s03 - q0 * v3) * k
-            cur[y, x, _P + 4] = t11 * k
-            cur[y, x, _P + 5] = (s12 - q1 * v2) * k
-            cur[y, x, _P + 6] = (s13 - q1 * v3) * k
-            cur[y, x, _P + 7] = t22 * k
-            cur[y, x, _P + 8] = (s23 - q2 * v3) * k
-            cur[y, x, _P + 9] = t33 * k
-            cur[y, x, _Z] = z0
-            cur[y, x, _Z + 1] = z1
-            cur[y, x, _Z + 2] = z2
-            planes[_Z, y, pad + x] = z0
-            planes[_Z + 1, y, pad + x] = z1
-            planes[_Z + 2, y, pad + x] = z2
-            planes[_N, y, pad + x] = nz
-            planes[_F, y, pad + x] = p1
-            planes[_F + 1, y, pad + x] = p2
-            planes[_F + 2, y, pad + x] = p3
+        prep_rows = np.empty((ROWS_PER_TASK, 9, width), dtype=np.float32)
+        _prepare_rows(frame, taps, inv_scale, clamp_r, y0, y1, row, hrow, filt, hmin, hmax, tmp, prep_rows)
+        for y in range(y0, y1):
+            _update_row(prep_rows[y - y0], y, width, pad, prev, cur, planes, found_out, have_prev, moving, view_cur,
+                        view_prev, depth, prev_depth, alpha, lam, inv_h2, inv_lam, eps, prior, history_pred,
+                        depth_tol, hist)
 
 
 @njit(cache=True, parallel=True, fastmath=_FAST)

@@ -1,9 +1,10 @@
 """The WRLS kernels against a plain float64 reference of the same equations, written pixel by pixel in numpy
 (the module docstring of runtime/denoise/wrls.py, stages 1-5): a moving camera over a box (reprojection, depth
 test, restarts at the border), fireflies (Eq. 13's weight), a static frame at the end, with the default
-parameters and with ``predictor="feature"``. The kernels are compiled with fastmath and keep their state in
-float32, so the two agree to float32 rounding, not bit for bit: the kernels' loops may be fused, reordered and
-vectorized freely, and this test is what says that they still compute the paper's denoiser."""
+parameters, with ``predictor="feature"`` and with a wider clamp window and reconstruction filter. The kernels
+are compiled with fastmath and keep their state in float32, so the two agree to float32 rounding, not bit for
+bit: the kernels' loops may be fused, reordered and vectorized freely, and this test is what says that they
+still compute the paper's denoiser."""
 
 from __future__ import annotations
 
@@ -147,10 +148,13 @@ def sequence():  # noqa: ANN201
     return frames, cams, depths
 
 
-@pytest.mark.parametrize("predictor", ["history", "feature"])
-def test_kernels_match_a_float64_reference(sequence, predictor: str) -> None:  # noqa: ANN001
+@pytest.mark.parametrize(("predictor", "wide"), [("history", False), ("feature", False), ("history", True)])
+def test_kernels_match_a_float64_reference(sequence, predictor: str, wide: bool) -> None:  # noqa: ANN001
+    """``wide``: a 5x5 clamp window and a 7-tap reconstruction filter, whose margins reach beyond the kernel's
+    blocks of rows (and the image's 18 rows are two blocks and a part)."""
     frames, cams, depths = sequence
-    dn = WRLSDenoiser(W, H, predictor=predictor)
+    dn = WRLSDenoiser(W, H, predictor=predictor, **({"clamp_radius": 2, "reconstruction_sigma": 1.0} if wide else {}))
+    assert dn._taps.shape[0] == (7 if wide else 3)
     ref = Reference(dn.params, dn._taps, dn._spatial_w)
     restarted = 0
     for f, c, d in zip(frames, cams, depths, strict=True):
