@@ -43,7 +43,7 @@ from photon_fields.runtime.transport.environment_map import EnvMap
 from photon_fields.runtime.transport.medium import Medium, intersect_box
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
-from photon_fields.runtime.transport.tracking import TASK_ITEMS, ratio_track
+from photon_fields.runtime.transport.tracking import SHADOW_SWITCH, TASK_ITEMS, ratio_track
 
 
 @njit(cache=True, inline="always")
@@ -88,11 +88,12 @@ def _light_term(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap,
 @njit(cache=True, inline="always")
 def _shadow(m: Medium, px: float, py: float, pz: float, lx: float, ly: float, lz: float, tend: float,
             state: np.uint64) -> tuple[float, np.uint64]:
-    """Transmittance from p towards the light (direction l, ``tend`` away at most), by ratio tracking."""
+    """Transmittance from p towards the light (direction l, ``tend`` away at most), by ratio tracking, its rest
+    below ``SHADOW_SWITCH`` by delta tracking (:mod:`photon_fields.runtime.transport.tracking`)."""
     t0, t1 = intersect_box(m, px, py, pz, lx, ly, lz)
     tr = 1.0
     if t0 < t1:
-        tr, state = ratio_track(m, px, py, pz, lx, ly, lz, t0, min(t1, tend), state)
+        tr, state = ratio_track(m, px, py, pz, lx, ly, lz, t0, min(t1, tend), state, SHADOW_SWITCH)
     return tr, state
 
 

@@ -16,14 +16,17 @@
   ``W = sum_j w_j`` estimates the collision probability 1 - T(tmax), and W f(t_J) at the kept t_J estimates
   the integral with one evaluation of f. Derivation and measurements: docs/rendering.md.
 
-  **The rest of an opaque ray** (:func:`camera_collision`): once the walk's transmittance estimate T_c falls below
+  **The rest of an opaque ray** (:func:`camera_collision`, and shadow rays with ``switch``: :func:`ratio_track`):
+  once the walk's transmittance estimate T_c falls below
   ``CAMERA_SWITCH`` at t_c, the rest of the ray is one delta-tracking flight from t_c, and a real collision t' there
   is one more candidate of weight T_c (T becomes 0); an escape keeps T = T_c. Given the walk up to t_c, the flight
   collides in [t, t + dt] with probability T(t_c -> t) sigma_t(t) dt, so E[T_c 1{t' in dt} f(t')] is the rest's
   share T(t) sigma_t(t) f(t) dt of the integral (T_c estimates T(t_c) without bias, independently of the flight),
   and the estimator stays unbiased. Where the walk would have gone on by ratio tracking and Russian roulette to
   a few optical depths, the flight stops after about one: dense media cost less, and for a ray that is opaque
-  anyway the candidate's weight is nearly certain, so the noise barely changes.
+  anyway the candidate's weight is nearly certain, so the noise barely changes. A shadow ray's rest is the same
+  flight with the track-length estimate: T_c if it escapes, 0 at a real collision; its mean is T_c times the rest's
+  transmittance, so the estimate of T(tmax) stays unbiased.
 
 All walk the majorant grid of :mod:`runtime.transport.medium` with a 3D DDA (Amanatides & Woo 1987) and use the
 macrocell's local majorant; from an empty macrocell they leap over the cube of empty macrocells ahead of it
@@ -58,6 +61,10 @@ from photon_fields.runtime.transport.medium import Medium, extinction_at, inters
 from photon_fields.runtime.transport.rng import next_float
 
 RR_THRESHOLD = 0.05
+#: Shadow rays' (:func:`ratio_track` from NEE) transmittance estimate below which the rest of the ray is one
+#: delta-tracking flight (module docstring): 0.3 made NEE 5-9 % cheaper at 512x512 on the embedded scenes for
+#: 0.1-0.8 % more noise in L_d (bench/README.md); 0.5 saved 10-13 % for 0.2-2.9 % more.
+SHADOW_SWITCH = 0.3
 #: The camera walk's transmittance estimate below which it finishes the ray by delta tracking (module docstring,
 #: "the rest of an opaque ray"): 0.3 made the 512x512 first interactions 4-11 % cheaper on the embedded scenes
 #: (alternated A/B) with the 1-spp frames' noise within 0.5 % (bench/README.md); 0.6 added 2-4 % noise on blobs
@@ -255,8 +262,10 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
                 sigma = extinction_at(m, ox + t * dx, oy + t * dy, oz + t * dz)
                 if rest:
                     state, u = next_float(state)
-                    if u * maj < sigma:  # the rest's collision: one more candidate, of weight tr
-                        w_sum += tr
+                    if u * maj < sigma:
+                        if mode == _RATIO:  # the rest's collision: the light does not get through
+                            return kept, w_sum, 0.0, state
+                        w_sum += tr  # the rest's collision: one more candidate, of weight tr
                         state, u = next_float(state)
                         if u * w_sum < tr:
                             kept = t
@@ -328,9 +337,10 @@ def record_track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: floa
 
 @njit(cache=True, inline="always")
 def ratio_track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmin: float,
-                tmax: float, state: np.uint64) -> tuple[float, np.uint64]:
-    """Unbiased transmittance estimate over [tmin, tmax]."""
-    _, _, tr, state = _track(m, ox, oy, oz, dx, dy, dz, tmin, tmax, state, _RATIO)
+                tmax: float, state: np.uint64, switch: float = 0.0) -> tuple[float, np.uint64]:
+    """Unbiased transmittance estimate over [tmin, tmax]; below ``switch`` the rest of the ray by delta tracking
+    (module docstring)."""
+    _, _, tr, state = _track(m, ox, oy, oz, dx, dy, dz, tmin, tmax, state, _RATIO, 0.0, switch)
     return tr, state
 
 
@@ -368,20 +378,21 @@ def camera_collision(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: 
 
 @njit(cache=True)
 def _track_items(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray, states: np.ndarray,
-                 mode: int, out: np.ndarray, lo: int, hi: int) -> None:
+                 mode: int, switch: float, out: np.ndarray, lo: int, hi: int) -> None:
     for i in range(lo, hi):
         t, _, tr, states[i] = _track(m, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], tmin[i], tmax[i],
-                                     states[i], mode)
+                                     states[i], mode, 0.0, switch)
         out[i] = t if mode == _DELTA else tr
 
 
 @njit(cache=True, parallel=True)
 def _track_batch(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray, states: np.ndarray,
-                 mode: int) -> np.ndarray:
+                 mode: int, switch: float = 0.0) -> np.ndarray:
     n = o.shape[1]
     out = np.empty(n)
     for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
-        _track_items(m, o, d, tmin, tmax, states, mode, out, task * TASK_ITEMS, min(n, (task + 1) * TASK_ITEMS))
+        _track_items(m, o, d, tmin, tmax, states, mode, switch, out, task * TASK_ITEMS,
+                     min(n, (task + 1) * TASK_ITEMS))
     return out
 
 
@@ -392,6 +403,7 @@ def delta_track_batch(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray,
 
 
 def ratio_track_batch(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray,
-                      states: np.ndarray) -> np.ndarray:
-    """Batch ratio tracking over SoA rays; advances ``states`` in place."""
-    return _track_batch(m, o, d, tmin, tmax, states, _RATIO)
+                      states: np.ndarray, switch: float = 0.0) -> np.ndarray:
+    """Batch ratio tracking over SoA rays (:func:`ratio_track`, ``switch`` as there); advances ``states`` in
+    place."""
+    return _track_batch(m, o, d, tmin, tmax, states, _RATIO, switch)

@@ -20,7 +20,7 @@ from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.scene.volume import make_volume
 from photon_fields.runtime.transport.medium import Medium, build_medium, extinction_batch
 from photon_fields.runtime.transport.rng import stream_states, uniform_batch
-from photon_fields.runtime.transport.tracking import delta_track_batch, ratio_track_batch
+from photon_fields.runtime.transport.tracking import SHADOW_SWITCH, delta_track_batch, ratio_track_batch
 from photon_fields.runtime.transport.tracking_numpy_baseline import (
     delta_track_numpy,
     extinction_numpy,
@@ -191,14 +191,17 @@ def test_delta_tracking_agrees_statistically(medium: Medium) -> None:
 # --- ratio tracking -------------------------------------------------------------------------------
 
 
-def test_ratio_tracking_matches_quadrature(medium: Medium) -> None:
+@pytest.mark.parametrize("switch", [0.0, SHADOW_SWITCH, 0.9])
+def test_ratio_tracking_matches_quadrature(medium: Medium, switch: float) -> None:
+    """Also with the rest of the ray by delta tracking below ``switch`` (the shadow rays' estimator; 0.9: almost
+    all of every ray), which must keep the mean."""
     m = medium
     n_rays, k = 6, 5000
     o, d, tmax = _box_rays(m, n_rays, seed=9)
     ref = np.exp(-_optical_depth(m, o, d, tmax))
     O, D, T = _repeat(o, k), _repeat(d, k), _repeat(tmax, k)
     n = n_rays * k
-    tr_nb = ratio_track_batch(m, O, D, np.zeros(n), T, stream_states(10, 0, n)).reshape(n_rays, k)
+    tr_nb = ratio_track_batch(m, O, D, np.zeros(n), T, stream_states(10, 0, n), switch).reshape(n_rays, k)
     tr_np = ratio_track_numpy(m, O, D, 0.0, T, stream_states(11, 0, n)).reshape(n_rays, k)
     assert np.all((tr_np >= 0) & (tr_np <= 1))
     for est in (tr_np, tr_nb):
