@@ -57,6 +57,7 @@ from photon_fields.runtime.pvrt.radiance import CHANNELS, light_volumes, mass_vo
 from photon_fields.runtime.pvrt.transfer import Transfer
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.cell_grid import Grid, grid_of, stencil, trilinear
+from photon_fields.runtime.transport.marching import segment_past
 from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run, task_stride
@@ -135,8 +136,8 @@ def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndar
                 run = empty_run(m, x, y, z, dx, dy, dz)
                 if run > 0.0:
                     empty_until = tm + run
-            if tm < empty_until:  # floor() never passes the first s with (jitter + s - 0.5) h >= empty_until
-                s = max(s + 1, int(min(math.floor(empty_until / h - jitter + 0.5), t_end / h + 2.0)))
+            if tm < empty_until:
+                s = segment_past(s, empty_until, h, jitter, t_end)
                 t_prev = (jitter + s - 1) * h
                 continue
             sigma, a0, a1, a2 = extinction_albedo_at(m, x, y, z)

@@ -64,7 +64,7 @@ from photon_fields.runtime.transport.light_volume import (
     new_light_volume,
     want_stencil,
 )
-from photon_fields.runtime.transport.marching import march_transmittance
+from photon_fields.runtime.transport.marching import march_transmittance, segment_past
 from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
@@ -121,11 +121,11 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
             if kind[k] == DIRECTIONAL:
                 ray_phase[k] = hg_eval(g, -(dx * vec[k, 0] + dy * vec[k, 1] + dz * vec[k, 2]))
         T = 1.0
-        t = jitter * h  # first segment [0, jitter*h) is folded into the last partial one below
+        s = 0  # segment s spans [t_{s-1}, t_s], t_s = (jitter + s) h, t_{-1} = 0 (the first one is partial)
         t_prev = 0.0
         empty_until = -math.inf
         while t_prev < tmax[i] and t_min < T:
-            t_next = min(t, tmax[i])
+            t_next = min((jitter + s) * h, tmax[i])
             seg = t_next - t_prev
             tm = 0.5 * (t_prev + t_next)
             x, y, z = o[0, i] + tm * dx, o[1, i] + tm * dy, o[2, i] + tm * dz
@@ -133,9 +133,9 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 run = empty_run(m, x, y, z, dx, dy, dz)
                 if run > 0.0:
                     empty_until = tm + run
-            if tm < empty_until:  # in empty space: sigma_t is 0 here, the sums stay as they are
-                t_prev = t_next
-                t = t_next + h
+            if tm < empty_until:  # in empty space: sigma_t is 0 up to there, the sums stay as they are
+                s = segment_past(s, empty_until, h, jitter, tmax[i])
+                t_prev = (jitter + s - 1) * h
                 continue
             sigma, a0, a1, a2 = extinction_albedo_at(m, x, y, z)
             if sigma > 0.0 and seg > 0.0:
@@ -168,8 +168,8 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 if missed[i]:
                     break
                 T *= e
+            s += 1
             t_prev = t_next
-            t = t_next + h
         trans[i] = T if t_min < T else 0.0
 
 

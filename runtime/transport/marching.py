@@ -53,3 +53,14 @@ def march_transmittance(m: Medium, px: float, py: float, pz: float, lx: float, l
         if tau > tau_max:
             return 0.0
     return math.exp(-tau)
+
+
+@njit(cache=True, inline="always")
+def segment_past(s: int, empty_until: float, h: float, jitter: float, t_end: float) -> int:
+    """A camera march's segment to go on from when segment ``s``'s midpoint lies in an empty run that ends at
+    ``empty_until``. Segment s spans [t_{s-1}, t_s] with t_s = (jitter + s) h (t_{-1} = 0) and is sampled at its
+    midpoint: the result is at least s + 1 and never past the first segment whose midpoint reaches
+    ``empty_until`` (floor() errs low; the caller's test repeats there), so the walk sums the same midpoints as
+    one stepping over every segment of the run, bit for bit, in one step per run."""
+    return max(s + 1, int(min(math.floor(empty_until / h - jitter + 0.5), t_end / h + 2.0)))
+
