@@ -50,7 +50,9 @@ import time
 import numpy as np
 from numba import njit, prange
 
+from photon_fields.runtime.denoise.reprojection import DU, DV, EYE, ORIGIN, pack_view
 from photon_fields.runtime.errors import check_choice
+from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.lights import DIRECTIONAL
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.cell_grid import Grid, stencil
@@ -65,18 +67,14 @@ from photon_fields.runtime.transport.light_volume import (
     want_stencil,
 )
 from photon_fields.runtime.transport.marching import march_transmittance, segment_past
-from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
+from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at, intersect_box
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run, task_stride
-from photon_fields.runtime.wavefront.batches import (
-    RenderResult,
-    StageTimer,
-    finish,
-    primary_ray_batches,
-    scene_environment,
-)
+from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish, scene_environment, work_batches
+from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
 from photon_fields.runtime.wavefront.film import Film
+from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box
 
 SHADOWS = ("volume", "march")
 _NO_VOLUME = np.ones((2, 2, 2, 1), dtype=np.float32)  # what "march" passes for the light volume it does not read
@@ -107,34 +105,52 @@ _MARK = 1  # mark the light-volume cells the samples read (runtime/transport/lig
 
 
 @njit(cache=True)
-def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, o: np.ndarray, d: np.ndarray,
-                 tmax: np.ndarray, states: np.ndarray, h: float, h_shadow: float, skip: bool, use_volume: bool,
-                 lv: np.ndarray, grid: Grid, t_min: float, mode: int, ld: np.ndarray, trans: np.ndarray,
-                 missed: np.ndarray, lo: int, hi: int) -> None:
-    """Rays lo..hi-1 of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why). A ray that
-    reads an unfilled light-volume cell stops with ``missed`` set."""
+def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, view: np.ndarray,
+                 width: int, n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int,
+                 h: float, h_shadow: float, skip: bool, use_volume: bool, lv: np.ndarray, grid: Grid, t_min: float,
+                 mode: int, ld: np.ndarray, trans: np.ndarray, missed: np.ndarray, lo: int, hi: int) -> None:
+    """Work items ``work[lo:hi]`` of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why):
+    each one's jittered camera ray (:func:`camera_ray`), clipped to the box (:func:`clip_to_box`) and marched
+    within its tile's depth bounds (``near`` / ``far``: eye distances). A ray that reads an unfilled
+    light-volume cell stops with ``missed`` set."""
+    origin, du, dv = view[ORIGIN:ORIGIN + 3], view[DU:DU + 3], view[DV:DV + 3]
+    ex, ey, ez = view[EYE], view[EYE + 1], view[EYE + 2]
     ray_phase = np.empty(kind.shape[0])
+    s0 = np.uint64(seed)
     for i in range(lo, hi):
-        states[i], jitter = next_float(states[i])
-        dx, dy, dz = d[0, i], d[1, i], d[2, i]
+        dx, dy, dz, p, state = camera_ray(origin, du, dv, width, n_pixels, work[i], s0)
+        state, jitter = next_float(state)
+        ld[0, i] = ld[1, i] = ld[2, i] = 0.0
+        trans[i] = 1.0
+        tile_near = near[min((p // width) // tile, near.shape[0] - 1), min((p % width) // tile, near.shape[1] - 1)]
+        if not tile_near < math.inf:
+            continue  # the ray meets no occupied macrocell (or misses the box)
+        t_box, _ = intersect_box(m, ex, ey, ez, dx, dy, dz)
+        hit, ox, oy, oz, tmax = clip_to_box(m, ex, ey, ez, dx, dy, dz)
+        if not hit:
+            continue
+        # Distances along the clipped ray: its segments before t_near and from t_far on have no medium.
+        t_near = tile_near - t_box
+        t_far = far[min((p // width) // tile, far.shape[0] - 1), min((p % width) // tile, far.shape[1] - 1)] - t_box
         for k in range(kind.shape[0]):  # a directional light's phase value is the same all along the ray
             if kind[k] == DIRECTIONAL:
                 ray_phase[k] = hg_eval(g, -(dx * vec[k, 0] + dy * vec[k, 1] + dz * vec[k, 2]))
         T = 1.0
+        l0 = l1 = l2 = 0.0
         s = 0  # segment s spans [t_{s-1}, t_s], t_s = (jitter + s) h, t_{-1} = 0 (the first one is partial)
         t_prev = 0.0
-        empty_until = -math.inf
-        while t_prev < tmax[i] and t_min < T:
-            t_next = min((jitter + s) * h, tmax[i])
+        empty_until = t_near  # before it the medium is empty: jump as over an empty run
+        while t_prev < tmax and t_prev < t_far and t_min < T:
+            t_next = min((jitter + s) * h, tmax)
             seg = t_next - t_prev
             tm = 0.5 * (t_prev + t_next)
-            x, y, z = o[0, i] + tm * dx, o[1, i] + tm * dy, o[2, i] + tm * dz
+            x, y, z = ox + tm * dx, oy + tm * dy, oz + tm * dz
             if skip and tm >= empty_until:
                 run = empty_run(m, x, y, z, dx, dy, dz)
                 if run > 0.0:
                     empty_until = tm + run
             if tm < empty_until:  # in empty space: sigma_t is 0 up to there, the sums stay as they are
-                s = segment_past(s, empty_until, h, jitter, tmax[i])
+                s = segment_past(s, empty_until, h, jitter, tmax)
                 t_prev = (jitter + s - 1) * h
                 continue
             sigma, a0, a1, a2 = extinction_albedo_at(m, x, y, z)
@@ -142,7 +158,7 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 e = math.exp(-sigma * seg)
                 w = T * (1.0 - e)
                 ts = t_prev + scattering_centroid(sigma, seg, e)
-                x, y, z = o[0, i] + ts * dx, o[1, i] + ts * dy, o[2, i] + ts * dz
+                x, y, z = ox + ts * dx, oy + ts * dy, oz + ts * dz
                 ci, cj, ck, fx, fy, fz = stencil(grid, x, y, z)
                 for k in range(kind.shape[0]):
                     # The environment is not marched (module docstring): delta_light_direction gives it 0.
@@ -162,58 +178,64 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                         c *= tl
                     else:
                         c *= _shadow_ray(m, x, y, z, lx, ly, lz, tend, h_shadow, skip)
-                    ld[0, i] += c * a0 * rgb[k, 0]
-                    ld[1, i] += c * a1 * rgb[k, 1]
-                    ld[2, i] += c * a2 * rgb[k, 2]
+                    l0 += c * a0 * rgb[k, 0]
+                    l1 += c * a1 * rgb[k, 1]
+                    l2 += c * a2 * rgb[k, 2]
                 if missed[i]:
                     break
                 T *= e
             s += 1
             t_prev = t_next
+        ld[0, i], ld[1, i], ld[2, i] = l0, l1, l2
         trans[i] = T if t_min < T else 0.0
 
 
 @njit(cache=True, parallel=True)
-def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, o: np.ndarray, d: np.ndarray,
-           tmax: np.ndarray, states: np.ndarray, h: float, h_shadow: float, skip: bool, use_volume: bool,
-           lv: np.ndarray, grid: Grid, t_min: float, mode: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    n = o.shape[1]
-    ld = np.zeros((3, n))
-    trans = np.ones(n)
+def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, view: np.ndarray, width: int,
+           n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int, h: float,
+           h_shadow: float, skip: bool, use_volume: bool, lv: np.ndarray, grid: Grid, t_min: float,
+           mode: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n = work.shape[0]
+    ld = np.empty((3, n))
+    trans = np.empty(n)
     missed = np.zeros(n, dtype=np.bool_)
     tasks = (n + TASK_ITEMS - 1) // TASK_ITEMS
     stride = task_stride(tasks)
     for task in prange(tasks):
         b = (task * stride) % tasks  # golden-ratio order: each thread gets dense and empty blocks alike
-        _march_items(m, kind, vec, rgb, g, o, d, tmax, states, h, h_shadow, skip, use_volume, lv, grid, t_min, mode,
-                     ld, trans, missed, b * TASK_ITEMS, min(n, (b + 1) * TASK_ITEMS))
+        _march_items(m, kind, vec, rgb, g, view, width, n_pixels, work, seed, near, far, tile, h, h_shadow, skip,
+                     use_volume, lv, grid, t_min, mode, ld, trans, missed, b * TASK_ITEMS, min(n, (b + 1) * TASK_ITEMS))
     return ld, trans, missed
 
 
-def march_rays(scene: Scene, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, states: np.ndarray, h: float,
-               hs: float, skip: bool, lv: LightVolume | None, t_min: float) -> tuple[np.ndarray, np.ndarray]:
-    """(L_d, transmittance) of a batch of camera rays; ``states`` advance as one march advances them. With a light
-    volume (``lv``), the rays that read unfilled cells are walked again to mark them, the cells are marched and
-    those rays marched once more from their first state (runtime/transport/light_volume.py): the sums are the
-    ones a filled volume gives."""
+def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, skip: bool, lv: LightVolume | None,
+               t_min: float) -> tuple[np.ndarray, np.ndarray]:
+    """(L_d (3, n), transmittance (n,)) of work items ``work`` (``w = sample * pixels + pixel``, the camera ray
+    of random stream w under ``seed``; rays that miss the box: 0 and 1). ``skip``: empty space is jumped over and
+    each ray is marched only within its tile's depth bounds (:mod:`photon_fields.runtime.wavefront.depth_bounds`);
+    False marches every ray through the whole box (the same sums). With a light volume (``lv``), the rays that
+    read unfilled cells are walked again to mark them, the cells are marched and those rays marched once more
+    (runtime/transport/light_volume.py): the sums are the ones a filled volume gives."""
     m = scene.medium()
+    cam = scene.camera
     kind, vec, rgb = scene.packed_lights()
     values, grid = (lv.values, lv.grid) if lv is not None else (_NO_VOLUME, _NO_GRID)
-    first = states.copy() if lv is not None else states
-    ld, trans, missed = _march(m, kind, vec, rgb, scene.g, o, d, tmax, states, h, hs, skip, lv is not None, values,
-                               grid, t_min, _SHADE)
+    bounds = depth_bounds_for(scene, m) if skip else unbounded()
+    args = (pack_view(cam), cam.width, cam.width * cam.height)
+
+    def run(items: np.ndarray, use_volume: bool, mode: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return _march(m, kind, vec, rgb, scene.g, *args, items, int(seed), bounds.near, bounds.far, bounds.tile, h,
+                      hs, skip, use_volume, values, grid, t_min, mode)
+
+    ld, trans, missed = run(work, lv is not None, _SHADE)
     if lv is None or not missed.any():
         return ld, trans
     idx = np.flatnonzero(missed)
-    so, sd, st = np.ascontiguousarray(o[:, idx]), np.ascontiguousarray(d[:, idx]), np.ascontiguousarray(tmax[idx])
-    _march(m, kind, vec, rgb, scene.g, so, sd, st, first[idx], h, hs, skip, True, values, grid, t_min, _MARK)
+    run(work[idx], True, _MARK)
     fill_wanted(m, kind, vec, lv)
-    again = first[idx]
-    ld[:, idx], trans[idx], still = _march(m, kind, vec, rgb, scene.g, so, sd, st, again, h, hs, skip, True, values,
-                                           grid, t_min, _SHADE)
+    ld[:, idx], trans[idx], still = run(work[idx], True, _SHADE)
     if still.any():
         raise RuntimeError("ray marcher: a light-volume cell its rays read was not filled")  # cannot happen
-    states[idx] = again
     return ld, trans
 
 
@@ -244,15 +266,21 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
     h = step * scene.volume.voxel_size
     hs = shadow_step * scene.volume.voxel_size
     lv = scene_light_volume(scene, light_grid_scale, shadow_step) if use_volume else None
-    film = Film(scene.camera.width, scene.camera.height)
+    cam = scene.camera
+    film = Film(cam.width, cam.height)
     timer = StageTimer()
     t_start = time.perf_counter()
-    for rays in primary_ray_batches(scene, film, timer, spp=spp, seed=seed, batch_size=batch_size,
-                                    progress=progress, desc="ray marching"):
-        with timer("march"):
-            ld, trans = march_rays(scene, rays.o, rays.d, rays.tmax, rays.rng, h, hs, skip_empty, lv,
-                                   min_transmittance)
-        film.splat("L_d", rays.pixel, ld)
-        if env is not None:
-            film.splat("L_e", rays.pixel, trans[None, :] * env.radiance(rays.d))
+    n_pixels = cam.width * cam.height
+    batch = min(batch_size, n_pixels)  # distinct pixels in a batch (Film.splat)
+    with progress_bar(total=n_pixels * spp, desc="ray marching", unit="spl", unit_scale=True,
+                      enabled=progress) as bar:
+        for start, count in work_batches(0, n_pixels * spp, batch):
+            work = np.arange(start, start + count, dtype=np.int64)
+            with timer("march"):
+                ld, trans = march_work(scene, work, seed, h, hs, skip_empty, lv, min_transmittance)
+            pixel = work % n_pixels
+            film.splat("L_d", pixel, ld, True)
+            if env is not None:
+                film.splat("L_e", pixel, trans[None, :] * env.behind_camera_rays(cam, work, seed), True)
+            bar.update(count)
     return finish(film, timer, spp, t_start, {})

@@ -16,12 +16,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from photon_fields.runtime.progress import progress_bar
+from photon_fields.runtime.scene.camera import Camera
 from photon_fields.runtime.scene.lights import ENVIRONMENT_MAP
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.emitters import ENVIRONMENT_PDF, environment_index
 from photon_fields.runtime.transport.environment_map import EnvMap, env_map_eval_batch
 from photon_fields.runtime.wavefront.film import Film
-from photon_fields.runtime.wavefront.rays import RayBatch, clip_rays_to_volume, generate_camera_rays
+from photon_fields.runtime.wavefront.rays import RayBatch, camera_directions, clip_rays_to_volume, generate_camera_rays
 
 DEFAULT_BATCH = 1 << 18
 #: Work items per batch of a render that may be cancelled between batches (the viewer's resting frames): a quarter of
@@ -79,6 +80,13 @@ class Environment:
         """Radiance (3, n) arriving along the unit directions ``d`` (3, n)."""
         return self.radiance_and_pdf(d)[0]
 
+    def behind_camera_rays(self, camera: Camera, work: np.ndarray, seed: int) -> np.ndarray:
+        """Radiance (3, n) behind the camera rays of work items ``work`` under ``seed`` (their directions
+        regenerated, :func:`photon_fields.runtime.wavefront.rays.camera_directions`, for a map only)."""
+        if self.env_map is None:
+            return np.broadcast_to(self.rgb[:, None], (3, work.shape[0]))
+        return self.radiance(camera_directions(camera, work, seed))
+
 
 def scene_environment(scene: Scene) -> Environment | None:
     """The scene's (merged) environment light, or None."""
@@ -115,6 +123,16 @@ def primary_ray_batches(scene: Scene, film: Film, timer: StageTimer, *, spp: int
                 rays = rays.compact(hit)
             yield rays
             bar.update(len(work))
+
+
+def work_batches(first: int, total: int, batch: int, split: int | None = None) -> Iterator[tuple[int, int]]:
+    """``(start, count)`` of the batches of work items ``first .. first + total``, at most ``batch`` each, none
+    straddling work item ``split`` (where the final gather starts), so each batch is gathered or not as a whole."""
+    end = first + total
+    bounds = [first, end] if split is None or not first < split < end else [first, split, end]
+    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        for start in range(lo, hi, batch):
+            yield start, min(batch, hi - start)
 
 
 def finish(film: Film, timer: StageTimer, spp: int, t_start: float, stats: dict[str, float]) -> RenderResult:

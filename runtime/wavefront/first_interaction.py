@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -72,6 +72,7 @@ from photon_fields.runtime.wavefront.batches import (
     StageTimer,
     finish,
     scene_environment,
+    work_batches,
 )
 from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
 from photon_fields.runtime.wavefront.film import Film
@@ -347,43 +348,13 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
                                              "final_gather_spp": float(gathered)})
 
 
-def work_batches(first: int, total: int, batch: int, split: int | None = None) -> Iterator[tuple[int, int]]:
-    """``(start, count)`` of the batches of work items ``first .. first + total``, at most ``batch`` each, none
-    straddling work item ``split`` (where the final gather starts), so each batch is gathered or not as a whole."""
-    end = first + total
-    bounds = [first, end] if split is None or not first < split < end else [first, split, end]
-    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
-        for start in range(lo, hi, batch):
-            yield start, min(batch, hi - start)
-
-
-@njit(cache=True)
-def _camera_directions(origin: np.ndarray, du: np.ndarray, dv: np.ndarray, width: int, n_pixels: int,
-                       work: np.ndarray, seed: int) -> np.ndarray:
-    """The unit directions (3, n) of the camera rays of work items ``work``: :func:`camera_ray` again (the same
-    jitter draws), for the environment seen behind them (the fused kernel keeps no direction of a ray that
-    misses or escapes)."""
-    d = np.empty((3, work.shape[0]))
-    s0 = np.uint64(seed)
-    for k in range(work.shape[0]):
-        d[0, k], d[1, k], d[2, k], _, _ = camera_ray(origin, du, dv, width, n_pixels, work[k], s0)
-    return d
-
-
 def splat_environment(film: Film, env: Environment, status: np.ndarray, transmit: np.ndarray, start: int,
                       n_pixels: int, distinct: bool, forced: bool, scene: Scene, seed: int) -> None:
     """L_e of one batch: the environment behind every ray that misses the box and, inside it, behind every
     ray that escapes ("delta", in that order, as the separate stages added them) or weighted by each ray's
-    transmittance estimate ("forced"). The environment's radiance along each ray comes from
-    :meth:`Environment.radiance`, with the camera rays' directions regenerated for a map."""
-    cam = scene.camera
-    origin, du, dv = cam.image_plane()
-
+    transmittance estimate ("forced"), from :meth:`Environment.behind_camera_rays`."""
     def radiance(items: np.ndarray) -> np.ndarray:
-        if env.env_map is None:
-            return np.broadcast_to(env.rgb[:, None], (3, items.shape[0]))
-        work = (items + start).astype(np.int64)
-        return env.radiance(_camera_directions(origin, du, dv, cam.width, n_pixels, work, int(seed)))
+        return env.behind_camera_rays(scene.camera, items + start, seed)
 
     if not forced:
         for which in (MISSED_BOX, ESCAPED):

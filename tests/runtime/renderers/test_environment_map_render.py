@@ -96,6 +96,20 @@ def test_ray_marcher_sees_a_constant_map_like_the_constant_environment() -> None
     np.testing.assert_allclose(a["L"], b["L"], rtol=1e-6)
 
 
+def test_ray_marcher_sees_the_map_along_each_camera_ray() -> None:
+    """The ray marcher's fused kernel keeps no ray direction either: per pixel (1 spp, one seed) its L_e under a map
+    is its transmittance (L_e under a constant sky, over the sky) times the map along that pixel's camera ray (the
+    path tracer's L_e through a transparent medium, which sees the map along the same rays)."""
+    sky = EnvironmentMap("sky", image=sky_map(), rotation=[120.0, -20.0, 0.0])
+    with_map = render_ray_marched(scene_with((sky,), size=16), seed=6, progress=False).layers["L_e"]
+    constant = render_ray_marched(scene_with((EnvironmentLight(SKY),), size=16), seed=6, progress=False).layers["L_e"]
+    clear = TransferFunction(np.array([0.0, 1.0]), np.ones((2, 3)), np.zeros(2), 1.0, "clear")
+    behind = render_path_traced(scene_with((sky,), tf=clear, size=16), spp=1, seed=6, progress=False).layers
+    t = constant / SKY
+    assert np.any((t > 0.05) & (t < 0.95)) and t.max() > 0.99  # rays through the medium and beside it
+    np.testing.assert_allclose(with_map, constant / SKY * behind["L_e"], rtol=1e-5, atol=1e-7)
+
+
 def test_furnace_under_a_constant_map() -> None:
     scene = scene_with((constant_map(rotation=[20.0, 50.0, 10.0]),), tf=constant_tf(20.0, 1.0), g=0.5, size=16)
     res = render_path_traced(scene, spp=64, max_depth=10_000, seed=3, progress=False)

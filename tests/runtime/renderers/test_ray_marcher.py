@@ -13,6 +13,7 @@ import pytest
 from conftest import small_camera
 
 from photon_fields.runtime.renderers.ray_marcher import render_ray_marched
+from photon_fields.runtime.scene.camera import Camera
 from photon_fields.runtime.scene.lights import DirectionalLight, PointLight
 from photon_fields.runtime.scene.scene import Scene, builtin_scene
 from photon_fields.runtime.scene.transfer import TransferFunction
@@ -35,9 +36,17 @@ def _sparse_scene() -> Scene:
                  small_camera(32), 0.3, "sparse")
 
 
-@pytest.mark.parametrize("scene", ["sparse", "vortex", "shell"])
+@pytest.mark.parametrize("scene", ["sparse", "vortex", "shell", "inside"])
 def test_skipping_empty_space_changes_no_pixel(scene: str) -> None:
-    s = _sparse_scene() if scene == "sparse" else builtin_scene(scene).with_overrides(width=32, height=32)
+    """Skipping: jumps over empty runs and each ray marched only within its tile's depth bounds (also with the
+    eye inside the volume, where macrocells behind it widen every tile's bounds)."""
+    if scene == "inside":
+        vortex = builtin_scene("vortex")
+        m = vortex.medium()
+        s = vortex.with_overrides(camera=Camera(m.bmin + 0.45 * m.bsize, m.bmin + 0.9 * m.bsize, [0.0, 1.0, 0.0],
+                                                80.0, 32, 28))
+    else:
+        s = _sparse_scene() if scene == "sparse" else builtin_scene(scene).with_overrides(width=32, height=32)
     skipped = render_ray_marched(s, spp=2, seed=4, progress=False).layers
     every = render_ray_marched(s, spp=2, seed=4, progress=False, skip_empty=False).layers
     assert skipped["L_d"].max() > 0.0
