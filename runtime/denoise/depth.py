@@ -98,14 +98,11 @@ class DepthEstimator:
     def depth(self, camera: Camera) -> np.ndarray:
         """(H, W) float32 distance from the eye along each pixel's centre ray (with ``stride`` > 1: its block's
         centre ray) to the quantile of the first collision, inf where the pixel sees (almost) no medium."""
-        s = self.stride
-        out = np.empty((-(-camera.height // s), -(-camera.width // s)), dtype=np.float32)
+        out = np.empty((camera.height, camera.width), dtype=np.float32)
         b = grid_depth_bounds(self.grid, self.bmin, self.grid_size, camera) if self.bounds else unbounded()
         _depth_image(self.grid, self.leap, self.bmin, self.bsize, self.per_unit, pack_view(camera),
-                     self.min_opacity, self.quantile, s, b.near, b.far, b.tile, out)
-        if s == 1:
-            return out
-        return np.ascontiguousarray(np.repeat(np.repeat(out, s, axis=0), s, axis=1)[:camera.height, :camera.width])
+                     self.min_opacity, self.quantile, self.stride, b.near, b.far, b.tile, out)
+        return out
 
 
 @njit(cache=True, inline="always")
@@ -224,10 +221,11 @@ def _replay(segs: np.ndarray, n: int, tau_stop: float) -> float:
 def _depth_image(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, per_unit: np.ndarray,
                  view: np.ndarray, min_opacity: float, quantile: float, stride: int, near: np.ndarray,
                  far: np.ndarray, tile: int, out: np.ndarray) -> None:
-    """One depth per ``stride`` x ``stride`` block of pixels (``out`` has a cell per block), along the ray
-    through the centre of the pixels the block covers (module docstring), walked only within the depth bounds
-    ``near`` / ``far`` of its tile (``tile`` pixels a side) of the coarse grid's occupied cells."""
-    h, w = out.shape
+    """One depth per ``stride`` x ``stride`` block of pixels, along the ray through the centre of the pixels the
+    block covers (module docstring), written to each of its pixels of ``out`` (H, W); walked only within the depth
+    bounds ``near`` / ``far`` of its tile (``tile`` pixels a side) of the coarse grid's occupied cells."""
+    height, width = out.shape
+    h, w = -(-height // stride), -(-width // stride)
     ox, oy, oz = view[EYE], view[EYE + 1], view[EYE + 2]
     nty, ntx = near.shape
     for py in prange(h):
@@ -238,14 +236,14 @@ def _depth_image(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, bsize: np
         for px in range(w):
             cx = 0.5 * (stride * px + min(stride * (px + 1), view[WIDTH]))
             tx = min(int(cx) // tile, ntx - 1)
+            depth = math.inf
             if not near[ty, tx] < math.inf:
-                out[py, px] = math.inf
+                _fill_block(out, py, px, stride, depth)
                 continue
             dx, dy, dz = pixel_direction(view, cx, cy)
-            t0, t1 = _box(bmin, bsize, ox, oy, oz, dx, dy, dz)
+            t0, t_exit = _box(bmin, bsize, ox, oy, oz, dx, dy, dz)
             t0 = max(t0, near[ty, tx])
-            t1 = min(t1, far[ty, tx])
-            depth = math.inf
+            t1 = min(t_exit, far[ty, tx])
             if t0 < t1:
                 tau_exit, _, n = _walk(grid, leap, bmin, per_unit, ox, oy, oz, dx, dy, dz, t0, t1, _TAU_OPAQUE,
                                        segs)
@@ -257,5 +255,13 @@ def _depth_image(grid: np.ndarray, leap: np.ndarray, bmin: np.ndarray, bsize: np
                     else:
                         _, t_half, _ = _walk(grid, leap, bmin, per_unit, ox, oy, oz, dx, dy, dz, t0, t1, tau_half,
                                              segs[:0])
-                    depth = t_half if t_half < math.inf else t1
-            out[py, px] = depth
+                    depth = t_half if t_half < math.inf else t_exit
+            _fill_block(out, py, px, stride, depth)
+
+
+@njit(cache=True, inline="always")
+def _fill_block(out: np.ndarray, py: int, px: int, stride: int, depth: float) -> None:
+    """Every pixel of block (py, px) of ``out`` gets ``depth``."""
+    for y in range(stride * py, min(stride * (py + 1), out.shape[0])):
+        for x in range(stride * px, min(stride * (px + 1), out.shape[1])):
+            out[y, x] = depth
