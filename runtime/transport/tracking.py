@@ -17,8 +17,8 @@
   the integral with one evaluation of f. Derivation and measurements: docs/rendering.md.
 
   **The rest of an opaque ray** (:func:`camera_collision`, and shadow rays with ``switch``: :func:`ratio_track`):
-  once the walk's transmittance estimate T_c falls below
-  ``CAMERA_SWITCH`` at t_c, the rest of the ray is one delta-tracking flight from t_c, and a real collision t' there
+  once the walk's transmittance estimate T_c falls below ``CAMERA_SWITCH`` (shadow rays: ``SHADOW_SWITCH``) at
+  t_c, the rest of the ray is one delta-tracking flight from t_c, and a real collision t' there
   is one more candidate of weight T_c (T becomes 0); an escape keeps T = T_c. Given the walk up to t_c, the flight
   collides in [t, t + dt] with probability T(t_c -> t) sigma_t(t) dt, so E[T_c 1{t' in dt} f(t')] is the rest's
   share T(t) sigma_t(t) f(t) dt of the integral (T_c estimates T(t_c) without bias, independently of the flight),
