@@ -67,7 +67,7 @@ from photon_fields.runtime.transport.light_volume import (
     want_stencil,
 )
 from photon_fields.runtime.transport.marching import march_transmittance, segment_past
-from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at, intersect_box
+from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run, task_stride
@@ -122,16 +122,17 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
         state, jitter = next_float(state)
         ld[0, i] = ld[1, i] = ld[2, i] = 0.0
         trans[i] = 1.0
-        tile_near = near[min((p // width) // tile, near.shape[0] - 1), min((p % width) // tile, near.shape[1] - 1)]
-        if not tile_near < math.inf:
+        ty = (p // width) // tile
+        tx = (p % width) // tile
+        if not near[ty, tx] < math.inf:
             continue  # the ray meets no occupied macrocell (or misses the box)
-        t_box, _ = intersect_box(m, ex, ey, ez, dx, dy, dz)
         hit, ox, oy, oz, tmax = clip_to_box(m, ex, ey, ez, dx, dy, dz)
         if not hit:
             continue
         # Distances along the clipped ray: its segments before t_near and from t_far on have no medium.
-        t_near = tile_near - t_box
-        t_far = far[min((p // width) // tile, far.shape[0] - 1), min((p % width) // tile, far.shape[1] - 1)] - t_box
+        entry = (ox - ex) * dx + (oy - ey) * dy + (oz - ez) * dz
+        t_near = near[ty, tx] - entry
+        t_far = far[ty, tx] - entry
         for k in range(kind.shape[0]):  # a directional light's phase value is the same all along the ray
             if kind[k] == DIRECTIONAL:
                 ray_phase[k] = hg_eval(g, -(dx * vec[k, 0] + dy * vec[k, 1] + dz * vec[k, 2]))

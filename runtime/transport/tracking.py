@@ -174,12 +174,12 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
            switch: float = 0.0) -> tuple[float, float, float, np.uint64]:
     """Shared walk, returning (t, W, T, state).
 
-    ``switch`` (mode _RESAMPLE): below this transmittance estimate, the rest of the ray by delta tracking (module
-    docstring). mode _DELTA: t = the real-collision distance (inf on escape). mode _RECORD: delta tracking that also
-    stops at a null collision where sigma_t > 0 if its acceptance draw u is below ``floor`` (:func:`record_track`);
-    W = 1 at a real collision, 0 at such a null one. mode _RATIO: T = the transmittance estimate over [tmin, tmax].
-    mode _RESAMPLE: the ratio-tracking walk that also keeps one tentative collision t (inf if none scored) with
-    W = sum of the scores (module docstring) and T its transmittance estimate.
+    ``switch`` (modes _RESAMPLE and _RATIO): below this transmittance estimate, the rest of the ray by delta
+    tracking (module docstring). mode _DELTA: t = the real-collision distance (inf on escape). mode _RECORD: delta
+    tracking that also stops at a null collision where sigma_t > 0 if its acceptance draw u is below ``floor``
+    (:func:`record_track`); W = 1 at a real collision, 0 at such a null one. mode _RATIO: T = the transmittance
+    estimate over [tmin, tmax]. mode _RESAMPLE: the ratio-tracking walk that also keeps one tentative collision t
+    (inf if none scored) with W = sum of the scores (module docstring) and T its transmittance estimate.
 
     The walk: a 3D DDA over the majorant grid; in a macrocell with majorant > 0 the optical depth to the next
     tentative collision is spent (module docstring); from an empty macrocell it leaps over the cube of empty macrocells
@@ -210,7 +210,7 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
     nz_t = _next_boundary(oz, ivz, bz, hz, iz, sz)
     octant = (sx >= 0) + 2 * (sy >= 0) + 4 * (sz >= 0)
     tau = -1.0  # majorant optical depth left to the next tentative collision (< 0: not drawn yet)
-    rest = False  # _RESAMPLE past ``switch``: the rest of the ray by delta tracking
+    rest = False  # past ``switch``: the rest of the ray by delta tracking
     while True:
         r = int(m.leap[octant, ix, iy, iz])
         if r >= 2:

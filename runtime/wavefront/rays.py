@@ -74,23 +74,13 @@ def _camera_rays(origin: np.ndarray, du: np.ndarray, dv: np.ndarray, width: int,
     return d, pixel, states
 
 
-@njit(cache=True)
-def _camera_directions(origin: np.ndarray, du: np.ndarray, dv: np.ndarray, width: int, n_pixels: int,
-                       work: np.ndarray, seed: int) -> np.ndarray:
-    d = np.empty((3, work.shape[0]))
-    s0 = np.uint64(seed)
-    for k in range(work.shape[0]):
-        d[0, k], d[1, k], d[2, k], _, _ = camera_ray(origin, du, dv, width, n_pixels, work[k], s0)
-    return d
-
-
 def camera_directions(camera: Camera, work: np.ndarray, seed: int) -> np.ndarray:
     """The unit directions (3, n) of work items ``work``'s camera rays under ``seed``: :func:`camera_ray` again
     (the same jitter draws), for the environment seen behind them by renderers whose fused kernels keep no
     direction."""
     origin, du, dv = camera.image_plane()
-    return _camera_directions(origin, du, dv, camera.width, camera.width * camera.height,
-                              np.ascontiguousarray(work, dtype=np.int64), int(seed))
+    return _camera_rays(origin, du, dv, camera.width, camera.width * camera.height,
+                        np.ascontiguousarray(work, dtype=np.int64), int(seed))[0]
 
 
 def generate_camera_rays(camera: Camera, work: np.ndarray, seed: int) -> RayBatch:
