@@ -451,6 +451,16 @@ MUTANTS: tuple[Mutant, ...] = (
            "ts = t_prev + scattering_centroid(sigma, seg, e)", "ts = tm",
            ("tests/runtime/renderers/test_ray_marcher.py::test_a_coarse_step_reads_the_light_at_the_lit_wall",),
            "the ray marcher reads the light at a segment's midpoint, half a step inside a dense wall"),
+    Mutant("marcher_long_segment_sampled_at_first_step", "runtime/renderers/ray_marcher.py",
+           "                tm = 0.5 * (t_prev + t_next)\n"
+           "                x, y, z = ox + tm * dx, oy + tm * dy, oz + tm * dz\n"
+           "            seg = t_next - t_prev", "            seg = t_next - t_prev",
+           ("tests/runtime/transport/test_step_grid.py::test_adaptive_steps_keep_the_image_of_a_fine_march",),
+           "the ray marcher samples a segment of several steps at its first step's midpoint"),
+    Mutant("step_grid_ignores_curvature", "runtime/transport/step_grid.py",
+           "                if curv > 0.0:", "                if curv < 0.0:",
+           ("tests/runtime/transport/test_step_grid.py::test_curvature_bounds_a_thin_medium",),
+           "the adaptive steps ignore sigma_t's curvature and span a detailed medium in one sample"),
     Mutant("light_volume_fills_one_corner", "runtime/transport/light_volume.py", "    for c in range(8):",
            "    for c in range(1):",
            ("tests/runtime/renderers/test_path_tracer.py::test_ray_marcher_matches_single_scattering",),

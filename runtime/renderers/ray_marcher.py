@@ -4,7 +4,12 @@ product's preview (noise-free, no training; bench/README.md compares its speed w
 Parameters
 ----------
 step : float (default 1.0)
-    Step length along camera rays in voxels (of the smallest voxel edge).
+    Step length along camera rays in voxels (of the smallest voxel edge): the base step.
+max_step : float or None (default None: ``DEFAULT_SPAN`` = 4 base steps)
+    The longest camera-ray segment in voxels, a whole number of base steps: each macrocell allows as many base
+    steps per segment as sigma_t's curvature and the optical depth there keep the quadrature's error small
+    (:mod:`photon_fields.runtime.transport.step_grid`), so smooth or thin media and finely sampled volumes take
+    fewer samples per ray. ``max_step <= step``: fixed steps.
 shadows : str (default "volume")
     "volume": the preview. Each delta light's transmittance is cached in a light volume
     (:mod:`photon_fields.runtime.transport.light_volume`: marched from a cell's centre the first time a sample reads
@@ -70,6 +75,7 @@ from photon_fields.runtime.transport.marching import march_transmittance, segmen
 from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
+from photon_fields.runtime.transport.step_grid import step_units, units_at
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run, task_stride
 from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish, scene_environment, work_batches
 from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
@@ -77,8 +83,12 @@ from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box
 
 SHADOWS = ("volume", "march")
+#: The longest camera-march segment by default, in base steps (runtime/transport/step_grid.py; bench/README.md,
+#: ray marcher).
+DEFAULT_SPAN = 4
 _NO_VOLUME = np.ones((2, 2, 2, 1), dtype=np.float32)  # what "march" passes for the light volume it does not read
 _NO_GRID: Grid = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 2, 2, 2)
+_FIXED_STEPS = np.ones((1, 1, 1), dtype=np.uint8)  # what fixed steps pass for the step grid they do not read
 
 
 @njit(cache=True, inline="always")
@@ -107,12 +117,14 @@ _MARK = 1  # mark the light-volume cells the samples read (runtime/transport/lig
 @njit(cache=True)
 def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, view: np.ndarray,
                  width: int, n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int,
-                 h: float, h_shadow: float, skip: bool, use_volume: bool, lv: np.ndarray, grid: Grid, t_min: float,
-                 mode: int, ld: np.ndarray, trans: np.ndarray, missed: np.ndarray, lo: int, hi: int) -> None:
+                 h: float, h_shadow: float, skip: bool, units: np.ndarray, adaptive: bool, use_volume: bool,
+                 lv: np.ndarray, grid: Grid, t_min: float, mode: int, ld: np.ndarray, trans: np.ndarray,
+                 missed: np.ndarray, lo: int, hi: int) -> None:
     """Work items ``work[lo:hi]`` of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why):
     each one's jittered camera ray (:func:`camera_ray`), clipped to the box (:func:`clip_to_box`) and marched
-    within its tile's depth bounds (``near`` / ``far``: eye distances). A ray that reads an unfilled
-    light-volume cell stops with ``missed`` set."""
+    within its tile's depth bounds (``near`` / ``far``: eye distances), in segments of ``units`` base steps ``h``
+    (per macrocell; all ones: fixed steps). A ray that reads an unfilled light-volume cell stops with ``missed``
+    set."""
     origin, du, dv = view[ORIGIN:ORIGIN + 3], view[DU:DU + 3], view[DV:DV + 3]
     ex, ey, ez = view[EYE], view[EYE + 1], view[EYE + 2]
     ray_phase = np.empty(kind.shape[0])
@@ -138,12 +150,13 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 ray_phase[k] = hg_eval(g, -(dx * vec[k, 0] + dy * vec[k, 1] + dz * vec[k, 2]))
         T = 1.0
         l0 = l1 = l2 = 0.0
-        s = 0  # segment s spans [t_{s-1}, t_s], t_s = (jitter + s) h, t_{-1} = 0 (the first one is partial)
+        # Base step s spans [t_{s-1}, t_s], t_s = (jitter + s) h, t_{-1} = 0 (the first one is partial); a
+        # segment is one base step, or as many as its macrocell allows (``units``, transport.step_grid).
+        s = 0
         t_prev = 0.0
         empty_until = t_near  # before it the medium is empty: jump as over an empty run
         while t_prev < tmax and t_prev < t_far and t_min < T:
             t_next = min((jitter + s) * h, tmax)
-            seg = t_next - t_prev
             tm = 0.5 * (t_prev + t_next)
             x, y, z = ox + tm * dx, oy + tm * dy, oz + tm * dz
             if skip and tm >= empty_until:
@@ -154,6 +167,12 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 s = segment_past(s, empty_until, h, jitter, tmax)
                 t_prev = (jitter + s - 1) * h
                 continue
+            n = units_at(m, units, x, y, z) if adaptive else 1
+            if n > 1:  # the longer segment is sampled at its own midpoint
+                t_next = min((jitter + s + n - 1) * h, tmax)
+                tm = 0.5 * (t_prev + t_next)
+                x, y, z = ox + tm * dx, oy + tm * dy, oz + tm * dz
+            seg = t_next - t_prev
             sigma, a0, a1, a2 = extinction_albedo_at(m, x, y, z)
             if sigma > 0.0 and seg > 0.0:
                 e = math.exp(-sigma * seg)
@@ -185,7 +204,7 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 if missed[i]:
                     break
                 T *= e
-            s += 1
+            s += n
             t_prev = t_next
         ld[0, i], ld[1, i], ld[2, i] = l0, l1, l2
         trans[i] = T if t_min < T else 0.0
@@ -194,8 +213,8 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
 @njit(cache=True, parallel=True)
 def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, view: np.ndarray, width: int,
            n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int, h: float,
-           h_shadow: float, skip: bool, use_volume: bool, lv: np.ndarray, grid: Grid, t_min: float,
-           mode: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           h_shadow: float, skip: bool, units: np.ndarray, adaptive: bool, use_volume: bool, lv: np.ndarray, grid: Grid,
+           t_min: float, mode: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     n = work.shape[0]
     ld = np.empty((3, n))
     trans = np.empty(n)
@@ -205,19 +224,24 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
     for task in prange(tasks):
         b = (task * stride) % tasks  # golden-ratio order: each thread gets dense and empty blocks alike
         _march_items(m, kind, vec, rgb, g, view, width, n_pixels, work, seed, near, far, tile, h, h_shadow, skip,
-                     use_volume, lv, grid, t_min, mode, ld, trans, missed, b * TASK_ITEMS, min(n, (b + 1) * TASK_ITEMS))
+                     units, adaptive, use_volume, lv, grid, t_min, mode, ld, trans, missed, b * TASK_ITEMS,
+                     min(n, (b + 1) * TASK_ITEMS))
     return ld, trans, missed
 
 
 def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, skip: bool, lv: LightVolume | None,
-               t_min: float) -> tuple[np.ndarray, np.ndarray]:
+               t_min: float, units: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(L_d (3, n), transmittance (n,)) of work items ``work`` (``w = sample * pixels + pixel``, the camera ray
     of random stream w under ``seed``; rays that miss the box: 0 and 1). ``skip``: empty space is jumped over and
     each ray is marched only within its tile's depth bounds (:mod:`photon_fields.runtime.wavefront.depth_bounds`);
     False marches every ray through the whole box (the same sums). With a light volume (``lv``), the rays that
     read unfilled cells are walked again to mark them, the cells are marched and those rays marched once more
-    (runtime/transport/light_volume.py): the sums are the ones a filled volume gives."""
+    (runtime/transport/light_volume.py): the sums are the ones a filled volume gives. ``units``: base steps per
+    segment per macrocell (:func:`photon_fields.runtime.transport.step_grid.step_units`); None: fixed steps."""
     m = scene.medium()
+    adaptive = units is not None and bool(units.max() > 1)
+    if units is None:
+        units = _FIXED_STEPS
     cam = scene.camera
     kind, vec, rgb = scene.packed_lights()
     values, grid = (lv.values, lv.grid) if lv is not None else (_NO_VOLUME, _NO_GRID)
@@ -226,7 +250,7 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
 
     def run(items: np.ndarray, use_volume: bool, mode: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return _march(m, kind, vec, rgb, scene.g, *args, items, int(seed), bounds.near, bounds.far, bounds.tile, h,
-                      hs, skip, use_volume, values, grid, t_min, mode)
+                      hs, skip, units, adaptive, use_volume, values, grid, t_min, mode)
 
     ld, trans, missed = run(work, lv is not None, _SHADE)
     if lv is None or not missed.any():
@@ -253,10 +277,21 @@ def scene_light_volume(scene: Scene, cells_per_voxel: float, shadow_step: float)
     return volumes[key]
 
 
+def scene_step_units(scene: Scene, step: float, max_step: float) -> np.ndarray:
+    """The scene's base steps per segment per macrocell for these steps (voxels;
+    :func:`photon_fields.runtime.transport.step_grid.step_units`), kept in the scene's cache (camera and g overrides
+    share it: it depends on the medium only)."""
+    grids = scene.shared_cache("step_units")
+    key = (float(step), float(max_step))
+    if key not in grids:
+        grids[key] = step_units(scene.medium(), scene.volume.voxel_size, step, max_step)
+    return grids[key]
+
+
 def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows: str = "volume",
                        shadow_step: float | None = None, light_grid_scale: float = DEFAULT_CELLS_PER_VOXEL,
-                       min_transmittance: float = 1e-2, seed: int = 0, batch_size: int = 1 << 17,
-                       progress: bool = True, skip_empty: bool = True) -> RenderResult:
+                       min_transmittance: float = 1e-2, max_step: float | None = None, seed: int = 0,
+                       batch_size: int = 1 << 17, progress: bool = True, skip_empty: bool = True) -> RenderResult:
     """Single scattering by ray marching (module docstring for the parameters). Layers L, L_e and L_d (L_i stays
     zero). ``skip_empty``: camera and shadow rays look nothing up in empty macrocells (the same image, sooner;
     False: every sample looked up, the reference the tests and ``bench_ray_marcher.py`` compare with)."""
@@ -267,6 +302,7 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
     h = step * scene.volume.voxel_size
     hs = shadow_step * scene.volume.voxel_size
     lv = scene_light_volume(scene, light_grid_scale, shadow_step) if use_volume else None
+    units = scene_step_units(scene, step, DEFAULT_SPAN * step if max_step is None else max_step)
     cam = scene.camera
     film = Film(cam.width, cam.height)
     timer = StageTimer()
@@ -278,7 +314,7 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
         for start, count in work_batches(0, n_pixels * spp, batch):
             work = np.arange(start, start + count, dtype=np.int64)
             with timer("march"):
-                ld, trans = march_work(scene, work, seed, h, hs, skip_empty, lv, min_transmittance)
+                ld, trans = march_work(scene, work, seed, h, hs, skip_empty, lv, min_transmittance, units)
             pixel = work % n_pixels
             film.splat("L_d", pixel, ld, True)
             if env is not None:

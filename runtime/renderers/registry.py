@@ -161,6 +161,9 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
     Renderer("raymarch", "single-scattering ray marcher with global shadows (a noise-free preview without L_i)",
              "photon_fields.runtime.renderers.ray_marcher:render_ray_marched",
              (Option("--step", "step", "camera-ray step length in voxels", float, 1.0, float_in(0.01, 100, "voxels")),
+              Option("--max-step", "max_step", "longest camera-ray segment in voxels (default: 4 steps): where "
+                     "sigma_t is smooth and thin a segment spans several steps (--step or less: fixed steps)", float,
+                     None, optional(float_in(0.01, 100, "voxels"))),
               Option("--shadows", "shadows", "volume (each light's transmittance cached in a light volume: the "
                      "preview) or march (a shadow ray per sample and light: the paper's baseline)", str, "volume",
                      one_of(("volume", "march"))),

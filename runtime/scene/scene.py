@@ -62,7 +62,7 @@ _SCENE_KEYS = {"name", "volume", "transfer_function", "lights", "camera", "phase
 
 
 #: The dicts :meth:`Scene.shared_cache` keeps, carried over by :meth:`Scene.with_overrides`.
-SHARED_CACHES = ("light_volumes", "depth_bounds")
+SHARED_CACHES = ("light_volumes", "depth_bounds", "step_units")
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,9 +125,9 @@ class Scene:
 
     def shared_cache(self, key: str) -> dict[Any, Any]:
         """A dict kept with the scene for what depends on its medium and lights, and on nothing else or on what
-        its keys name (the ray marcher's light volumes, ``"light_volumes"``; the camera walks' depth bounds per
-        camera, ``"depth_bounds"``): one of :data:`SHARED_CACHES`, carried over by :meth:`with_overrides`, which
-        changes neither medium nor lights."""
+        its keys name (the ray marcher's light volumes, ``"light_volumes"``, and step grids, ``"step_units"``; the
+        camera walks' depth bounds per camera, ``"depth_bounds"``): one of :data:`SHARED_CACHES`, carried over by
+        :meth:`with_overrides`, which changes neither medium nor lights."""
         if key not in SHARED_CACHES:
             raise ValueError(f"unknown shared cache {key!r} (one of {SHARED_CACHES})")
         return self._cache.setdefault(key, {})

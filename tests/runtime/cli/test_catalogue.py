@@ -435,6 +435,8 @@ CASES += [
     (R, lambda a, d, o: ["--method", "teleport", *SIZE, "--out", str(o / "r.exr")], "--method"),
     (R, lambda a, d, o: ["--max-depth", "0", *SIZE, "--out", str(o / "r.exr")], "--max-depth"),
     (R, lambda a, d, o: ["--method", "raymarch", "--step", "0", *SIZE, "--out", str(o / "r.exr")], "--step"),
+    (R, lambda a, d, o: ["--method", "raymarch", "--max-step", "-1", *SIZE, "--out", str(o / "r.exr")],
+     "--max-step"),
     (R, lambda a, d, o: ["--method", "raymarch", "--shadow-step", "0", *SIZE, "--out", str(o / "r.exr")],
      "--shadow-step"),
     (R, lambda a, d, o: ["--method", "raymarch", "--shadows", "none", *SIZE, "--out", str(o / "r.exr")],

@@ -92,7 +92,7 @@ def test_ray_marcher_matches_single_scattering(light, shadows: str) -> None:  # 
     pt, se = _seeds_stats(scene, "L_d", range(16), spp=8, max_depth=1)
     # The marcher is noise-free along a ray but still jitters sub-pixel positions, which matters at
     # the volume's silhouette: give it enough passes that its coverage noise is small.
-    rm = _block_means(render_ray_marched(scene, spp=192, step=0.5, shadows=shadows, shadow_step=0.5,
+    rm = _block_means(render_ray_marched(scene, spp=192, step=0.5, max_step=0.5, shadows=shadows, shadow_step=0.5,
                                          progress=False).layers["L_d"])
     rel = np.abs(pt - rm) / (np.abs(pt) + 1e-3)
     z = np.abs(pt - rm) / (se + 1e-6)

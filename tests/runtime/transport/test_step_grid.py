@@ -1,0 +1,141 @@
+"""The ray marcher's adaptive steps (runtime/transport/step_grid.py): each macrocell's base steps per segment from
+its two error bounds (sigma_t's curvature, the optical depth), checked on media whose bounds are known in closed
+form; and the marcher with adaptive steps against a fine fixed-step march, and with and without skipping empty
+space (tests/runtime/renderers/test_ray_marcher.py checks the rest of the marcher)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from conftest import small_camera
+
+from photon_fields.runtime.renderers.ray_marcher import render_ray_marched, scene_step_units
+from photon_fields.runtime.scene.lights import DirectionalLight
+from photon_fields.runtime.scene.scene import Scene, builtin_scene
+from photon_fields.runtime.scene.transfer import TransferFunction
+from photon_fields.runtime.scene.volume import make_volume
+from photon_fields.runtime.transport.medium import build_medium
+from photon_fields.runtime.transport.step_grid import STEP_DEPTH, STEP_TOLERANCE, step_units
+
+N = 48
+GREY = np.array([[0.8, 0.8, 0.8]] * 2)
+
+
+def _linear_tf(scale: float) -> TransferFunction:
+    """sigma_t = scale * s: linear in the normalized scalar, so a voxel's sigma_t is its scalar times ``scale``."""
+    return TransferFunction(np.array([0.0, 1.0]), GREY, np.array([0.0, 1.0]), scale, "linear")
+
+
+def _medium(field: np.ndarray, tf: TransferFunction):  # noqa: ANN202
+    volume = make_volume(field, window=(0.0, 1.0), name="probe")
+    return build_medium(volume, tf), volume.voxel_size
+
+
+def _voxel_sigma(m, s: np.ndarray) -> np.ndarray:  # noqa: ANN001
+    """sigma_t of scalars ``s`` through the medium's own table (what the renderer reads)."""
+    return np.interp(s, np.linspace(0.0, 1.0, len(m.ext_lut)), m.ext_lut)
+
+
+def _interior(units: np.ndarray) -> np.ndarray:
+    """Macrocells two away from the box (clear of the clamped voxels at its faces and of the neighbours' minimum)."""
+    return units[2:-2, 2:-2, 2:-2]
+
+
+@pytest.mark.parametrize("tau_per_voxel", [0.1, 0.3, 0.9])
+def test_a_homogeneous_medium_is_bound_by_its_optical_depth(tau_per_voxel: float) -> None:
+    """No curvature: a segment holds STEP_DEPTH optical depths of the majorant, in whole base steps, 1 to max."""
+    field = np.full((N, N, N), 0.5)
+    m, voxel = _medium(field, _linear_tf(1.0))
+    scale = tau_per_voxel / (_voxel_sigma(m, np.array([0.5]))[0] * voxel)  # the TF's scale giving that depth
+    m, voxel = _medium(field, _linear_tf(scale))
+    mu = float(m.majorant.max()) * voxel
+    for step, max_step in ((1.0, 4.0), (0.5, 4.0), (0.5, 1.0)):
+        units = step_units(m, voxel, step, max_step)
+        expected = max(1, min(int(max_step / step), int(math.floor(STEP_DEPTH / mu / step))))
+        assert np.all(units == expected), (tau_per_voxel, step, max_step, np.unique(units))
+
+
+def test_curvature_bounds_a_thin_medium() -> None:
+    """sigma_t oscillating along x, tau = t0 (1.25 + cos(i)) per voxel: its largest second difference between
+    voxels is c = 2 t0 (1 - cos 1) (at least cos(1/2) of that within any macrocell's neighbourhood), and the
+    midpoint rule's bound L^3 c / 24 <= STEP_TOLERANCE gives L = (24 STEP_TOLERANCE / c)^(1/3) base steps of one
+    voxel, rounded down; t0 is small enough that the depth bound allows 4."""
+    i = np.arange(N)
+    for length, expected, halves in ((2.3, 2, 4), (3.3, 3, 6)):  # L and L / cos(1/2)^(1/3) round down alike
+        c = 24.0 * STEP_TOLERANCE / length**3
+        t0 = c / (2.0 * (1.0 - math.cos(1.0)))
+        s = 0.5 + 0.4 * np.cos(i)  # sigma = scale * s: t0 = 0.4 scale voxel
+        field = np.broadcast_to(s[:, None, None], (N, N, N)).copy()
+        voxel = make_volume(field, window=(0.0, 1.0)).voxel_size
+        m, voxel = _medium(field, _linear_tf(t0 / (0.4 * voxel)))
+        assert float(m.majorant.max()) * voxel * 4 < STEP_DEPTH
+        units = step_units(m, voxel, 1.0, 4.0)
+        assert np.all(_interior(units) == expected), (length, np.unique(_interior(units)))
+        assert np.all(_interior(step_units(m, voxel, 0.5, 4.0)) == halves)  # in half-voxel steps
+
+
+def test_empty_macrocells_fixed_steps_and_a_peak_between_voxel_values() -> None:
+    """Empty macrocells hold 1 (the skipping and the stepping march meet the medium at the same segment); max_step
+    at or below step gives fixed steps; a transfer function that peaks between two voxels' values keeps them 1."""
+    x = (np.arange(N) + 0.5) / N
+    ramp = np.broadcast_to((0.40 + 0.2 * x)[:, None, None], (N, N, N)).copy()  # voxels pass s = 0.5 between two
+    ramp[:, :, : N // 4] = 0.0  # and an empty quarter
+    thin = TransferFunction(np.array([0.0, 0.3, 1.0]), np.array([[0.8, 0.8, 0.8]] * 3), np.array([0.0, 0.01, 0.01]),
+                            1.0, "thin")
+    m, voxel = _medium(ramp, thin)
+    smooth = step_units(m, voxel, 1.0, 4.0)
+    assert np.all(m.majorant[:, :, : N // 8 - 1] == 0.0) and np.all(smooth[:, :, : N // 8 - 1] == 1)  # empty
+    assert np.all(_interior(smooth)[:, :, N // 8:] == 4)  # thin and constant: the longest segments
+    assert np.all(step_units(m, voxel, 1.0, 1.0) == 1) and np.all(step_units(m, voxel, 2.0, 3.0) == 1)
+    pts = np.array([0.0, 0.3, 0.4985, 0.5, 0.5015, 1.0])  # a spike between the voxel values 0.4979 and 0.5021
+    spike = TransferFunction(pts, np.array([[0.8, 0.8, 0.8]] * 6), np.array([0.0, 0.01, 0.01, 1.0, 0.01, 0.01]),
+                             100.0, "spike")
+    m, voxel = _medium(ramp, spike)
+    assert float(m.majorant.max()) * voxel > 1.0  # the spike's optical depth per voxel, far above the voxels'
+    units = step_units(m, voxel, 1.0, 4.0)
+    crossing = int(np.argmin(np.abs(0.40 + 0.2 * x - 0.5))) // 2  # the macrocell whose voxels straddle s = 0.5
+    assert np.all(units[crossing, 2:-2, N // 8 + 1:-2] == 1)
+    assert np.all(units[2, 2:-2, N // 8 + 2:-2] == 4)  # far from it (and from the empty quarter)
+
+
+def _smooth_scene(n: int) -> Scene:
+    """A soft Gaussian cloud at resolution n, lit from the side: smooth and thin enough for long segments."""
+    x = (np.arange(n) + 0.5) / n
+    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
+    field = np.exp(-((X - 0.5) ** 2 + (Y - 0.5) ** 2 + (Z - 0.5) ** 2) / 0.05)
+    tf = TransferFunction(np.array([0.0, 1.0]), GREY, np.array([0.0, 1.0]), 12.0, "cloud")
+    return Scene(make_volume(field, window=(0.0, 1.0), name="cloud"), tf,
+                 (DirectionalLight([-0.6, -0.7, -0.4], [1.0, 0.95, 0.85], 3.0),), small_camera(32), 0.3, "cloud")
+
+
+def test_adaptive_steps_keep_the_image_of_a_fine_march() -> None:
+    """On a smooth cloud most segments span several steps, and the image stays within 1 % of a fixed-step march at
+    an eighth of a voxel, block by block, as the fixed 1-voxel march does (same jitter streams)."""
+    scene = _smooth_scene(64)
+    units = scene_step_units(scene, 1.0, 4.0)
+    assert np.mean(units[scene.medium().majorant > 0] > 1) > 0.5
+    fine = render_ray_marched(scene, spp=8, step=0.125, max_step=0.125, progress=False).layers["L_d"]
+    fixed = render_ray_marched(scene, spp=8, max_step=1.0, progress=False).layers["L_d"]
+    adaptive = render_ray_marched(scene, spp=8, progress=False).layers["L_d"]
+
+    def blocks(img: np.ndarray) -> np.ndarray:
+        return img.reshape(8, 4, 8, 4, 3).mean(axis=(1, 3))
+
+    lit = blocks(fine) > 0.05 * blocks(fine).max()
+    for name, img in (("fixed", fixed), ("adaptive", adaptive)):
+        assert abs(img.mean() / fine.mean() - 1) < 0.01, name
+        assert np.all(np.abs(blocks(img) / blocks(fine) - 1)[lit] < 0.03), name
+
+
+def test_skipping_empty_space_changes_no_pixel_with_long_segments() -> None:
+    """The adaptive march jumps over empty space and meets the medium at the segment the stepping march meets it
+    at, so the two images agree bit for bit (blobs at 160^3, where most occupied macrocells allow long segments)."""
+    scene = builtin_scene("blobs", 160).with_overrides(width=32, height=32)
+    assert np.mean(scene_step_units(scene, 1.0, 4.0)[scene.medium().majorant > 0] > 1) > 0.5
+    skipped = render_ray_marched(scene, spp=2, seed=4, progress=False).layers
+    every = render_ray_marched(scene, spp=2, seed=4, progress=False, skip_empty=False).layers
+    assert skipped["L_d"].max() > 0.0
+    for layer in ("L", "L_d", "L_e"):
+        np.testing.assert_array_equal(skipped[layer], every[layer], err_msg=layer)
