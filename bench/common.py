@@ -83,6 +83,22 @@ def write_report(path: Path, bench: str, info: dict[str, Any], config: dict[str,
     print(f"\nwrote {path}")
 
 
+def alternated_median_ms(fns: dict[str, Callable[[int], Any]], repeats: int) -> dict[str, float]:
+    """Median wall time in ms of each ``fns[name](seed)`` over seeds 1 .. ``repeats``, after one warm-up call each:
+    round r calls every function once, starting at the r-th (rotated order), so that neither the machine's drift
+    nor what the previous call left in the caches favours one of them."""
+    for fn in fns.values():
+        fn(0)
+    names = list(fns)
+    times: dict[str, list[float]] = {name: [] for name in names}
+    for r in range(repeats):
+        for name in names[r % len(names):] + names[:r % len(names)]:
+            t0 = time.perf_counter()
+            fns[name](r + 1)
+            times[name].append(time.perf_counter() - t0)
+    return {name: float(np.median(t)) * 1e3 for name, t in times.items()}
+
+
 def median_ms(fn: Callable[[int], Any], repeats: int, clock: Callable[[], float] = time.perf_counter) -> float:
     """Median time in ms of ``fn(seed)`` for seeds 1 .. ``repeats``, after one warm-up call ``fn(0)``, on
     ``clock`` (``time.process_time`` for CPU time)."""
