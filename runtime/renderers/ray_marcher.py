@@ -88,7 +88,6 @@ SHADOWS = ("volume", "march")
 DEFAULT_SPAN = 4
 _NO_VOLUME = np.ones((2, 2, 2, 1), dtype=np.float32)  # what "march" passes for the light volume it does not read
 _NO_GRID: Grid = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 2, 2, 2)
-_FIXED_STEPS = np.ones((1, 1, 1), dtype=np.uint8)  # what fixed steps pass for the step grid they do not read
 
 
 @njit(cache=True, inline="always")
@@ -230,18 +229,16 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
 
 
 def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, skip: bool, lv: LightVolume | None,
-               t_min: float, units: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+               t_min: float, units: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(L_d (3, n), transmittance (n,)) of work items ``work`` (``w = sample * pixels + pixel``, the camera ray
     of random stream w under ``seed``; rays that miss the box: 0 and 1). ``skip``: empty space is jumped over and
     each ray is marched only within its tile's depth bounds (:mod:`photon_fields.runtime.wavefront.depth_bounds`);
     False marches every ray through the whole box (the same sums). With a light volume (``lv``), the rays that
     read unfilled cells are walked again to mark them, the cells are marched and those rays marched once more
     (runtime/transport/light_volume.py): the sums are the ones a filled volume gives. ``units``: base steps per
-    segment per macrocell (:func:`photon_fields.runtime.transport.step_grid.step_units`); None: fixed steps."""
+    segment per macrocell (:func:`photon_fields.runtime.transport.step_grid.step_units`; all ones: fixed steps)."""
     m = scene.medium()
-    adaptive = units is not None and bool(units.max() > 1)
-    if units is None:
-        units = _FIXED_STEPS
+    adaptive = bool(units.max() > 1)
     cam = scene.camera
     kind, vec, rgb = scene.packed_lights()
     values, grid = (lv.values, lv.grid) if lv is not None else (_NO_VOLUME, _NO_GRID)

@@ -43,7 +43,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.transport.medium import Medium, _extinction_of, _voxel_span
-from photon_fields.runtime.transport.tracking import _cell_index
+from photon_fields.runtime.transport.tracking import macrocell_of
 
 #: Quadrature error allowed per segment, in optical depth (module docstring; bench/README.md, ray marcher).
 STEP_TOLERANCE = 0.05
@@ -130,6 +130,5 @@ def step_units(m: Medium, voxel: float, step: float, max_step: float, tolerance:
 @njit(cache=True, inline="always")
 def units_at(m: Medium, units: np.ndarray, x: float, y: float, z: float) -> int:
     """The base steps per segment (:func:`step_units`) of the macrocell holding the point."""
-    cx, cy, cz = m.majorant.shape
-    return int(units[_cell_index(x, m.bmin[0], cx / m.bsize[0], cx), _cell_index(y, m.bmin[1], cy / m.bsize[1], cy),
-                     _cell_index(z, m.bmin[2], cz / m.bsize[2], cz)])
+    i, j, k = macrocell_of(m, x, y, z)
+    return int(units[i, j, k])

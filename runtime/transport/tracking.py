@@ -100,11 +100,18 @@ def _cell_index(p: float, bmin: float, cells_per_unit: float, n: int) -> int:
 
 
 @njit(cache=True, inline="always")
+def macrocell_of(m: Medium, x: float, y: float, z: float) -> tuple[int, int, int]:
+    """Indices of the macrocell holding the point (clamped to the grid)."""
+    cx, cy, cz = m.majorant.shape
+    return (_cell_index(x, m.bmin[0], cx / m.bsize[0], cx), _cell_index(y, m.bmin[1], cy / m.bsize[1], cy),
+            _cell_index(z, m.bmin[2], cz / m.bsize[2], cz))
+
+
+@njit(cache=True, inline="always")
 def majorant_at(m: Medium, x: float, y: float, z: float) -> float:
     """The majorant of the macrocell holding the point (the rate of the tentative collisions there)."""
-    cx, cy, cz = m.majorant.shape
-    return m.majorant[_cell_index(x, m.bmin[0], cx / m.bsize[0], cx), _cell_index(y, m.bmin[1], cy / m.bsize[1], cy),
-                      _cell_index(z, m.bmin[2], cz / m.bsize[2], cz)]
+    i, j, k = macrocell_of(m, x, y, z)
+    return m.majorant[i, j, k]
 
 
 @njit(cache=True, inline="always")
