@@ -20,8 +20,9 @@ shadow_step : float (default 1.0 for "march", the light volume's 0.5 for "volume
     CT transfer function, a shell's wall) the midpoint sum's error across a boundary is of order 1 and differs from
     ray to ray, and exp(-tau) averaged over such errors is biased high: single scattering reads bright there. A
     finer step shrinks the bias quickly (bench/README.md, ray marcher); the path tracer's trackers are unbiased.
-light_grid_scale : float (default 1)
-    "volume": light-volume cells per voxel along each axis (finer: sharper lit walls, more memory and marching).
+light_grid_scale : float or None (default None: 1, fewer over ~320^3 voxels)
+    "volume": light-volume cells per voxel along each axis (finer: sharper lit walls, more memory and marching);
+    None: :func:`photon_fields.runtime.transport.light_volume.auto_cells_per_voxel`, at most 128 MiB a light.
 min_transmittance : float (default 1e-2)
     Early ray termination: a camera ray stops once it is this opaque. What lies behind can add at most this
     fraction of the brightest radiance it would have scattered (and of the environment seen through it).
@@ -63,9 +64,9 @@ from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.cell_grid import Grid, stencil
 from photon_fields.runtime.transport.emitters import delta_light_direction
 from photon_fields.runtime.transport.light_volume import (
-    DEFAULT_CELLS_PER_VOXEL,
     DEFAULT_SHADOW_STEP,
     LightVolume,
+    auto_cells_per_voxel,
     fill_wanted,
     light_transmittance,
     new_light_volume,
@@ -286,7 +287,7 @@ def scene_step_units(scene: Scene, step: float, max_step: float) -> np.ndarray:
 
 
 def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows: str = "volume",
-                       shadow_step: float | None = None, light_grid_scale: float = DEFAULT_CELLS_PER_VOXEL,
+                       shadow_step: float | None = None, light_grid_scale: float | None = None,
                        min_transmittance: float = 1e-2, max_step: float | None = None, seed: int = 0,
                        batch_size: int = 1 << 17, progress: bool = True, skip_empty: bool = True) -> RenderResult:
     """Single scattering by ray marching (module docstring for the parameters). Layers L, L_e and L_d (L_i stays
@@ -298,6 +299,8 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
     env = scene_environment(scene)
     h = step * scene.volume.voxel_size
     hs = shadow_step * scene.volume.voxel_size
+    if light_grid_scale is None:
+        light_grid_scale = auto_cells_per_voxel(scene.volume.dims)
     lv = scene_light_volume(scene, light_grid_scale, shadow_step) if use_volume else None
     units = scene_step_units(scene, step, DEFAULT_SPAN * step if max_step is None else max_step)
     cam = scene.camera

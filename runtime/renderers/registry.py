@@ -171,7 +171,8 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
                      "--shadows volume, 1 for march; below 1 on media with sharp, dense boundaries: the 1-voxel sum "
                      "reads bright there)", float, None, optional(float_in(0.01, 100, "voxels"))),
               Option("--light-grid-scale", "light_grid_scale", "--shadows volume: light-volume cells per voxel "
-                     "along each axis", float, 1.0, float_in(0.25, 4, "cells per voxel")),
+                     "along each axis (default: 1, fewer for volumes over ~320^3 voxels: at most 128 MiB a light)",
+                     float, None, optional(float_in(0.25, 4, "cells per voxel"))),
               Option("--min-transmittance", "min_transmittance", "early ray termination: a camera ray stops once "
                      "this opaque", float, 1e-2, float_in(0, 0.5, "(transmittance)")))),
     Renderer("photonmap", "first interactions + NEE + the photon-map estimate of L_i (needs --map)",

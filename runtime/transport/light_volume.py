@@ -2,10 +2,11 @@
 
 Parameters
 ----------
-cells_per_voxel : float (default :data:`DEFAULT_CELLS_PER_VOXEL` = 1)
+cells_per_voxel : float (default :func:`auto_cells_per_voxel`: 1, fewer for volumes over ~320^3 voxels)
     Grid cells per voxel along each axis (:func:`new_light_volume`). Finer grids resolve the light's fall-off
     across a dense, sharp wall (a skull, a shell) better and cost memory (4 bytes per cell and light) and a march
-    per cell read.
+    per cell read. The default keeps a light's volume within :data:`AUTO_CELLS` cells (128 MiB): at one cell per
+    voxel a 512^3 scan with two lights would take 1 GiB, and a frame reads it at random.
 shadow_step : float
     Step of each cell's shadow ray, in world units (the renderer passes :data:`DEFAULT_SHADOW_STEP` voxels).
 
@@ -43,6 +44,8 @@ from photon_fields.runtime.transport.medium import Medium
 from photon_fields.runtime.transport.tracking import task_stride
 
 DEFAULT_CELLS_PER_VOXEL = 1.0
+#: The default grid's cells per light at most (:func:`auto_cells_per_voxel`): one per voxel up to ~320^3 voxels.
+AUTO_CELLS = 1 << 25
 #: Voxels per step of a cell's shadow ray: half a voxel, since a cell is marched once and read by many samples
 #: (the per-sample shadow rays' 1-voxel sum reads bright at sharp walls; bench/README.md, ray marcher).
 DEFAULT_SHADOW_STEP = 0.5
@@ -67,6 +70,15 @@ class LightVolume(NamedTuple):
 def light_volume_shape(volume_shape: tuple[int, ...], cells_per_voxel: float) -> tuple[int, int, int]:
     """Cells along each axis: the voxels times ``cells_per_voxel``, plus a ring of one cell outside the box."""
     return tuple(max(1, int(round(n * cells_per_voxel))) + 2 for n in volume_shape)  # type: ignore[return-value]
+
+
+def auto_cells_per_voxel(volume_shape: tuple[int, ...]) -> float:
+    """The default cells per voxel for a volume of this shape: :data:`DEFAULT_CELLS_PER_VOXEL`, or less, in steps
+    of 1/64, where that grid (its ring included) would pass :data:`AUTO_CELLS` cells."""
+    scale = DEFAULT_CELLS_PER_VOXEL
+    while scale > 1 / 64 and math.prod(light_volume_shape(volume_shape, scale)) > AUTO_CELLS:
+        scale -= 1 / 64
+    return scale
 
 
 def new_light_volume(m: Medium, lights: int, cells_per_voxel: float, shadow_step: float) -> LightVolume:

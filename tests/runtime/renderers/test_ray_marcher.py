@@ -182,6 +182,43 @@ def test_a_light_volume_too_large_is_refused_in_one_line() -> None:
         new_light_volume(m, 2, 2.0, 0.01)
 
 
+def test_the_default_light_volume_stays_within_its_budget(monkeypatch: pytest.MonkeyPatch) -> None:
+    """One cell per voxel for the embedded scenes; for a 512^3 scan with two lights (1 GiB at one cell per voxel, over
+    the limit) fewer cells, within AUTO_CELLS a light, so that the preview renders it by default; and a render takes
+    the default scale (a budget smaller than the sparse scene's grid gives it a coarser light volume)."""
+    import math
+
+    from photon_fields.runtime.errors import InputError
+    from photon_fields.runtime.renderers.ray_marcher import scene_light_volume
+    from photon_fields.runtime.transport import light_volume
+    from photon_fields.runtime.transport.light_volume import (
+        AUTO_CELLS,
+        DEFAULT_SHADOW_STEP,
+        auto_cells_per_voxel,
+        light_volume_shape,
+        new_light_volume,
+    )
+
+    assert auto_cells_per_voxel((96, 96, 96)) == 1.0 and auto_cells_per_voxel((256, 256, 256)) == 1.0
+    big = (512, 512, 512)
+    scale = auto_cells_per_voxel(big)
+    assert 0.5 < scale < 1.0 and math.prod(light_volume_shape(big, scale)) <= AUTO_CELLS
+    m = _sparse_scene().medium()._replace(density=np.broadcast_to(np.float32(0.0), big))
+    with pytest.raises(InputError, match="--light-grid-scale.*MiB"):
+        new_light_volume(m, 2, 1.0, 0.01)
+    assert new_light_volume(m, 2, scale, 0.01).values.shape == (*light_volume_shape(big, scale), 2)
+
+    scene = _sparse_scene()
+    fine = render_ray_marched(scene, spp=2, seed=1, progress=False).layers["L_d"]
+    monkeypatch.setattr(light_volume, "AUTO_CELLS", 20**3)
+    coarse_scale = auto_cells_per_voxel(scene.volume.dims)
+    assert coarse_scale < 0.5
+    coarse = render_ray_marched(scene, spp=2, seed=1, progress=False).layers["L_d"]
+    lv = scene_light_volume(scene, coarse_scale, DEFAULT_SHADOW_STEP)
+    assert math.prod(lv.values.shape[:3]) <= 20**3 and (lv.values >= 0).any()  # the one the render filled
+    assert coarse.mean() == pytest.approx(fine.mean(), rel=0.1)
+
+
 def test_an_unknown_shadow_mode_is_refused() -> None:
     from photon_fields.runtime.errors import InputError
 

@@ -52,7 +52,7 @@ def test_options_reach_only_their_renderer_and_are_all_checked() -> None:
     args = parser.parse_args(["--method", "pt", "--max-depth", "3", "--no-nee", "--step", "2", "--shadow-step", "0.25"])
     assert renderer_options(args, "pt") == {"max_depth": 3, "nee": False}
     assert renderer_options(args, "raymarch") == {"step": 2.0, "max_step": None, "shadow_step": 0.25,
-                                                  "shadows": "volume", "light_grid_scale": 1.0,
+                                                  "shadows": "volume", "light_grid_scale": None,
                                                   "min_transmittance": 1e-2}
     assert renderer_options(args, "field") == {"camera": "forced", "light_sampling": "one",
                                                "final_gather_after": DEFAULT_GATHER_AFTER}
