@@ -27,12 +27,13 @@ segment has two sources, and each gives a bound on the segment's length L (in vo
   read at one point; in a dense medium it falls off within a voxel (a lit wall). So a segment holds at most
   ``depth`` optical depths of the macrocell's majorant: L <= depth / majorant.
 
-A macrocell's number of base steps is the least of those bounds over it and its 26 neighbours (a segment starting
-in one macrocell may end in the next: ``max_step`` is at most two macrocells at the default size), at least 1; an
-empty macrocell holds 1, so that a march that steps through empty space segment by segment and one that jumps over
-it (:func:`photon_fields.runtime.transport.marching.segment_past`) meet the medium at the same segment and sum the
-same samples. Both bounds are in voxels of the volume, so at a finer resolution of the same shapes (sigma_t per
-voxel and its second differences shrink) the segments grow, and the samples per ray stay about the same.
+A macrocell's number of base steps is the least of those bounds over the cube of macrocells that a segment starting
+in it can reach (``max_step`` in macrocells, rounded up, on every side: a wall two macrocells ahead of a segment's
+start must not fall in its unsampled half), at least 1; an empty macrocell holds 1, so that a march that steps
+through empty space segment by segment and one that jumps over it
+(:func:`photon_fields.runtime.transport.marching.segment_past`) meet the medium at the same segment and sum the same
+samples. Both bounds are in voxels of the volume, so at a finer resolution of the same shapes (sigma_t per voxel and
+its second differences shrink) the segments grow where the medium is smooth; near sharp walls they stay one step.
 """
 
 from __future__ import annotations
@@ -100,19 +101,26 @@ def _macrocell_bounds(m: Medium, voxel: float, step: float, max_units: int, tole
 
 
 @njit(cache=True, parallel=True)
-def _neighbourhood_min(units: np.ndarray) -> np.ndarray:
-    cx, cy, cz = units.shape
+def _min_along(units: np.ndarray, axis: int, radius: int) -> np.ndarray:
+    """The least value within ``radius`` cells along one axis (one pass of the separable cube minimum)."""
     out = np.empty_like(units)
-    for a in prange(cx):
-        for b in range(cy):
-            for c in range(cz):
+    n = units.shape[axis]
+    for a in prange(units.shape[0]):
+        for b in range(units.shape[1]):
+            for c in range(units.shape[2]):
+                i = a if axis == 0 else (b if axis == 1 else c)
                 v = units[a, b, c]
-                for i in range(max(a - 1, 0), min(a + 2, cx)):
-                    for j in range(max(b - 1, 0), min(b + 2, cy)):
-                        for k in range(max(c - 1, 0), min(c + 2, cz)):
-                            v = min(v, units[i, j, k])
+                for j in range(max(i - radius, 0), min(i + radius + 1, n)):
+                    v = min(v, units[j, b, c] if axis == 0 else (units[a, j, c] if axis == 1 else units[a, b, j]))
                 out[a, b, c] = v
     return out
+
+
+def _neighbourhood_min(units: np.ndarray, radius: int) -> np.ndarray:
+    """The least value over the cube of macrocells within ``radius`` of each (three passes, one per axis)."""
+    for axis in range(3):
+        units = _min_along(units, axis, radius)
+    return units
 
 
 def step_units(m: Medium, voxel: float, step: float, max_step: float, tolerance: float = STEP_TOLERANCE,
@@ -124,7 +132,9 @@ def step_units(m: Medium, voxel: float, step: float, max_step: float, tolerance:
     if max_units == 1:
         return np.ones(m.majorant.shape, dtype=np.uint8)
     own = _macrocell_bounds(m, float(voxel), float(step), max_units, float(tolerance), float(depth))
-    return _neighbourhood_min(own)
+    # A segment starts anywhere in its macrocell and spans up to max_units base steps: the macrocells it may reach.
+    edge = min(a / b for a, b in zip(m.density.shape, m.majorant.shape, strict=True))  # a macrocell's edge in voxels
+    return _neighbourhood_min(own, max(1, int(math.ceil(max_units * step / edge))))
 
 
 @njit(cache=True, inline="always")

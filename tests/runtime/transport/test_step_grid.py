@@ -97,7 +97,25 @@ def test_empty_macrocells_fixed_steps_and_a_peak_between_voxel_values() -> None:
     units = step_units(m, voxel, 1.0, 4.0)
     crossing = int(np.argmin(np.abs(0.40 + 0.2 * x - 0.5))) // 2  # the macrocell whose voxels straddle s = 0.5
     assert np.all(units[crossing, 2:-2, N // 8 + 1:-2] == 1)
-    assert np.all(units[2, 2:-2, N // 8 + 2:-2] == 4)  # far from it (and from the empty quarter)
+    assert np.all(units[2, 2:-2, N // 8 + 3:-3] == 4)  # far from it (and from the empty quarter)
+
+
+@pytest.mark.parametrize("max_step", [4.0, 8.0])
+def test_a_sharp_step_limits_every_macrocell_a_segment_could_reach_it_from(max_step: float) -> None:
+    """A thin medium whose extinction jumps between voxels N/2 - 1 and N/2 (second differences at both): the two
+    macrocells whose stencils hold them allow fewer steps, and so does every macrocell from which a segment of
+    max_step voxels could reach them (max_step / 2 macrocells of 2 voxels on either side); the ones beyond allow the
+    longest segments."""
+    field = np.full((N, N, N), 0.1)
+    field[N // 2:] = 0.9
+    voxel = make_volume(field, window=(0.0, 1.0)).voxel_size
+    m, voxel = _medium(field, _linear_tf(0.12 / (0.9 * voxel)))  # 0.12 optical depths per voxel on the dense side
+    assert float(m.majorant.max()) * voxel * max_step < STEP_DEPTH  # thin: only the jump limits the segments
+    units = step_units(m, voxel, 1.0, max_step)[:, N // 4, N // 4]
+    limited = np.flatnonzero(units < int(max_step))
+    reach = int(max_step) // 2
+    assert limited.min() == N // 4 - 1 - reach and limited.max() == N // 4 + reach, (limited, units)
+    assert units.min() == 2  # (24 STEP_TOLERANCE / 0.8 x 0.12 / 0.9)^(1/3) = 2.2 voxels
 
 
 def _smooth_scene(n: int) -> Scene:
