@@ -52,26 +52,30 @@ STEP_TOLERANCE = 0.05
 STEP_DEPTH = 1.0
 #: Base steps per segment are stored as uint8.
 MAX_UNITS = 255
-
-
-@njit(cache=True, inline="always")
-def _voxel_sigma(density: np.ndarray, lut: np.ndarray, categorical: bool, i: int, j: int, k: int) -> float:
-    """sigma_t at voxel (i, j, k)'s own value (indices clamped to the grid), through the table as
-    :func:`photon_fields.runtime.transport.medium.extinction_at` reads it."""
-    nx, ny, nz = density.shape
-    return _extinction_of(lut, categorical, density[min(max(i, 0), nx - 1), min(max(j, 0), ny - 1),
-                                                    min(max(k, 0), nz - 1)])
+#: Macrocell rows whose sigma_t one block of :func:`_macrocell_bounds` holds.
+_ROWS = 8
 
 
 @njit(cache=True, parallel=True)
-def _macrocell_bounds(m: Medium, voxel: float, step: float, max_units: int, tolerance: float,
-                      depth: float) -> np.ndarray:
-    """Base steps per segment in each macrocell by its own bounds (before the neighbourhood's minimum)."""
-    cx, cy, cz = m.majorant.shape
-    density, lut, categorical, majorant = m.density, m.ext_lut, m.categorical, m.majorant
-    nx, ny, nz = density.shape
-    out = np.ones((cx, cy, cz), dtype=np.uint8)
-    for a in prange(cx):
+def _sigma_slices(density: np.ndarray, lut: np.ndarray, categorical: bool, lo: int, hi: int) -> np.ndarray:
+    """sigma_t at the voxels of x-slices lo .. hi - 1, float64 (each voxel's value looked up once)."""
+    _, ny, nz = density.shape
+    out = np.empty((hi - lo, ny, nz))
+    for i in prange(lo, hi):
+        for j in range(ny):
+            for k in range(nz):
+                out[i - lo, j, k] = _extinction_of(lut, categorical, density[i, j, k])
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _bounds_block(sig: np.ndarray, lo: int, nx: int, majorant: np.ndarray, a0: int, a1: int, voxel: float,
+                  step: float, max_units: int, tolerance: float, depth: float, out: np.ndarray) -> None:
+    """Macrocell rows a0 .. a1 - 1 of :func:`_macrocell_bounds`, from ``sig``: sigma_t of x-slices lo .. (every
+    voxel of their spans and the x-neighbours the second differences read; indices clamped to the grid)."""
+    cx, cy, cz = majorant.shape
+    _, ny, nz = sig.shape
+    for a in prange(a0, a1):
         x0, x1 = _voxel_span(a, cx, nx)
         for b in range(cy):
             y0, y1 = _voxel_span(b, cy, ny)
@@ -83,20 +87,39 @@ def _macrocell_bounds(m: Medium, voxel: float, step: float, max_units: int, tole
                 top = 0.0
                 curv = 0.0
                 for i in range(x0, x1):
+                    xi, xm, xp = i - lo, max(i - 1, 0) - lo, min(i + 1, nx - 1) - lo
                     for j in range(y0, y1):
+                        jm, jp = max(j - 1, 0), min(j + 1, ny - 1)
                         for k in range(z0, z1):
-                            s = _voxel_sigma(density, lut, categorical, i, j, k)
+                            km, kp = max(k - 1, 0), min(k + 1, nz - 1)
+                            s = sig[xi, j, k]
                             top = max(top, s)
-                            for di, dj, dk in ((1, 0, 0), (0, 1, 0), (0, 0, 1)):
-                                d2 = (_voxel_sigma(density, lut, categorical, i - di, j - dj, k - dk) - 2.0 * s
-                                      + _voxel_sigma(density, lut, categorical, i + di, j + dj, k + dk))
-                                curv = max(curv, abs(d2))
+                            curv = max(curv, abs(sig[xm, j, k] - 2.0 * s + sig[xp, j, k]),
+                                       abs(sig[xi, jm, k] - 2.0 * s + sig[xi, jp, k]),
+                                       abs(sig[xi, j, km] - 2.0 * s + sig[xi, j, kp]))
                 if mu - top * voxel > tolerance:
                     continue  # the transfer function peaks between the voxels' values
                 length = depth / mu
                 if curv > 0.0:
                     length = min(length, (24.0 * tolerance / (curv * voxel)) ** (1.0 / 3.0))
                 out[a, b, c] = max(1, min(max_units, int(math.floor(length / step))))
+
+
+def _macrocell_bounds(m: Medium, voxel: float, step: float, max_units: int, tolerance: float,
+                      depth: float) -> np.ndarray:
+    """Base steps per segment in each macrocell by its own bounds (before the neighbourhood's minimum): sigma_t
+    looked up once per voxel, :data:`_ROWS` macrocell rows at a time (bounded memory: a 512^3 volume's block of
+    sigma_t takes ~40 MB; a lookup per voxel and neighbour took seconds there)."""
+    cx = m.majorant.shape[0]
+    nx = m.density.shape[0]
+    out = np.ones(m.majorant.shape, dtype=np.uint8)
+    for a0 in range(0, cx, _ROWS):
+        a1 = min(cx, a0 + _ROWS)
+        lo = max(_voxel_span(a0, cx, nx)[0] - 1, 0)
+        hi = min(_voxel_span(a1 - 1, cx, nx)[1] + 1, nx)
+        sig = _sigma_slices(m.density, m.ext_lut, m.categorical, lo, hi)
+        _bounds_block(sig, lo, nx, m.majorant, a0, a1, float(voxel), float(step), max_units, float(tolerance),
+                      float(depth), out)
     return out
 
 
