@@ -36,8 +36,8 @@ DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "ray_marcher.json"
 def scene_row(scene: Any, est: Any, repeats: int) -> dict[str, Any]:
     """The preview cold; then, alternated (``alternated_median_ms``), the preview warm with its adaptive segments and
     with fixed steps, the marched baseline, the path tracer and (with ``est``) the neural renderer."""
-    from photon_fields.runtime.renderers.ray_marcher import scene_light_volume
-    from photon_fields.runtime.transport.light_volume import DEFAULT_SHADOW_STEP, UNFILLED, auto_cells_per_voxel
+    from photon_fields.runtime.renderers.ray_marcher import light_volume_settings, scene_light_volume
+    from photon_fields.runtime.transport.light_volume import UNFILLED
 
     volumes = scene.shared_cache("light_volumes")
     row: dict[str, Any] = {}
@@ -59,7 +59,7 @@ def scene_row(scene: Any, est: Any, repeats: int) -> dict[str, Any]:
 
         warm["neural_ms"] = lambda seed: render_neural(scene, est, spp=1, seed=seed, progress=False)
     row.update(alternated_median_ms(warm, repeats))
-    values = scene_light_volume(scene, auto_cells_per_voxel(scene.volume.dims), DEFAULT_SHADOW_STEP).values
+    values = scene_light_volume(scene, *light_volume_settings(scene)).values
     row["light_volume_filled"] = float((values != UNFILLED).mean())
     row["light_volume_mb"] = values.nbytes / 1e6
     return row

@@ -15,7 +15,8 @@ shadows : str (default "volume")
     (:mod:`photon_fields.runtime.transport.light_volume`: marched from a cell's centre the first time a sample reads
     it, interpolated trilinearly), kept on the scene object for its later frames (camera moves, progressive passes).
     "march": the paper's baseline, a shadow ray marched from every camera sample to every light.
-shadow_step : float (default 1.0 for "march", the light volume's 0.5 for "volume")
+shadow_step : float (default 1.0 for "march"; for "volume" the light volume's 0.5, or half a cell where a cell spans
+    more than a voxel)
     Step length along shadow rays in voxels. Where sigma_t h reaches ~1 per voxel at sharp boundaries (bone in a
     CT transfer function, a shell's wall) the midpoint sum's error across a boundary is of order 1 and differs from
     ray to ray, and exp(-tau) averaged over such errors is biased high: single scattering reads bright there. A
@@ -286,6 +287,15 @@ def scene_step_units(scene: Scene, step: float, max_step: float) -> np.ndarray:
     return grids[key]
 
 
+def light_volume_settings(scene: Scene, light_grid_scale: float | None = None,
+                          shadow_step: float | None = None) -> tuple[float, float]:
+    """The preview's light-volume cells per voxel and shadow step in voxels, defaults resolved: the scale from
+    :func:`photon_fields.runtime.transport.light_volume.auto_cells_per_voxel`, the step half a cell (half a voxel
+    where cells are finer)."""
+    scale = auto_cells_per_voxel(scene.volume.dims) if light_grid_scale is None else light_grid_scale
+    return scale, DEFAULT_SHADOW_STEP / min(1.0, scale) if shadow_step is None else shadow_step
+
+
 def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows: str = "volume",
                        shadow_step: float | None = None, light_grid_scale: float | None = None,
                        min_transmittance: float = 1e-2, max_step: float | None = None, seed: int = 0,
@@ -294,13 +304,13 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
     zero). ``skip_empty``: camera and shadow rays look nothing up in empty macrocells (the same image, sooner;
     False: every sample looked up, the reference the tests and ``bench_ray_marcher.py`` compare with)."""
     use_volume = check_choice("--shadows", shadows, SHADOWS) == "volume"
-    if shadow_step is None:
-        shadow_step = DEFAULT_SHADOW_STEP if use_volume else 1.0
+    if use_volume:
+        light_grid_scale, shadow_step = light_volume_settings(scene, light_grid_scale, shadow_step)
+    elif shadow_step is None:
+        shadow_step = 1.0
     env = scene_environment(scene)
     h = step * scene.volume.voxel_size
     hs = shadow_step * scene.volume.voxel_size
-    if light_grid_scale is None:
-        light_grid_scale = auto_cells_per_voxel(scene.volume.dims)
     lv = scene_light_volume(scene, light_grid_scale, shadow_step) if use_volume else None
     units = scene_step_units(scene, step, DEFAULT_SPAN * step if max_step is None else max_step)
     cam = scene.camera

@@ -189,7 +189,7 @@ def test_the_default_light_volume_stays_within_its_budget(monkeypatch: pytest.Mo
     import math
 
     from photon_fields.runtime.errors import InputError
-    from photon_fields.runtime.renderers.ray_marcher import scene_light_volume
+    from photon_fields.runtime.renderers.ray_marcher import light_volume_settings, scene_light_volume
     from photon_fields.runtime.transport import light_volume
     from photon_fields.runtime.transport.light_volume import (
         AUTO_CELLS,
@@ -214,7 +214,10 @@ def test_the_default_light_volume_stays_within_its_budget(monkeypatch: pytest.Mo
     coarse_scale = auto_cells_per_voxel(scene.volume.dims)
     assert coarse_scale < 0.5
     coarse = render_ray_marched(scene, spp=2, seed=1, progress=False).layers["L_d"]
-    lv = scene_light_volume(scene, coarse_scale, DEFAULT_SHADOW_STEP)
+    # its shadow rays step half a cell, not half a voxel; explicit settings are kept
+    assert light_volume_settings(scene) == (coarse_scale, DEFAULT_SHADOW_STEP / coarse_scale)
+    assert light_volume_settings(scene, 2.0, 0.3) == (2.0, 0.3) and light_volume_settings(scene, 2.0)[1] == 0.5
+    lv = scene_light_volume(scene, *light_volume_settings(scene))
     assert math.prod(lv.values.shape[:3]) <= 20**3 and (lv.values >= 0).any()  # the one the render filled
     assert coarse.mean() == pytest.approx(fine.mean(), rel=0.1)
 
