@@ -28,7 +28,7 @@ from common import alternated_median_ms, finish_info, machine_info, median_ms, p
 
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
 from photon_fields.runtime.renderers.ray_marcher import render_ray_marched  # noqa: E402
-from photon_fields.runtime.scene.scene import builtin_scene  # noqa: E402
+from photon_fields.runtime.scene.scene import builtin_scene, load_scene  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "ray_marcher.json"
 
@@ -68,6 +68,8 @@ def scene_row(scene: Any, est: Any, repeats: int) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", nargs="*", help="builtin scenes (default: all)")
+    ap.add_argument("--scene-file", action="append", default=[], metavar="PATH",
+                    help="also a scene JSON (a user's volume; its name keys --bundle), at its own resolution")
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--resolution", type=int, default=96, help="voxels per side of the builtin volumes")
     ap.add_argument("--repeats", type=int, default=3)
@@ -79,9 +81,12 @@ def main(argv: list[str] | None = None) -> None:
     info = machine_info()
     results: dict[str, Any] = {}
     print(f"{'scene':8s} {'preview 1st':>12s} {'preview':>8s} {'fixed steps':>12s} {'filled':>7s} {'march':>8s} "
-          f"{'path tracer':>12s} {'neural':>8s}   (ms, {args.size}x{args.size}, {args.resolution}^3, 1 spp)")
-    for name in parse_scenes(args.scenes):
-        scene = builtin_scene(name, args.resolution).with_overrides(width=args.size, height=args.size)
+          f"{'path tracer':>12s} {'neural':>8s}  (ms, {args.size}x{args.size}, builtins at {args.resolution}^3, 1 spp)")
+    scenes = [(name, lambda name=name: builtin_scene(name, args.resolution))
+              for name in (parse_scenes(args.scenes) if args.scenes or not args.scene_file else [])]
+    scenes += [(Path(path).stem, lambda path=path: load_scene(path)) for path in args.scene_file]
+    for name, make in scenes:
+        scene = make().with_overrides(width=args.size, height=args.size)
         est = None
         if name in given:
             from photon_fields.runtime.field.field import PhotonField
@@ -95,7 +100,8 @@ def main(argv: list[str] | None = None) -> None:
               f"{row['path_tracer_ms']:12.1f} {neural}",
               flush=True)
     write_report(args.out, "ray_marcher", finish_info(info, {}), {"size": args.size, "resolution": args.resolution,
-                                                                  "repeats": args.repeats}, results=results)
+                                                                  "repeats": args.repeats,
+                                                                  "scene_files": args.scene_file}, results=results)
 
 
 if __name__ == "__main__":
