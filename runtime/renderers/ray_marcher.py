@@ -82,7 +82,7 @@ from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run, task
 from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish, scene_environment, work_batches
 from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
 from photon_fields.runtime.wavefront.film import Film
-from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box
+from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box, tile_order, tiled_work
 
 SHADOWS = ("volume", "march")
 #: The longest camera-march segment by default, in base steps (runtime/transport/step_grid.py; bench/README.md,
@@ -321,8 +321,9 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
     batch = min(batch_size, n_pixels)  # distinct pixels in a batch (Film.splat)
     with progress_bar(total=n_pixels * spp, desc="ray marching", unit="spl", unit_scale=True,
                       enabled=progress) as bar:
+        order = tile_order(cam.width, cam.height)  # each task's rays read the same cache lines (rays.py)
         for start, count in work_batches(0, n_pixels * spp, batch):
-            work = np.arange(start, start + count, dtype=np.int64)
+            work = tiled_work(start, count, order)
             with timer("march"):
                 ld, trans = march_work(scene, work, seed, h, hs, skip_empty, lv, min_transmittance, units)
             pixel = work % n_pixels
