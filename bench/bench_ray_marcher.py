@@ -6,9 +6,11 @@ For each scene (default: every builtin) at ``--size`` (default 256x256), and at 
 round):
 
 - the preview (``shadows="volume"``, the default): its first frame, which marches the light-volume cells it reads
-  (the volume is emptied before each), and a frame of the same scene after it (a camera move, a progressive pass:
-  the cells are filled), with the fraction of the light volume's cells filled; and the same warm frame with fixed
-  1-voxel steps (``max_step=1``: the preview before its adaptive segments);
+  (the volume is emptied before each), and a frame of the same scene after ``--fill-frames`` others (default 30: a
+  progressive pass, a camera moving within what was seen: the cells are filled; each new jitter reads a few cells
+  no frame read before, and a frame that fills them is partly a first frame), with the fraction of the light
+  volume's cells filled; and the same warm frame with fixed 1-voxel steps (``max_step=1``: the preview before its
+  adaptive segments);
 - the marcher with a shadow ray per sample and light (``shadows="march"``, the paper's baseline), same steps;
 - the path tracer and, with ``--bundle SCENE=PATH``, the neural renderer (Alg. 2), for scale.
 
@@ -33,9 +35,12 @@ from photon_fields.runtime.scene.scene import builtin_scene, load_scene  # noqa:
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "ray_marcher.json"
 
 
-def scene_row(scene: Any, est: Any, repeats: int) -> dict[str, Any]:
-    """The preview cold; then, alternated (``alternated_median_ms``), the preview warm with its adaptive segments and
-    with fixed steps, the marched baseline, the path tracer and (with ``est``) the neural renderer."""
+def scene_row(scene: Any, est: Any, repeats: int, fill_frames: int) -> dict[str, Any]:
+    """The preview cold; then ``fill_frames`` preview frames of other seeds with each of its step settings (each new
+    jitter reads a few cells no frame read before: at 256^3 the fifteenth frame still fills some, and a warm frame
+    that fills cells is a first frame in part); then, alternated (``alternated_median_ms``), the preview warm with
+    its adaptive segments and with fixed steps, the marched baseline, the path tracer and (with ``est``) the neural
+    renderer."""
     from photon_fields.runtime.renderers.ray_marcher import light_volume_settings, scene_light_volume
     from photon_fields.runtime.transport.light_volume import UNFILLED
 
@@ -47,6 +52,9 @@ def scene_row(scene: Any, est: Any, repeats: int) -> dict[str, Any]:
         return render_ray_marched(scene, spp=1, seed=seed, progress=False)
 
     row["preview_first_ms"] = median_ms(cold, repeats)
+    for seed in range(fill_frames):
+        for max_step in (None, 1.0):
+            render_ray_marched(scene, spp=1, seed=1000 + seed, max_step=max_step, progress=False)
     warm = {
         "preview_ms": lambda seed: render_ray_marched(scene, spp=1, seed=seed, progress=False),
         "preview_fixed_steps_ms": lambda seed: render_ray_marched(scene, spp=1, seed=seed, max_step=1.0,
@@ -73,6 +81,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--resolution", type=int, default=96, help="voxels per side of the builtin volumes")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--fill-frames", type=int, default=30,
+                    help="preview frames rendered before the warm ones are timed (their light volume filled)")
     ap.add_argument("--bundle", action="append", default=[], metavar="SCENE=PATH",
                     help="a bundle per scene for the neural renderer's row (trained at --resolution)")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
@@ -92,7 +102,7 @@ def main(argv: list[str] | None = None) -> None:
             from photon_fields.runtime.field.field import PhotonField
 
             est = PhotonField.load(given[name]).estimator()
-        row = scene_row(scene, est, args.repeats)
+        row = scene_row(scene, est, args.repeats, args.fill_frames)
         results[name] = row
         neural = f"{row['neural_ms']:8.1f}" if "neural_ms" in row else f"{'-':>8s}"
         print(f"{name:8s} {row['preview_first_ms']:12.0f} {row['preview_ms']:8.1f} "
@@ -101,6 +111,7 @@ def main(argv: list[str] | None = None) -> None:
               flush=True)
     write_report(args.out, "ray_marcher", finish_info(info, {}), {"size": args.size, "resolution": args.resolution,
                                                                   "repeats": args.repeats,
+                                                                  "fill_frames": args.fill_frames,
                                                                   "scene_files": args.scene_file}, results=results)
 
 
