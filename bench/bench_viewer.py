@@ -319,7 +319,8 @@ def main() -> int:
     p.add_argument("--bundle", default=None, help="a bundle of the scene (enables the neural renderer)")
     p.add_argument("--transfer", default=None, help="a PVRT transfer of the scene (enables the pvrt renderer and its "
                    "light phases)")
-    p.add_argument("--renderers", default=None, help="comma list of neural, pt (default: neural if --bundle, pt)")
+    p.add_argument("--renderers", default=None, help="comma list of neural, pt, preview, pvrt (default: neural if "
+                   "--bundle, pt)")
     p.add_argument("--size", default="512x512")
     p.add_argument("--drag-scales", default="1",
                    help="comma list of drag scales to measure dragging at (pfn-view --drag-scale; 1: full size, "

@@ -321,6 +321,18 @@ MUTANTS: tuple[Mutant, ...] = (
             "test_visible_sampling_mixes_seen_collisions_each_with_several_g_and_the_support",),
            "seen points paired with the opposite direction: the field learns the side no camera sees"),
     # The viewer (issue 15, step 1): session, messages, server.
+    Mutant("viewer_preview_denoised", "runtime/renderers/registry.py",
+           '"this opaque", float, 1e-2, float_in(0, 0.5, "(transmittance)"))), noisy=False),',
+           '"this opaque", float, 1e-2, float_in(0, 0.5, "(transmittance)")))),',
+           ("tests/runtime/viewer/test_viewer_preview.py::test_preview_frames_average_jittered_marches_and_stop",),
+           "the viewer denoises the preview's jittered marches (and accumulates them to --max-spp)"),
+    Mutant("viewer_edit_keeps_light_volume", "runtime/viewer/session.py",
+           "lights=tuple(lt.light() for lt in s.lights), _cache={})",
+           'lights=tuple(lt.light() for lt in s.lights), _cache={"light_volumes": '
+           'self.base_scene.shared_cache("light_volumes")})',
+           ("tests/runtime/viewer/test_viewer_preview.py::"
+            "test_preview_follows_transfer_and_light_edits_with_the_edited_scenes_light_volume",),
+           "an edited scene reads the light volume filled for the scene before the edit"),
     Mutant("viewer_same_samples", "runtime/viewer/field_in_use.py", "first_sample=n,", "first_sample=0,",
            (f"{VSESSION}::test_neural_accumulation_equals_one_render_with_all_samples",),
            "every progressive neural frame draws the same samples: the view never converges"),

@@ -105,9 +105,13 @@ class Renderer:
     input: str | None = None
     """What the command line loads for it: a key of :data:`INPUTS`, or None."""
     progressive: bool = True
-    """Whether its frames are noisy estimates that average to the image (another seed, another frame). False for a
+    """Whether its frames are estimates that average to the image (another seed, another frame). False for a
     renderer whose frame is the same for every sample index of one seed (a fixed jittered march): a viewer then
     renders one frame per view and neither accumulates nor denoises it."""
+    noisy: bool = True
+    """Whether its frames carry Monte Carlo noise, which a viewer's denoiser removes. False for the ray marcher: its
+    frames differ only by where each pixel's jitter puts the samples along its ray, which accumulating a few frames
+    averages, and a denoiser would only blur the detail it keeps."""
 
     def render_function(self) -> Callable[..., Any]:
         """The render function itself."""
@@ -174,7 +178,7 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
                      "along each axis (default: 1, fewer for volumes over ~320^3 voxels: at most 128 MiB a light)",
                      float, None, optional(float_in(0.25, 4, "cells per voxel"))),
               Option("--min-transmittance", "min_transmittance", "early ray termination: a camera ray stops once "
-                     "this opaque", float, 1e-2, float_in(0, 0.5, "(transmittance)")))),
+                     "this opaque", float, 1e-2, float_in(0, 0.5, "(transmittance)"))), noisy=False),
     Renderer("photonmap", "first interactions + NEE + the photon-map estimate of L_i (needs --map)",
              "photon_fields.runtime.renderers.photon_mapped:render_photon_mapped",
              (Option("--k", "k", "photons per estimate (K)", int, 1024, int_in(2, 1 << 16)),
@@ -194,5 +198,5 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
                      one_of(("nee", "transfer"))),
               Option("--light-grid", "light_grid", "pvrt --direct nee: light-volume cells along the box's longest "
                      "side", int, 64, int_in(4, 512))),
-             input="transfer", progressive=False),
+             input="transfer", progressive=False, noisy=False),
 )}

@@ -14,7 +14,8 @@ both; :class:`FieldInUse` says what follows from an edit:
 A PVRT transfer (:class:`photon_fields.runtime.viewer.pvrt_view.PvrtView`, ``pfn-view --transfer``) is another
 source of L_i: it follows every edit of a distant light exactly (relighting is what it is for) and cannot follow
 another transfer function or g at all, so those are refused while it renders (:meth:`FieldInUse.check`) rather
-than shown stale. The path tracer and PVRT are :data:`FOLLOWS_EDITS`: their frames are never stale.
+than shown stale. The path tracer, the preview (the ray marcher: single scattering, no L_i at all) and PVRT are
+:data:`FOLLOWS_EDITS`: their frames are never stale.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from photon_fields.runtime.viewer.transfer_edit import shows_something
 from photon_fields.runtime.viewer.updater import FieldUpdater, same_transfer
 
 #: Renderers (page names) whose L_i is computed for the scene as edited, so their frames are never stale.
-FOLLOWS_EDITS = ("pt", "pvrt")
+FOLLOWS_EDITS = ("pt", "preview", "pvrt")
 
 
 def progressive(renderer: str) -> bool:
@@ -46,6 +47,14 @@ def progressive(renderer: str) -> bool:
     from photon_fields.runtime.renderers.registry import RENDERERS
 
     return RENDERERS[RENDERER_NAMES[renderer]].progressive
+
+
+def noisy(renderer: str) -> bool:
+    """Whether ``renderer``'s (a page name) frames carry Monte Carlo noise for a denoiser (the renderer table's
+    ``noisy``: not the preview's jittered march, not PVRT's)."""
+    from photon_fields.runtime.renderers.registry import RENDERERS
+
+    return RENDERERS[RENDERER_NAMES[renderer]].noisy
 
 
 class FieldInUse:
@@ -89,8 +98,8 @@ class FieldInUse:
         return self.estimator is not None or self.pmap is not None
 
     def has(self, renderer: str) -> bool:
-        """Whether ``renderer`` (a page name) has its input here; the path tracer needs none."""
-        return {"neural": self.estimator is not None, "pt": True, "photonmap": self.pmap is not None,
+        """Whether ``renderer`` (a page name) has its input here; the path tracer and the preview need none."""
+        return {"neural": self.estimator is not None, "pt": True, "preview": True, "photonmap": self.pmap is not None,
                 "pvrt": self.pvrt is not None}[renderer]
 
     @property
@@ -149,6 +158,10 @@ class FieldInUse:
                 from photon_fields.runtime.renderers.path_tracer import render_path_traced
 
                 return render_path_traced(scene, spp=1, seed=seed + n, progress=False).layers
+            if renderer == "preview":  # its light volume is kept with the scene: camera moves reuse it
+                from photon_fields.runtime.renderers.ray_marcher import render_ray_marched
+
+                return render_ray_marched(scene, spp=1, seed=seed + n, progress=False).layers
             from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 
             pmap = self.pmap

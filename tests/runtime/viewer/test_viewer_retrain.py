@@ -190,13 +190,13 @@ def test_a_real_retrain_swaps_a_field_in(tmp_path: Path) -> None:
                                extra=("--batch", "256", "--k", "32"))
     s = ViewerSession(make_session(tmp_path).base_scene, out_dir=tmp_path / "out", seed=5, width=24, height=24,
                       retrain=settings)
-    assert s.available == ["pt"] and s.state.renderer == "pt"
+    assert s.available == ["pt", "preview"] and s.state.renderer == "pt"
     edit(s, 0.7)
     assert s.poll_updates() is None  # no field to make stale: nothing starts by itself
     s.apply(msg("retrain", action="start"))
     status = poll_until(s, {"done", "failed"})[-1]
     assert status["state"] == "done", status
-    assert status["renderers"] == ["neural", "pt", "photonmap"] and status["renderer"] == "neural"
+    assert status["renderers"] == ["neural", "pt", "preview", "photonmap"] and status["renderer"] == "neural"
     assert status["cycle_s"] > 0 and "new field in" in status["message"]
     h = s.next_frame().header
     assert h["renderer"] == "neural" and not h["stale"] and h["warnings"] == []

@@ -152,7 +152,7 @@ def test_light_controls_round_trip_the_scene_lights(tmp_path: Path) -> None:
 
 def test_renderer_without_its_input_is_refused(tmp_path: Path) -> None:
     s = ViewerSession(tiny_scene(), out_dir=tmp_path, width=24, height=24)
-    assert s.available == ["pt"] and s.state.renderer == "pt"
+    assert s.available == ["pt", "preview"] and s.state.renderer == "pt"
     with pytest.raises(MessageError, match="not available"):
         s.apply(msg("set", control="renderer", value="neural"))
     with pytest.raises(MessageError, match="not available"):

@@ -1,0 +1,65 @@
+"""The preview renderer in a viewer session (``preview``: the ray marcher): frames are jittered marches of seed
+``seed + n`` that a resting view averages up to ``PREVIEW_FRAMES`` and never denoises; it needs no field and
+follows every transfer-function and light edit at once, with a light volume of the edited scene (never the one a
+camera move keeps)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from test_viewer_transfer import MANUAL, edited
+from viewer_helpers import make_session, msg
+
+from photon_fields.runtime.renderers.ray_marcher import render_ray_marched
+from photon_fields.runtime.scene.scene import Scene
+from photon_fields.runtime.viewer.session import PREVIEW_FRAMES, ViewerSession
+
+
+def accumulated(session: ViewerSession, layer: str) -> np.ndarray:
+    with session.lock:
+        return session._acc[layer] / session._acc.samples
+
+
+def marched_mean(scene: Scene, seeds: range) -> np.ndarray:
+    return np.mean([render_ray_marched(scene, spp=1, seed=s, progress=False).layers["L_d"] for s in seeds], 0)
+
+
+def test_preview_frames_average_jittered_marches_and_stop(tmp_path: Path) -> None:
+    s = make_session(tmp_path, renderer="preview", max_spp=64)
+    assert "preview" in s.available and "preview" in s.describe()["renderers"]
+    hs = [s.next_frame().header for _ in range(3)]
+    assert [h["spp"] for h in hs] == [1, 2, 3]
+    assert not any(h["denoised"] or h["stale"] for h in hs) and all(h["warnings"] == [] for h in hs)
+    scene = s.edited_scene(s.state).with_overrides(camera=s.state.view.camera(s.state.width, s.state.height))
+    ref = marched_mean(scene, range(s.seed, s.seed + 3))
+    assert ref.max() > 0.0
+    np.testing.assert_allclose(accumulated(s, "L_d"), ref, rtol=1e-5, atol=1e-7)
+    assert np.abs(accumulated(s, "L_d") - marched_mean(scene, range(s.seed, s.seed + 1))).max() > 0.0  # 3 frames
+    assert not accumulated(s, "L_i").any()  # single scattering: no L_i, and nothing stale about it
+    while s.wants_frame():
+        s.next_frame()
+    assert s._acc.samples == PREVIEW_FRAMES < s.state.max_spp
+
+
+def test_preview_follows_transfer_and_light_edits_with_the_edited_scenes_light_volume(tmp_path: Path) -> None:
+    """After a camera move (which keeps the light volume), a light edit and then a transfer-function edit: each
+    first frame is the edited scene's own march from scratch, so no light volume of an earlier scene was read."""
+    s = make_session(tmp_path, renderer="preview", retrain=MANUAL)
+    s.next_frame()
+    s.apply(msg("orbit", dx=30.0, dy=0.0))
+    s.next_frame()
+    s.next_frame()  # the resting view's first frame
+    for edit in (msg("light", index=0, azimuth=s.state.lights[0].azimuth + 120.0),
+                 msg("transfer", **edited(s, density_scale=3 * s.base_scene.tf.density_scale))):
+        before = accumulated(s, "L_d").copy()
+        s.apply(edit)
+        h = s.next_frame().header
+        assert h["spp"] == 1 and not h["stale"] and h["warnings"] == []
+        fresh = replace(s.base_scene, tf=s.state.transfer or s.base_scene.tf, _cache={},
+                        lights=tuple(lt.light() for lt in s.state.lights)).with_overrides(
+            camera=s.state.view.camera(s.state.width, s.state.height))  # built here: no cache of the session's
+        np.testing.assert_allclose(accumulated(s, "L_d"), marched_mean(fresh, range(s.seed, s.seed + 1)), rtol=1e-5,
+                                   atol=1e-7, err_msg=edit.type)
+        assert np.abs(accumulated(s, "L_d") - before).mean() > 0.05 * np.abs(before).mean(), edit.type
