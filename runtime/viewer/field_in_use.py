@@ -49,6 +49,13 @@ def progressive(renderer: str) -> bool:
     return RENDERERS[RENDERER_NAMES[renderer]].progressive
 
 
+def renderers_with_inputs(estimator: Any, pmap: Any, pvrt: Any) -> dict[str, bool]:
+    """Per renderer (a page name), whether its input is there: a field's estimator, a photon map, a PVRT transfer;
+    the path tracer and the preview need none."""
+    return {"neural": estimator is not None, "pt": True, "preview": True, "photonmap": pmap is not None,
+            "pvrt": pvrt is not None}
+
+
 def noisy(renderer: str) -> bool:
     """Whether ``renderer``'s (a page name) frames carry Monte Carlo noise for a denoiser (the renderer table's
     ``noisy``: not the preview's jittered march, not PVRT's)."""
@@ -98,9 +105,8 @@ class FieldInUse:
         return self.estimator is not None or self.pmap is not None
 
     def has(self, renderer: str) -> bool:
-        """Whether ``renderer`` (a page name) has its input here; the path tracer and the preview need none."""
-        return {"neural": self.estimator is not None, "pt": True, "preview": True, "photonmap": self.pmap is not None,
-                "pvrt": self.pvrt is not None}[renderer]
+        """Whether ``renderer`` (a page name) has its input here (:func:`renderers_with_inputs`)."""
+        return renderers_with_inputs(self.estimator, self.pmap, self.pvrt)[renderer]
 
     @property
     def available(self) -> list[str]:

@@ -101,10 +101,10 @@ def load_inputs(scene: str | None, *, bundle: str | None = None, map_path: str |
     if transfer_path is not None:
         transfer = load_pvrt_transfer(transfer_path, sc)
         info["transfer"] = str(Path(transfer_path).resolve())
+    from photon_fields.runtime.viewer.field_in_use import renderers_with_inputs
     from photon_fields.runtime.viewer.messages import RENDERER_NAMES
 
-    has = {"neural": estimator is not None, "pt": True, "preview": True, "photonmap": pmap is not None,
-           "pvrt": transfer is not None}
+    has = renderers_with_inputs(estimator, pmap, transfer)
     if renderer is not None and (renderer not in RENDERER_NAMES or not has[renderer]):
         raise InputError("--renderer", f"must be one of {', '.join(n for n in RENDERER_NAMES if has[n])} here "
                          f"(neural needs --bundle, photonmap --map, pvrt --transfer), got {renderer!r}")
