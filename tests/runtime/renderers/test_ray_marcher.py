@@ -7,6 +7,7 @@ as the marcher that looks up every sample; on a sparse scene it does far fewer l
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from conftest import small_camera
 
 from photon_fields.runtime.renderers.ray_marcher import render_ray_marched
 from photon_fields.runtime.scene.camera import Camera
-from photon_fields.runtime.scene.lights import DirectionalLight, PointLight
+from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, PointLight
 from photon_fields.runtime.scene.scene import Scene, builtin_scene
 from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.scene.volume import make_volume
@@ -250,10 +251,12 @@ def test_taking_rays_a_tile_at_a_time_changes_no_pixel(monkeypatch: pytest.Monke
     the same bit for bit, with batches that end inside a sample and samples that end inside a batch."""
     from photon_fields.runtime.renderers import ray_marcher
 
-    s = builtin_scene("vortex").with_overrides(width=40, height=36)
+    vortex = builtin_scene("vortex")
+    s = replace(vortex, lights=(*vortex.lights, EnvironmentLight([0.2, 0.3, 0.5])), _cache={}).with_overrides(
+        width=40, height=36)  # and a sky, seen through the medium: L_e per work item too
     tiled = render_ray_marched(s, spp=3, seed=2, progress=False, batch_size=500).layers
     monkeypatch.setattr(ray_marcher, "tile_order", lambda w, h: np.arange(w * h, dtype=np.int64))
     rows = render_ray_marched(s, spp=3, seed=2, progress=False, batch_size=500).layers
-    assert tiled["L_d"].max() > 0.0
+    assert tiled["L_d"].max() > 0.0 and np.ptp(tiled["L_e"]) > 0.0
     for layer in ("L", "L_d", "L_e"):
         np.testing.assert_array_equal(tiled[layer], rows[layer], err_msg=layer)
