@@ -486,6 +486,12 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/wavefront/test_pixel_order.py::test_tile_order_is_a_permutation_of_squares",
             "tests/runtime/renderers/test_ray_marcher.py::test_taking_rays_a_tile_at_a_time_changes_no_pixel"),
            "the tile order treats the right edge's narrower tiles as whole ones: pixels twice, others never"),
+    Mutant("shadow_segment_sampled_at_first_step", "runtime/transport/marching.py",
+           "        tb = min(ta + n * h, t1)\n        tm = 0.5 * (ta + tb)\n", "        tb = min(ta + n * h, t1)\n",
+           ("tests/runtime/transport/test_step_grid.py::test_segmented_shadow_rays_sum_what_stepping_through_every_"
+            "segment_sums",
+            "tests/runtime/transport/test_step_grid.py::test_segmented_shadow_rays_agree_with_a_fine_march"),
+           "a light-volume cell's shadow ray samples a long segment at its first base step's midpoint"),
     Mutant("light_volume_fills_one_corner", "runtime/transport/light_volume.py", "    for c in range(8):",
            "    for c in range(1):",
            ("tests/runtime/renderers/test_path_tracer.py::test_ray_marcher_matches_single_scattering",),

@@ -66,6 +66,7 @@ from photon_fields.runtime.transport.cell_grid import Grid, stencil
 from photon_fields.runtime.transport.emitters import delta_light_direction
 from photon_fields.runtime.transport.light_volume import (
     DEFAULT_SHADOW_STEP,
+    SHADOW_SPAN,
     LightVolume,
     auto_cells_per_voxel,
     fill_wanted,
@@ -272,7 +273,8 @@ def scene_light_volume(scene: Scene, cells_per_voxel: float, shadow_step: float)
     if key not in volumes:
         kind, _, _ = scene.packed_lights()
         volumes[key] = new_light_volume(scene.medium(), len(kind), cells_per_voxel,
-                                        shadow_step * scene.volume.voxel_size)
+                                        shadow_step * scene.volume.voxel_size,
+                                        scene_step_units(scene, shadow_step, SHADOW_SPAN * shadow_step))
     return volumes[key]
 
 

@@ -8,7 +8,10 @@ cells_per_voxel : float (default :func:`auto_cells_per_voxel`: 1, fewer for volu
     per cell read. The default keeps a light's volume within :data:`AUTO_CELLS` cells (128 MiB): at one cell per
     voxel a 512^3 scan with two lights would take 1 GiB, and a frame reads it at random.
 shadow_step : float
-    Step of each cell's shadow ray, in world units (the renderer passes :data:`DEFAULT_SHADOW_STEP` voxels).
+    Base step of each cell's shadow ray, in world units (the renderer passes :data:`DEFAULT_SHADOW_STEP` voxels).
+units : numpy.ndarray or None
+    Base steps per segment of the cells' shadow rays, per macrocell (:mod:`photon_fields.runtime.transport.step_grid`;
+    the renderer passes up to :data:`SHADOW_SPAN`); None: every base step sampled.
 
 A shadow ray per camera sample and light made the ray marcher the slowest renderer on dense media (each sample
 marched a ray through the volume to every light). A light's transmittance does not depend on the camera, so the
@@ -39,7 +42,7 @@ from numba import njit, prange
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.transport.cell_grid import Grid, blend, cell_centre
 from photon_fields.runtime.transport.emitters import delta_light_direction
-from photon_fields.runtime.transport.marching import march_transmittance
+from photon_fields.runtime.transport.marching import march_transmittance_in_segments
 from photon_fields.runtime.transport.medium import Medium
 from photon_fields.runtime.transport.tracking import task_stride
 
@@ -49,6 +52,10 @@ AUTO_CELLS = 1 << 25
 #: Voxels per step of a cell's shadow ray: half a voxel, since a cell is marched once and read by many samples
 #: (the per-sample shadow rays' 1-voxel sum reads bright at sharp walls; bench/README.md, ray marcher).
 DEFAULT_SHADOW_STEP = 0.5
+#: Base steps one segment of a cell's shadow ray may span (where sigma_t is smooth and thin: the step grid's
+#: bounds). A 256^3 volume of the same shapes as a 96^3 one has a third of its optical depth per voxel, and its
+#: cells' rays, two base steps a voxel, were most of a first frame (bench/README.md, ray marcher).
+SHADOW_SPAN = 4
 #: A cell's shadow ray stops where its optical depth passes this (transmittance 1e-4) and counts as dark.
 TAU_MAX = -math.log(1e-4)
 #: A light volume's size limit: an error names the option to lower rather than filling the memory.
@@ -59,12 +66,13 @@ WANTED = np.float32(-2.0)
 
 
 class LightVolume(NamedTuple):
-    """Transmittances (gx, gy, gz, lights) float32, :data:`UNFILLED` until read; the grid; the cells' shadow step
-    (world units)."""
+    """Transmittances (gx, gy, gz, lights) float32, :data:`UNFILLED` until read; the grid; the cells' shadow base
+    step (world units) and base steps per segment per macrocell (uint8)."""
 
     values: np.ndarray
     grid: Grid
     shadow_step: float
+    units: np.ndarray
 
 
 def light_volume_shape(volume_shape: tuple[int, ...], cells_per_voxel: float) -> tuple[int, int, int]:
@@ -81,8 +89,10 @@ def auto_cells_per_voxel(volume_shape: tuple[int, ...]) -> float:
     return scale
 
 
-def new_light_volume(m: Medium, lights: int, cells_per_voxel: float, shadow_step: float) -> LightVolume:
+def new_light_volume(m: Medium, lights: int, cells_per_voxel: float, shadow_step: float,
+                     units: np.ndarray | None = None) -> LightVolume:
     """An unfilled light volume for ``lights`` lights over ``m``'s box; refuses one over :data:`MAX_BYTES`.
+    ``units``: its shadow rays' base steps per segment per macrocell (None: one).
 
     Its cells tile the box (at one cell per voxel their centres are the voxel centres, where the volume's values
     are: a lattice shifted by half a voxel read the shell's lit wall 18 % bright instead of 9 % dark) plus a ring
@@ -99,7 +109,10 @@ def new_light_volume(m: Medium, lights: int, cells_per_voxel: float, shadow_step
     grid = (float(origin[0]), float(origin[1]), float(origin[2]), float(1.0 / spacing[0]), float(1.0 / spacing[1]),
             float(1.0 / spacing[2]), cells[0], cells[1], cells[2])
     values = np.full((*cells, max(lights, 1)), UNFILLED, dtype=np.float32)
-    return LightVolume(values, grid, float(shadow_step))
+    units = np.ones(m.majorant.shape, np.uint8) if units is None else units
+    if units.shape != m.majorant.shape:
+        raise ValueError(f"units {units.shape} are not per macrocell {m.majorant.shape}")
+    return LightVolume(values, grid, float(shadow_step), units)
 
 
 @njit(cache=True, inline="always")
@@ -127,7 +140,8 @@ def want_stencil(v: np.ndarray, light: int, i: int, j: int, k: int) -> None:
 
 
 @njit(cache=True)
-def _fill_slice(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Grid, h: float, a: int) -> None:
+def _fill_slice(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Grid, h: float,
+                units: np.ndarray, a: int) -> None:
     """March the :data:`WANTED` cells of x-slice ``a`` (:func:`fill_wanted`), serially."""
     _, gy, gz, lights = v.shape
     for b in range(gy):
@@ -137,18 +151,20 @@ def _fill_slice(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, gri
                     continue
                 px, py, pz = cell_centre(grid, a, b, e)
                 lx, ly, lz, scale, tend = delta_light_direction(kind[light], vec[light], px, py, pz)
-                tr = march_transmittance(m, px, py, pz, lx, ly, lz, tend, h, True, TAU_MAX) if scale > 0.0 else 0.0
+                tr = (march_transmittance_in_segments(m, units, px, py, pz, lx, ly, lz, tend, h, TAU_MAX)
+                      if scale > 0.0 else 0.0)
                 v[a, b, e, light] = np.float32(tr)
 
 
 @njit(cache=True, parallel=True)
-def _fill(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Grid, h: float) -> None:
+def _fill(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Grid, h: float,
+          units: np.ndarray) -> None:
     gx = v.shape[0]
     stride = task_stride(gx)
     for t in prange(gx):  # golden-ratio order: the wanted cells cluster where the camera looks
-        _fill_slice(m, kind, vec, v, grid, h, (t * stride) % gx)
+        _fill_slice(m, kind, vec, v, grid, h, units, (t * stride) % gx)
 
 
 def fill_wanted(m: Medium, kind: np.ndarray, vec: np.ndarray, lv: LightVolume) -> None:
     """March every :data:`WANTED` cell of ``lv`` towards its light (in parallel over x-slices)."""
-    _fill(m, kind, vec, lv.values, lv.grid, lv.shadow_step)
+    _fill(m, kind, vec, lv.values, lv.grid, lv.shadow_step, lv.units)

@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from photon_fields.runtime.transport.medium import Medium, extinction_at, intersect_box
+from photon_fields.runtime.transport.step_grid import units_at
 from photon_fields.runtime.transport.tracking import empty_run
 
 TAU_MAX = 20.0  # a shadow ray this deep is dark (transmittance 2e-9)
@@ -52,6 +54,43 @@ def march_transmittance(m: Medium, px: float, py: float, pz: float, lx: float, l
         tau += extinction_at(m, x, y, z) * hh
         if tau > tau_max:
             return 0.0
+    return math.exp(-tau)
+
+
+@njit(cache=True, inline="always")
+def march_transmittance_in_segments(m: Medium, units: np.ndarray, px: float, py: float, pz: float, lx: float,
+                                    ly: float, lz: float, tend: float, h: float, tau_max: float = TAU_MAX) -> float:
+    """:func:`march_transmittance` in adaptive segments (the light volume's cells): base steps of ``h`` from p, a
+    segment as many of them as the macrocell of its first base step's midpoint allows (``units``,
+    :func:`photon_fields.runtime.transport.step_grid.step_units`: the midpoint rule's error over it and its optical
+    depth bounded, the least over every macrocell a segment can reach), sampled at its own midpoint; empty runs
+    skipped (an empty macrocell allows one base step, so the skip lands where stepping would). ``units`` all ones:
+    every base step sampled, the last one partial."""
+    t0, t1 = intersect_box(m, px, py, pz, lx, ly, lz)
+    if t0 >= t1:
+        return 1.0
+    t1 = min(t1, tend)
+    tau = 0.0
+    empty_until = -math.inf
+    k = 0  # base steps from t0
+    while t0 + k * h < t1:
+        ta = t0 + k * h
+        tm = 0.5 * (ta + min(ta + h, t1))
+        if tm < empty_until:  # floor() errs low, and the test is repeated there (as march_transmittance's)
+            k = max(k + 1, int(math.floor((empty_until - t0) / h - 0.5)))
+            continue
+        x, y, z = px + tm * lx, py + tm * ly, pz + tm * lz
+        run = empty_run(m, x, y, z, lx, ly, lz)
+        if run > 0.0:
+            empty_until = tm + run
+            continue
+        n = units_at(m, units, x, y, z)
+        tb = min(ta + n * h, t1)
+        tm = 0.5 * (ta + tb)
+        tau += extinction_at(m, px + tm * lx, py + tm * ly, pz + tm * lz) * (tb - ta)
+        if tau > tau_max:
+            return 0.0
+        k += n
     return math.exp(-tau)
 
 

@@ -143,7 +143,7 @@ def test_light_volume_cells_are_shadow_rays_from_their_centres_and_only_read_cel
     from photon_fields.runtime.transport.cell_grid import cell_centre
     from photon_fields.runtime.transport.emitters import delta_light_direction
     from photon_fields.runtime.transport.light_volume import TAU_MAX, UNFILLED
-    from photon_fields.runtime.transport.marching import march_transmittance
+    from photon_fields.runtime.transport.marching import march_transmittance_in_segments
 
     scene = _sparse_scene()
     render_ray_marched(scene, spp=1, progress=False)
@@ -157,7 +157,7 @@ def test_light_volume_cells_are_shadow_rays_from_their_centres_and_only_read_cel
     for i, j, k, light in cells[rng.choice(len(cells), 60, replace=False)]:
         p = cell_centre(lv.grid, i, j, k)
         lx, ly, lz, _, tend = delta_light_direction(kind[light], vec[light], *p)
-        t = march_transmittance(m, *p, lx, ly, lz, tend, lv.shadow_step, True, TAU_MAX)
+        t = march_transmittance_in_segments(m, lv.units, *p, lx, ly, lz, tend, lv.shadow_step, TAU_MAX)
         assert lv.values[i, j, k, light] == np.float32(t)
 
 

@@ -157,3 +157,88 @@ def test_skipping_empty_space_changes_no_pixel_with_long_segments() -> None:
     assert skipped["L_d"].max() > 0.0
     for layer in ("L", "L_d", "L_e"):
         np.testing.assert_array_equal(skipped[layer], every[layer], err_msg=layer)
+
+
+def _shadow_rays(scene: Scene, count: int, seed: int) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """(point, direction to the light, distance) of ``count`` shadow rays from random points with medium towards
+    the scene's directional light (to the box)."""
+    from photon_fields.runtime.transport.emitters import delta_light_direction
+
+    m = scene.medium()
+    kind, vec, _ = scene.packed_lights()
+    rng = np.random.default_rng(seed)
+    rays = []
+    while len(rays) < count:
+        p = m.bmin + rng.random(3) * m.bsize
+        i, j, k = (np.floor((p - m.bmin) / m.bsize * m.majorant.shape)).astype(int)
+        if m.majorant[i, j, k] > 0.0:
+            lx, ly, lz, _, tend = delta_light_direction(kind[0], vec[0], *p)
+            rays.append((p, np.array([lx, ly, lz]), tend))
+    return rays
+
+
+def _two_boxes() -> tuple[Scene, list[tuple[np.ndarray, np.ndarray, float]]]:
+    """Two boxes of a smooth medium with hard faces in an empty 64^3 volume, and shadow rays from the first that
+    cross the empty gap into the second: a sample skipped past the gap's end would miss sigma_t > 0."""
+    n = 64
+    x = (np.arange(n) + 0.5) / n
+    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
+    field = 0.5 + 0.3 * np.sin(7 * X) * np.cos(5 * Y)
+    box_a = (abs(X - 0.3) < 0.12) & (abs(Y - 0.5) < 0.2) & (abs(Z - 0.5) < 0.2)
+    box_b = (abs(X - 0.75) < 0.1) & (abs(Y - 0.5) < 0.2) & (abs(Z - 0.5) < 0.2)
+    field = np.where(box_a | box_b, field, 0.0)
+    scene = Scene(make_volume(field, window=(0.0, 1.0), name="boxes"), _linear_tf(4.0),
+                  (DirectionalLight([-1.0, 0.1, 0.05], [1.0, 1.0, 1.0], 1.0),), small_camera(16), 0.0, "boxes")
+    m = scene.medium()
+    rng = np.random.default_rng(3)
+    d = np.array([1.0, -0.1, -0.05]) / np.linalg.norm([1.0, -0.1, -0.05])
+    starts = m.bmin + m.bsize * (np.array([0.3, 0.5, 0.5]) + rng.uniform(-0.1, 0.1, (40, 3)) * [1.0, 1.2, 1.2])
+    return scene, [(p, d, math.inf) for p in starts]
+
+
+@pytest.mark.parametrize("case", ["boxes", "blobs"])
+def test_segmented_shadow_rays_sum_what_stepping_through_every_segment_sums(case: str) -> None:
+    """The light volume's shadow rays (``march_transmittance_in_segments``) skip empty runs; summing sigma_t at every
+    segment's midpoint instead, empty ones included, on the same lattice of base steps and the same segments
+    (computed here in Python), gives the same transmittance (two boxes with an empty gap between them; blobs at
+    160^3: long segments and empty runs)."""
+    from photon_fields.runtime.transport.marching import march_transmittance_in_segments
+    from photon_fields.runtime.transport.medium import extinction_at, intersect_box
+    from photon_fields.runtime.transport.step_grid import units_at
+
+    scene, rays = _two_boxes() if case == "boxes" else (builtin_scene("blobs", 160), None)
+    rays = rays or _shadow_rays(scene, 40, 1)
+    m, h = scene.medium(), 0.5 * scene.volume.voxel_size
+    units = scene_step_units(scene, 0.5, 2.0)
+    assert np.mean(units[m.majorant > 0] > 1) > 0.3
+    spans = []
+    for p, d, tend in rays:
+        t0, t1 = intersect_box(m, *p, *d)
+        t1 = min(t1, tend)
+        tau, t = 0.0, t0
+        while t < t1:
+            mid = 0.5 * (t + min(t + h, t1))
+            n = units_at(m, units, *(p + mid * d))
+            tb = min(t + n * h, t1)
+            tau += extinction_at(m, *(p + 0.5 * (t + tb) * d)) * (tb - t)
+            spans.append(n)
+            t += n * h
+        got = march_transmittance_in_segments(m, units, *p, *d, tend, h, 1e9)
+        assert got == pytest.approx(math.exp(-tau), rel=1e-12, abs=1e-300)
+    assert max(spans) > 1
+
+
+def test_segmented_shadow_rays_agree_with_a_fine_march() -> None:
+    """On a smooth cloud the segmented shadow rays (up to 4 half-voxel steps, as the light volume's) take far fewer
+    samples and their optical depth stays within 2 % of a march at a sixteenth of a voxel (measured: 1.6 % at worst
+    over these rays, half-voxel steps 0.24 %; the step grid bounds each segment's error by 0.05 absolute)."""
+    from photon_fields.runtime.transport.marching import march_transmittance, march_transmittance_in_segments
+
+    scene = _smooth_scene(64)
+    m, h = scene.medium(), 0.5 * scene.volume.voxel_size
+    units = scene_step_units(scene, 0.5, 2.0)
+    assert np.mean(units[m.majorant > 0] == 4) > 0.5
+    for p, d, tend in _shadow_rays(scene, 30, 2):
+        fine = march_transmittance(m, *p, *d, tend, h / 8, True, 1e9)
+        got = march_transmittance_in_segments(m, units, *p, *d, tend, h, 1e9)
+        assert -math.log(got) == pytest.approx(-math.log(fine), rel=0.02, abs=1e-3)
