@@ -17,7 +17,9 @@ shadows : str (default "volume")
     "march": the paper's baseline, a shadow ray marched from every camera sample to every light.
 shadow_step : float (default 1.0 for "march"; for "volume" the light volume's 0.5, or half a cell where a cell spans
     more than a voxel)
-    Step length along shadow rays in voxels. Where sigma_t h reaches ~1 per voxel at sharp boundaries (bone in a
+    Step length along shadow rays in voxels (for "volume": the base step of the cells' rays, which span up to
+    ``light_volume.SHADOW_SPAN`` of them per segment where the step grid allows). Where sigma_t h reaches ~1 per
+    voxel at sharp boundaries (bone in a
     CT transfer function, a shell's wall) the midpoint sum's error across a boundary is of order 1 and differs from
     ray to ray, and exp(-tau) averaged over such errors is biased high: single scattering reads bright there. A
     finer step shrinks the bias quickly (bench/README.md, ray marcher); the path tracer's trackers are unbiased.
