@@ -19,10 +19,10 @@ shadow_step : float (default 1.0 for "march"; for "volume" the light volume's 0.
     more than a voxel)
     Step length along shadow rays in voxels (for "volume": the base step of the cells' rays, which span up to
     ``light_volume.SHADOW_SPAN`` of them per segment where the step grid allows). Where sigma_t h reaches ~1 per
-    voxel at sharp boundaries (bone in a
-    CT transfer function, a shell's wall) the midpoint sum's error across a boundary is of order 1 and differs from
-    ray to ray, and exp(-tau) averaged over such errors is biased high: single scattering reads bright there. A
-    finer step shrinks the bias quickly (bench/README.md, ray marcher); the path tracer's trackers are unbiased.
+    voxel at sharp boundaries (bone in a CT transfer function, a shell's wall) the midpoint sum's error across a
+    boundary is of order 1 and differs from ray to ray, and exp(-tau) averaged over such errors is biased high:
+    single scattering reads bright there. A finer step shrinks the bias quickly (bench/README.md, ray marcher); the
+    path tracer's trackers are unbiased.
 light_grid_scale : float or None (default None: 1, fewer over ~320^3 voxels)
     "volume": light-volume cells per voxel along each axis (finer: sharper lit walls, more memory and marching);
     None: :func:`photon_fields.runtime.transport.light_volume.auto_cells_per_voxel`, at most 128 MiB a light.

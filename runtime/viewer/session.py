@@ -43,8 +43,8 @@ The preview (``preview``: the ray marcher, single scattering with its light volu
 ``n`` is the march of seed ``seed + n``, which differs from the others only by where each pixel's jitter puts the
 samples along its ray. A resting view averages :data:`PREVIEW_FRAMES` of them (the banding of one jitter gone) and
 stops; its frames are not denoised (the renderer table's ``noisy``). It follows every edit at once: a transfer
-function or light edit is a new scene, whose light volume fills as its first frames read it (0.2-0.5 s at 96^3),
-while a camera move keeps the filled cells.
+function or light edit is a new scene, whose light volume fills as its first frames read it (0.1-0.3 s at 96^3,
+0.3-1.4 s at 256^3), while a camera move keeps the filled cells.
 
 Final gather at rest: from sample :attr:`ViewerSession.gather_after` of a resting view on, neural frames take one
 real bounce before the field (:mod:`photon_fields.runtime.wavefront.final_gather`): noisier, slower, less biased
