@@ -333,6 +333,17 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/viewer/test_viewer_preview.py::"
             "test_preview_follows_transfer_and_light_edits_with_the_edited_scenes_light_volume",),
            "an edited scene reads the light volume filled for the scene before the edit"),
+    Mutant("light_edit_recomputes_step_grids", "runtime/scene/scene.py",
+           'MEDIUM_CACHES = ("depth_bounds", "step_units")', "MEDIUM_CACHES = ()",
+           ("tests/runtime/viewer/test_viewer_preview.py::test_a_light_edit_keeps_what_depends_on_the_medium_alone",),
+           "a viewer's light edit computes the step grids and depth bounds of an unchanged medium again"),
+    Mutant("light_edit_keeps_light_volumes", "runtime/scene/scene.py",
+           'MEDIUM_CACHES = ("depth_bounds", "step_units")', 'MEDIUM_CACHES = ("depth_bounds", "step_units", '
+           '"light_volumes")',
+           ("tests/runtime/viewer/test_viewer_preview.py::"
+            "test_preview_follows_transfer_and_light_edits_with_the_edited_scenes_light_volume",
+            "tests/runtime/viewer/test_viewer_preview.py::test_a_light_edit_keeps_what_depends_on_the_medium_alone"),
+           "a viewer's light edit reads the light volume of the lights before it"),
     Mutant("viewer_same_samples", "runtime/viewer/field_in_use.py", "first_sample=n,", "first_sample=0,",
            (f"{VSESSION}::test_neural_accumulation_equals_one_render_with_all_samples",),
            "every progressive neural frame draws the same samples: the view never converges"),

@@ -63,6 +63,8 @@ _SCENE_KEYS = {"name", "volume", "transfer_function", "lights", "camera", "phase
 
 #: The dicts :meth:`Scene.shared_cache` keeps, carried over by :meth:`Scene.with_overrides`.
 SHARED_CACHES = ("light_volumes", "depth_bounds", "step_units")
+#: Those of :data:`SHARED_CACHES` that depend on the medium alone, not on the lights (:meth:`Scene.adopt_medium`).
+MEDIUM_CACHES = ("depth_bounds", "step_units")
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,6 +133,15 @@ class Scene:
         if key not in SHARED_CACHES:
             raise ValueError(f"unknown shared cache {key!r} (one of {SHARED_CACHES})")
         return self._cache.setdefault(key, {})
+
+    def adopt_medium(self, other: Scene) -> None:
+        """Share ``other``'s medium, if built, and the caches that depend on it alone (:data:`MEDIUM_CACHES`): for
+        a scene of the same volume and transfer function with other lights (a viewer's light edit), whose camera
+        walks' depth bounds and marches' step grids are ``other``'s (at 512^3 each grid is a second of work)."""
+        if "medium" in other._cache:
+            self._cache["medium"] = other._cache["medium"]
+        for key in MEDIUM_CACHES:
+            self._cache[key] = other.shared_cache(key)
 
     def packed_lights(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Lights in SoA form, with all environment lights merged into one (radiances add up): an

@@ -294,7 +294,7 @@ class ViewerSession:
         if self._scene_lights_version != self._lights_version:
             scene = self.edited_scene(s)
             if scene.tf is self.scene.tf and "medium" in self.scene._cache:  # the medium ignores the lights
-                scene._cache["medium"] = self.scene._cache["medium"]
+                scene.adopt_medium(self.scene)
             else:  # a new transfer function: a new medium, and the depth it gives the denoisers
                 self._denoisers.forget_medium()
             self.scene, self._scene_lights_version = scene, self._lights_version

@@ -63,3 +63,23 @@ def test_preview_follows_transfer_and_light_edits_with_the_edited_scenes_light_v
         np.testing.assert_allclose(accumulated(s, "L_d"), marched_mean(fresh, range(s.seed, s.seed + 1)), rtol=1e-5,
                                    atol=1e-7, err_msg=edit.type)
         assert np.abs(accumulated(s, "L_d") - before).mean() > 0.05 * np.abs(before).mean(), edit.type
+
+
+def test_a_light_edit_keeps_what_depends_on_the_medium_alone(tmp_path: Path) -> None:
+    """A light edit shares the medium, the march's step grids and the walks' depth bounds with the scene before it
+    (``Scene.adopt_medium``; a 512^3 step grid is a second of work), never its light volumes; a transfer-function
+    edit shares none of them."""
+    s = make_session(tmp_path, renderer="preview", retrain=MANUAL)
+    s.next_frame()
+    before = s.scene
+    grids, bounds, volumes = (before.shared_cache(k) for k in ("step_units", "depth_bounds", "light_volumes"))
+    assert grids and volumes
+    s.apply(msg("light", index=0, azimuth=s.state.lights[0].azimuth + 45.0))
+    s.next_frame()
+    lit = s.scene
+    assert lit is not before and lit.medium() is before.medium()
+    assert lit.shared_cache("step_units") is grids and lit.shared_cache("depth_bounds") is bounds
+    assert lit.shared_cache("light_volumes") is not volumes
+    s.apply(msg("transfer", **edited(s, density_scale=2 * s.base_scene.tf.density_scale)))
+    s.next_frame()
+    assert s.scene.medium() is not lit.medium() and s.scene.shared_cache("step_units") is not grids
