@@ -492,6 +492,12 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("step_depth_three", "runtime/transport/step_grid.py", "STEP_DEPTH = 1.0", "STEP_DEPTH = 3.0",
            ("tests/runtime/renderers/test_ray_marcher.py::test_long_segments_stay_within_one_optical_depth_in_a_lit_slab",),
            "the ray marcher's segments hold three optical depths and read the light of a lit wall once for all three"),
+    Mutant("majorant_range_starts_high", "runtime/transport/medium.py",
+           "                lo = int(math.floor(smin * (lut_n - 1)))",
+           "                lo = int(math.ceil(smin * (lut_n - 1)))",
+           ("tests/runtime/transport/test_transport.py::"
+            "test_majorant_grid_is_the_table_max_over_each_macrocells_scalar_range",),
+           "a macrocell's majorant leaves out the table entry below its lowest scalar"),
     Mutant("tile_order_full_tiles_only", "runtime/wavefront/rays.py",
            "    cols = np.minimum(tile, width - col * tile)  # this tile's width", "    cols = np.full_like(col, tile)",
            ("tests/runtime/wavefront/test_pixel_order.py::test_tile_order_is_a_permutation_of_squares",

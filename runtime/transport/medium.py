@@ -135,15 +135,28 @@ def _empty_cubes(majorant: np.ndarray, cap: int, out: np.ndarray) -> None:
 
 
 def majorant_grid(density: np.ndarray, ext_lut: np.ndarray, macrocell: int) -> np.ndarray:
-    """Per-macrocell max extinction (see module docstring for why it is a true bound)."""
+    """Per-macrocell max extinction (see module docstring for why it is a true bound): the table's max over the
+    index range of the scalars whose trilinear support reaches into the macrocell, in one pass (the ranges as numpy
+    arrays took 1-2 s of a 512^3 volume's medium, rebuilt at every transfer-function edit)."""
     n = np.array(density.shape)
     cells = np.maximum(1, -(-n // macrocell))  # ceil
-    smin, smax = _cell_scalar_range(density, int(cells[0]), int(cells[1]), int(cells[2]))
-    lut_n = ext_lut.shape[0]
-    lo = np.floor(smin * (lut_n - 1)).astype(np.int64)
-    hi = np.ceil(smax * (lut_n - 1)).astype(np.int64)
-    out = range_max(_sparse_max_table(ext_lut), lo, hi)
-    return out * _MAJORANT_SAFETY
+    return _majorant_of_cells(density, int(cells[0]), int(cells[1]), int(cells[2]), _sparse_max_table(ext_lut),
+                              _MAJORANT_SAFETY)
+
+
+@njit(cache=True, parallel=True)
+def _majorant_of_cells(density: np.ndarray, cx: int, cy: int, cz: int, table: np.ndarray,
+                       safety: float) -> np.ndarray:
+    lut_n = table.shape[1]
+    out = np.empty((cx, cy, cz))
+    for a in prange(cx):
+        for b in range(cy):
+            for c in range(cz):
+                smin, smax = _cell_range(density, a, b, c, cx, cy, cz)
+                lo = int(math.floor(smin * (lut_n - 1)))
+                hi = int(math.ceil(smax * (lut_n - 1)))
+                out[a, b, c] = _range_max_one(table, lo, hi) * safety
+    return out
 
 
 def categorical_majorant_grid(index: np.ndarray, ext_lut: np.ndarray, macrocell: int) -> np.ndarray:
@@ -161,26 +174,32 @@ def _cell_scalar_range(density: np.ndarray, cx: int, cy: int, cz: int) -> tuple[
     """Min and max of the voxels whose trilinear support reaches into each macrocell (of any per-voxel value: the
     normalized scalar, or a categorical medium's extinction per voxel): macrocell a spans
     normalized [a / cells, (a + 1) / cells), i.e. voxel-centre coordinates [a n / cells - 0.5, ...)."""
-    nx, ny, nz = density.shape
     smin = np.empty((cx, cy, cz))
     smax = np.empty((cx, cy, cz))
     for a in prange(cx):
-        x0, x1 = _voxel_span(a, cx, nx)
         for b in range(cy):
-            y0, y1 = _voxel_span(b, cy, ny)
             for c in range(cz):
-                z0, z1 = _voxel_span(c, cz, nz)
-                lo = np.inf
-                hi = -np.inf
-                for i in range(x0, x1):
-                    for j in range(y0, y1):
-                        for k in range(z0, z1):
-                            v = density[i, j, k]
-                            lo = min(lo, v)
-                            hi = max(hi, v)
-                smin[a, b, c] = lo
-                smax[a, b, c] = hi
+                smin[a, b, c], smax[a, b, c] = _cell_range(density, a, b, c, cx, cy, cz)
     return smin, smax
+
+
+@njit(cache=True, inline="always")
+def _cell_range(density: np.ndarray, a: int, b: int, c: int, cx: int, cy: int, cz: int) -> tuple[float, float]:
+    """Min and max of the voxels whose trilinear support reaches into macrocell (a, b, c)
+    (:func:`_cell_scalar_range`)."""
+    nx, ny, nz = density.shape
+    x0, x1 = _voxel_span(a, cx, nx)
+    y0, y1 = _voxel_span(b, cy, ny)
+    z0, z1 = _voxel_span(c, cz, nz)
+    lo = np.inf
+    hi = -np.inf
+    for i in range(x0, x1):
+        for j in range(y0, y1):
+            for k in range(z0, z1):
+                v = density[i, j, k]
+                lo = min(lo, v)
+                hi = max(hi, v)
+    return lo, hi
 
 
 @njit(cache=True, inline="always")
@@ -206,8 +225,24 @@ def _sparse_max_table(lut: np.ndarray) -> np.ndarray:
 def range_max(table: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """max(lut[lo : hi + 1]) elementwise for index arrays lo <= hi, from :func:`_sparse_max_table`: the two
     power-of-two windows that cover [lo, hi] (the classic O(1) range-maximum query; exact, since max is)."""
-    k = np.floor(np.log2(hi - lo + 1)).astype(np.int64)
-    return np.maximum(table[k, lo], table[k, hi - (1 << k) + 1])
+    return _range_max(table, np.ascontiguousarray(lo, dtype=np.int64), np.ascontiguousarray(hi, dtype=np.int64))
+
+
+@njit(cache=True)
+def _range_max(table: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    out = np.empty(lo.shape[0])
+    for i in range(lo.shape[0]):
+        out[i] = _range_max_one(table, lo[i], hi[i])
+    return out
+
+
+@njit(cache=True, inline="always")
+def _range_max_one(table: np.ndarray, lo: int, hi: int) -> float:
+    """:func:`range_max` of one range: k = floor(log2(hi - lo + 1)), counted in integers."""
+    k = 0
+    while (2 << k) <= hi - lo + 1:
+        k += 1
+    return max(table[k, lo], table[k, hi - (1 << k) + 1])
 
 
 # --- kernels' view of the medium -------------------------------------------------------------------

@@ -119,6 +119,29 @@ def test_range_max_is_the_max_over_every_index_range(n: int) -> None:
     np.testing.assert_array_equal(range_max(_sparse_max_table(lut), lo, hi), expected)
 
 
+@pytest.mark.parametrize("macrocell", [1, 2, 4])
+def test_majorant_grid_is_the_table_max_over_each_macrocells_scalar_range(macrocell: int) -> None:
+    """The fused majorant pass equals its definition computed step by step: each macrocell's scalar range
+    (``_cell_scalar_range``), its table indices (floor / ceil) and the table's max over them (``range_max``), times
+    the safety factor, bit for bit (a noisy ramp through a narrow TF peak, grid sizes that macrocells do not
+    divide)."""
+    from photon_fields.runtime.scene.transfer import LUT_SIZE, TransferFunction
+    from photon_fields.runtime.transport.medium import _MAJORANT_SAFETY, _cell_scalar_range, majorant_grid
+
+    rng = np.random.default_rng(macrocell)
+    ramp = np.linspace(0.0, 1.0, 21)[:, None, None] * np.ones((21, 14, 9))
+    density = np.clip(ramp + 0.05 * rng.standard_normal(ramp.shape), 0.0, 1.0).astype(np.float32)
+    tf = TransferFunction(np.array([0.0, 0.43, 0.47, 1.0]), np.full((4, 3), 0.9), np.array([0.0, 1.0, 0.0, 0.2]), 40.0)
+    _, lut = tf.lut(LUT_SIZE)
+    cells = -(-np.array(density.shape) // macrocell)
+    smin, smax = _cell_scalar_range(density, *(int(c) for c in cells))
+    lo = np.floor(smin * (len(lut) - 1)).astype(np.int64).ravel()
+    hi = np.ceil(smax * (len(lut) - 1)).astype(np.int64).ravel()
+    expected = (range_max(_sparse_max_table(lut), lo, hi) * _MAJORANT_SAFETY).reshape(smin.shape)
+    assert expected.max() > expected.min() > 0.0
+    np.testing.assert_array_equal(majorant_grid(density, lut, macrocell), expected)
+
+
 def test_escape_probability_independent_of_macrocell_size(smooth_volume) -> None:  # noqa: ANN001
     tf = constant_tf(8.0)
     n = 200_000
