@@ -521,9 +521,8 @@ MUTANTS: tuple[Mutant, ...] = (
             "tests/runtime/renderers/test_label_render.py::test_path_traced_labels_show_only_label_colours"),
            "label indices interpolated trilinearly before the table lookup: blends of two labels' colours"),
     Mutant("labels_majorant_nearest_only", "runtime/transport/medium.py",
-           "                hi = -np.inf\n                for i in range(x0, x1):",
-           "                hi = -np.inf\n                x0 = max(x0, int(math.ceil(a * nx / cx)))\n"
-           "                for i in range(x0, x1):",
+           "    hi = -np.inf\n    for i in range(x0, x1):",
+           "    hi = -np.inf\n    x0 = max(x0, int(math.ceil(a * nx / cx)))\n    for i in range(x0, x1):",
            (f"{LABELS_MEDIUM}::test_majorant_bounds_extinction_and_empty_space_stays_empty",),
            "the majorant (categorical or not) leaves out the voxels whose nearest-neighbour cell starts before the "
            "macrocell"),
