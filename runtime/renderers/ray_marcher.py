@@ -80,7 +80,7 @@ from photon_fields.runtime.transport.marching import march_transmittance, segmen
 from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
-from photon_fields.runtime.transport.step_grid import step_units, units_at
+from photon_fields.runtime.transport.step_grid import step_lengths, units_at, units_from_lengths
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run, task_stride
 from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish, scene_environment, work_batches
 from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
@@ -287,7 +287,9 @@ def scene_step_units(scene: Scene, step: float, max_step: float) -> np.ndarray:
     grids = scene.shared_cache("step_units")
     key = (float(step), float(max_step))
     if key not in grids:
-        grids[key] = step_units(scene.medium(), scene.volume.voxel_size, step, max_step)
+        if "lengths" not in grids:  # the pass over sigma_t, shared by the camera's and the light volume's grids
+            grids["lengths"] = step_lengths(scene.medium(), scene.volume.voxel_size)
+        grids[key] = units_from_lengths(scene.medium(), grids["lengths"], step, max_step)
     return grids[key]
 
 

@@ -52,6 +52,10 @@ STEP_TOLERANCE = 0.05
 STEP_DEPTH = 1.0
 #: Base steps per segment are stored as uint8.
 MAX_UNITS = 255
+#: :func:`step_lengths` counts in these parts of a voxel (a power of two: the 1- and 1/2-voxel bases are exact) ...
+LENGTH_PARTS = 8
+#: ... up to this many (uint8): segments of at most ~32 voxels.
+MAX_LENGTH = 255
 #: Macrocell rows whose sigma_t one block of :func:`_macrocell_bounds` holds.
 _ROWS = 8
 
@@ -70,9 +74,9 @@ def _sigma_slices(density: np.ndarray, lut: np.ndarray, categorical: bool, lo: i
 
 @njit(cache=True, parallel=True)
 def _bounds_block(sig: np.ndarray, lo: int, nx: int, majorant: np.ndarray, a0: int, a1: int, voxel: float,
-                  step: float, max_units: int, tolerance: float, depth: float, out: np.ndarray) -> None:
-    """Macrocell rows a0 .. a1 - 1 of :func:`_macrocell_bounds`, from ``sig``: sigma_t of x-slices lo .. (every
-    voxel of their spans and the x-neighbours the second differences read; indices clamped to the grid)."""
+                  tolerance: float, depth: float, out: np.ndarray) -> None:
+    """Macrocell rows a0 .. a1 - 1 of :func:`step_lengths`, from ``sig``: sigma_t of x-slices lo .. (every voxel of
+    their spans and the x-neighbours the second differences read; indices clamped to the grid)."""
     cx, cy, cz = majorant.shape
     _, ny, nz = sig.shape
     for a in prange(a0, a1):
@@ -102,24 +106,25 @@ def _bounds_block(sig: np.ndarray, lo: int, nx: int, majorant: np.ndarray, a0: i
                 length = depth / mu
                 if curv > 0.0:
                     length = min(length, (24.0 * tolerance / (curv * voxel)) ** (1.0 / 3.0))
-                out[a, b, c] = max(1, min(max_units, int(math.floor(length / step))))
+                out[a, b, c] = min(MAX_LENGTH, int(math.floor(length * LENGTH_PARTS)))
 
 
-def _macrocell_bounds(m: Medium, voxel: float, step: float, max_units: int, tolerance: float,
-                      depth: float) -> np.ndarray:
-    """Base steps per segment in each macrocell by its own bounds (before the neighbourhood's minimum): sigma_t
-    looked up once per voxel, :data:`_ROWS` macrocell rows at a time (bounded memory: a 512^3 volume's block of
-    sigma_t takes ~40 MB; a lookup per voxel and neighbour took seconds there)."""
+def step_lengths(m: Medium, voxel: float, tolerance: float = STEP_TOLERANCE, depth: float = STEP_DEPTH) -> np.ndarray:
+    """(cx, cy, cz) uint8: the longest segment each macrocell's own bounds allow (module docstring; before the
+    neighbourhood's minimum), in :data:`LENGTH_PARTS`-ths of a voxel, rounded down, at most :data:`MAX_LENGTH`; 0 in
+    an empty macrocell or where the transfer function peaks between voxel values. The one pass over sigma_t that
+    every base step's grid (:func:`units_from_lengths`) derives from: sigma_t looked up once per voxel,
+    :data:`_ROWS` macrocell rows at a time (bounded memory: a 512^3 volume's block of sigma_t takes ~40 MB; a lookup
+    per voxel and neighbour took seconds there; the pass itself takes ~1 s at 512^3)."""
     cx = m.majorant.shape[0]
     nx = m.density.shape[0]
-    out = np.ones(m.majorant.shape, dtype=np.uint8)
+    out = np.zeros(m.majorant.shape, dtype=np.uint8)
     for a0 in range(0, cx, _ROWS):
         a1 = min(cx, a0 + _ROWS)
         lo = max(_voxel_span(a0, cx, nx)[0] - 1, 0)
         hi = min(_voxel_span(a1 - 1, cx, nx)[1] + 1, nx)
         sig = _sigma_slices(m.density, m.ext_lut, m.categorical, lo, hi)
-        _bounds_block(sig, lo, nx, m.majorant, a0, a1, float(voxel), float(step), max_units, float(tolerance),
-                      float(depth), out)
+        _bounds_block(sig, lo, nx, m.majorant, a0, a1, float(voxel), float(tolerance), float(depth), out)
     return out
 
 
@@ -148,13 +153,27 @@ def _neighbourhood_min(units: np.ndarray, radius: int) -> np.ndarray:
 
 def step_units(m: Medium, voxel: float, step: float, max_step: float, tolerance: float = STEP_TOLERANCE,
                depth: float = STEP_DEPTH) -> np.ndarray:
-    """(cx, cy, cz) uint8 over ``m``'s macrocells: how many base steps of ``step`` voxels one segment of a camera
-    march starting there may span (module docstring), at most ``max_step`` voxels' worth and at least 1.
+    """(cx, cy, cz) uint8 over ``m``'s macrocells: how many base steps of ``step`` voxels one segment of a march
+    starting there may span (module docstring), at most ``max_step`` voxels' worth and at least 1.
     ``voxel``: the voxel's edge in world units (``m``'s extinction is per world unit)."""
-    max_units = max(1, min(MAX_UNITS, int(math.floor(max_step / step + 1e-9))))
+    if _max_units(step, max_step) == 1:
+        return np.ones(m.majorant.shape, dtype=np.uint8)
+    return units_from_lengths(m, step_lengths(m, voxel, tolerance, depth), step, max_step)
+
+
+def _max_units(step: float, max_step: float) -> int:
+    return max(1, min(MAX_UNITS, int(math.floor(max_step / step + 1e-9))))
+
+
+def units_from_lengths(m: Medium, lengths: np.ndarray, step: float, max_step: float) -> np.ndarray:
+    """:func:`step_units` from the macrocells' allowed lengths (:func:`step_lengths`): the base steps of ``step``
+    voxels within each length, 1 to ``max_step``'s worth, then the least over the macrocells a segment can reach.
+    Exact for a step of whole :data:`LENGTH_PARTS`-ths of a voxel (the 1-voxel camera march, the light volume's
+    half-voxel rays), shorter for others (the length was rounded down)."""
+    max_units = _max_units(step, max_step)
     if max_units == 1:
         return np.ones(m.majorant.shape, dtype=np.uint8)
-    own = _macrocell_bounds(m, float(voxel), float(step), max_units, float(tolerance), float(depth))
+    own = np.clip(np.floor(lengths / (LENGTH_PARTS * float(step))), 1, max_units).astype(np.uint8)
     # A segment starts anywhere in its macrocell and spans up to max_units base steps: the macrocells it may reach.
     edge = min(a / b for a, b in zip(m.density.shape, m.majorant.shape, strict=True))  # a macrocell's edge in voxels
     return _neighbourhood_min(own, max(1, int(math.ceil(max_units * step / edge))))

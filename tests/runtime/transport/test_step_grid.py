@@ -242,3 +242,16 @@ def test_segmented_shadow_rays_agree_with_a_fine_march() -> None:
         fine = march_transmittance(m, *p, *d, tend, h / 8, True, 1e9)
         got = march_transmittance_in_segments(m, units, *p, *d, tend, h, 1e9)
         assert -math.log(got) == pytest.approx(-math.log(fine), rel=0.02, abs=1e-3)
+
+
+def test_the_camera_and_light_volume_grids_come_from_one_pass_over_sigma() -> None:
+    """A preview frame keeps one pass of allowed lengths (``step_lengths``) and derives the camera's grid (1-voxel
+    base) and its light volume's (half-voxel base) from it, each equal to its own ``step_units``."""
+    scene = builtin_scene("blobs").with_overrides(width=16, height=16)
+    render_ray_marched(scene, spp=1, progress=False)
+    grids = scene.shared_cache("step_units")
+    m, voxel = scene.medium(), scene.volume.voxel_size
+    assert "lengths" in grids and {(1.0, 4.0), (0.5, 2.0)} <= set(grids)
+    for step, max_step in ((1.0, 4.0), (0.5, 2.0)):
+        np.testing.assert_array_equal(grids[(step, max_step)], step_units(m, voxel, step, max_step))
+    assert grids[(0.5, 2.0)].max() > 1
