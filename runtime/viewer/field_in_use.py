@@ -49,6 +49,19 @@ def progressive(renderer: str) -> bool:
     return RENDERERS[RENDERER_NAMES[renderer]].progressive
 
 
+#: Frames a resting view of a renderer without noise (the preview) averages: its jittered marches differ only by
+#: where each pixel's samples fall along its ray, which 16 of them average away.
+PREVIEW_FRAMES = 16
+
+
+def resting_frames(renderer: str, max_spp: int) -> int:
+    """The frames (samples per pixel) a resting view of ``renderer`` (a page name) accumulates: ``max_spp`` of a
+    noisy renderer, at most :data:`PREVIEW_FRAMES` of the preview's marches, 1 of a deterministic renderer."""
+    if not progressive(renderer):
+        return 1
+    return max_spp if noisy(renderer) else min(max_spp, PREVIEW_FRAMES)
+
+
 def renderers_with_inputs(estimator: Any, pmap: Any, pvrt: Any) -> dict[str, bool]:
     """Per renderer (a page name), whether its input is there: a field's estimator, a photon map, a PVRT transfer;
     the path tracer and the preview need none."""

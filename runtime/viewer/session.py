@@ -39,12 +39,8 @@ further nor denoised. A moving frame of theirs is followed, once the camera rest
 PVRT keeps that view's camera samples, so that a light change is only a relit frame
 (:class:`photon_fields.runtime.viewer.pvrt_view.PvrtView`).
 
-The preview (``preview``: the ray marcher, single scattering with its light volume; no L_i, no training): its frame
-``n`` is the march of seed ``seed + n``, which differs from the others only by where each pixel's jitter puts the
-samples along its ray. A resting view averages :data:`PREVIEW_FRAMES` of them (the banding of one jitter gone) and
-stops; its frames are not denoised (the renderer table's ``noisy``). It follows every edit at once: a transfer
-function or light edit is a new scene, whose light volume fills as its first frames read it (0.1-0.3 s at 96^3,
-0.3-1.4 s at 256^3), while a camera move keeps the filled cells.
+The preview (the ray marcher, no L_i, no training): frame ``n`` is the march of seed ``seed + n``; a resting view
+averages a few (:func:`photon_fields.runtime.viewer.field_in_use.resting_frames`), none denoised (docs/viewer.md).
 
 Final gather at rest: from sample :attr:`ViewerSession.gather_after` of a resting view on, neural frames take one
 real bounce before the field (:mod:`photon_fields.runtime.wavefront.final_gather`): noisier, slower, less biased
@@ -81,7 +77,7 @@ from photon_fields.runtime.viewer.accumulation import Accumulation
 from photon_fields.runtime.viewer.camera import OrbitView
 from photon_fields.runtime.viewer.drag_levels import DRAG_LEVELS, next_drag_level
 from photon_fields.runtime.viewer.encode import encode, tonemap
-from photon_fields.runtime.viewer.field_in_use import FieldInUse, noisy, progressive
+from photon_fields.runtime.viewer.field_in_use import FieldInUse, noisy, progressive, resting_frames
 from photon_fields.runtime.viewer.frame_denoisers import FrameDenoisers
 from photon_fields.runtime.viewer.frame_size import fit_view
 from photon_fields.runtime.viewer.light_control import LightControl, edited_lights
@@ -103,9 +99,6 @@ from photon_fields.runtime.viewer.view_state import DEFAULT_MAX_SPP, Frame, View
 #: and both miss their frame rate; one at a time keeps each frame as fast as the machine allows.
 RENDER_LOCK = threading.Lock()
 DEFAULT_DENOISE_FRAMES = 16
-#: Frames a resting view of a renderer without noise (the preview) averages: its jittered marches differ by a
-#: fraction of a step's quadrature error, which 16 of them average away.
-PREVIEW_FRAMES = 16
 
 
 class ViewerSession:
@@ -264,11 +257,8 @@ class ViewerSession:
 
     @staticmethod
     def target_spp(s: ViewState) -> int:
-        """The samples a resting view of state ``s`` accumulates: ``max_spp``; at most :data:`PREVIEW_FRAMES` of a
-        renderer without noise; 1 with a deterministic renderer (module docstring)."""
-        if not progressive(s.renderer):
-            return 1
-        return s.max_spp if noisy(s.renderer) else min(s.max_spp, PREVIEW_FRAMES)
+        """The samples a resting view of state ``s`` accumulates (:func:`resting_frames`)."""
+        return resting_frames(s.renderer, s.max_spp)
 
     def wants_frame(self) -> bool:
         """Whether :meth:`next_frame` has anything to do (call with :attr:`lock` held)."""
@@ -339,9 +329,8 @@ class ViewerSession:
         source._cache.setdefault("medium", scene.medium())
         timings: dict[str, float] = {}
         warnings = self.field.warnings(s.renderer, s.transfer, s.lights, self.updater)
-        # Frames without Monte Carlo noise (the preview's jittered march, PVRT) are never denoised: no denoiser (nor
-        # its depth estimator) is built for them; a switch back to a noisy renderer is a cut, which resets the
-        # denoisers' history then.
+        # Frames without Monte Carlo noise (the preview, PVRT) are never denoised: no denoiser (nor its depth
+        # estimator) is built for them; a switch back to a noisy renderer is a cut, which resets their history.
         denoise = s.denoise and noisy(s.renderer)
         denoiser = self._denoisers.for_frame(scene, size, full, cut) if denoise else None
         if reexpose:

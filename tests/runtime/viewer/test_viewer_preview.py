@@ -14,7 +14,8 @@ from viewer_helpers import make_session, msg
 
 from photon_fields.runtime.renderers.ray_marcher import render_ray_marched
 from photon_fields.runtime.scene.scene import Scene
-from photon_fields.runtime.viewer.session import PREVIEW_FRAMES, ViewerSession
+from photon_fields.runtime.viewer.field_in_use import PREVIEW_FRAMES
+from photon_fields.runtime.viewer.session import ViewerSession
 
 
 def accumulated(session: ViewerSession, layer: str) -> np.ndarray:
