@@ -56,7 +56,7 @@ MAX_UNITS = 255
 LENGTH_PARTS = 8
 #: ... up to this many (uint8): segments of at most ~32 voxels.
 MAX_LENGTH = 255
-#: Macrocell rows whose sigma_t one block of :func:`_macrocell_bounds` holds.
+#: Macrocell rows whose sigma_t one block of :func:`step_lengths` holds.
 _ROWS = 8
 
 
