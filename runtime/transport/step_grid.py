@@ -1,4 +1,5 @@
-"""How long a camera march's steps may be, per macrocell: the ray marcher's adaptive steps.
+"""How long a march's steps may be, per macrocell: the ray marcher's adaptive segments, for its camera rays and
+for its light volume's shadow rays (:func:`photon_fields.runtime.transport.marching.march_transmittance_in_segments`).
 
 Parameters
 ----------
@@ -14,7 +15,8 @@ depth : float (default :data:`STEP_DEPTH`)
 The ray marcher samples sigma_t, the albedo and the light once per segment. A fixed step of one voxel makes its
 cost grow with the volume's resolution (a 256^3 volume takes 2.7x the samples per ray of a 96^3 one showing the
 same shapes) and spends as many samples on a smooth cloud as on a skull's wall. The error of one sample per
-segment has two sources, and each gives a bound on the segment's length L (in voxels):
+segment has two sources, and each gives a bound on the segment's length L (in voxels; a shadow ray needs only the
+first, the second keeps its segments short in dense media, where it ends soon anyway):
 
 - **sigma_t's variation.** The midpoint rule integrates a linear sigma_t exactly; its error over a segment is
   L^3 |sigma''| / 24 (in optical depth, sigma in optical depth per voxel and '' per voxel). With c the largest

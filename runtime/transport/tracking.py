@@ -162,9 +162,7 @@ def empty_run(m: Medium, x: float, y: float, z: float, dx: float, dy: float, dz:
     quadrature along the ray may skip its samples in [0, empty_run) without changing its sum."""
     cx, cy, cz = m.majorant.shape
     bx, by, bz = m.bmin[0], m.bmin[1], m.bmin[2]
-    ix = _cell_index(x, bx, cx / m.bsize[0], cx)
-    iy = _cell_index(y, by, cy / m.bsize[1], cy)
-    iz = _cell_index(z, bz, cz / m.bsize[2], cz)
+    ix, iy, iz = macrocell_of(m, x, y, z)
     sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
     r = int(m.leap[(sx >= 0) + 2 * (sy >= 0) + 4 * (sz >= 0), ix, iy, iz])
     if r == 0:
