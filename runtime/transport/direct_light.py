@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 
-from photon_fields.runtime.transport.emitters import sample_light_direction
+from photon_fields.runtime.transport.emitters import check_light_kinds, sample_light_direction
 from photon_fields.runtime.transport.environment_map import EnvMap
 from photon_fields.runtime.transport.medium import Medium, intersect_box
 from photon_fields.runtime.transport.phase import hg_eval
@@ -178,6 +178,7 @@ def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.nda
     ``env_mis=False`` gives the environment's NEE full weight, for estimators that never reach the
     environment by phase sampling (the first-interaction renderers). ``one_light``: one shadow ray per vertex to a
     light drawn by its unshadowed contribution (:func:`direct_light_one`) instead of one to every light."""
+    check_light_kinds(kind)
     n = o.shape[1]
     out = np.empty((3, n))
     one = one_light and kind.shape[0] > 1  # with one light, direct_light's numbers (nothing to draw)

@@ -83,6 +83,16 @@ def sample_uniform_sphere(u1: float, u2: float) -> tuple[float, float, float]:
 
 
 @njit(cache=True)
+def check_light_kinds(kind: np.ndarray) -> None:
+    """Raise for a light kind number no emitter knows. A parallel kernel calls it before its ``prange``: an
+    exception raised inside a parallel region reaches the caller or not depending on what ran before in the
+    process (numba), so a kernel there would return garbage for an unknown kind instead of refusing it."""
+    for k in range(kind.shape[0]):
+        if kind[k] != POINT and kind[k] != DIRECTIONAL and kind[k] != ENVIRONMENT and kind[k] != ENVIRONMENT_MAP:
+            raise ValueError("unknown light kind")
+
+
+@njit(cache=True)
 def delta_light_direction(kind: int, pos_or_dir: np.ndarray, px: float, py: float,
                           pz: float) -> tuple[float, float, float, float, float]:
     """Towards a delta light from p: (lx, ly, lz, falloff, distance). Point: falloff 1/r^2 and the
