@@ -64,6 +64,7 @@ ENVRENDER = "tests/runtime/renderers/test_environment_map_render.py"
 PVRT_CLI = "tests/train/cli/test_pvrt_cli.py"
 PVRT_PT = "tests/runtime/pvrt/test_pvrt_vs_path_tracer.py"
 PVRT_MARCH = "tests/runtime/pvrt/test_pvrt_march.py"
+RAY_MARCHER = "tests/runtime/renderers/test_ray_marcher.py"
 PVRT_DIRECT = "tests/runtime/pvrt/test_pvrt_direct.py"
 VPVRT = "tests/runtime/viewer/test_viewer_pvrt.py"
 
@@ -513,6 +514,15 @@ MUTANTS: tuple[Mutant, ...] = (
            "    for c in range(1):",
            ("tests/runtime/renderers/test_path_tracer.py::test_ray_marcher_matches_single_scattering",),
            "the light volume marches one corner of a stencil and reads the others unfilled"),
+    Mutant("light_volume_flags_the_stencils_brick", "runtime/transport/light_volume.py",
+           "wanted[a >> _BRICK_SHIFT, b >> _BRICK_SHIFT, e >> _BRICK_SHIFT] = 1",
+           "wanted[i >> _BRICK_SHIFT, j >> _BRICK_SHIFT, k >> _BRICK_SHIFT] = 1",
+           (f"{RAY_MARCHER}::test_marked_cells_are_filled_brick_by_brick_and_no_others",),
+           "a marked corner in the next brick is not flagged, and the fill never finds it"),
+    Mutant("missed_ray_stops_marking", "runtime/renderers/ray_marcher.py",
+           "tl = -1.0 if missed[i] else light_transmittance(", "tl = 1.0 if missed[i] else light_transmittance(",
+           (f"{RAY_MARCHER}::test_light_volume_gives_the_same_image_cold_or_warm_and_with_any_threads",),
+           "a ray that missed a light-volume cell marks nothing further, and its second march misses again"),
     # Label volumes (runtime/scene/labels.py, the categorical medium).
     Mutant("labels_interpolated", "runtime/transport/medium.py", "    if m.categorical:  # vx <= nx - 1",
            "    if False:  # vx <= nx - 1",

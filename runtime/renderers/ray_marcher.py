@@ -81,7 +81,7 @@ from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.step_grid import step_lengths, units_at, units_from_lengths
-from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run, task_stride
+from photon_fields.runtime.transport.tracking import empty_run, task_items, task_stride
 from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish, scene_environment, work_batches
 from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
 from photon_fields.runtime.wavefront.film import Film
@@ -92,6 +92,7 @@ SHADOWS = ("volume", "march")
 #: ray marcher).
 DEFAULT_SPAN = 4
 _NO_VOLUME = np.ones((2, 2, 2, 1), dtype=np.float32)  # what "march" passes for the light volume it does not read
+_NO_WANTED = np.zeros((1, 1, 1), dtype=np.uint8)
 _NO_GRID: Grid = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 2, 2, 2)
 
 
@@ -114,21 +115,18 @@ def _shadow_ray(m: Medium, x: float, y: float, z: float, lx: float, ly: float, l
     return march_transmittance(m, x, y, z, lx, ly, lz, tend, h, skip)
 
 
-_SHADE = 0  # _march_items' modes: sum the samples' single scattering
-_MARK = 1  # mark the light-volume cells the samples read (runtime/transport/light_volume.py)
-
-
 @njit(cache=True)
 def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, view: np.ndarray,
                  width: int, n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int,
                  h: float, h_shadow: float, skip: bool, units: np.ndarray, adaptive: bool, use_volume: bool,
-                 lv: np.ndarray, grid: Grid, t_min: float, mode: int, ld: np.ndarray, trans: np.ndarray,
+                 lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float, ld: np.ndarray, trans: np.ndarray,
                  missed: np.ndarray, lo: int, hi: int) -> None:
     """Work items ``work[lo:hi]`` of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why):
     each one's jittered camera ray (:func:`camera_ray`), clipped to the box (:func:`clip_to_box`) and marched
     within its tile's depth bounds (``near`` / ``far``: eye distances), in segments of ``units`` base steps ``h``
-    (per macrocell; all ones: fixed steps). A ray that reads an unfilled light-volume cell stops with ``missed``
-    set."""
+    (per macrocell; all ones: fixed steps). A ray that reads an unfilled light-volume cell is ``missed``: from
+    there on it marks the cells its samples read (:func:`want_stencil`) instead of summing them, to its end (its
+    walk does not depend on the light), so one walk finds every cell it needs."""
     origin, du, dv = view[ORIGIN:ORIGIN + 3], view[DU:DU + 3], view[DV:DV + 3]
     ex, ey, ez = view[EYE], view[EYE + 1], view[EYE + 2]
     ray_phase = np.empty(kind.shape[0])
@@ -191,22 +189,18 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                     c = w * scale * ph
                     if c <= 0.0:
                         continue
-                    if mode == _MARK:
-                        want_stencil(lv, k, ci, cj, ck)
-                        continue
                     if use_volume:
-                        tl = light_transmittance(lv, k, ci, cj, ck, fx, fy, fz)
+                        tl = -1.0 if missed[i] else light_transmittance(lv, k, ci, cj, ck, fx, fy, fz)
                         if tl < 0.0:
                             missed[i] = True
-                            break
+                            want_stencil(lv, wanted, k, ci, cj, ck)
+                            continue
                         c *= tl
                     else:
                         c *= _shadow_ray(m, x, y, z, lx, ly, lz, tend, h_shadow, skip)
                     l0 += c * a0 * rgb[k, 0]
                     l1 += c * a1 * rgb[k, 1]
                     l2 += c * a2 * rgb[k, 2]
-                if missed[i]:
-                    break
                 T *= e
             s += n
             t_prev = t_next
@@ -217,19 +211,20 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
 @njit(cache=True, parallel=True)
 def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, view: np.ndarray, width: int,
            n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int, h: float,
-           h_shadow: float, skip: bool, units: np.ndarray, adaptive: bool, use_volume: bool, lv: np.ndarray, grid: Grid,
-           t_min: float, mode: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           h_shadow: float, skip: bool, units: np.ndarray, adaptive: bool, use_volume: bool, lv: np.ndarray,
+           wanted: np.ndarray, grid: Grid, t_min: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     n = work.shape[0]
     ld = np.empty((3, n))
     trans = np.empty(n)
     missed = np.zeros(n, dtype=np.bool_)
-    tasks = (n + TASK_ITEMS - 1) // TASK_ITEMS
+    per_task = task_items(n)  # fewer than TASK_ITEMS for the few rays re-marched after a fill
+    tasks = (n + per_task - 1) // per_task
     stride = task_stride(tasks)
     for task in prange(tasks):
         b = (task * stride) % tasks  # golden-ratio order: each thread gets dense and empty blocks alike
         _march_items(m, kind, vec, rgb, g, view, width, n_pixels, work, seed, near, far, tile, h, h_shadow, skip,
-                     units, adaptive, use_volume, lv, grid, t_min, mode, ld, trans, missed, b * TASK_ITEMS,
-                     min(n, (b + 1) * TASK_ITEMS))
+                     units, adaptive, use_volume, lv, wanted, grid, t_min, ld, trans, missed, b * per_task,
+                     min(n, (b + 1) * per_task))
     return ld, trans, missed
 
 
@@ -239,28 +234,27 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
     of random stream w under ``seed``; rays that miss the box: 0 and 1). ``skip``: empty space is jumped over and
     each ray is marched only within its tile's depth bounds (:mod:`photon_fields.runtime.wavefront.depth_bounds`);
     False marches every ray through the whole box (the same sums). With a light volume (``lv``), the rays that
-    read unfilled cells are walked again to mark them, the cells are marched and those rays marched once more
+    read unfilled cells mark them, the cells are marched and those rays marched once more
     (runtime/transport/light_volume.py): the sums are the ones a filled volume gives. ``units``: base steps per
     segment per macrocell (:func:`photon_fields.runtime.transport.step_grid.step_units`; all ones: fixed steps)."""
     m = scene.medium()
     adaptive = bool(units.max() > 1)
     cam = scene.camera
     kind, vec, rgb = scene.packed_lights()
-    values, grid = (lv.values, lv.grid) if lv is not None else (_NO_VOLUME, _NO_GRID)
+    values, wanted, grid = (lv.values, lv.wanted, lv.grid) if lv is not None else (_NO_VOLUME, _NO_WANTED, _NO_GRID)
     bounds = depth_bounds_for(scene, m) if skip else unbounded()
     args = (pack_view(cam), cam.width, cam.width * cam.height)
 
-    def run(items: np.ndarray, use_volume: bool, mode: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def run(items: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return _march(m, kind, vec, rgb, scene.g, *args, items, int(seed), bounds.near, bounds.far, bounds.tile, h,
-                      hs, skip, units, adaptive, use_volume, values, grid, t_min, mode)
+                      hs, skip, units, adaptive, lv is not None, values, wanted, grid, t_min)
 
-    ld, trans, missed = run(work, lv is not None, _SHADE)
+    ld, trans, missed = run(work)
     if lv is None or not missed.any():
         return ld, trans
     idx = np.flatnonzero(missed)
-    run(work[idx], True, _MARK)
     fill_wanted(m, kind, vec, lv)
-    ld[:, idx], trans[idx], still = run(work[idx], True, _SHADE)
+    ld[:, idx], trans[idx], still = run(work[idx])
     if still.any():
         raise RuntimeError("ray marcher: a light-volume cell its rays read was not filled")  # cannot happen
     return ld, trans

@@ -19,10 +19,14 @@ preview caches it: ``T(c -> light)`` at the centre of every cell c that a sample
 the sample (an approximation of the per-sample shadow ray; bench/README.md, ray marcher, says how close). A cell is
 marched when a camera sample's stencil first reaches it, so a frame pays only for the cells near what the camera
 sees (a few per cent of the grid on a dense volume, where rays stop at the surface), and later frames of the same
-scene (camera moves, progressive passes) find them filled. The renderer does it in passes: a ray whose sample
-finds an unfilled corner stops (:func:`light_transmittance` returns -1); those rays are walked again to mark the
-cells they read (:func:`want_stencil`), the marked cells are marched (:func:`fill_wanted`), and the rays are
-marched once more from the same random state, so the image is the one a filled volume gives.
+scene (camera moves, progressive passes) find them filled. The renderer does it in two passes: a ray whose
+sample finds an unfilled corner (:func:`light_transmittance` returns -1) marks, from there to its end, the cells
+its samples read (:func:`want_stencil`) instead of summing them; the marked cells are marched
+(:func:`fill_wanted`), and those rays are marched once more from the same random state, so the image is the one a
+filled volume gives. Marking also flags
+the cell's brick (:data:`BRICK` cells a side), and the fill looks for marked cells in flagged bricks only: a
+resting view's frames keep finding a few hundred new cells (its jittered samples reach a little further each
+frame), and a scan of the whole grid for them (34M entries at 256^3) cost more than the rest of such a frame.
 
 Marking and filling race benignly: a cell's value is a deterministic function of the cell (the midpoint rule of
 :mod:`photon_fields.runtime.transport.marching`, no random numbers), so every image is the same whatever was filled
@@ -63,16 +67,21 @@ MAX_BYTES = 1 << 30
 #: The value of a cell not marched yet, and of one that a frame has asked for (:func:`want_stencil`).
 UNFILLED = np.float32(-1.0)
 WANTED = np.float32(-2.0)
+#: Edge of a brick of cells, the unit in which marked cells are looked for (module docstring): a power of two.
+BRICK = 8
+_BRICK_SHIFT = BRICK.bit_length() - 1
 
 
 class LightVolume(NamedTuple):
     """Transmittances (gx, gy, gz, lights) float32, :data:`UNFILLED` until read; the grid; the cells' shadow base
-    step (world units) and base steps per segment per macrocell (uint8)."""
+    step (world units) and base steps per segment per macrocell (uint8); per :data:`BRICK` of cells, 1 where a
+    cell is marked and not filled yet (uint8)."""
 
     values: np.ndarray
     grid: Grid
     shadow_step: float
     units: np.ndarray
+    wanted: np.ndarray
 
 
 def light_volume_shape(volume_shape: tuple[int, ...], cells_per_voxel: float) -> tuple[int, int, int]:
@@ -112,7 +121,8 @@ def new_light_volume(m: Medium, lights: int, cells_per_voxel: float, shadow_step
     units = np.ones(m.majorant.shape, np.uint8) if units is None else units
     if units.shape != m.majorant.shape:
         raise ValueError(f"units {units.shape} are not per macrocell {m.majorant.shape}")
-    return LightVolume(values, grid, float(shadow_step), units)
+    bricks = tuple(-(-n // BRICK) for n in cells)
+    return LightVolume(values, grid, float(shadow_step), units, np.zeros(bricks, np.uint8))
 
 
 @njit(cache=True, inline="always")
@@ -130,41 +140,48 @@ def light_transmittance(v: np.ndarray, light: int, i: int, j: int, k: int, fx: f
 
 
 @njit(cache=True, inline="always")
-def want_stencil(v: np.ndarray, light: int, i: int, j: int, k: int) -> None:
-    """Mark the stencil's unfilled corners :data:`WANTED` for light ``light`` (a benign race: every writer writes
-    the same value)."""
+def want_stencil(v: np.ndarray, wanted: np.ndarray, light: int, i: int, j: int, k: int) -> None:
+    """Mark the stencil's unfilled corners :data:`WANTED` for light ``light`` and flag their bricks in ``wanted``
+    (a benign race: every writer writes the same value)."""
     for c in range(8):
         a, b, e = i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)
         if v[a, b, e, light] == UNFILLED:
             v[a, b, e, light] = WANTED
+            wanted[a >> _BRICK_SHIFT, b >> _BRICK_SHIFT, e >> _BRICK_SHIFT] = 1
 
 
 @njit(cache=True)
-def _fill_slice(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Grid, h: float,
-                units: np.ndarray, a: int) -> None:
-    """March the :data:`WANTED` cells of x-slice ``a`` (:func:`fill_wanted`), serially."""
-    _, gy, gz, lights = v.shape
-    for b in range(gy):
-        for e in range(gz):
-            for light in range(lights):
-                if v[a, b, e, light] != WANTED:
-                    continue
-                px, py, pz = cell_centre(grid, a, b, e)
-                lx, ly, lz, scale, tend = delta_light_direction(kind[light], vec[light], px, py, pz)
-                tr = (march_transmittance_in_segments(m, units, px, py, pz, lx, ly, lz, tend, h, TAU_MAX)
-                      if scale > 0.0 else 0.0)
-                v[a, b, e, light] = np.float32(tr)
+def _fill_brick(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Grid, h: float,
+                units: np.ndarray, bi: int, bj: int, bk: int) -> None:
+    """March the :data:`WANTED` cells of brick (bi, bj, bk) (:func:`fill_wanted`), serially."""
+    gx, gy, gz, lights = v.shape
+    for a in range(bi * BRICK, min(gx, (bi + 1) * BRICK)):
+        for b in range(bj * BRICK, min(gy, (bj + 1) * BRICK)):
+            for e in range(bk * BRICK, min(gz, (bk + 1) * BRICK)):
+                for light in range(lights):
+                    if v[a, b, e, light] != WANTED:
+                        continue
+                    px, py, pz = cell_centre(grid, a, b, e)
+                    lx, ly, lz, scale, tend = delta_light_direction(kind[light], vec[light], px, py, pz)
+                    tr = (march_transmittance_in_segments(m, units, px, py, pz, lx, ly, lz, tend, h, TAU_MAX)
+                          if scale > 0.0 else 0.0)
+                    v[a, b, e, light] = np.float32(tr)
 
 
 @njit(cache=True, parallel=True)
 def _fill(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Grid, h: float,
-          units: np.ndarray) -> None:
-    gx = v.shape[0]
-    stride = task_stride(gx)
-    for t in prange(gx):  # golden-ratio order: the wanted cells cluster where the camera looks
-        _fill_slice(m, kind, vec, v, grid, h, units, (t * stride) % gx)
+          units: np.ndarray, bricks: np.ndarray) -> None:
+    n = bricks.shape[0]
+    stride = task_stride(n)
+    for t in prange(n):  # golden-ratio order: the wanted cells cluster where the camera looks
+        b = (t * stride) % n
+        _fill_brick(m, kind, vec, v, grid, h, units, bricks[b, 0], bricks[b, 1], bricks[b, 2])
 
 
 def fill_wanted(m: Medium, kind: np.ndarray, vec: np.ndarray, lv: LightVolume) -> None:
-    """March every :data:`WANTED` cell of ``lv`` towards its light (in parallel over x-slices)."""
-    _fill(m, kind, vec, lv.values, lv.grid, lv.shadow_step, lv.units)
+    """March every :data:`WANTED` cell of ``lv`` towards its light (in parallel over the flagged bricks), and
+    clear the flags."""
+    bricks = np.argwhere(lv.wanted)
+    if len(bricks):
+        _fill(m, kind, vec, lv.values, lv.grid, lv.shadow_step, lv.units, bricks)
+    lv.wanted[...] = 0

@@ -74,7 +74,16 @@ CAMERA_SWITCH = 0.3
 #: and each task calls a serial kernel over its items. numba's parfor passes then see a loop body of one call,
 #: not the inlined walk, which cuts those kernels' compile time several-fold; the call costs nothing per item.
 TASK_ITEMS = 256
+#: A kernel given few items (the ray marcher's rays re-marched after a light-volume fill: a few hundred) splits
+#: them into at least this many tasks, fewer items each (:func:`task_items`), so that every thread gets some.
+MIN_TASKS = 64
 _GOLDEN = 0.6180339887498949
+
+
+@njit(cache=True)
+def task_items(n: int) -> int:
+    """Items per task for ``n`` items: :data:`TASK_ITEMS`, or fewer so that there are :data:`MIN_TASKS` tasks."""
+    return max(1, min(TASK_ITEMS, n // MIN_TASKS))
 
 
 @njit(cache=True)

@@ -161,6 +161,35 @@ def test_light_volume_cells_are_shadow_rays_from_their_centres_and_only_read_cel
         assert lv.values[i, j, k, light] == np.float32(t)
 
 
+def test_marked_cells_are_filled_brick_by_brick_and_no_others() -> None:
+    """want_stencil flags the brick of every corner it marks (a stencil straddling bricks, the partial bricks at
+    the grid's far end) and fill_wanted marches exactly the marked cells, then clears the flags."""
+    from photon_fields.runtime.transport.light_volume import (
+        BRICK,
+        UNFILLED,
+        fill_wanted,
+        new_light_volume,
+        want_stencil,
+    )
+
+    scene = _sparse_scene()
+    m = scene.medium()
+    kind, vec, _ = scene.packed_lights()
+    assert len(kind) == 2  # the lights the marks below name
+    lv = new_light_volume(m, len(kind), 1.0, 0.01)
+    g = np.asarray(lv.values.shape[:3])
+    assert (g % BRICK != 0).any()  # a partial brick to reach
+    marked = set()
+    for base, light in (((0, 0, 0), 0), ((BRICK - 1, BRICK - 1, BRICK - 1), 1), (tuple(g - 2), 0),
+                        ((BRICK - 1, 2 * BRICK - 1, 3), 0)):
+        want_stencil(lv.values, lv.wanted, light, *base)
+        marked |= {(base[0] + (c & 1), base[1] + ((c >> 1) & 1), base[2] + ((c >> 2) & 1), light) for c in range(8)}
+    assert {tuple(b) for b in np.argwhere(lv.wanted)} == {(i // BRICK, j // BRICK, k // BRICK) for i, j, k, _ in marked}
+    fill_wanted(m, kind, vec, lv)
+    assert {tuple(c) for c in np.argwhere(lv.values != UNFILLED)} == marked
+    assert (lv.values[lv.values != UNFILLED] >= 0.0).all() and not lv.wanted.any()
+
+
 def test_light_volume_gives_the_same_image_cold_or_warm_and_with_any_threads() -> None:
     import numba
 
