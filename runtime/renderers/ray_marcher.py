@@ -9,7 +9,9 @@ max_step : float or None (default None: ``DEFAULT_SPAN`` = 4 base steps)
     The longest camera-ray segment in voxels, a whole number of base steps: each macrocell allows as many base
     steps per segment as sigma_t's curvature and the optical depth there keep the quadrature's error small
     (:mod:`photon_fields.runtime.transport.step_grid`), so smooth or thin media and finely sampled volumes take
-    fewer samples per ray. ``max_step <= step``: fixed steps.
+    fewer samples per ray; a camera segment takes the least that the macrocells it passes allow
+    (:func:`photon_fields.runtime.transport.step_grid.units_along`). ``max_step <= step``, or a medium whose
+    macrocells allow fewer than ``MIN_MEAN_UNITS`` base steps on average: fixed steps.
 shadows : str (default "volume")
     "volume": the preview. Each delta light's transmittance is cached in a light volume
     (:mod:`photon_fields.runtime.transport.light_volume`: marched from a cell's centre the first time a sample reads
@@ -80,8 +82,8 @@ from photon_fields.runtime.transport.marching import march_transmittance, segmen
 from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
-from photon_fields.runtime.transport.step_grid import step_lengths, units_at, units_from_lengths
-from photon_fields.runtime.transport.tracking import empty_run, task_items, task_stride
+from photon_fields.runtime.transport.step_grid import own_units, step_lengths, units_along, units_from_lengths
+from photon_fields.runtime.transport.tracking import empty_run, macrocell_of, task_items, task_stride
 from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish, scene_environment, work_batches
 from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
 from photon_fields.runtime.wavefront.film import Film
@@ -91,6 +93,10 @@ SHADOWS = ("volume", "march")
 #: The longest camera-march segment by default, in base steps (runtime/transport/step_grid.py; bench/README.md,
 #: ray marcher).
 DEFAULT_SPAN = 4
+#: Adaptive segments cost a walk over the macrocells a segment passes and two lookups a sample: below this many base
+#: steps per occupied macrocell on average (the embedded scenes at 96^3) they saved fewer samples than they cost,
+#: and the camera marches fixed steps (bench/README.md, ray marcher).
+MIN_MEAN_UNITS = 1.5
 _NO_VOLUME = np.ones((2, 2, 2, 1), dtype=np.float32)  # what "march" passes for the light volume it does not read
 _NO_WANTED = np.zeros((1, 1, 1), dtype=np.uint8)
 _NO_GRID: Grid = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 2, 2, 2)
@@ -118,15 +124,16 @@ def _shadow_ray(m: Medium, x: float, y: float, z: float, lx: float, ly: float, l
 @njit(cache=True)
 def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, view: np.ndarray,
                  width: int, n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int,
-                 h: float, h_shadow: float, skip: bool, units: np.ndarray, adaptive: bool, use_volume: bool,
-                 lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float, ld: np.ndarray, trans: np.ndarray,
-                 missed: np.ndarray, lo: int, hi: int) -> None:
+                 h: float, h_shadow: float, skip: bool, units: np.ndarray, own: np.ndarray, adaptive: bool,
+                 use_volume: bool, lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float, ld: np.ndarray,
+                 trans: np.ndarray, missed: np.ndarray, lo: int, hi: int) -> None:
     """Work items ``work[lo:hi]`` of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why):
     each one's jittered camera ray (:func:`camera_ray`), clipped to the box (:func:`clip_to_box`) and marched
-    within its tile's depth bounds (``near`` / ``far``: eye distances), in segments of ``units`` base steps ``h``
-    (per macrocell; all ones: fixed steps). A ray that reads an unfilled light-volume cell is ``missed``: from
-    there on it marks the cells its samples read (:func:`want_stencil`) instead of summing them, to its end (its
-    walk does not depend on the light), so one walk finds every cell it needs."""
+    within its tile's depth bounds (``near`` / ``far``: eye distances), in segments of base steps ``h``: the
+    neighbourhood's ``units`` per macrocell, or more where the macrocell's ``own`` units are more and every macrocell
+    the segment passes allows them (``adaptive`` False: fixed steps). A ray that reads an unfilled light-volume
+    cell is ``missed``: from there on it marks the cells its samples read (:func:`want_stencil`) instead of summing
+    them, to its end (its walk does not depend on the light), so one walk finds every cell it needs."""
     origin, du, dv = view[ORIGIN:ORIGIN + 3], view[DU:DU + 3], view[DV:DV + 3]
     ex, ey, ez = view[EYE], view[EYE + 1], view[EYE + 2]
     ray_phase = np.empty(kind.shape[0])
@@ -147,13 +154,16 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
         entry = (ox - ex) * dx + (oy - ey) * dy + (oz - ez) * dz
         t_near = near[ty, tx] - entry
         t_far = far[ty, tx] - entry
+        vx = 1.0 / dx if dx != 0.0 else 0.0  # the ray's inverse direction, for units_along's walks
+        vy = 1.0 / dy if dy != 0.0 else 0.0
+        vz = 1.0 / dz if dz != 0.0 else 0.0
         for k in range(kind.shape[0]):  # a directional light's phase value is the same all along the ray
             if kind[k] == DIRECTIONAL:
                 ray_phase[k] = hg_eval(g, -(dx * vec[k, 0] + dy * vec[k, 1] + dz * vec[k, 2]))
         T = 1.0
         l0 = l1 = l2 = 0.0
         # Base step s spans [t_{s-1}, t_s], t_s = (jitter + s) h, t_{-1} = 0 (the first one is partial); a
-        # segment is one base step, or as many as its macrocell allows (``units``, transport.step_grid).
+        # segment is one base step, or as many as the macrocells it passes allow (transport.step_grid).
         s = 0
         t_prev = 0.0
         empty_until = t_near  # before it the medium is empty: jump as over an empty run
@@ -169,7 +179,13 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 s = segment_past(s, empty_until, h, jitter, tmax)
                 t_prev = (jitter + s - 1) * h
                 continue
-            n = units_at(m, units, x, y, z) if adaptive else 1
+            n = 1
+            if adaptive:
+                ci, cj, ck = macrocell_of(m, x, y, z)
+                n = int(units[ci, cj, ck])
+                top = int(own[ci, cj, ck])
+                if top > n:
+                    n = units_along(m, own, ox, oy, oz, dx, dy, dz, vx, vy, vz, t_prev, tmax, h, top, n)
             if n > 1:  # the longer segment is sampled at its own midpoint
                 t_next = min((jitter + s + n - 1) * h, tmax)
                 tm = 0.5 * (t_prev + t_next)
@@ -211,8 +227,8 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
 @njit(cache=True, parallel=True)
 def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, view: np.ndarray, width: int,
            n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int, h: float,
-           h_shadow: float, skip: bool, units: np.ndarray, adaptive: bool, use_volume: bool, lv: np.ndarray,
-           wanted: np.ndarray, grid: Grid, t_min: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           h_shadow: float, skip: bool, units: np.ndarray, own: np.ndarray, adaptive: bool, use_volume: bool,
+           lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     n = work.shape[0]
     ld = np.empty((3, n))
     trans = np.empty(n)
@@ -223,22 +239,23 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
     for task in prange(tasks):
         b = (task * stride) % tasks  # golden-ratio order: each thread gets dense and empty blocks alike
         _march_items(m, kind, vec, rgb, g, view, width, n_pixels, work, seed, near, far, tile, h, h_shadow, skip,
-                     units, adaptive, use_volume, lv, wanted, grid, t_min, ld, trans, missed, b * per_task,
+                     units, own, adaptive, use_volume, lv, wanted, grid, t_min, ld, trans, missed, b * per_task,
                      min(n, (b + 1) * per_task))
     return ld, trans, missed
 
 
 def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, skip: bool, lv: LightVolume | None,
-               t_min: float, units: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+               t_min: float, units: np.ndarray, own: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(L_d (3, n), transmittance (n,)) of work items ``work`` (``w = sample * pixels + pixel``, the camera ray
     of random stream w under ``seed``; rays that miss the box: 0 and 1). ``skip``: empty space is jumped over and
     each ray is marched only within its tile's depth bounds (:mod:`photon_fields.runtime.wavefront.depth_bounds`);
     False marches every ray through the whole box (the same sums). With a light volume (``lv``), the rays that
     read unfilled cells mark them, the cells are marched and those rays marched once more
-    (runtime/transport/light_volume.py): the sums are the ones a filled volume gives. ``units``: base steps per
-    segment per macrocell (:func:`photon_fields.runtime.transport.step_grid.step_units`; all ones: fixed steps)."""
+    (runtime/transport/light_volume.py): the sums are the ones a filled volume gives. ``units`` / ``own``: base
+    steps per segment per macrocell, the neighbourhood's and each macrocell's own (:func:`scene_step_units`,
+    :func:`scene_own_units`; ``own`` all ones: fixed steps)."""
     m = scene.medium()
-    adaptive = bool(units.max() > 1)
+    adaptive = bool(own.max() > 1)
     cam = scene.camera
     kind, vec, rgb = scene.packed_lights()
     values, wanted, grid = (lv.values, lv.wanted, lv.grid) if lv is not None else (_NO_VOLUME, _NO_WANTED, _NO_GRID)
@@ -247,7 +264,7 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
 
     def run(items: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return _march(m, kind, vec, rgb, scene.g, *args, items, int(seed), bounds.near, bounds.far, bounds.tile, h,
-                      hs, skip, units, adaptive, lv is not None, values, wanted, grid, t_min)
+                      hs, skip, units, own, adaptive, lv is not None, values, wanted, grid, t_min)
 
     ld, trans, missed = run(work)
     if lv is None or not missed.any():
@@ -281,10 +298,28 @@ def scene_step_units(scene: Scene, step: float, max_step: float) -> np.ndarray:
     grids = scene.shared_cache("step_units")
     key = (float(step), float(max_step))
     if key not in grids:
-        if "lengths" not in grids:  # the pass over sigma_t, shared by the camera's and the light volume's grids
-            grids["lengths"] = step_lengths(scene.medium(), scene.volume.voxel_size)
-        grids[key] = units_from_lengths(scene.medium(), grids["lengths"], step, max_step)
+        grids[key] = units_from_lengths(scene.medium(), _lengths(scene, grids), step, max_step)
     return grids[key]
+
+
+def scene_own_units(scene: Scene, step: float, max_step: float) -> np.ndarray:
+    """The scene's own base steps per macrocell for the camera's march (:func:`photon_fields.runtime.transport.
+    step_grid.own_units`, read along each segment), cached beside :func:`scene_step_units`; all ones (fixed steps)
+    where the occupied macrocells allow fewer than :data:`MIN_MEAN_UNITS` on average."""
+    grids = scene.shared_cache("step_units")
+    key = ("own", float(step), float(max_step))
+    if key not in grids:
+        own = own_units(scene.medium(), _lengths(scene, grids), step, max_step)
+        occupied = own[own > 0]
+        grids[key] = own if occupied.size and occupied.mean() >= MIN_MEAN_UNITS else np.ones_like(own)
+    return grids[key]
+
+
+def _lengths(scene: Scene, grids: dict) -> np.ndarray:
+    """The pass over sigma_t that the camera's and the light volume's step grids share (``step_lengths``)."""
+    if "lengths" not in grids:
+        grids["lengths"] = step_lengths(scene.medium(), scene.volume.voxel_size)
+    return grids["lengths"]
 
 
 def light_volume_settings(scene: Scene, light_grid_scale: float | None = None,
@@ -312,7 +347,8 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
     h = step * scene.volume.voxel_size
     hs = shadow_step * scene.volume.voxel_size
     lv = scene_light_volume(scene, light_grid_scale, shadow_step) if use_volume else None
-    units = scene_step_units(scene, step, DEFAULT_SPAN * step if max_step is None else max_step)
+    max_step = DEFAULT_SPAN * step if max_step is None else max_step
+    units, own = scene_step_units(scene, step, max_step), scene_own_units(scene, step, max_step)
     cam = scene.camera
     film = Film(cam.width, cam.height)
     timer = StageTimer()
@@ -325,7 +361,7 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
         for start, count in work_batches(0, n_pixels * spp, batch):
             work = tiled_work(start, count, order)
             with timer("march"):
-                ld, trans = march_work(scene, work, seed, h, hs, skip_empty, lv, min_transmittance, units)
+                ld, trans = march_work(scene, work, seed, h, hs, skip_empty, lv, min_transmittance, units, own)
             pixel = work % n_pixels
             film.splat("L_d", pixel, ld, True)
             if env is not None:

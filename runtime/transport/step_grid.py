@@ -36,6 +36,15 @@ through empty space segment by segment and one that jumps over it
 (:func:`photon_fields.runtime.transport.marching.segment_past`) meet the medium at the same segment and sum the same
 samples. Both bounds are in voxels of the volume, so at a finer resolution of the same shapes (sigma_t per voxel and
 its second differences shrink) the segments grow where the medium is smooth; near sharp walls they stay one step.
+
+That cube holds for a segment in any direction, and it costs most of the length: at 256^3 vortex's occupied
+macrocells allow 2.95 base steps on their own and 1.17 after the cube's minimum (head 2.39 / 1.17). A camera ray
+knows its direction, so its march (:func:`units_along`) starts from the cube's number and, where the macrocell's own
+number (:func:`own_units`) is larger, walks the macrocells its segment passes and takes the least own number among
+them: the same two bounds over exactly the voxels whose sigma_t the segment reads (a macrocell's bounds cover the
+second differences of its own voxels, which is all that the trilinear sigma_t inside it depends on), and an empty
+macrocell bounds nothing (sigma_t is 0 throughout). The light volume's shadow rays, marched once per cell, keep the
+cube.
 """
 
 from __future__ import annotations
@@ -46,7 +55,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.transport.medium import Medium, _extinction_of, _voxel_span
-from photon_fields.runtime.transport.tracking import macrocell_of
+from photon_fields.runtime.transport.tracking import _next_boundary, _sign, macrocell_of
 
 #: Quadrature error allowed per segment, in optical depth (module docstring; bench/README.md, ray marcher).
 STEP_TOLERANCE = 0.05
@@ -179,6 +188,60 @@ def units_from_lengths(m: Medium, lengths: np.ndarray, step: float, max_step: fl
     # A segment starts anywhere in its macrocell and spans up to max_units base steps: the macrocells it may reach.
     edge = min(a / b for a, b in zip(m.density.shape, m.majorant.shape, strict=True))  # a macrocell's edge in voxels
     return _neighbourhood_min(own, max(1, int(math.ceil(max_units * step / edge))))
+
+
+def own_units(m: Medium, lengths: np.ndarray, step: float, max_step: float) -> np.ndarray:
+    """Each macrocell's own base steps of ``step`` voxels (1 to ``max_step``'s worth) from :func:`step_lengths`,
+    without the neighbourhood's minimum, and 0 in empty macrocells: what :func:`units_along` reads along a ray."""
+    own = np.clip(np.floor(lengths / (LENGTH_PARTS * float(step))), 1, _max_units(step, max_step)).astype(np.uint8)
+    own[m.majorant <= 0.0] = 0
+    return own
+
+
+@njit(cache=True, inline="always")
+def units_along(m: Medium, own: np.ndarray, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float,
+                vx: float, vy: float, vz: float, t0: float, t1: float, h: float, n: int, least: int) -> int:
+    """The base steps ``h`` a camera segment from ``t0`` along the ray may span, at most ``n`` and ending by
+    ``t1``: the least :func:`own_units` of every occupied macrocell that the segment passes (a DDA over the
+    macrocells from t0 to its end, which shrinks as they allow fewer steps; empty ones bound nothing, sigma_t is 0
+    there), at least 1."""
+    cx, cy, cz = own.shape
+    sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
+    ix, jy, kz = macrocell_of(m, ox + t0 * dx, oy + t0 * dy, oz + t0 * dz)
+    ex, ey, ez = m.bsize[0] / cx, m.bsize[1] / cy, m.bsize[2] / cz
+    tx = _next_boundary(ox, vx, m.bmin[0], ex, ix, sx)
+    ty = _next_boundary(oy, vy, m.bmin[1], ey, jy, sy)
+    tz = _next_boundary(oz, vz, m.bmin[2], ez, kz, sz)
+    t_end = min(t0 + n * h, t1)
+    while True:
+        v = int(own[ix, jy, kz])
+        if v != 0 and v < n:
+            if v <= least:
+                return least
+            n = v
+            t_end = min(t0 + n * h, t1)
+        if tx <= ty and tx <= tz:
+            if tx >= t_end:
+                break
+            ix += sx
+            if ix < 0 or ix >= cx:
+                break
+            tx = _next_boundary(ox, vx, m.bmin[0], ex, ix, sx)
+        elif ty <= tz:
+            if ty >= t_end:
+                break
+            jy += sy
+            if jy < 0 or jy >= cy:
+                break
+            ty = _next_boundary(oy, vy, m.bmin[1], ey, jy, sy)
+        else:
+            if tz >= t_end:
+                break
+            kz += sz
+            if kz < 0 or kz >= cz:
+                break
+            tz = _next_boundary(oz, vz, m.bmin[2], ez, kz, sz)
+    return n
 
 
 @njit(cache=True, inline="always")

@@ -118,6 +118,56 @@ def test_a_sharp_step_limits_every_macrocell_a_segment_could_reach_it_from(max_s
     assert units.min() == 2  # (24 STEP_TOLERANCE / 0.8 x 0.12 / 0.9)^(1/3) = 2.2 voxels
 
 
+def _segments_along(m, own: np.ndarray, cube: np.ndarray, rays: int, seed: int) -> list[tuple[int, int, set[int]]]:  # noqa: ANN001
+    """For random segment starts in occupied macrocells and random directions: (units_along's base steps of a
+    voxel, the neighbourhood grid's at the start, the own units of the macrocells the segment passes, sampled every
+    1/100 voxel)."""
+    from photon_fields.runtime.transport.step_grid import units_along
+
+    rng = np.random.default_rng(seed)
+    voxel = float(m.bsize[0] / m.density.shape[0])
+    shape = np.asarray(own.shape)
+    out = []
+    while len(out) < rays:
+        p = m.bmin + rng.random(3) * m.bsize
+        cell = tuple(np.minimum((p - m.bmin) / m.bsize * shape, shape - 1).astype(int))
+        if own[cell] == 0:
+            continue
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        inv = 1.0 / d
+        n = units_along(m, own, *p, *d, *inv, 0.0, np.inf, voxel, int(own[cell]), int(cube[cell]))
+        pts = p + np.arange(0.0, n * voxel, voxel / 100)[:, None] * d
+        pts = pts[np.all((pts >= m.bmin) & (pts < m.bmin + m.bsize), axis=1)]
+        idx = np.minimum(((pts - m.bmin) / m.bsize * shape).astype(int), shape - 1)
+        out.append((n, int(cube[cell]), {int(v) for v in own[idx[:, 0], idx[:, 1], idx[:, 2]]}))
+    return out
+
+
+@pytest.mark.parametrize("case", ["step", "blobs"])
+def test_a_camera_segment_spans_what_every_macrocell_it_passes_allows(case: str) -> None:
+    """units_along walks the macrocells a segment passes: it never spans more base steps than an occupied one it
+    enters allows (empty ones, 0, bound nothing), never fewer than the neighbourhood grid guarantees in any
+    direction, and where a segment leads away from a wall it spans more than that grid does (the point of it)."""
+    from photon_fields.runtime.transport.step_grid import own_units, step_lengths, units_from_lengths
+
+    if case == "step":  # a thin medium whose extinction jumps between voxels N/2 - 1 and N/2
+        field = np.full((N, N, N), 0.1)
+        field[N // 2:] = 0.9
+        voxel = make_volume(field, window=(0.0, 1.0)).voxel_size
+        m, voxel = _medium(field, _linear_tf(0.12 / (0.9 * voxel)))
+    else:
+        scene = builtin_scene("blobs", 160)
+        m, voxel = scene.medium(), scene.volume.voxel_size
+    lengths = step_lengths(m, voxel)
+    own, cube = own_units(m, lengths, 1.0, 4.0), units_from_lengths(m, lengths, 1.0, 4.0)
+    assert np.array_equal(own == 0, m.majorant <= 0.0)
+    results = _segments_along(m, own, cube, 300, 5)
+    for n, least, passed in results:
+        assert n >= least and all(v == 0 or v >= n for v in passed), (n, least, passed)
+    assert sum(n > least for n, least, _ in results) > 0.1 * len(results)
+
+
 def _smooth_scene(n: int) -> Scene:
     """A soft Gaussian cloud at resolution n, lit from the side: smooth and thin enough for long segments."""
     x = (np.arange(n) + 0.5) / n
@@ -251,7 +301,22 @@ def test_the_camera_and_light_volume_grids_come_from_one_pass_over_sigma() -> No
     render_ray_marched(scene, spp=1, progress=False)
     grids = scene.shared_cache("step_units")
     m, voxel = scene.medium(), scene.volume.voxel_size
-    assert "lengths" in grids and {(1.0, 4.0), (0.5, 2.0)} <= set(grids)
+    assert "lengths" in grids and {(1.0, 4.0), (0.5, 2.0), ("own", 1.0, 4.0)} <= set(grids)
     for step, max_step in ((1.0, 4.0), (0.5, 2.0)):
         np.testing.assert_array_equal(grids[(step, max_step)], step_units(m, voxel, step, max_step))
     assert grids[(0.5, 2.0)].max() > 1
+
+
+@pytest.mark.parametrize(("res", "adaptive"), [(96, False), (160, True)])
+def test_the_camera_walks_its_own_units_where_they_pay(res: int, adaptive: bool) -> None:
+    """The camera's grid is each macrocell's own units (0 where empty) from the same pass; where the occupied
+    macrocells allow fewer than MIN_MEAN_UNITS base steps on average (blobs at 96^3) it is all ones instead (fixed
+    steps: the walks would cost more than they save)."""
+    from photon_fields.runtime.renderers.ray_marcher import MIN_MEAN_UNITS, scene_own_units
+    from photon_fields.runtime.transport.step_grid import own_units, step_lengths
+
+    scene = builtin_scene("blobs", res)
+    m = scene.medium()
+    own = own_units(m, step_lengths(m, scene.volume.voxel_size), 1.0, 4.0)
+    assert (own[m.majorant > 0].mean() >= MIN_MEAN_UNITS) == adaptive
+    np.testing.assert_array_equal(scene_own_units(scene, 1.0, 4.0), own if adaptive else np.ones_like(own))
