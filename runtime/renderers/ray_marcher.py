@@ -72,6 +72,7 @@ from photon_fields.runtime.transport.light_volume import (
     DEFAULT_SHADOW_STEP,
     SHADOW_SPAN,
     LightVolume,
+    adopt_light_columns,
     auto_cells_per_voxel,
     fill_wanted,
     light_transmittance,
@@ -280,14 +281,20 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
 def scene_light_volume(scene: Scene, cells_per_voxel: float, shadow_step: float) -> LightVolume:
     """The scene's light volume at this grid scale and shadow step (voxels), created unfilled on first use and kept
     in the scene's cache, which camera and g overrides share (the volume depends on neither): later frames of the
-    same medium and lights find the cells they read filled."""
+    same medium and lights find the cells they read filled. A scene that adopted another's medium (a viewer's light
+    edit, :meth:`Scene.adopt_medium`) starts from that scene's cells of every light that did not move."""
     volumes = scene.shared_cache("light_volumes")
     key = (float(cells_per_voxel), float(shadow_step))
     if key not in volumes:
-        kind, _, _ = scene.packed_lights()
+        kind, vec, _ = scene.packed_lights()
         volumes[key] = new_light_volume(scene.medium(), len(kind), cells_per_voxel,
                                         shadow_step * scene.volume.voxel_size,
                                         scene_step_units(scene, shadow_step, SHADOW_SPAN * shadow_step))
+        before = scene.shared_cache("light_volumes_before")  # a light edit's scene: the lights that did not move
+        old = before.get("volumes", {}).get(key)
+        if old is not None:
+            adopt_light_columns(volumes[key], kind, vec, old, before["kind"], before["vec"])
+        before.clear()  # the previous scene's volumes are not kept alive any longer
     return volumes[key]
 
 

@@ -62,7 +62,7 @@ _SCENE_KEYS = {"name", "volume", "transfer_function", "lights", "camera", "phase
 
 
 #: The dicts :meth:`Scene.shared_cache` keeps, carried over by :meth:`Scene.with_overrides`.
-SHARED_CACHES = ("light_volumes", "depth_bounds", "step_units")
+SHARED_CACHES = ("light_volumes", "depth_bounds", "step_units", "light_volumes_before")
 #: Those of :data:`SHARED_CACHES` that depend on the medium alone, not on the lights (:meth:`Scene.adopt_medium`).
 MEDIUM_CACHES = ("depth_bounds", "step_units")
 
@@ -142,6 +142,12 @@ class Scene:
             self._cache["medium"] = other._cache["medium"]
         for key in MEDIUM_CACHES:
             self._cache[key] = other.shared_cache(key)
+        # ``other``'s light volumes and lights, from which the ray marcher takes the columns of the lights that did
+        # not move (runtime/renderers/ray_marcher.py, scene_light_volume); not ``other``'s own predecessors.
+        kind, vec, _ = other.packed_lights()
+        before = self.shared_cache("light_volumes_before")
+        before.clear()
+        before.update(volumes=other.shared_cache("light_volumes"), kind=kind, vec=vec)
 
     def packed_lights(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Lights in SoA form, with all environment lights merged into one (radiances add up): an

@@ -125,6 +125,24 @@ def new_light_volume(m: Medium, lights: int, cells_per_voxel: float, shadow_step
     return LightVolume(values, grid, float(shadow_step), units, np.zeros(bricks, np.uint8))
 
 
+def adopt_light_columns(lv: LightVolume, kind: np.ndarray, vec: np.ndarray, old: LightVolume, old_kind: np.ndarray,
+                        old_vec: np.ndarray) -> int:
+    """Copy into ``lv`` the filled cells of every light that ``old`` (a light volume over the same medium and grid)
+    holds as well: the same kind and position or direction (a cell's value depends on nothing else: not on the
+    light's colour or power, nor on the other lights). Returns how many lights were copied."""
+    if old.values.shape[:3] != lv.values.shape[:3] or old.grid != lv.grid or old.shadow_step != lv.shadow_step:
+        return 0
+    copied = 0
+    for k in range(len(kind)):
+        for j in range(len(old_kind)):
+            if old_kind[j] == kind[k] and np.array_equal(old_vec[j], vec[k]):
+                column = old.values[..., j]
+                lv.values[..., k] = np.where(column >= 0.0, column, UNFILLED)
+                copied += 1
+                break
+    return copied
+
+
 @njit(cache=True, inline="always")
 def light_transmittance(v: np.ndarray, light: int, i: int, j: int, k: int, fx: float, fy: float, fz: float) -> float:
     """Light ``light``'s transmittance at the stencil (i, j, k, fx, fy, fz) of a light volume's grid, trilinear in

@@ -209,6 +209,38 @@ def test_light_volume_gives_the_same_image_cold_or_warm_and_with_any_threads() -
         np.testing.assert_array_equal(a[layer], one[layer])
 
 
+def test_a_light_edit_keeps_the_cells_of_the_lights_that_did_not_move() -> None:
+    """A scene that adopts another's medium (the viewer's light edit) starts its light volume from the other's
+    cells of each light with the same kind and position or direction (a colour or power change keeps them), not of
+    a moved light; the image is the one a cold render of the edited scene gives, and the other scene's volumes are
+    let go once copied."""
+    from photon_fields.runtime.renderers.ray_marcher import scene_light_volume
+    from photon_fields.runtime.transport.light_volume import UNFILLED
+
+    scene = _sparse_scene()
+    render_ray_marched(scene, spp=1, seed=2, progress=False)
+    before = scene_light_volume(scene, 1.0, 0.5).values.copy()
+    sun, lamp = scene.lights
+    lights = (DirectionalLight(sun.direction, [0.2, 0.4, 1.0], 5.0), PointLight([0.1, 0.8, 0.9], lamp.color, 0.5))
+
+    def edited() -> Scene:
+        return replace(scene, lights=lights, _cache={})
+
+    warm = edited()
+    warm.adopt_medium(scene)
+    lv = scene_light_volume(warm, 1.0, 0.5)
+    assert not warm.shared_cache("light_volumes_before")
+    filled = before[..., 0] >= 0.0
+    assert filled.mean() > 0.001
+    np.testing.assert_array_equal(lv.values[..., 0][filled], before[..., 0][filled])
+    assert (lv.values[..., 1] == UNFILLED).all()
+    a = render_ray_marched(warm, spp=2, seed=5, progress=False).layers
+    b = render_ray_marched(edited(), spp=2, seed=5, progress=False).layers
+    assert a["L_d"].max() > 0.0
+    for layer in ("L", "L_d"):
+        np.testing.assert_array_equal(a[layer], b[layer])
+
+
 def test_light_volume_is_kept_across_camera_moves_not_across_scenes() -> None:
     from photon_fields.runtime.renderers.ray_marcher import scene_light_volume
 
