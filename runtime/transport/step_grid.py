@@ -220,28 +220,26 @@ def units_along(m: Medium, own: np.ndarray, ox: float, oy: float, oz: float, dx:
                 return least
             n = v
             t_end = min(t0 + n * h, t1)
-        if tx <= ty and tx <= tz:
-            if tx >= t_end:
-                break
-            ix += sx
-            if ix < 0 or ix >= cx:
-                break
-            tx = _next_boundary(ox, vx, m.bmin[0], ex, ix, sx)
+        if min(tx, ty, tz) >= t_end:
+            break
+        if tx <= ty and tx <= tz:  # into the next macrocell along the axis whose boundary comes first
+            ix, tx, inside = _cross(ix, sx, cx, ox, vx, m.bmin[0], ex)
         elif ty <= tz:
-            if ty >= t_end:
-                break
-            jy += sy
-            if jy < 0 or jy >= cy:
-                break
-            ty = _next_boundary(oy, vy, m.bmin[1], ey, jy, sy)
+            jy, ty, inside = _cross(jy, sy, cy, oy, vy, m.bmin[1], ey)
         else:
-            if tz >= t_end:
-                break
-            kz += sz
-            if kz < 0 or kz >= cz:
-                break
-            tz = _next_boundary(oz, vz, m.bmin[2], ez, kz, sz)
+            kz, tz, inside = _cross(kz, sz, cz, oz, vz, m.bmin[2], ez)
+        if not inside:
+            break
     return n
+
+
+@njit(cache=True, inline="always")
+def _cross(cell: int, step: int, cells: int, o: float, inv_d: float, bmin: float,
+           edge: float) -> tuple[int, float, bool]:
+    """One axis of :func:`units_along`'s walk: the next macrocell along it, the distance to where the ray leaves
+    that one on this axis, and whether it is inside the grid."""
+    cell += step
+    return cell, _next_boundary(o, inv_d, bmin, edge, cell, step), 0 <= cell < cells
 
 
 @njit(cache=True, inline="always")
