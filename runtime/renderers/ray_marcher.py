@@ -84,7 +84,7 @@ from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.step_grid import own_units, step_lengths, units_along, units_from_lengths
-from photon_fields.runtime.transport.tracking import empty_run, macrocell_of, task_items, task_stride
+from photon_fields.runtime.transport.tracking import empty_run_in, macrocell_of, task_items, task_stride
 from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish, scene_environment, work_batches
 from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
 from photon_fields.runtime.wavefront.film import Film
@@ -172,8 +172,9 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
             t_next = min((jitter + s) * h, tmax)
             tm = 0.5 * (t_prev + t_next)
             x, y, z = ox + tm * dx, oy + tm * dy, oz + tm * dz
+            mi, mj, mk = macrocell_of(m, x, y, z)  # for the empty-run test and the segment's length
             if skip and tm >= empty_until:
-                run = empty_run(m, x, y, z, dx, dy, dz)
+                run = empty_run_in(m, mi, mj, mk, x, y, z, dx, dy, dz)
                 if run > 0.0:
                     empty_until = tm + run
             if tm < empty_until:  # in empty space: sigma_t is 0 up to there, the sums stay as they are
@@ -182,9 +183,8 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 continue
             n = 1
             if adaptive:
-                ci, cj, ck = macrocell_of(m, x, y, z)
-                n = int(units[ci, cj, ck])
-                top = int(own[ci, cj, ck])
+                n = int(units[mi, mj, mk])
+                top = int(own[mi, mj, mk])
                 if top > n:
                     n = units_along(m, own, ox, oy, oz, dx, dy, dz, vx, vy, vz, t_prev, tmax, h, top, n)
             if n > 1:  # the longer segment is sampled at its own midpoint

@@ -15,8 +15,7 @@ import numpy as np
 from numba import njit
 
 from photon_fields.runtime.transport.medium import Medium, extinction_at, intersect_box
-from photon_fields.runtime.transport.step_grid import units_at
-from photon_fields.runtime.transport.tracking import empty_run
+from photon_fields.runtime.transport.tracking import empty_run, empty_run_in, macrocell_of
 
 TAU_MAX = 20.0  # a shadow ray this deep is dark (transmittance 2e-9)
 
@@ -80,11 +79,12 @@ def march_transmittance_in_segments(m: Medium, units: np.ndarray, px: float, py:
             k = max(k + 1, int(math.floor((empty_until - t0) / h - 0.5)))
             continue
         x, y, z = px + tm * lx, py + tm * ly, pz + tm * lz
-        run = empty_run(m, x, y, z, lx, ly, lz)
+        i, j, c = macrocell_of(m, x, y, z)
+        run = empty_run_in(m, i, j, c, x, y, z, lx, ly, lz)
         if run > 0.0:
             empty_until = tm + run
             continue
-        n = units_at(m, units, x, y, z)
+        n = int(units[i, j, c])
         tb = min(ta + n * h, t1)
         tm = 0.5 * (ta + tb)
         tau += extinction_at(m, px + tm * lx, py + tm * ly, pz + tm * lz) * (tb - ta)

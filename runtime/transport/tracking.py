@@ -169,9 +169,17 @@ def empty_run(m: Medium, x: float, y: float, z: float, dx: float, dy: float, dz:
     empty macrocells cornered at the point's macrocell towards the ray's octant (``Medium.leap``), 0 if that
     macrocell is not empty. sigma_t is exactly 0 there (the majorant bounds the trilinear stencil), so a
     quadrature along the ray may skip its samples in [0, empty_run) without changing its sum."""
+    ix, iy, iz = macrocell_of(m, x, y, z)
+    return empty_run_in(m, ix, iy, iz, x, y, z, dx, dy, dz)
+
+
+@njit(cache=True, inline="always")
+def empty_run_in(m: Medium, ix: int, iy: int, iz: int, x: float, y: float, z: float, dx: float, dy: float,
+                 dz: float) -> float:
+    """:func:`empty_run` for a point whose macrocell (``macrocell_of``) the caller has already, for its own lookups
+    there too."""
     cx, cy, cz = m.majorant.shape
     bx, by, bz = m.bmin[0], m.bmin[1], m.bmin[2]
-    ix, iy, iz = macrocell_of(m, x, y, z)
     sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
     r = int(m.leap[(sx >= 0) + 2 * (sy >= 0) + 4 * (sz >= 0), ix, iy, iz])
     if r == 0:
