@@ -23,10 +23,10 @@ scene (camera moves, progressive passes) find them filled. The renderer does it 
 sample finds an unfilled corner (:func:`light_transmittance` returns -1) marks, from there to its end, the cells
 its samples read (:func:`want_stencil`) instead of summing them; the marked cells are marched
 (:func:`fill_wanted`), and those rays are marched once more from the same random state, so the image is the one a
-filled volume gives. Marking also flags
-the cell's brick (:data:`BRICK` cells a side), and the fill looks for marked cells in flagged bricks only: a
-resting view's frames keep finding a few hundred new cells (its jittered samples reach a little further each
-frame), and a scan of the whole grid for them (34M entries at 256^3) cost more than the rest of such a frame.
+filled volume gives. Marking also flags the cell's brick (:data:`BRICK` cells a side), and the fill looks for
+marked cells in flagged bricks only: a resting view's frames keep finding a few hundred new cells (its jittered
+samples reach a little further each frame), and a scan of the whole grid for them (34M entries at 256^3) cost more
+than the rest of such a frame.
 
 Marking and filling race benignly: a cell's value is a deterministic function of the cell (the midpoint rule of
 :mod:`photon_fields.runtime.transport.marching`, no random numbers), so every image is the same whatever was filled
