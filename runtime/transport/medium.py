@@ -108,12 +108,13 @@ def leap_distances(majorant: np.ndarray, leap: bool = True) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _empty_cubes(majorant: np.ndarray, cap: int, out: np.ndarray) -> None:
     """out[o, c] = 0 where the majorant is > 0, else 1 + the least of the seven neighbours of c one cell further
-    into octant o (the 3D form of the largest-square recurrence); cells beyond the grid count as empty."""
+    into octant o (the 3D form of the largest-square recurrence); cells beyond the grid count as empty. The
+    octants are independent: one task each."""
     nx, ny, nz = majorant.shape
-    for o in range(8):
+    for o in prange(8):
         sx, sy, sz = (1 if o & 1 else -1), (1 if o & 2 else -1), (1 if o & 4 else -1)
         for a in range(nx):
             i = nx - 1 - a if sx > 0 else a
