@@ -184,7 +184,7 @@ def units_from_lengths(m: Medium, lengths: np.ndarray, step: float, max_step: fl
     max_units = _max_units(step, max_step)
     if max_units == 1:
         return np.ones(m.majorant.shape, dtype=np.uint8)
-    own = np.clip(np.floor(lengths / (LENGTH_PARTS * float(step))), 1, max_units).astype(np.uint8)
+    own = np.maximum(own_units(m, lengths, step, max_step), 1)  # an empty macrocell allows one step (above)
     # A segment starts anywhere in its macrocell and spans up to max_units base steps: the macrocells it may reach.
     edge = min(a / b for a, b in zip(m.density.shape, m.majorant.shape, strict=True))  # a macrocell's edge in voxels
     return _neighbourhood_min(own, max(1, int(math.ceil(max_units * step / edge))))
@@ -240,10 +240,3 @@ def _cross(cell: int, step: int, cells: int, o: float, inv_d: float, bmin: float
     that one on this axis, and whether it is inside the grid."""
     cell += step
     return cell, _next_boundary(o, inv_d, bmin, edge, cell, step), 0 <= cell < cells
-
-
-@njit(cache=True, inline="always")
-def units_at(m: Medium, units: np.ndarray, x: float, y: float, z: float) -> int:
-    """The base steps per segment (:func:`step_units`) of the macrocell holding the point."""
-    i, j, k = macrocell_of(m, x, y, z)
-    return int(units[i, j, k])

@@ -254,7 +254,7 @@ def test_segmented_shadow_rays_sum_what_stepping_through_every_segment_sums(case
     160^3: long segments and empty runs)."""
     from photon_fields.runtime.transport.marching import march_transmittance_in_segments
     from photon_fields.runtime.transport.medium import extinction_at, intersect_box
-    from photon_fields.runtime.transport.step_grid import units_at
+    from photon_fields.runtime.transport.tracking import macrocell_of
 
     scene, rays = _two_boxes() if case == "boxes" else (builtin_scene("blobs", 160), None)
     rays = rays or _shadow_rays(scene, 40, 1)
@@ -268,7 +268,7 @@ def test_segmented_shadow_rays_sum_what_stepping_through_every_segment_sums(case
         tau, t = 0.0, t0
         while t < t1:
             mid = 0.5 * (t + min(t + h, t1))
-            n = units_at(m, units, *(p + mid * d))
+            n = int(units[macrocell_of(m, *(p + mid * d))])
             tb = min(t + n * h, t1)
             tau += extinction_at(m, *(p + 0.5 * (t + tb) * d)) * (tb - t)
             spans.append(n)
