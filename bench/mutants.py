@@ -323,8 +323,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "seen points paired with the opposite direction: the field learns the side no camera sees"),
     # The viewer (issue 15, step 1): session, messages, server.
     Mutant("viewer_preview_denoised", "runtime/renderers/registry.py",
-           '"this opaque", float, 1e-2, float_in(0, 0.5, "(transmittance)"))), noisy=False),',
-           '"this opaque", float, 1e-2, float_in(0, 0.5, "(transmittance)")))),',
+           '"thicker)", int, 0, int_in(0, MAX_LEVEL))), noisy=False),',
+           '"thicker)", int, 0, int_in(0, MAX_LEVEL)))),',
            ("tests/runtime/viewer/test_viewer_preview.py::test_preview_frames_average_jittered_marches_and_stop",),
            "the viewer denoises the preview's jittered marches (and accumulates them to --max-spp)"),
     Mutant("viewer_edit_keeps_light_volume", "runtime/viewer/session.py",
@@ -531,6 +531,28 @@ MUTANTS: tuple[Mutant, ...] = (
            "tl = -1.0 if missed[i] else light_transmittance(", "tl = 1.0 if missed[i] else light_transmittance(",
            (f"{RAY_MARCHER}::test_light_volume_gives_the_same_image_cold_or_warm_and_with_any_threads",),
            "a ray that missed a light-volume cell marks nothing further, and its second march misses again"),
+    # Coarser levels (runtime/scene/levels.py) and the viewer's first frame of each change.
+    Mutant("level_box_stretched", "runtime/scene/levels.py",
+           "spacing = tuple(float(s) * n / c for s, n, c in", "spacing = tuple(float(s) * 2.0 for s, n, c in",
+           ("tests/runtime/scene/test_levels.py::test_a_level_averages_blocks_in_the_same_box",),
+           "a level's voxels take twice the spacing whatever the padding: an odd side's level grows out of the box"),
+    Mutant("level_light_edit_keeps_old_lights", "runtime/scene/scene.py",
+           "levels[level] = replace(old, lights=self.lights, _cache={})", "levels[level] = old",
+           ("tests/runtime/scene/test_levels.py::test_a_light_edit_keeps_a_levels_medium_and_renders_as_a_cold_level",),
+           "after a light edit the coarser level still renders the lights before it"),
+    Mutant("coarse_frame_accumulated", "runtime/viewer/session.py",
+           "self._unrested = render and ((moved_only and not progressive(s.renderer)) or level > 0)",
+           "self._unrested = render and moved_only and not progressive(s.renderer)",
+           ("tests/runtime/viewer/test_viewer_preview.py::"
+            "test_each_change_shows_the_interactive_level_first_and_rests_on_the_full_volume",),
+           "the coarse first frame of a change is averaged into the resting view's full-level frames"),
+    Mutant("changing_first_frame_dropped", "runtime/viewer/session.py",
+           "settling = render and self._unrested and not fresh",
+           "settling = render and self._unrested and not moved_only",
+           ("tests/runtime/viewer/test_viewer_preview.py::"
+            "test_a_changes_first_frame_is_shown_even_when_the_next_change_comes_while_it_renders",),
+           "an edit's first frame after a coarse one is dropped when the next edit arrives: a slider drag shows "
+           "nothing"),
     # Label volumes (runtime/scene/labels.py, the categorical medium).
     Mutant("labels_interpolated", "runtime/transport/medium.py", "    if m.categorical:  # vx <= nx - 1",
            "    if False:  # vx <= nx - 1",

@@ -31,6 +31,9 @@ light_grid_scale : float or None (default None: 1, fewer over ~320^3 voxels)
 min_transmittance : float (default 1e-2)
     Early ray termination: a camera ray stops once it is this opaque. What lies behind can add at most this
     fraction of the brightest radiance it would have scattered (and of the environment seen through it).
+level : int (default 0)
+    March the volume's coarser level (:mod:`photon_fields.runtime.scene.levels`: blocks of 2^level voxels a side
+    averaged, the same box): what the viewer shows while the view or the scene is being changed on a large volume.
 spp : int
     Jittered passes per pixel (a random start offset along each ray removes wood-grain banding).
 seed : int
@@ -64,6 +67,7 @@ from numba import njit, prange
 from photon_fields.runtime.denoise.reprojection import DU, DV, EYE, ORIGIN, pack_view
 from photon_fields.runtime.errors import check_choice
 from photon_fields.runtime.progress import progress_bar
+from photon_fields.runtime.scene.levels import scene_at_level
 from photon_fields.runtime.scene.lights import DIRECTIONAL
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.cell_grid import Grid, stencil
@@ -341,10 +345,12 @@ def light_volume_settings(scene: Scene, light_grid_scale: float | None = None,
 def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows: str = "volume",
                        shadow_step: float | None = None, light_grid_scale: float | None = None,
                        min_transmittance: float = 1e-2, max_step: float | None = None, seed: int = 0,
-                       batch_size: int = 1 << 17, progress: bool = True, skip_empty: bool = True) -> RenderResult:
+                       batch_size: int = 1 << 17, progress: bool = True, skip_empty: bool = True,
+                       level: int = 0) -> RenderResult:
     """Single scattering by ray marching (module docstring for the parameters). Layers L, L_e and L_d (L_i stays
     zero). ``skip_empty``: camera and shadow rays look nothing up in empty macrocells (the same image, sooner;
     False: every sample looked up, the reference the tests and ``bench_ray_marcher.py`` compare with)."""
+    scene = scene_at_level(scene, level)
     use_volume = check_choice("--shadows", shadows, SHADOWS) == "volume"
     if use_volume:
         light_grid_scale, shadow_step = light_volume_settings(scene, light_grid_scale, shadow_step)

@@ -119,6 +119,10 @@ class Renderer:
         return getattr(importlib.import_module(module), name)
 
 
+#: The coarsest volume level the ray marcher takes (runtime.scene.levels.MAX_LEVEL; spelt out here so that building
+#: the command line does not import numpy, and tested to agree).
+MAX_LEVEL = 5
+
 #: The first-interaction renderers' camera estimator (runtime.wavefront.first_interaction.CAMERA_ESTIMATORS; spelt
 #: out here so that building the command line does not import numba kernels).
 CAMERA_OPTION = Option("--camera-estimator", "camera", "camera estimator: forced (a collision resampled from the "
@@ -178,7 +182,10 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
                      "along each axis (default: 1, fewer for volumes over ~320^3 voxels: at most 128 MiB a light)",
                      float, None, optional(float_in(0.25, 4, "cells per voxel"))),
               Option("--min-transmittance", "min_transmittance", "early ray termination: a camera ray stops once "
-                     "this opaque", float, 1e-2, float_in(0, 0.5, "(transmittance)"))), noisy=False),
+                     "this opaque", float, 1e-2, float_in(0, 0.5, "(transmittance)")),
+              Option("--level", "level", "march a coarser level of the volume: blocks of 2^LEVEL voxels a side "
+                     "averaged in the same box (a quick look at a large volume; walls one or two voxels thick read "
+                     "thicker)", int, 0, int_in(0, MAX_LEVEL))), noisy=False),
     Renderer("photonmap", "first interactions + NEE + the photon-map estimate of L_i (needs --map)",
              "photon_fields.runtime.renderers.photon_mapped:render_photon_mapped",
              (Option("--k", "k", "photons per estimate (K)", int, 1024, int_in(2, 1 << 16)),

@@ -62,7 +62,7 @@ _SCENE_KEYS = {"name", "volume", "transfer_function", "lights", "camera", "phase
 
 
 #: The dicts :meth:`Scene.shared_cache` keeps, carried over by :meth:`Scene.with_overrides`.
-SHARED_CACHES = ("light_volumes", "depth_bounds", "step_units", "light_volumes_before")
+SHARED_CACHES = ("light_volumes", "depth_bounds", "step_units", "light_volumes_before", "levels")
 #: Those of :data:`SHARED_CACHES` that depend on the medium alone, not on the lights (:meth:`Scene.adopt_medium`).
 MEDIUM_CACHES = ("depth_bounds", "step_units")
 
@@ -128,7 +128,8 @@ class Scene:
     def shared_cache(self, key: str) -> dict[Any, Any]:
         """A dict kept with the scene for what depends on its medium and lights, and on nothing else or on what
         its keys name (the ray marcher's light volumes, ``"light_volumes"``, and step grids, ``"step_units"``; the
-        camera walks' depth bounds per camera, ``"depth_bounds"``): one of :data:`SHARED_CACHES`, carried over by
+        camera walks' depth bounds per camera, ``"depth_bounds"``; the volume's coarser levels' scenes, ``"levels"``,
+        :mod:`photon_fields.runtime.scene.levels`): one of :data:`SHARED_CACHES`, carried over by
         :meth:`with_overrides`, which changes neither medium nor lights."""
         if key not in SHARED_CACHES:
             raise ValueError(f"unknown shared cache {key!r} (one of {SHARED_CACHES})")
@@ -148,6 +149,11 @@ class Scene:
         before = self.shared_cache("light_volumes_before")
         before.clear()
         before.update(volumes=other.shared_cache("light_volumes"), kind=kind, vec=vec)
+        # The coarser levels (runtime/scene/levels.py) under these lights, each adopting its own medium alike.
+        levels = self.shared_cache("levels")
+        for level, old in other.shared_cache("levels").items():
+            levels[level] = replace(old, lights=self.lights, _cache={})
+            levels[level].adopt_medium(old)
 
     def packed_lights(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Lights in SoA form, with all environment lights merged into one (radiances add up): an

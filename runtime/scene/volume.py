@@ -42,6 +42,8 @@ class Volume:
     _fingerprint: list = field(default_factory=list, repr=False)  # lazily computed cache
     #: Lazily computed label grid (photon_fields.runtime.scene.labels.volume_labels), reused across media.
     _labels: list = field(default_factory=list, repr=False)
+    #: Lazily made coarser levels (photon_fields.runtime.scene.levels.coarser_volume), reused across media.
+    _levels: dict = field(default_factory=dict, repr=False)
 
     @property
     def dims(self) -> tuple[int, int, int]:

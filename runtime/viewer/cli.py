@@ -58,6 +58,10 @@ def build_parser() -> OneLineArgumentParser:
     p.add_argument("--drag-scale", type=_drag_scale, default="auto",
                    help="render moving frames at this fraction of the frame size, in [0.25, 1], or auto: the size that "
                         "keeps ~8 frames/s while moving (resting frames: always full size)")
+    p.add_argument("--interactive-level", type=_level, default="auto", metavar="LEVEL",
+                   help="the preview's first frame after each camera move or edit marches this level of the volume "
+                        "(blocks of 2^LEVEL voxels averaged; resting frames: the full volume); auto (default): a level "
+                        "chosen by the volume's size (docs/viewer.md), 0: always the full volume")
     p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     p.add_argument("--retrain-photons", default="1M",
                    help="photons of the map a background retrain traces after a transfer-function or light edit")
@@ -73,6 +77,11 @@ def build_parser() -> OneLineArgumentParser:
 def _drag_scale(text: str) -> float | str:
     """``--drag-scale``: ``auto`` or a number (its range is checked by :func:`launch.start`)."""
     return "auto" if text == "auto" else float(text)
+
+
+def _level(text: str) -> int | str:
+    """``--interactive-level``: ``auto`` or an integer (its range is checked by :func:`launch.start`)."""
+    return "auto" if text == "auto" else int(text)
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -109,6 +118,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
     server = start(args.scene, bundle=args.bundle, map=args.map, out=args.out, size=size, host=args.host,
                    port=args.port, seed=args.seed, threads=args.threads, force=args.force, renderer=args.renderer,
                    max_spp=args.max_spp, drag_scale=args.drag_scale, retrain=retrain,
+                   interactive_level=args.interactive_level,
                    gather_after=args.final_gather_after, transfer=args.transfer, pvrt_options=pvrt_options)
     if not is_loopback(args.host):
         print(f"warning: listening on {args.host}: anyone who can reach it can drive renders and write screenshots "

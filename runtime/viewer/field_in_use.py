@@ -142,7 +142,7 @@ class FieldInUse:
 
     def render(self, scene: Scene, renderer: str, *, seed: int, n: int, lights: list[LightControl],
                threads: int | None = None, final_gather: bool = False, moving: bool = False,
-               cancel: Callable[[], bool] | None = None) -> dict[str, np.ndarray]:
+               cancel: Callable[[], bool] | None = None, level: int = 0) -> dict[str, np.ndarray]:
         """Frame ``n`` of a session's accumulation with ``renderer``: 1 sample per pixel; the neural renderer draws
         samples ``first_sample = n`` of ``seed``, the others use seed ``seed + n``. L_i follows the page's
         ``lights`` where it can (:meth:`indirect_scale`; L_d, from NEE with the edited lights, is right anyway).
@@ -151,7 +151,8 @@ class FieldInUse:
         the edited lights, so the field's part alone is rescaled, inside the estimator. ``moving``: the camera
         is moving (PVRT keeps no samples of a moving view, :class:`PvrtView`). ``cancel``: the neural renderer works
         in batches of :data:`photon_fields.runtime.wavefront.batches.CANCELLABLE_BATCH` and asks it before each
-        (True: :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the frame is given up)."""
+        (True: :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the frame is given up).
+        ``level``: the preview marches that level of the volume (:mod:`photon_fields.runtime.scene.levels`)."""
         from photon_fields.runtime.threads import numba_threads
 
         if renderer == "pvrt":  # L_i from the transfer under the edited lights: nothing to rescale
@@ -180,7 +181,7 @@ class FieldInUse:
             if renderer == "preview":  # its light volume is kept with the scene: camera moves reuse it
                 from photon_fields.runtime.renderers.ray_marcher import render_ray_marched
 
-                return render_ray_marched(scene, spp=1, seed=seed + n, progress=False).layers
+                return render_ray_marched(scene, spp=1, seed=seed + n, progress=False, level=level).layers
             from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 
             pmap = self.pmap

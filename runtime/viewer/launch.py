@@ -176,7 +176,8 @@ class ViewerServer:
 
     def __init__(self, inputs: ViewerInputs, *, host: str = "127.0.0.1", port: int = 0, warm: bool = True,
                  max_spp: int | None = None, drag_scale: float | str = "auto",
-                 retrain: RetrainSettings | None = None, gather_after: int | None = DEFAULT_GATHER_AFTER) -> None:
+                 retrain: RetrainSettings | None = None, gather_after: int | None = DEFAULT_GATHER_AFTER,
+                 interactive_level: int | str = "auto") -> None:
         import uvicorn
 
         from photon_fields.runtime.viewer.server import MAX_FRAME_BYTES, create_app
@@ -206,7 +207,8 @@ class ViewerServer:
                                     transfer=inputs.transfer, out_dir=inputs.out_dir, seed=inputs.seed,
                                     width=inputs.width, height=inputs.height, renderer=inputs.renderer,
                                     max_spp=max_spp or DEFAULT_MAX_SPP, info=inputs.info, drag_scale=drag_scale,
-                                    retrain=retrain, gather_after=gather_after, pvrt_options=inputs.pvrt_options)
+                                    retrain=retrain, gather_after=gather_after, pvrt_options=inputs.pvrt_options,
+                                    interactive_level=interactive_level)
             session.field_threads = inputs.threads
             return session
 
@@ -240,13 +242,22 @@ def start(scene: str | None = None, *, bundle: str | None = None, map: str | Non
           renderer: str | None = None, warm: bool = True, max_spp: int | None = None,
           drag_scale: float | str = "auto", retrain: RetrainSettings | None = None,
           gather_after: int | None = DEFAULT_GATHER_AFTER, transfer: str | None = None,
-          pvrt_options: Any = None) -> ViewerServer:
+          pvrt_options: Any = None, interactive_level: int | str = "auto") -> ViewerServer:
     """Load the inputs and serve the viewer (module docstring); returns the running :class:`ViewerServer`.
     ``transfer``: a PVRT transfer file (NAME.pvrt) of the scene: enables the pvrt renderer, whose frames are made
-    as ``pvrt_options`` (:class:`photon_fields.runtime.viewer.pvrt_view.PvrtOptions`; None: its defaults) say."""
+    as ``pvrt_options`` (:class:`photon_fields.runtime.viewer.pvrt_view.PvrtOptions`; None: its defaults) say.
+    ``interactive_level``: the preview's volume level for the first frame of every change
+    (:func:`photon_fields.runtime.viewer.drag_levels.changing_level`)."""
     if drag_scale != "auto" and (isinstance(drag_scale, bool) or not isinstance(drag_scale, (int, float))
                                  or not 0.25 <= drag_scale <= 1.0):
         raise InputError("--drag-scale", f"must be auto or a number in [0.25, 1], got {drag_scale!r}")
+    if interactive_level != "auto":
+        from photon_fields.runtime.scene.levels import MAX_LEVEL
+
+        if isinstance(interactive_level, bool) or not isinstance(interactive_level, int) or not (
+                0 <= interactive_level <= MAX_LEVEL):
+            raise InputError("--interactive-level", f"must be auto or an integer in [0, {MAX_LEVEL}], got "
+                                                    f"{interactive_level!r}")
     inputs = load_inputs(scene, bundle=bundle, map_path=map, out_dir=out, size=size, seed=seed, threads=threads,
                          force=force, renderer=renderer, transfer_path=transfer)
     if pvrt_options is not None and inputs.transfer is None:
@@ -254,4 +265,4 @@ def start(scene: str | None = None, *, bundle: str | None = None, map: str | Non
     inputs.pvrt_options = pvrt_options
     return ViewerServer(inputs, host=host, port=port, warm=warm, max_spp=max_spp,
                         drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale), retrain=retrain,
-                        gather_after=gather_after)
+                        gather_after=gather_after, interactive_level=interactive_level)

@@ -41,6 +41,9 @@ PVRT keeps that view's camera samples, so that a light change is only a relit fr
 
 The preview (the ray marcher, no L_i, no training): frame ``n`` is the march of seed ``seed + n``; a resting view
 averages a few (:func:`photon_fields.runtime.viewer.field_in_use.resting_frames`), none denoised (docs/viewer.md).
+On a large volume the first frame of every change (a camera move or an edit) marches a coarser level of it
+(``interactive_level``, :func:`photon_fields.runtime.viewer.drag_levels.changing_level`); the view, once it rests,
+takes full-level frames of its own, never averaged with that one.
 
 Final gather at rest: from sample :attr:`ViewerSession.gather_after` of a resting view on, neural frames take one
 real bounce before the field (:mod:`photon_fields.runtime.wavefront.final_gather`): noisier, slower, less biased
@@ -75,21 +78,21 @@ from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.viewer import screenshot
 from photon_fields.runtime.viewer.accumulation import Accumulation
 from photon_fields.runtime.viewer.camera import OrbitView
-from photon_fields.runtime.viewer.drag_levels import DRAG_LEVELS, next_drag_level
+from photon_fields.runtime.viewer.drag_levels import DRAG_LEVELS, changing_level, next_drag_level
 from photon_fields.runtime.viewer.encode import encode, tonemap
 from photon_fields.runtime.viewer.field_in_use import FieldInUse, noisy, progressive, resting_frames
 from photon_fields.runtime.viewer.frame_denoisers import FrameDenoisers
 from photon_fields.runtime.viewer.frame_size import fit_view
 from photon_fields.runtime.viewer.light_control import LightControl, edited_lights
-from photon_fields.runtime.viewer.messages import MAX_PIXELS, MAX_SIDE, MIN_SIDE, Message, MessageError
+from photon_fields.runtime.viewer.messages import MIN_SIDE, Message, MessageError
 from photon_fields.runtime.viewer.pvrt_view import PvrtOptions, PvrtView
 from photon_fields.runtime.viewer.retrain import RetrainSettings
 from photon_fields.runtime.viewer.set_controls import apply_set
+from photon_fields.runtime.viewer.state_message import state_message
 from photon_fields.runtime.viewer.transfer_edit import (
     edited_transfer,
     label_panel,
     shows_something,
-    transfer_message,
     volume_histogram,
 )
 from photon_fields.runtime.viewer.updater import FieldUpdater
@@ -114,8 +117,11 @@ class ViewerSession:
                  renderer: str | None = None, max_spp: int = DEFAULT_MAX_SPP,
                  denoise_frames: int = DEFAULT_DENOISE_FRAMES, info: dict[str, Any] | None = None,
                  drag_scale: float | str = 1.0, retrain: RetrainSettings | None = None,
-                 gather_after: int | None = DEFAULT_GATHER_AFTER, pvrt_options: PvrtOptions | None = None) -> None:
+                 gather_after: int | None = DEFAULT_GATHER_AFTER, pvrt_options: PvrtOptions | None = None,
+                 interactive_level: int | str = "auto") -> None:
         self.base_scene = scene
+        changing_level(interactive_level, "preview", scene.volume.dims)  # refuses a bad one here
+        self.interactive_level = interactive_level
         self.field = FieldInUse(scene, estimator, pmap, FieldInUse.run_folder_of((info or {}).get("bundle")),
                                 PvrtView(transfer, scene.tf, pvrt_options) if transfer is not None else None)
         self.out_dir = Path(out_dir)
@@ -153,8 +159,9 @@ class ViewerSession:
         self._acc = Accumulation()
         self._acc_generation = -1
         self._acc_size: tuple[int, int] = (0, 0)  # (width, height) of the accumulation
-        # The accumulation is a deterministic renderer's moving frame: the view, once at rest, takes a frame of its
-        # own (the one PVRT keeps its camera samples in, so that the next light change is only a relit frame).
+        # The accumulation is a deterministic renderer's moving frame or a coarser level's frame: the view, once at
+        # rest, takes a frame of its own (the one PVRT keeps its camera samples in, so that the next light change is
+        # only a relit frame; the preview's full level).
         self._unrested = False
         self._auto_stops: float | None = None
         self._denoisers = FrameDenoisers()
@@ -283,7 +290,7 @@ class ViewerSession:
         is shared)."""
         if self._scene_lights_version != self._lights_version:
             scene = self.edited_scene(s)
-            if scene.tf is self.scene.tf and "medium" in self.scene._cache:  # the medium ignores the lights
+            if scene.tf is self.scene.tf:  # the medium (and its levels') ignores the lights: shared if built
                 scene.adopt_medium(self.scene)
             else:  # a new transfer function: a new medium, and the depth it gives the denoisers
                 self._denoisers.forget_medium()
@@ -304,7 +311,9 @@ class ViewerSession:
             render = (generation != self._acc_generation or self._acc.samples < self.target_spp(s)
                       or self._acc_size != full or self._unrested)
             self.cut = self.redisplay = self.reexpose = False
-            if generation != self._acc_generation:
+            fresh = generation != self._acc_generation
+            level = changing_level(self.interactive_level, s.renderer, self.base_scene.volume.dims) if fresh else 0
+            if fresh:
                 moved_only = not cut
                 self._acc.clear()
                 self._acc_generation = generation
@@ -314,19 +323,21 @@ class ViewerSession:
             scale = DRAG_LEVELS[self.drag_level] if s.drag_scale == "auto" else float(s.drag_scale)
             if moved_only and scale < 1.0:
                 size = (max(MIN_SIDE, round(s.width * scale)), max(MIN_SIDE, round(s.height * scale)))
-            # the resting frame of a view whose deterministic moving frame is shown already: the same image, so it is
-            # dropped, as a refinement is, when the view changes while it renders
-            settling = render and self._unrested and not moved_only
+            # the resting frame of a view whose deterministic moving frame or coarser level is shown already: dropped,
+            # as a refinement is, when the view changes while it renders (a new view's first frame never is)
+            settling = render and self._unrested and not fresh
             if render and (self._acc_size != size or self._unrested):  # a moving frame before: rest starts anew
                 self._acc.clear()
             self._acc_size = size
-            self._unrested = render and moved_only and not progressive(s.renderer)
+            self._unrested = render and ((moved_only and not progressive(s.renderer)) or level > 0)
             scene = self._scene_for(s, *size)
             source = self.scene  # replaced by this thread only
         # The medium, built (outside the lock: tens of ms and more) for this frame's copy, is kept on the session's
         # scene too, so that later frames and the next light edit share it (else each light edit rebuilt the medium,
         # the denoisers' depth and PVRT's kept samples when the scene's medium was not built before the first frame).
-        source._cache.setdefault("medium", scene.medium())
+        # A coarser level's frame builds only its level's (kept in the scene's shared cache).
+        if level == 0:
+            source._cache.setdefault("medium", scene.medium())
         timings: dict[str, float] = {}
         warnings = self.field.warnings(s.renderer, s.transfer, s.lights, self.updater)
         # Frames without Monte Carlo noise (the preview, PVRT) are never denoised: no denoiser (nor its depth
@@ -346,7 +357,7 @@ class ViewerSession:
             cancel = (lambda: self.generation != generation) if refining else None
             try:
                 with RENDER_LOCK:
-                    layers = self._render(scene, s, self._acc.samples, gather, moved_only, cancel)
+                    layers = self._render(scene, s, self._acc.samples, gather, moved_only, cancel, level)
             except RenderCancelledError:
                 with self.lock:
                     self.dropped += 1
@@ -385,7 +396,7 @@ class ViewerSession:
                   "stale": self.field.stale_for(s.renderer, s.transfer, s.lights),
                   "renderer": s.renderer, "layer": s.layer, "g": s.g, "width": size[0], "height": size[1],
                   "view_size": list(s.view_size) if s.view_size else None, "format": s.format, "exposure": stops,
-                  "denoised": denoised, "moving": moved_only, "gathered": gathered,
+                  "denoised": denoised, "moving": moved_only, "gathered": gathered, "level": level,
                   "rendered": render, "warnings": warnings,
                   "pvrt": dict(self.field.pvrt.last) if s.renderer == "pvrt" and self.field.pvrt else None,
                   **{k: round(v, 2) for k, v in timings.items()}}
@@ -429,15 +440,15 @@ class ViewerSession:
             self.redisplay = self._unrested = False
 
     def _render(self, scene: Scene, s: ViewState, n: int, gather: bool, moving: bool,
-                cancel: Callable[[], bool] | None = None) -> dict[str, np.ndarray]:
+                cancel: Callable[[], bool] | None = None, level: int = 0) -> dict[str, np.ndarray]:
         """Frame ``n`` of the accumulation of state ``s`` (module docstring for the seeds), with the final gather
-        or not, of a moving camera or not; while a background job trains, with the cores it leaves. ``cancel``: as
-        :meth:`FieldInUse.render`'s."""
+        or not, of a moving camera or not; while a background job trains, with the cores it leaves. ``cancel`` and
+        ``level``: as :meth:`FieldInUse.render`'s."""
         from photon_fields.runtime.threads import max_threads
 
         threads = max(1, max_threads() - self.updater.settings.threads) if self.updater.busy else None
         return self.field.render(scene, s.renderer, seed=self.seed, n=n, lights=s.lights, threads=threads,
-                                 final_gather=gather, moving=moving, cancel=cancel)
+                                 final_gather=gather, moving=moving, cancel=cancel, level=level)
 
     def gathers(self, renderer: str, n: int) -> bool:
         """Whether resting frame ``n`` of an accumulation with ``renderer`` takes the final gather (moving frames
@@ -448,24 +459,9 @@ class ViewerSession:
     # state for the page, screenshots (either thread)
 
     def describe(self) -> dict[str, Any]:
-        """The state the page builds its controls from (sent when it connects)."""
+        """The state the page builds its controls from (sent when it connects; :func:`state_message`)."""
         with self.lock:
-            s = self.state
-            return {"type": "state", "scene": self.base_scene.name, "renderers": self.available,
-                    "renderer": s.renderer, "layer": s.layer, "g": s.g, "exposure_offset": s.exposure_offset,
-                    "format": s.format, "denoise": s.denoise, "max_spp": s.max_spp, "width": s.width,
-                    "height": s.height, "max_size": list(self.max_size),
-                    "view_limits": {"min_side": MIN_SIDE, "max_side": MAX_SIDE, "max_pixels": MAX_PIXELS},
-                    "drag_scale": s.drag_scale, "lights": [lt.to_dict() for lt in s.lights],
-                    "out_dir": str(self.out_dir),
-                    # a PVRT transfer renders the g it was precomputed for only: the page fixes its g slider
-                    "pvrt": {"g": self.field.pvrt.g} if self.field.pvrt else None,
-                    # the editor the page shows: control points over the histogram, or a label scene's panel
-                    "transfer": None if s.labels else transfer_message(s.transfer or self.base_scene.tf),
-                    "histogram": None if s.labels else self.histogram(),
-                    "labels": s.labels.message() if s.labels else None,
-                    "retrain": {"available": self.updater.available, "why": self.updater.reason,
-                                "auto": self.updater.settings.auto, "status": self.updater.status()}}
+            return state_message(self)
 
     def histogram(self) -> list[float]:
         """The volume's histogram for the page's transfer-function editor (computed once)."""
@@ -493,7 +489,7 @@ class ViewerSession:
                       "camera": cam.to_dict(), "lights": [lt.light().to_dict() for lt in s.lights],
                       "transfer_function": (s.transfer or self.base_scene.tf).to_dict(),
                       "stale_indirect": self.field.stale_for(s.renderer, s.transfer, s.lights),
-                      "final_gather_samples": gathered,
+                      "final_gather_samples": gathered, "level": header.get("level", 0),
                       "frame_timings_ms": {k: v for k, v in header.items() if k.endswith("_ms")}, **self.info}
             return screenshot.write(self.out_dir, stem, layers, report, png_layer=s.layer,
                                     exposure=header.get("exposure"))

@@ -160,6 +160,11 @@ def test_raymarch(tmp_path: Path) -> None:
     out2 = tmp_path / "marched2.exr"
     assert render(out2, "--method", "raymarch", "--seed", "1") == 0
     assert np.array_equal(read_exr(out2)[0]["L"], layers["L"])
+    out3 = tmp_path / "coarse.exr"
+    assert render(out3, "--method", "raymarch", "--seed", "1", "--level", "1") == 0
+    coarse = read_exr(out3)[0]["L"]
+    assert coarse.shape == layers["L"].shape and not np.array_equal(coarse, layers["L"])
+    assert json.loads(out3.with_suffix(".json").read_text())["options"]["level"] == 1
 
 
 def test_json_scene_file(tmp_path: Path, tiny_scene: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -267,6 +272,8 @@ BAD_ARGS = [
     (["--threads", "100000"], "--threads"),
     (["--method", "magic"], "--method"),
     (["--step", "0"], "--step"),
+    (["--method", "raymarch", "--level", "6"], "--level"),
+    (["--method", "raymarch", "--level", "-1"], "--level"),
     (["--max-depth", "0"], "--max-depth"),
     (["--batch-size", "0"], "--batch-size"),
     (["--exposure", "nan"], "--exposure"),

@@ -40,6 +40,8 @@ def one_error_line(stderr: str) -> str:
     (["blobs", "--retrain-photons", "0"], "--retrain-photons"),
     (["blobs", "--final-gather-after", "-3"], "--final-gather-after"),
     (["blobs", "--final-gather-after", "soon"], "--final-gather-after"),
+    (["blobs", "--interactive-level", "9"], "--interactive-level"),
+    (["blobs", "--interactive-level", "fine"], "--interactive-level"),
 ])
 def test_bad_input_is_one_line_and_status_2(argv: list[str], needle: str, tmp_path: Path,
                                             capsys: pytest.CaptureFixture[str]) -> None:

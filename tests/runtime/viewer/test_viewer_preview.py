@@ -84,3 +84,47 @@ def test_a_light_edit_keeps_what_depends_on_the_medium_alone(tmp_path: Path) -> 
     s.apply(msg("transfer", **edited(s, density_scale=2 * s.base_scene.tf.density_scale)))
     s.next_frame()
     assert s.scene.medium() is not lit.medium() and s.scene.shared_cache("step_units") is not grids
+
+
+def test_each_change_shows_the_interactive_level_first_and_rests_on_the_full_volume(tmp_path: Path) -> None:
+    """With an interactive level (here 1 on the 32^3 scene; ``auto`` picks one above 128 voxels a side), the first
+    frame of every change (the first view, a camera move, an edit) is the march of that level of the volume; the
+    view at rest starts its accumulation anew with full-level frames (the coarse frame never enters it); other
+    renderers never take a level."""
+    s = make_session(tmp_path, renderer="preview", retrain=MANUAL, interactive_level=1)
+
+    def scene() -> Scene:
+        return s.edited_scene(s.state).with_overrides(camera=s.state.view.camera(s.state.width, s.state.height))
+
+    for change in (None, msg("orbit", dx=25.0, dy=5.0), msg("transfer", **edited(s, opacity_scale=0.7))):
+        if change is not None:
+            s.apply(change)
+        h = s.next_frame().header
+        assert (h["level"], h["spp"]) == (1, 1), change
+        coarse = render_ray_marched(scene(), spp=1, seed=s.seed, progress=False, level=1).layers["L_d"]
+        np.testing.assert_allclose(accumulated(s, "L_d"), coarse, rtol=1e-5, atol=1e-7)
+        hs = [s.next_frame().header for _ in range(2)]
+        assert [(h["level"], h["spp"]) for h in hs] == [(0, 1), (0, 2)], change
+        np.testing.assert_allclose(accumulated(s, "L_d"), marched_mean(scene(), range(s.seed, s.seed + 2)),
+                                   rtol=1e-5, atol=1e-7)
+        assert np.abs(coarse - marched_mean(scene(), range(s.seed, s.seed + 1))).max() > 0.0  # another image
+    s.apply(msg("set", control="renderer", value="pt"))
+    assert s.next_frame().header["level"] == 0
+
+
+def test_a_changes_first_frame_is_shown_even_when_the_next_change_comes_while_it_renders(tmp_path: Path) -> None:
+    """During a continuous slider drag every frame is a new change's first: it must be shown although the next edit
+    arrives while it renders (only refinements of a view are dropped then), also after a coarse frame."""
+    s = make_session(tmp_path, renderer="preview", retrain=MANUAL, interactive_level=1)
+    s.next_frame()  # a coarse frame: the view has not rested yet
+    render = s._render
+
+    def render_then_edit(*args: object, **kw: object) -> dict:
+        layers = render(*args, **kw)
+        s.apply(msg("transfer", **edited(s, opacity_scale=0.5)))  # the drag goes on
+        return layers
+
+    s._render = render_then_edit  # type: ignore[method-assign]
+    s.apply(msg("transfer", **edited(s, opacity_scale=0.8)))
+    frame = s.next_frame()
+    assert frame is not None and frame.header["level"] == 1

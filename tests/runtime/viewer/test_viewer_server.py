@@ -182,11 +182,11 @@ def test_a_frame_that_fails_is_reported_and_the_loop_waits_for_the_next_change(t
     real = session._render
     calls = []
 
-    def failing(scene, state, n, gather, moving, cancel=None):  # noqa: ANN001, ANN202
+    def failing(scene, state, n, gather, moving, cancel=None, level=0):  # noqa: ANN001, ANN202
         calls.append(scene.g)
         if scene.g > 0.5:
             raise InputError("g", "this renderer cannot answer it")
-        return real(scene, state, n, gather, moving, cancel)
+        return real(scene, state, n, gather, moving, cancel, level)
 
     session._render = failing
     session.apply(msg("set", control="g", value=0.9))

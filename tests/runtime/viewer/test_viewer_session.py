@@ -278,10 +278,10 @@ def test_stale_refinement_frames_are_dropped_but_first_frames_never(tmp_path: Pa
 
     cancels = []
 
-    def render_while_input_arrives(scene, state, n, gather, moving, cancel=None):  # noqa: ANN001, ANN202
+    def render_while_input_arrives(scene, state, n, gather, moving, cancel=None, level=0):  # noqa: ANN001, ANN202
         s.apply(msg("orbit", dx=1.0, dy=0.0))  # input arriving during every render
         cancels.append(cancel is not None and cancel())
-        return real(scene, state, n, gather, moving, cancel)
+        return real(scene, state, n, gather, moving, cancel, level)
 
     assert s.next_frame() is not None  # first frame of the scene camera
     s.apply(msg("orbit", dx=1.0, dy=0.0))
