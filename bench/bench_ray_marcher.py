@@ -11,6 +11,9 @@ round):
   no frame read before, and a frame that fills them is partly a first frame), with the fraction of the light
   volume's cells filled; and the same warm frame with fixed 1-voxel steps (``max_step=1``: the preview before its
   adaptive segments);
+- on a volume over 128 voxels a side, the preview of its interactive level (``runtime/scene/levels.py``, what the
+  viewer shows first after each change): first and warm frames, and the 8-frame average's relative L2 and mean
+  against the full volume's;
 - the marcher with a shadow ray per sample and light (``shadows="march"``, the paper's baseline), same steps;
 - the path tracer and, with ``--bundle SCENE=PATH``, the neural renderer (Alg. 2), for scale.
 
@@ -24,12 +27,15 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from common import alternated_median_ms, finish_info, machine_info, median_ms, parse_scenes, write_report  # noqa: E402
 
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
 from photon_fields.runtime.renderers.ray_marcher import render_ray_marched  # noqa: E402
+from photon_fields.runtime.scene.levels import interactive_level, scene_at_level  # noqa: E402
 from photon_fields.runtime.scene.scene import builtin_scene, load_scene  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "ray_marcher.json"
@@ -55,7 +61,9 @@ def scene_row(scene: Any, est: Any, repeats: int, fill_frames: int) -> dict[str,
     for seed in range(fill_frames):
         for max_step in (None, 1.0):
             render_ray_marched(scene, spp=1, seed=1000 + seed, max_step=max_step, progress=False)
-    warm = {
+    level = interactive_level(scene.volume.dims)
+    warm = level_row(scene, level, repeats, fill_frames, row) if level else {}
+    warm |= {
         "preview_ms": lambda seed: render_ray_marched(scene, spp=1, seed=seed, progress=False),
         "preview_fixed_steps_ms": lambda seed: render_ray_marched(scene, spp=1, seed=seed, max_step=1.0,
                                                                   progress=False),
@@ -71,6 +79,32 @@ def scene_row(scene: Any, est: Any, repeats: int, fill_frames: int) -> dict[str,
     row["light_volume_filled"] = float((values != UNFILLED).mean())
     row["light_volume_mb"] = values.nbytes / 1e6
     return row
+
+
+def level_row(scene: Any, level: int, repeats: int, fill_frames: int, row: dict[str, Any]) -> dict[str, Any]:
+    """Into ``row``: the interactive ``level``'s first preview frame (its light volume emptied before each; its
+    medium and step grids kept, as after a camera move in the viewer) and its 8-frame average against the full
+    volume's (relative L2, mean ratio); then ``fill_frames`` frames at the level. Returns its warm frame for the
+    alternated timing."""
+    volumes = scene_at_level(scene, level).shared_cache("light_volumes")
+
+    def cold(seed: int) -> Any:
+        volumes.clear()
+        return render_ray_marched(scene, spp=1, seed=seed, progress=False, level=level)
+
+    row["level"] = level
+    row["level_first_ms"] = median_ms(cold, repeats)
+
+    def average(lv: int) -> np.ndarray:
+        return np.mean([render_ray_marched(scene, spp=1, seed=s, progress=False, level=lv).layers["L"]
+                        for s in range(8)], 0)
+
+    full, coarse = average(0), average(level)
+    row["level_rel_l2"] = float(np.linalg.norm(coarse - full) / np.linalg.norm(full))
+    row["level_mean_ratio"] = float(coarse.mean() / full.mean())
+    for seed in range(fill_frames):
+        render_ray_marched(scene, spp=1, seed=1000 + seed, progress=False, level=level)
+    return {"level_ms": lambda seed: render_ray_marched(scene, spp=1, seed=seed, progress=False, level=level)}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -109,6 +143,10 @@ def main(argv: list[str] | None = None) -> None:
               f"{row['preview_fixed_steps_ms']:12.1f} {row['light_volume_filled']:7.3f} {row['march_ms']:8.1f} "
               f"{row['path_tracer_ms']:12.1f} {neural}",
               flush=True)
+        if "level" in row:
+            print(f"{'':8s} level {row['level']}: first {row['level_first_ms']:.0f} ms, warm {row['level_ms']:.1f} ms; "
+                  f"8-frame average against the full volume's: rel. L2 {row['level_rel_l2']:.3f}, mean "
+                  f"{row['level_mean_ratio']:.3f}", flush=True)
     write_report(args.out, "ray_marcher", finish_info(info, {}), {"size": args.size, "resolution": args.resolution,
                                                                   "repeats": args.repeats,
                                                                   "fill_frames": args.fill_frames,
