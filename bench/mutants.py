@@ -553,6 +553,15 @@ MUTANTS: tuple[Mutant, ...] = (
             "test_a_changes_first_frame_is_shown_even_when_the_next_change_comes_while_it_renders",),
            "an edit's first frame after a coarse one is dropped when the next edit arrives: a slider drag shows "
            "nothing"),
+    Mutant("cancelled_fill_forgets_its_bricks", "runtime/transport/light_volume.py",
+           "lv.wanted[chunk[:, 0], chunk[:, 1], chunk[:, 2]] = 0", "lv.wanted[...] = 0",
+           (f"{RAY_MARCHER}::test_a_cancelled_fill_keeps_its_cells_and_the_next_frame_completes_it",),
+           "each fill chunk clears every brick's flag: a cancelled fill leaves marked cells no later fill finds"),
+    Mutant("resting_preview_not_cancellable", "runtime/viewer/field_in_use.py",
+           "progress=False, level=level, cancel=cancel,", "progress=False, level=level, cancel=None,",
+           ("tests/runtime/viewer/test_viewer_preview.py::"
+            "test_a_resting_preview_frame_gives_way_to_a_move_during_its_fill",),
+           "the preview's resting frames ignore the session's cancel: a move waits for a whole full-level frame"),
     # Label volumes (runtime/scene/labels.py, the categorical medium).
     Mutant("labels_interpolated", "runtime/transport/medium.py", "    if m.categorical:  # vx <= nx - 1",
            "    if False:  # vx <= nx - 1",

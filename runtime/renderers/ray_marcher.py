@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 
 import numpy as np
 from numba import njit, prange
@@ -89,7 +90,14 @@ from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.step_grid import own_units, step_lengths, units_along, units_from_lengths
 from photon_fields.runtime.transport.tracking import empty_run_in, macrocell_of, task_items, task_stride
-from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish, scene_environment, work_batches
+from photon_fields.runtime.wavefront.batches import (
+    RenderCancelledError,
+    RenderResult,
+    StageTimer,
+    finish,
+    scene_environment,
+    work_batches,
+)
 from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box, tile_order, tiled_work
@@ -102,6 +110,8 @@ DEFAULT_SPAN = 4
 #: steps per occupied macrocell on average (the embedded scenes at 96^3) they saved fewer samples than they cost,
 #: and the camera marches fixed steps (bench/README.md, ray marcher).
 MIN_MEAN_UNITS = 1.5
+#: Camera rays per batch (each batch marks, fills and re-marches its own light-volume cells).
+MARCH_BATCH = 1 << 17
 _NO_VOLUME = np.ones((2, 2, 2, 1), dtype=np.float32)  # what "march" passes for the light volume it does not read
 _NO_WANTED = np.zeros((1, 1, 1), dtype=np.uint8)
 _NO_GRID: Grid = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 2, 2, 2)
@@ -250,7 +260,8 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
 
 
 def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, skip: bool, lv: LightVolume | None,
-               t_min: float, units: np.ndarray, own: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+               t_min: float, units: np.ndarray, own: np.ndarray,
+               cancel: Callable[[], bool] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(L_d (3, n), transmittance (n,)) of work items ``work`` (``w = sample * pixels + pixel``, the camera ray
     of random stream w under ``seed``; rays that miss the box: 0 and 1). ``skip``: empty space is jumped over and
     each ray is marched only within its tile's depth bounds (:mod:`photon_fields.runtime.wavefront.depth_bounds`);
@@ -258,7 +269,9 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
     read unfilled cells mark them, the cells are marched and those rays marched once more
     (runtime/transport/light_volume.py): the sums are the ones a filled volume gives. ``units`` / ``own``: base
     steps per segment per macrocell, the neighbourhood's and each macrocell's own (:func:`scene_step_units`,
-    :func:`scene_own_units`; ``own`` all ones: fixed steps)."""
+    :func:`scene_own_units`; ``own`` all ones: fixed steps). ``cancel``: asked before the fill and between its
+    chunks (:func:`photon_fields.runtime.transport.light_volume.fill_wanted`); True stops with
+    :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the cells filled so far kept."""
     m = scene.medium()
     adaptive = bool(own.max() > 1)
     cam = scene.camera
@@ -275,7 +288,8 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
     if lv is None or not missed.any():
         return ld, trans
     idx = np.flatnonzero(missed)
-    fill_wanted(m, kind, vec, lv)
+    if (cancel is not None and cancel()) or not fill_wanted(m, kind, vec, lv, cancel):
+        raise RenderCancelledError(f"cancelled while filling the light volume for {idx.size} rays")
     ld[:, idx], trans[idx], still = run(work[idx])
     if still.any():
         raise RuntimeError("ray marcher: a light-volume cell its rays read was not filled")  # cannot happen
@@ -345,11 +359,14 @@ def light_volume_settings(scene: Scene, light_grid_scale: float | None = None,
 def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows: str = "volume",
                        shadow_step: float | None = None, light_grid_scale: float | None = None,
                        min_transmittance: float = 1e-2, max_step: float | None = None, seed: int = 0,
-                       batch_size: int = 1 << 17, progress: bool = True, skip_empty: bool = True,
-                       level: int = 0) -> RenderResult:
+                       batch_size: int = MARCH_BATCH, progress: bool = True, skip_empty: bool = True,
+                       level: int = 0, cancel: Callable[[], bool] | None = None) -> RenderResult:
     """Single scattering by ray marching (module docstring for the parameters). Layers L, L_e and L_d (L_i stays
     zero). ``skip_empty``: camera and shadow rays look nothing up in empty macrocells (the same image, sooner;
-    False: every sample looked up, the reference the tests and ``bench_ray_marcher.py`` compare with)."""
+    False: every sample looked up, the reference the tests and ``bench_ray_marcher.py`` compare with).
+    ``cancel``: asked before each batch and during the light volume's fill (:func:`march_work`); True stops the
+    render with :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError` (the viewer's resting frames:
+    an edit's full-level frame at 256^3 is seconds of work)."""
     scene = scene_at_level(scene, level)
     use_volume = check_choice("--shadows", shadows, SHADOWS) == "volume"
     if use_volume:
@@ -372,9 +389,12 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
                       enabled=progress) as bar:
         order = tile_order(cam.width, cam.height)  # each task's rays read the same cache lines (rays.py)
         for start, count in work_batches(0, n_pixels * spp, batch):
+            if cancel is not None and cancel():
+                raise RenderCancelledError(f"cancelled before work item {start}")
             work = tiled_work(start, count, order)
             with timer("march"):
-                ld, trans = march_work(scene, work, seed, h, hs, skip_empty, lv, min_transmittance, units, own)
+                ld, trans = march_work(scene, work, seed, h, hs, skip_empty, lv, min_transmittance, units, own,
+                                       cancel)
             pixel = work % n_pixels
             film.splat("L_d", pixel, ld, True)
             if env is not None:

@@ -149,9 +149,10 @@ class FieldInUse:
         ``threads``: numba workers (None: as set). ``final_gather``: the neural renderer takes one real bounce
         before the field (:mod:`photon_fields.runtime.wavefront.final_gather`); its NEE at the bounce already sees
         the edited lights, so the field's part alone is rescaled, inside the estimator. ``moving``: the camera
-        is moving (PVRT keeps no samples of a moving view, :class:`PvrtView`). ``cancel``: the neural renderer works
-        in batches of :data:`photon_fields.runtime.wavefront.batches.CANCELLABLE_BATCH` and asks it before each
-        (True: :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the frame is given up).
+        is moving (PVRT keeps no samples of a moving view, :class:`PvrtView`). ``cancel``: the neural renderer and
+        the preview work in batches of :data:`photon_fields.runtime.wavefront.batches.CANCELLABLE_BATCH` and ask it
+        before each, the preview also during its light volume's fill (True:
+        :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the frame is given up).
         ``level``: the preview marches that level of the volume (:mod:`photon_fields.runtime.scene.levels`)."""
         from photon_fields.runtime.threads import numba_threads
 
@@ -179,9 +180,11 @@ class FieldInUse:
 
                 return render_path_traced(scene, spp=1, seed=seed + n, progress=False).layers
             if renderer == "preview":  # its light volume is kept with the scene: camera moves reuse it
-                from photon_fields.runtime.renderers.ray_marcher import render_ray_marched
+                from photon_fields.runtime.renderers.ray_marcher import MARCH_BATCH, render_ray_marched
+                from photon_fields.runtime.wavefront.batches import CANCELLABLE_BATCH
 
-                return render_ray_marched(scene, spp=1, seed=seed + n, progress=False, level=level).layers
+                return render_ray_marched(scene, spp=1, seed=seed + n, progress=False, level=level, cancel=cancel,
+                                          batch_size=MARCH_BATCH if cancel is None else CANCELLABLE_BATCH).layers
             from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 
             pmap = self.pmap

@@ -190,6 +190,35 @@ def test_marked_cells_are_filled_brick_by_brick_and_no_others() -> None:
     assert (lv.values[lv.values != UNFILLED] >= 0.0).all() and not lv.wanted.any()
 
 
+def test_a_cancelled_fill_keeps_its_cells_and_the_next_frame_completes_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A render cancelled while its light volume fills (a chunk of one brick at a time here) raises, keeps the
+    cells it filled and the flags of the bricks it did not; the next frame fills those, and its image is a cold
+    render's bit for bit. Cancelled before its first batch, a render fills nothing."""
+    from photon_fields.runtime.renderers.ray_marcher import light_volume_settings, scene_light_volume
+    from photon_fields.runtime.transport import light_volume
+    from photon_fields.runtime.wavefront.batches import RenderCancelledError
+
+    monkeypatch.setattr(light_volume, "FILL_CHUNK", 1)
+    scene = _sparse_scene()
+    lv = scene_light_volume(scene, *light_volume_settings(scene))
+    with pytest.raises(RenderCancelledError):
+        render_ray_marched(scene, spp=1, seed=4, progress=False, cancel=lambda: True)
+    assert (lv.values == light_volume.UNFILLED).all() and not lv.wanted.any()
+    asked = []
+
+    def cancel_in_the_fill() -> bool:
+        asked.append(1)
+        return len(asked) >= 4  # before the batch, before the fill, after the first chunk: go on; then stop
+
+    with pytest.raises(RenderCancelledError):
+        render_ray_marched(scene, spp=1, seed=4, progress=False, cancel=cancel_in_the_fill)
+    assert len(asked) == 4 and lv.wanted.sum() > 0 and (lv.values >= 0.0).sum() > 0
+    warm = render_ray_marched(scene, spp=1, seed=4, progress=False).layers["L_d"]
+    assert not lv.wanted.any() and not (lv.values == light_volume.WANTED).any()
+    np.testing.assert_array_equal(warm, render_ray_marched(_sparse_scene(), spp=1, seed=4,
+                                                           progress=False).layers["L_d"])
+
+
 def test_light_volume_gives_the_same_image_cold_or_warm_and_with_any_threads() -> None:
     import numba
 

@@ -9,6 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 from test_viewer_transfer import MANUAL, edited
 from viewer_helpers import make_session, msg
 
@@ -128,3 +129,36 @@ def test_a_changes_first_frame_is_shown_even_when_the_next_change_comes_while_it
     s.apply(msg("transfer", **edited(s, opacity_scale=0.8)))
     frame = s.next_frame()
     assert frame is not None and frame.header["level"] == 1
+
+
+def test_a_resting_preview_frame_gives_way_to_a_move_during_its_fill(tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """The full-level frame after a coarse one (at 256^3 an edit's is seconds of filling) is a refinement: a move
+    arriving while its light volume fills cancels it between fill chunks (dropped, not shown), the move's frame
+    comes next, and the resting view's accumulation is then the plain marches' as if nothing had been cancelled."""
+    from photon_fields.runtime.renderers import ray_marcher
+    from photon_fields.runtime.transport import light_volume
+
+    monkeypatch.setattr(light_volume, "FILL_CHUNK", 1)
+    s = make_session(tmp_path, renderer="preview", retrain=MANUAL, interactive_level=1)
+    assert s.next_frame().header["level"] == 1
+    fill = ray_marcher.fill_wanted
+    moves = []
+
+    def fill_while_the_camera_moves(*args: object, **kw: object) -> bool:
+        if not moves:
+            moves.append(1)
+            s.apply(msg("orbit", dx=20.0, dy=0.0))
+        return fill(*args, **kw)
+
+    monkeypatch.setattr(ray_marcher, "fill_wanted", fill_while_the_camera_moves)
+    assert s.next_frame() is None and s.dropped == 1 and moves
+    lv = ray_marcher.scene_light_volume(s.scene, *ray_marcher.light_volume_settings(s.scene))
+    assert lv.wanted.any()  # stopped inside its fill, not finished and then dropped
+    h = s.next_frame().header
+    assert (h["level"], h["moving"], h["spp"]) == (1, True, 1)
+    hs = [s.next_frame().header for _ in range(2)]
+    assert [(h["level"], h["spp"]) for h in hs] == [(0, 1), (0, 2)]
+    scene = s.edited_scene(s.state).with_overrides(camera=s.state.view.camera(s.state.width, s.state.height))
+    np.testing.assert_allclose(accumulated(s, "L_d"), marched_mean(scene, range(s.seed, s.seed + 2)), rtol=1e-5,
+                               atol=1e-7)
