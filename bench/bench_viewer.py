@@ -11,6 +11,8 @@ and pt):
   latency is its arrival minus the send time of the newest input it includes (its header's ``seq``);
 - **at a reduced size** (``--drag-scales 1,0.5``): the drag and the moves from rest again, moving frames
   rendered at that fraction of the size (``pfn-view --drag-scale``);
+- with the preview on a volume over 128 voxels a side, each change's first frame marches the volume's coarser
+  level (``--interactive-level``, passed to ``pfn-view``; default auto, ``0`` for the full volume throughout);
 - **first frame after a move**: ``--moves`` times (default 10), the camera rests for a random time between
   ``--rest`` and twice that (default 0.6 s; the view refines meanwhile, and the move lands at a random point of
   the frame in flight), then one ``orbit`` message; the time until the first frame that includes it.
@@ -329,6 +331,8 @@ def main() -> int:
     p.add_argument("--input-hz", type=float, default=60.0)
     p.add_argument("--moves", type=int, default=10)
     p.add_argument("--rest", type=float, default=0.6)
+    p.add_argument("--interactive-level", default="auto",
+                   help="pfn-view's --interactive-level (the preview's volume level for each change's first frame)")
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--retrain", type=float, default=None, metavar="SCALE",
                    help="last: a transfer-function edit (opacities times SCALE, e.g. 0.7) and its background retrain: "
@@ -347,7 +351,8 @@ def main() -> int:
         raise SystemExit("the pvrt renderer needs --transfer")
     info = machine_info()
     view = [sys.executable, "-m", "photon_fields.runtime.viewer.cli", args.scene, "--size", args.size, "--no-browser",
-            "--quiet", "--drag-scale", "1", "--out", tempfile.mkdtemp(prefix="bench_viewer_")]
+            "--quiet", "--drag-scale", "1", "--interactive-level", args.interactive_level,
+            "--out", tempfile.mkdtemp(prefix="bench_viewer_")]
     if args.bundle:
         view += ["--bundle", args.bundle]
     if args.transfer:
@@ -428,6 +433,7 @@ def main() -> int:
               "renderers": renderers,
               "drag_seconds": args.drag_seconds, "input_hz": args.input_hz, "moves": args.moves, "rest_s": args.rest,
               "threads": args.threads, "drag_scales": scales, "retrain": args.retrain,
+              "interactive_level": args.interactive_level,
               "retrain_photons": args.retrain_photons, "soak_s": args.soak}
     phases = {f"{n}.{k}": v for n, r in results.items() if n not in ("retrain", "soak") for k, v in r.items()}
     write_report(Path(args.out), "viewer", {**finish_info(info, phases), "cpu_record": cpu_record()}, config,
