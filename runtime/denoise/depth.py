@@ -42,7 +42,7 @@ from numba import njit, prange
 from photon_fields.runtime.denoise.reprojection import EYE, HEIGHT, WIDTH, pack_view, pixel_direction
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.scene.camera import Camera
-from photon_fields.runtime.transport.medium import Medium, leap_distances, voxel_extinction
+from photon_fields.runtime.transport.medium import Medium, block_extinction, leap_distances
 from photon_fields.runtime.wavefront.depth_bounds import grid_depth_bounds, unbounded
 
 DEFAULT_BLOCK = 2  # voxels per coarse cell edge
@@ -56,13 +56,7 @@ def coarse_extinction(m: Medium, block: int = DEFAULT_BLOCK) -> np.ndarray:
     """Mean extinction over ``block``^3 voxel blocks (the grid is padded at the far ends by repeating the border
     voxels), from the transfer function's extinction table at the voxel values: ``sigma_t`` at each voxel centre,
     where trilinear (or, in a categorical medium, nearest) lookup returns the voxel's own value."""
-    sigma = voxel_extinction(m)
-    n = np.array(sigma.shape)
-    cells = -(-n // block)
-    pad = [(0, int(c * block - s)) for c, s in zip(cells, n, strict=True)]
-    sigma = np.pad(sigma, pad, mode="edge")
-    c = [int(v) for v in cells]
-    return np.ascontiguousarray(sigma.reshape(c[0], block, c[1], block, c[2], block).mean(axis=(1, 3, 5)))
+    return block_extinction(m, block)
 
 
 class DepthEstimator:

@@ -44,6 +44,9 @@ class Volume:
     _labels: list = field(default_factory=list, repr=False)
     #: Lazily made coarser levels (photon_fields.runtime.scene.levels.coarser_volume), reused across media.
     _levels: dict = field(default_factory=dict, repr=False)
+    #: Lazily computed per-macrocell scalar ranges (photon_fields.runtime.transport.medium.scalar_ranges), reused
+    #: across media: a transfer-function edit's majorant grid is then only table lookups.
+    _majorant_ranges: dict = field(default_factory=dict, repr=False)
 
     @property
     def dims(self) -> tuple[int, int, int]:

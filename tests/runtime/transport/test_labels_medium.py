@@ -148,3 +148,25 @@ def test_ratio_tracking_sees_the_labels_optical_depth() -> None:
     assert m.bsize[0] == 1.0
     expected = math.exp(-(3.0 * 0.5 + 1.2 * 0.5))
     assert abs(tr.mean() - expected) < 4 * tr.std() / math.sqrt(n) + 1e-12
+
+
+@pytest.mark.parametrize("labels", [False, True])
+@pytest.mark.parametrize("block", [1, 2, 3])
+def test_block_extinction_is_the_mean_of_the_voxels_sigma_t(labels: bool, block: int) -> None:
+    """The denoisers' coarse grid (``medium.block_extinction``): each block's mean of sigma_t at its voxel centres,
+    the far ends padded with their border voxels, for a continuous and a categorical medium of odd sides."""
+    from photon_fields.runtime.transport.medium import block_extinction
+
+    a = random_labels()
+    if labels:
+        m = build_medium(make_volume(a), random_tf())
+    else:
+        tf = TransferFunction(np.array([0.0, 0.3, 0.6, 1.0]), np.full((4, 3), 0.8), np.array([0.0, 0.9, 0.1, 1.0]),
+                              20.0)
+        m = build_medium(make_volume(a.astype(np.float64) + np.random.default_rng(4).random(a.shape)), tf)
+    sigma = voxel_extinction(m)
+    cells = [-(-n // block) for n in sigma.shape]
+    padded = np.pad(sigma, [(0, c * block - n) for c, n in zip(cells, sigma.shape, strict=True)], mode="edge")
+    expected = padded.reshape(cells[0], block, cells[1], block, cells[2], block).mean(axis=(1, 3, 5))
+    assert expected.std() > 0.0
+    np.testing.assert_allclose(block_extinction(m, block), expected, rtol=1e-12, atol=1e-12)

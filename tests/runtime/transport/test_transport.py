@@ -169,3 +169,24 @@ def test_task_stride_permutes_the_blocks_and_spreads_each_half(tasks: int) -> No
     if tasks >= 10:
         first = np.array(blocks[: tasks // 2])
         assert 0.3 < np.mean(first < tasks // 2) < 0.7
+
+
+def test_a_transfer_function_edit_reuses_the_volumes_scalar_ranges_and_gets_its_own_majorant() -> None:
+    """build_medium keeps each macrocell's scalar range on the volume (they do not depend on the transfer function):
+    a second function's medium on the same volume has the majorant of a cold build, bit for bit, not the first's."""
+    from photon_fields.runtime.scene.transfer import TransferFunction
+    from photon_fields.runtime.scene.volume import make_volume
+    from photon_fields.runtime.transport.medium import build_medium
+
+    rng = np.random.default_rng(7)
+    raw = rng.random((19, 12, 10))
+    vol = make_volume(raw)
+    tfs = [TransferFunction(np.array([0.0, 0.5, 1.0]), np.full((3, 3), 0.9), np.array([0.0, 1.0, 0.0]), 30.0),
+           TransferFunction(np.array([0.0, 0.8, 1.0]), np.full((3, 3), 0.9), np.array([0.5, 0.0, 1.0]), 60.0)]
+    first = build_medium(vol, tfs[0])
+    assert vol._majorant_ranges  # kept for the next edit
+    second = build_medium(vol, tfs[1])
+    cold = build_medium(make_volume(raw), tfs[1])
+    np.testing.assert_array_equal(second.majorant, cold.majorant)
+    np.testing.assert_array_equal(second.leap, cold.leap)
+    assert not np.array_equal(second.majorant, first.majorant)
