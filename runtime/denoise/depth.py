@@ -18,7 +18,8 @@ median in development runs). A ray whose collision probability
 background at infinity, which reprojects with the camera's rotation only.
 
 Cost: the march runs on a coarse copy of the extinction, the mean of ``sigma_t`` at the voxel centres of each
-``block``^3 block (``block = 2``: a 96^3 volume becomes 48^3 cells), with a 3-D DDA (Amanatides & Woo 1987)
+``block``^3 block (``block = 2``: a 96^3 volume becomes 48^3 cells; more above 256 voxels a side, so that the grid
+stays within :data:`MAX_CELLS_SIDE` cells a side), with a 3-D DDA (Amanatides & Woo 1987)
 over its cells, inside which ``sigma_t`` is constant and ``tau`` grows linearly, so ``t*`` is exact for the
 coarse grid; from an empty cell the walk leaps over the largest empty cube of cells ahead of it
 (:func:`photon_fields.runtime.transport.medium.leap_distances` on the coarse grid). One walk per ray, for
@@ -45,11 +46,20 @@ from photon_fields.runtime.scene.camera import Camera
 from photon_fields.runtime.transport.medium import Medium, block_extinction, leap_distances
 from photon_fields.runtime.wavefront.depth_bounds import grid_depth_bounds, unbounded
 
-DEFAULT_BLOCK = 2  # voxels per coarse cell edge
+DEFAULT_BLOCK = 2  # voxels per coarse cell edge, at least (:func:`auto_block`)
+#: The coarse grid's longest side in cells, at most, with the automatic block: a 512^3 volume's 256^3 grid at block 2
+#: took 0.35 s of leap tables and 134 MB at every transfer-function edit (bench/README.md, viewer).
+MAX_CELLS_SIDE = 128
 DEFAULT_MIN_OPACITY = 1e-3  # collision probability below which a pixel sees the background at infinity
 DEFAULT_QUANTILE = 0.5  # of the first-collision distribution along the ray
 DEFAULT_STRIDE = 2  # one ray per stride x stride pixels
 _TAU_OPAQUE = 12.0  # exp(-12) = 6e-6: the rest of the ray cannot move the median
+
+
+def auto_block(shape: tuple[int, ...]) -> int:
+    """The block for a volume of this shape: :data:`DEFAULT_BLOCK`, or more where the grid's longest side would pass
+    :data:`MAX_CELLS_SIDE` cells (up to 256^3 voxels: 2)."""
+    return max(DEFAULT_BLOCK, math.ceil(max(shape) / MAX_CELLS_SIDE))
 
 
 def coarse_extinction(m: Medium, block: int = DEFAULT_BLOCK) -> np.ndarray:
@@ -62,13 +72,14 @@ def coarse_extinction(m: Medium, block: int = DEFAULT_BLOCK) -> np.ndarray:
 class DepthEstimator:
     """First-collision-quantile depth maps of one medium (module docstring); the coarse grid is built once.
 
-    ``block`` (voxels per coarse cell), ``min_opacity``, ``quantile`` and ``stride`` as in the module
-    docstring; ``leap`` False walks empty cells one by one, ``bounds`` False walks every ray through the whole
-    box (the same depths, slower: for tests and benches)."""
+    ``block`` (voxels per coarse cell; None: :func:`auto_block`), ``min_opacity``, ``quantile`` and ``stride`` as
+    in the module docstring; ``leap`` False walks empty cells one by one, ``bounds`` False walks every ray through
+    the whole box (the same depths, slower: for tests and benches)."""
 
-    def __init__(self, medium: Medium, *, block: int = DEFAULT_BLOCK, min_opacity: float = DEFAULT_MIN_OPACITY,
+    def __init__(self, medium: Medium, *, block: int | None = None, min_opacity: float = DEFAULT_MIN_OPACITY,
                  quantile: float = DEFAULT_QUANTILE, stride: int = DEFAULT_STRIDE, leap: bool = True,
                  bounds: bool = True) -> None:
+        block = auto_block(medium.density.shape) if block is None else block
         for name, v in (("block", block), ("stride", stride)):
             if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 64:
                 raise InputError(f"depth {name}", f"must be an integer in [1, 64], got {v!r}")

@@ -195,3 +195,16 @@ def test_depth_estimator_refuses_bad_parameters_in_one_line(box) -> None:  # noq
         with pytest.raises(InputError) as err:
             DepthEstimator(box, **kw)
         assert "\n" not in str(err.value) and str(err.value).startswith("depth ")
+
+
+def test_the_depth_grid_keeps_to_its_cells_per_side_on_large_volumes() -> None:
+    """The automatic block is 2 up to 256 voxels a side and grows beyond, so that the coarse grid (and its leap
+    tables, rebuilt at every transfer-function edit) stays within ``MAX_CELLS_SIDE`` cells a side."""
+    from photon_fields.runtime.denoise.depth import DEFAULT_BLOCK, MAX_CELLS_SIDE, auto_block
+
+    assert auto_block((96, 96, 96)) == auto_block((256, 200, 10)) == DEFAULT_BLOCK == 2
+    assert auto_block((257, 10, 10)) == 3 and auto_block((512, 512, 300)) == 4
+    rng = np.random.default_rng(3)
+    medium = build_medium(make_volume(rng.random((300, 12, 9))), constant_tf(0.5))
+    est = DepthEstimator(medium)
+    assert est.grid.shape == (100, 4, 3) and max(est.grid.shape) <= MAX_CELLS_SIDE
