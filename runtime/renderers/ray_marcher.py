@@ -90,14 +90,8 @@ from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.step_grid import own_units, step_lengths, units_along, units_from_lengths
 from photon_fields.runtime.transport.tracking import empty_run_in, macrocell_of, task_items, task_stride
-from photon_fields.runtime.wavefront.batches import (
-    RenderCancelledError,
-    RenderResult,
-    StageTimer,
-    finish,
-    scene_environment,
-    work_batches,
-)
+from photon_fields.runtime.wavefront import batches
+from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish, scene_environment, work_batches
 from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box, tile_order, tiled_work
@@ -289,7 +283,7 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
         return ld, trans
     idx = np.flatnonzero(missed)
     if (cancel is not None and cancel()) or not fill_wanted(m, kind, vec, lv, cancel):
-        raise RenderCancelledError(f"cancelled while filling the light volume for {idx.size} rays")
+        raise batches.RenderCancelledError(f"cancelled while filling the light volume for {idx.size} rays")
     ld[:, idx], trans[idx], still = run(work[idx])
     if still.any():
         raise RuntimeError("ray marcher: a light-volume cell its rays read was not filled")  # cannot happen
@@ -390,7 +384,7 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
         order = tile_order(cam.width, cam.height)  # each task's rays read the same cache lines (rays.py)
         for start, count in work_batches(0, n_pixels * spp, batch):
             if cancel is not None and cancel():
-                raise RenderCancelledError(f"cancelled before work item {start}")
+                raise batches.RenderCancelledError(f"cancelled before work item {start}")
             work = tiled_work(start, count, order)
             with timer("march"):
                 ld, trans = march_work(scene, work, seed, h, hs, skip_empty, lv, min_transmittance, units, own,
