@@ -505,8 +505,8 @@ MUTANTS: tuple[Mutant, ...] = (
             "test_a_transfer_function_edit_reuses_the_volumes_scalar_ranges_and_gets_its_own_majorant",),
            "the volume keeps the first transfer function's majorant, and an edit's medium walks with the old one"),
     Mutant("majorant_range_starts_high", "runtime/transport/medium.py",
-           "                lo = int(math.floor(smin[a, b, c] * (lut_n - 1)))",
-           "                lo = int(math.ceil(smin[a, b, c] * (lut_n - 1)))",
+           "                lo = int(math.floor(float(smin[a, b, c]) * (lut_n - 1)))",
+           "                lo = int(math.ceil(float(smin[a, b, c]) * (lut_n - 1)))",
            ("tests/runtime/transport/test_transport.py::"
             "test_majorant_grid_is_the_table_max_over_each_macrocells_scalar_range",),
            "a macrocell's majorant leaves out the table entry below its lowest scalar"),

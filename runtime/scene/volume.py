@@ -44,8 +44,8 @@ class Volume:
     _labels: list = field(default_factory=list, repr=False)
     #: Lazily made coarser levels (photon_fields.runtime.scene.levels.coarser_volume), reused across media.
     _levels: dict = field(default_factory=dict, repr=False)
-    #: Lazily computed per-macrocell scalar ranges (photon_fields.runtime.transport.medium.scalar_ranges), reused
-    #: across media: a transfer-function edit's majorant grid is then only table lookups.
+    #: Lazily computed per-macrocell scalar ranges (photon_fields.runtime.transport.medium.scalar_ranges; float32,
+    #: 1/4 of the volume's bytes at 2-voxel macrocells), reused across media: an edit's majorant is table lookups.
     _majorant_ranges: dict = field(default_factory=dict, repr=False)
 
     @property

@@ -85,8 +85,8 @@ def build_medium(volume: Volume, tf: TransferFunction | LabelTransfer, macrocell
         albedo_lut, ext_lut = tf.lut(LUT_SIZE)  # type: ignore[union-attr]
         density = np.ascontiguousarray(volume.data, dtype=np.float32)
         ranges = volume._majorant_ranges  # the volume's own part of the majorant, kept for the next edit
-        if macrocell not in ranges:
-            ranges[macrocell] = scalar_ranges(density, macrocell)
+        if macrocell not in ranges:  # float32: the scalars' own values, at half the memory
+            ranges[macrocell] = tuple(r.astype(np.float32) for r in scalar_ranges(density, macrocell))
         majorant = majorant_grid(density, ext_lut, macrocell, ranges[macrocell])
     return Medium(np.ascontiguousarray(density, dtype=np.float32), np.ascontiguousarray(ext_lut),
                   np.ascontiguousarray(albedo_lut), majorant, leap_distances(majorant, leap),
@@ -194,8 +194,8 @@ def _majorant_from_ranges(smin: np.ndarray, smax: np.ndarray, table: np.ndarray,
     for a in prange(cx):
         for b in range(cy):
             for c in range(cz):
-                lo = int(math.floor(smin[a, b, c] * (lut_n - 1)))
-                hi = int(math.ceil(smax[a, b, c] * (lut_n - 1)))
+                lo = int(math.floor(float(smin[a, b, c]) * (lut_n - 1)))
+                hi = int(math.ceil(float(smax[a, b, c]) * (lut_n - 1)))
                 out[a, b, c] = _range_max_one(table, lo, hi) * safety
     return out
 
