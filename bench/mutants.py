@@ -504,6 +504,11 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/transport/test_transport.py::"
             "test_a_transfer_function_edit_reuses_the_volumes_scalar_ranges_and_gets_its_own_majorant",),
            "the volume keeps the first transfer function's majorant, and an edit's medium walks with the old one"),
+    Mutant("macrocell_fixed_at_two", "runtime/transport/medium.py",
+           "    return max(DEFAULT_MACROCELL, math.ceil(max(shape) / MAX_MACROCELLS_SIDE))",
+           "    return DEFAULT_MACROCELL",
+           ("tests/runtime/transport/test_transport.py::test_the_macrocell_grows_with_large_volumes_only",),
+           "a 512^3 volume keeps 2-voxel macrocells: a 256^3 majorant grid, slower walks, 134 MB tables per edit"),
     Mutant("majorant_range_starts_high", "runtime/transport/medium.py",
            "                lo = int(math.floor(float(smin[a, b, c]) * (lut_n - 1)))",
            "                lo = int(math.ceil(float(smin[a, b, c]) * (lut_n - 1)))",

@@ -8,8 +8,9 @@ tf : photon_fields.runtime.scene.transfer.TransferFunction or photon_fields.runt
     Scalar -> (albedo, extinction); evaluated post-classification (the scalar is interpolated
     trilinearly first, then mapped through the TF lookup table), as volume renderers such as OpenVKL do.
     A label (categorical) transfer function gives a *categorical* medium instead (below).
-macrocell : int
-    Edge length, in voxels, of a majorant-grid cell (default ``DEFAULT_MACROCELL`` = 2).
+macrocell : int or None
+    Edge length, in voxels, of a majorant-grid cell (default None: :func:`auto_macrocell`, ``DEFAULT_MACROCELL`` = 2
+    up to 256 voxels a side, more above so that the grid keeps to ``MAX_MACROCELLS_SIDE`` = 128 cells a side).
 leap : bool
     Build the empty-space leap distances (default True); False gives a walk that steps through every
     macrocell, the reference the leaping walk is tested against bit for bit.
@@ -57,6 +58,10 @@ from photon_fields.runtime.scene.transfer import LUT_SIZE, TransferFunction
 from photon_fields.runtime.scene.volume import Volume
 
 DEFAULT_MACROCELL = 2  # measured with empty-space leaping: 2 beats 1, 4 and 8 on the embedded scenes (bench/README.md)
+#: :func:`auto_macrocell`'s grid side, at most: at 512^3 a 2-voxel macrocell's 256^3 grid made the neural and the
+#: path-traced frames 1.4x slower than 4-voxel ones and took 134 MB of majorant and of leap tables each, rebuilt at
+#: every transfer-function edit (bench/README.md, "the macrocell at 512^3").
+MAX_MACROCELLS_SIDE = 128
 _MAJORANT_SAFETY = 1.0 + 1e-6  # guards against rounding in the interpolation of sigma_t
 LEAP_CAP = 255  # leap distances are stored as uint8
 
@@ -75,9 +80,17 @@ class Medium(NamedTuple):
     categorical: bool = False  # nearest-voxel label index and exact table lookups (module docstring)
 
 
-def build_medium(volume: Volume, tf: TransferFunction | LabelTransfer, macrocell: int = DEFAULT_MACROCELL,
+def auto_macrocell(shape: tuple[int, ...]) -> int:
+    """The macrocell edge for a volume of this shape: :data:`DEFAULT_MACROCELL`, or more where the grid's longest
+    side would pass :data:`MAX_MACROCELLS_SIDE` cells (up to 256^3 voxels: 2)."""
+    return max(DEFAULT_MACROCELL, math.ceil(max(shape) / MAX_MACROCELLS_SIDE))
+
+
+def build_medium(volume: Volume, tf: TransferFunction | LabelTransfer, macrocell: int | None = None,
                  leap: bool = True) -> Medium:
-    """The medium of ``volume`` under ``tf``: categorical for a :class:`LabelTransfer` (module docstring)."""
+    """The medium of ``volume`` under ``tf``: categorical for a :class:`LabelTransfer` (module docstring);
+    ``macrocell`` None: :func:`auto_macrocell`."""
+    macrocell = auto_macrocell(volume.dims) if macrocell is None else int(macrocell)
     if getattr(tf, "categorical", False):
         density, ext_lut, albedo_lut = tf.tables(volume)  # type: ignore[union-attr]
         majorant = categorical_majorant_grid(density, ext_lut, macrocell)

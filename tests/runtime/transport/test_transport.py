@@ -190,3 +190,24 @@ def test_a_transfer_function_edit_reuses_the_volumes_scalar_ranges_and_gets_its_
     np.testing.assert_array_equal(second.majorant, cold.majorant)
     np.testing.assert_array_equal(second.leap, cold.leap)
     assert not np.array_equal(second.majorant, first.majorant)
+
+
+def test_the_macrocell_grows_with_large_volumes_only() -> None:
+    """2-voxel macrocells up to 256 voxels a side (the embedded scenes' grids unchanged); beyond, the grid keeps to
+    MAX_MACROCELLS_SIDE cells a side, and a medium built without a macrocell takes that one."""
+    from photon_fields.runtime.scene.transfer import TransferFunction
+    from photon_fields.runtime.scene.volume import make_volume
+    from photon_fields.runtime.transport.medium import (
+        DEFAULT_MACROCELL,
+        MAX_MACROCELLS_SIDE,
+        auto_macrocell,
+        build_medium,
+    )
+
+    assert auto_macrocell((96, 96, 96)) == auto_macrocell((256, 31, 200)) == DEFAULT_MACROCELL == 2
+    assert auto_macrocell((257, 4, 4)) == 3 and auto_macrocell((512, 512, 460)) == 4
+    tf = TransferFunction(np.array([0.0, 1.0]), np.full((2, 3), 0.9), np.array([0.0, 1.0]), 10.0)
+    vol = make_volume(np.random.default_rng(1).random((300, 8, 7)))
+    m = build_medium(vol, tf)
+    assert m.majorant.shape == (100, 3, 3) and max(m.majorant.shape) <= MAX_MACROCELLS_SIDE
+    np.testing.assert_array_equal(m.majorant, build_medium(vol, tf, macrocell=3).majorant)
