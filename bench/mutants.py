@@ -504,6 +504,12 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/transport/test_transport.py::"
             "test_a_transfer_function_edit_reuses_the_volumes_scalar_ranges_and_gets_its_own_majorant",),
            "the volume keeps the first transfer function's majorant, and an edit's medium walks with the old one"),
+    Mutant("depth_leaps_with_another_grids_table", "runtime/denoise/depth.py",
+           "self.leap = medium.leap if leap and same_cells else leap_distances(self.grid, leap)",
+           "self.leap = medium.leap if leap else leap_distances(self.grid, leap)",
+           ("tests/runtime/denoise/test_wrls_reprojection.py::"
+            "test_the_depth_walk_leaps_with_the_mediums_table_where_the_cells_are_its_macrocells[47-False]",),
+           "the depth walk takes the medium's leap table although its cells are not the medium's macrocells"),
     Mutant("macrocell_fixed_at_two", "runtime/transport/medium.py",
            "    return max(DEFAULT_MACROCELL, math.ceil(max(shape) / MAX_MACROCELLS_SIDE))",
            "    return DEFAULT_MACROCELL",

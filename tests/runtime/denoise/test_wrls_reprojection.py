@@ -208,3 +208,22 @@ def test_the_depth_grid_keeps_to_its_cells_per_side_on_large_volumes() -> None:
     medium = build_medium(make_volume(rng.random((300, 12, 9))), constant_tf(0.5))
     est = DepthEstimator(medium)
     assert est.grid.shape == (100, 4, 3) and max(est.grid.shape) <= MAX_CELLS_SIDE
+
+
+@pytest.mark.parametrize(("size", "shared"), [(48, True), (47, False)])
+def test_the_depth_walk_leaps_with_the_mediums_table_where_the_cells_are_its_macrocells(size: int,
+                                                                                        shared: bool) -> None:
+    """On sides the block divides, the depth grid's cells are the medium's macrocells and its leap table is the
+    medium's (no second set of sweeps); the depths are the cell-by-cell walk's either way."""
+    from photon_fields.runtime.scene.scene import builtin_scene
+
+    scene = builtin_scene("vortex", resolution=size).with_overrides(width=40, height=32)
+    medium = scene.medium()
+    est, stepping = DepthEstimator(medium, stride=1), DepthEstimator(medium, stride=1, leap=False)
+    assert (est.leap is medium.leap) == shared and est.leap.max() >= 2
+    for angle in (0.0, 137.0):
+        cam = orbit_camera(scene.camera, angle)
+        a, b = est.depth(cam), stepping.depth(cam)
+        np.testing.assert_array_equal(np.isinf(a), np.isinf(b))
+        assert np.isfinite(a).sum() > 50
+        np.testing.assert_allclose(a[np.isfinite(a)], b[np.isfinite(b)], rtol=1e-6)
