@@ -120,9 +120,14 @@ def test_depth_leaping_over_empty_cells_gives_the_cell_by_cell_depths(name: str)
     medium = scene.medium()
     leaping, stepping = DepthEstimator(medium, stride=1), DepthEstimator(medium, stride=1, leap=False)
     assert leaping.leap.max() >= 2 and stepping.leap.max() == 1  # there is empty space to leap over
+    assert_same_depths(leaping, stepping, scene.camera)
+
+
+def assert_same_depths(est: DepthEstimator, other: DepthEstimator, camera: Camera) -> None:
+    """Both estimators' depth maps from two orbit views: inf at the same pixels, the same depths elsewhere."""
     for angle in (0.0, 137.0):
-        cam = orbit_camera(scene.camera, angle)
-        a, b = leaping.depth(cam), stepping.depth(cam)
+        cam = orbit_camera(camera, angle)
+        a, b = est.depth(cam), other.depth(cam)
         np.testing.assert_array_equal(np.isinf(a), np.isinf(b))
         assert np.isfinite(a).sum() > 50
         np.testing.assert_allclose(a[np.isfinite(a)], b[np.isfinite(b)], rtol=1e-6)
@@ -221,9 +226,4 @@ def test_the_depth_walk_leaps_with_the_mediums_table_where_the_cells_are_its_mac
     medium = scene.medium()
     est, stepping = DepthEstimator(medium, stride=1), DepthEstimator(medium, stride=1, leap=False)
     assert (est.leap is medium.leap) == shared and est.leap.max() >= 2
-    for angle in (0.0, 137.0):
-        cam = orbit_camera(scene.camera, angle)
-        a, b = est.depth(cam), stepping.depth(cam)
-        np.testing.assert_array_equal(np.isinf(a), np.isinf(b))
-        assert np.isfinite(a).sum() > 50
-        np.testing.assert_allclose(a[np.isfinite(a)], b[np.isfinite(b)], rtol=1e-6)
+    assert_same_depths(est, stepping, scene.camera)
