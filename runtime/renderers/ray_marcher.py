@@ -263,8 +263,8 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
     read unfilled cells mark them, the cells are marched and those rays marched once more
     (runtime/transport/light_volume.py): the sums are the ones a filled volume gives. ``units`` / ``own``: base
     steps per segment per macrocell, the neighbourhood's and each macrocell's own (:func:`scene_step_units`,
-    :func:`scene_own_units`; ``own`` all ones: fixed steps). ``cancel``: asked before the fill and between its
-    chunks (:func:`photon_fields.runtime.transport.light_volume.fill_wanted`); True stops with
+    :func:`scene_own_units`; ``own`` all ones: fixed steps). ``cancel``: asked before each chunk of the fill
+    (:func:`photon_fields.runtime.transport.light_volume.fill_wanted`); True stops with
     :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the cells filled so far kept."""
     m = scene.medium()
     adaptive = bool(own.max() > 1)
@@ -282,7 +282,7 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
     if lv is None or not missed.any():
         return ld, trans
     idx = np.flatnonzero(missed)
-    if (cancel is not None and cancel()) or not fill_wanted(m, kind, vec, lv, cancel):
+    if not fill_wanted(m, kind, vec, lv, cancel):
         raise batches.RenderCancelledError(f"cancelled while filling the light volume for {idx.size} rays")
     ld[:, idx], trans[idx], still = run(work[idx])
     if still.any():

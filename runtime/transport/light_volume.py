@@ -203,12 +203,12 @@ def _fill(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Gri
 def fill_wanted(m: Medium, kind: np.ndarray, vec: np.ndarray, lv: LightVolume,
                 cancel: Callable[[], bool] | None = None) -> bool:
     """March every :data:`WANTED` cell of ``lv`` towards its light (in parallel over the flagged bricks, up to
-    :data:`FILL_CHUNK` bricks at a time) and clear the flags; True when done. ``cancel`` is asked before each chunk
-    after the first: when it returns True the fill stops and returns False, the bricks not filled still flagged (a
-    later fill completes them; what was filled stays, each cell's value being its own)."""
+    :data:`FILL_CHUNK` bricks at a time) and clear the flags; True when done. ``cancel`` is asked before each chunk:
+    when it returns True the fill stops and returns False, the bricks not filled still flagged (a later fill
+    completes them; what was filled stays, each cell's value being its own)."""
     bricks = np.argwhere(lv.wanted)
     for start in range(0, len(bricks), FILL_CHUNK):
-        if start and cancel is not None and cancel():
+        if cancel is not None and cancel():
             return False
         chunk = bricks[start:start + FILL_CHUNK]
         _fill(m, kind, vec, lv.values, lv.grid, lv.shadow_step, lv.units, chunk)

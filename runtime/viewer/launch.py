@@ -252,12 +252,13 @@ def start(scene: str | None = None, *, bundle: str | None = None, map: str | Non
                                  or not 0.25 <= drag_scale <= 1.0):
         raise InputError("--drag-scale", f"must be auto or a number in [0.25, 1], got {drag_scale!r}")
     if interactive_level != "auto":
-        from photon_fields.runtime.scene.levels import MAX_LEVEL
+        from photon_fields.runtime.scene.levels import MAX_LEVEL, check_level
 
-        if isinstance(interactive_level, bool) or not isinstance(interactive_level, int) or not (
-                0 <= interactive_level <= MAX_LEVEL):
+        try:
+            check_level(interactive_level)  # type: ignore[arg-type]
+        except ValueError:
             raise InputError("--interactive-level", f"must be auto or an integer in [0, {MAX_LEVEL}], got "
-                                                    f"{interactive_level!r}")
+                                                    f"{interactive_level!r}") from None
     inputs = load_inputs(scene, bundle=bundle, map_path=map, out_dir=out, size=size, seed=seed, threads=threads,
                          force=force, renderer=renderer, transfer_path=transfer)
     if pvrt_options is not None and inputs.transfer is None:

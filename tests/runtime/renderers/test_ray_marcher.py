@@ -208,7 +208,7 @@ def test_a_cancelled_fill_keeps_its_cells_and_the_next_frame_completes_it(monkey
 
     def cancel_in_the_fill() -> bool:
         asked.append(1)
-        return len(asked) >= 4  # before the batch, before the fill, after the first chunk: go on; then stop
+        return len(asked) >= 4  # before the batch and the fill's first two chunks: go on; then stop
 
     with pytest.raises(RenderCancelledError):
         render_ray_marched(scene, spp=1, seed=4, progress=False, cancel=cancel_in_the_fill)
