@@ -16,9 +16,12 @@ SH_ORDERS: tuple[int, int] = (0, 8)
 DEFAULT_SH_ORDER = 3
 #: The radiant-exitance SH band limit l_max (Sec. 6.1: 1st order for isotropic, 4-6th for anisotropic phase
 #: functions). We store incident radiance and apply the HG phase at render time (its SH coefficients are g^l), so
-#: l_max 2 (9 coefficients) holds |g| <= 0.4 of the embedded scenes to a truncation of g^3 <= 6 %.
+#: by default the transfer keeps the least l_max whose first dropped band weighs at most EXITANCE_TOLERANCE = g^(l+1)
+#: (``sh.auto_exitance_order``): l_max 2 for |g| <= 0.4 (a truncation of g^3 <= 6.4 %), 1 for |g| <= 0.25, and 0 for
+#: an isotropic medium, whose phase function reads band 0 only (the other bands cost memory, CPCA capacity and
+#: splatting time for nothing).
 EXITANCE_ORDERS: tuple[int, int] = (0, 4)
-DEFAULT_EXITANCE_ORDER = 2
+EXITANCE_TOLERANCE = 0.4**3
 #: Transfer grid: cells along the volume box's longest side. The multiple scattering it holds is smooth; the direct
 #: term of a directional light comes from the light volume (NEE) at render time. 32 on 96^3 volumes: 3 voxels a cell.
 DEFAULT_GRID = 32

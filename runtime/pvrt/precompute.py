@@ -61,10 +61,10 @@ from photon_fields.runtime.photons.photon_path import trace_path
 from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.pvrt.basis import LightingBasis
 from photon_fields.runtime.pvrt.constants import (
-    DEFAULT_EXITANCE_ORDER,
     DEFAULT_GRID,
     DEFAULT_PATHS_PER_BASIS,
     EXITANCE_ORDERS,
+    EXITANCE_TOLERANCE,
     GRID_RANGE,
     KERNEL_C,
     MASS_POINTS,
@@ -72,7 +72,7 @@ from photon_fields.runtime.pvrt.constants import (
     PARTS,
 )
 from photon_fields.runtime.pvrt.dsf import dsf_weights
-from photon_fields.runtime.pvrt.sh import sh_count, sh_eval
+from photon_fields.runtime.pvrt.sh import auto_exitance_order, sh_count, sh_eval
 from photon_fields.runtime.scene.lights import DIRECTIONAL
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.emitters import emit_photon, sample_uniform_sphere
@@ -299,10 +299,13 @@ def check_settings(grid: int, out_lmax: int, paths: int) -> None:
 
 
 def precompute_raw(scene: Scene, basis: LightingBasis, *, grid: int = DEFAULT_GRID,
-                   out_lmax: int = DEFAULT_EXITANCE_ORDER, paths: int = DEFAULT_PATHS_PER_BASIS, seed: int = 0,
+                   out_lmax: int | None = None, paths: int = DEFAULT_PATHS_PER_BASIS, seed: int = 0,
                    progress: bool = True, on_progress: Callable[[int, int], None] | None = None) -> RawTransfer:
-    """Trace every basis light and splat (module docstring). ``on_progress(done, total)`` after every group of
-    basis lights."""
+    """Trace every basis light and splat (module docstring). ``out_lmax`` None: the least band limit the scene's
+    g needs (:func:`photon_fields.runtime.pvrt.sh.auto_exitance_order`). ``on_progress(done, total)`` after every
+    group of basis lights."""
+    if out_lmax is None:
+        out_lmax = auto_exitance_order(scene.g, EXITANCE_TOLERANCE)
     check_settings(grid, out_lmax, paths)
     from photon_fields.runtime.threads import max_threads
 

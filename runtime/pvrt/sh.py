@@ -83,3 +83,18 @@ def hg_band_factors(g: float, lmax: int) -> np.ndarray:
     """SH coefficients of the HG phase convolution, ``g^l`` per coefficient (Funk-Hecke): the exitance towards
     travel direction w is sum_j g^l(j) L_j Y_j(w) for incident radiance L_j (as a function of travel direction)."""
     return np.power(float(g), sh_band(lmax).astype(np.float64)) if g != 0 else (sh_band(lmax) == 0).astype(float)
+
+
+def auto_exitance_order(g: float, tolerance: float) -> int:
+    """The least SH band limit whose first dropped band weighs at most ``tolerance`` in the phase convolution:
+    the least l_max with |g|^(l_max + 1) <= tolerance (the HG factors :func:`hg_band_factors` fall as g^l), capped
+    at the largest order the transfer takes. g = 0 gives 0: an isotropic phase function reads band 0 only, so the
+    other bands would be stored, traced and compressed for nothing."""
+    from photon_fields.runtime.pvrt.constants import EXITANCE_ORDERS
+
+    lo, hi = EXITANCE_ORDERS
+    a = abs(float(g))
+    for lmax in range(lo, hi):
+        if a ** (lmax + 1) <= tolerance:
+            return lmax
+    return hi

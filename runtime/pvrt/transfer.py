@@ -38,7 +38,6 @@ from photon_fields.runtime.io.atomic import atomic_path
 from photon_fields.runtime.pvrt.basis import LightingBasis, check_basis, make_basis
 from photon_fields.runtime.pvrt.constants import (
     DEFAULT_CLUSTERS,
-    DEFAULT_EXITANCE_ORDER,
     DEFAULT_GRID,
     DEFAULT_PATHS_PER_BASIS,
     DEFAULT_PCA_BASES,
@@ -120,11 +119,13 @@ class Transfer:
 
 
 def precompute_transfer(scene: Scene, *, basis: str = "dsf", order: int | None = None,
-                        grid: int = DEFAULT_GRID, exitance_order: int = DEFAULT_EXITANCE_ORDER,
+                        grid: int = DEFAULT_GRID, exitance_order: int | None = None,
                         paths: int = DEFAULT_PATHS_PER_BASIS, clusters: int = DEFAULT_CLUSTERS,
                         bases: int = DEFAULT_PCA_BASES, seed: int = 0, progress: bool = True,
                         on_progress: Callable[[int, int], None] | None = None) -> Transfer:
-    """Alg. 1's precomputation: basis-light photon tracing and splatting, then CPCA (module docstring)."""
+    """Alg. 1's precomputation: basis-light photon tracing and splatting, then CPCA (module docstring).
+    ``exitance_order`` None: the least the scene's g needs (:func:`photon_fields.runtime.pvrt.sh.
+    auto_exitance_order`), recorded in the manifest."""
     from photon_fields.runtime.pvrt.constants import DEFAULT_DSF_ORDER, DEFAULT_SH_ORDER
 
     order = (DEFAULT_DSF_ORDER if basis == "dsf" else DEFAULT_SH_ORDER) if order is None else order
@@ -141,7 +142,7 @@ def precompute_transfer(scene: Scene, *, basis: str = "dsf", order: int | None =
     m = scene.medium()
     manifest = {"format": PVRT_FORMAT, "version": PVRT_VERSION, "scene_name": scene.name,
                 "scene_parts": {k: parts[k] for k in PVRT_SCENE_PARTS}, "g": float(scene.g),
-                "basis": {"kind": kind, "order": order}, "exitance_order": int(exitance_order),
+                "basis": {"kind": kind, "order": order}, "exitance_order": int(raw.out_lmax),
                 "parts": list(PVRT_PARTS), "grid": [int(x) for x in raw.grid],
                 "box": {"min": [float(x) for x in m.bmin], "size": [float(x) for x in m.bsize]},
                 "cpca": {"clusters": int(c.mean.shape[0]), "bases": int(bases),

@@ -35,8 +35,9 @@ def add_pvrt_parser(sub: argparse._SubParsersAction) -> None:
     v.add_argument("--grid", type=int, default=c.DEFAULT_GRID, help="transfer cells along the box's longest side")
     v.add_argument("--paths", default=str(c.DEFAULT_PATHS_PER_BASIS),
                    help="photon paths per basis light (e.g. 64k)")
-    v.add_argument("--exitance-order", type=int, default=c.DEFAULT_EXITANCE_ORDER,
-                   help="SH l_max of each cell's radiance (the phase function's band limit)")
+    v.add_argument("--exitance-order", default="auto",
+                   help=f"SH l_max of each cell's radiance in {list(c.EXITANCE_ORDERS)}, or auto: the least whose "
+                        f"first dropped band g^(l_max + 1) weighs <= {c.EXITANCE_TOLERANCE:.3f} (0 for g = 0)")
     v.add_argument("--clusters", type=int, default=c.DEFAULT_CLUSTERS, help="CPCA clusters")
     v.add_argument("--pca-bases", type=int, default=c.DEFAULT_PCA_BASES, help="CPCA bases per cluster")
     v.add_argument("--g", type=float, default=None, help="Henyey-Greenstein g the photons scatter with (default: "
@@ -53,7 +54,6 @@ def cmd_pvrt(args: argparse.Namespace) -> int:
         DEFAULT_DSF_ORDER,
         DEFAULT_SH_ORDER,
         DSF_ORDERS,
-        EXITANCE_ORDERS,
         GRID_RANGE,
         SH_ORDERS,
     )
@@ -68,12 +68,12 @@ def cmd_pvrt(args: argparse.Namespace) -> int:
     if not lo <= order <= hi:
         raise InputError("--order", f"a {args.basis} order must be an integer in [{lo}, {hi}], got {order}")
     check_basis(args.basis, order, "--basis")
-    ranges = (("--grid", args.grid, GRID_RANGE), ("--exitance-order", args.exitance_order, EXITANCE_ORDERS),
-              ("--paths", paths, (1, 2**32 - 1)))
+    exitance = _exitance_order(args.exitance_order)
+    ranges = (("--grid", args.grid, GRID_RANGE), ("--paths", paths, (1, 2**32 - 1)))
     for flag, value, (lo, hi) in ranges:
         if not lo <= value <= hi:
             raise InputError(flag, f"must be an integer in [{lo}, {hi}], got {value}")
-    check_settings(args.grid, args.exitance_order, paths)
+    check_settings(args.grid, 0 if exitance is None else exitance, paths)
     for flag, value, lo, hi in (("--clusters", args.clusters, 1, 4096), ("--pca-bases", args.pca_bases, 0, 64)):
         if not lo <= value <= hi:
             raise InputError(flag, f"must be an integer in [{lo}, {hi}], got {value}")
@@ -87,7 +87,7 @@ def cmd_pvrt(args: argparse.Namespace) -> int:
     prepare_output(out, PVRT_SUFFIX, force=args.force, what="a transfer file")
     progress = open_progress(args, ("trace", "cpca"))
     transfer = precompute_transfer(scene, basis=args.basis, order=order, grid=args.grid,
-                                   exitance_order=args.exitance_order, paths=paths, clusters=args.clusters,
+                                   exitance_order=exitance, paths=paths, clusters=args.clusters,
                                    bases=args.pca_bases, seed=args.seed, progress=not args.quiet,
                                    on_progress=stage_callback(progress, "trace"))
     save_transfer(transfer, out, force=args.force)
@@ -100,3 +100,19 @@ def cmd_pvrt(args: argparse.Namespace) -> int:
           f"{mf['cpca']['clusters']} clusters x {mf['cpca']['bases']} bases, relative error "
           f"{mf['cpca']['relative_error']:.3f}) -> {out} ({out.stat().st_size / 1e6:.1f} MB)")
     return 0
+
+
+def _exitance_order(text: str) -> int | None:
+    """``--exitance-order``: None for ``auto``, else an integer in ``EXITANCE_ORDERS`` (one line otherwise)."""
+    from photon_fields.runtime.pvrt.constants import EXITANCE_ORDERS
+
+    if text == "auto":
+        return None
+    lo, hi = EXITANCE_ORDERS
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or not lo <= value <= hi:
+        raise InputError("--exitance-order", f"must be auto or an integer in [{lo}, {hi}], got {text!r}")
+    return value

@@ -494,6 +494,8 @@ CASES += [
     (T, lambda a, d, o: ["pvrt", "blobs", "--grid", "1", "--out", str(o / "t.pvrt")], "--grid"),
     (T, lambda a, d, o: ["pvrt", "blobs", "--paths", "0", "--out", str(o / "t.pvrt")], "--paths"),
     (T, lambda a, d, o: ["pvrt", "blobs", "--exitance-order", "5", "--out", str(o / "t.pvrt")], "--exitance-order"),
+    (T, lambda a, d, o: ["pvrt", "blobs", "--exitance-order", "best", "--out", str(o / "t.pvrt")],
+     "--exitance-order"),
     (T, lambda a, d, o: ["pvrt", "blobs", "--clusters", "0", "--out", str(o / "t.pvrt")], "--clusters"),
     (T, lambda a, d, o: ["pvrt", "blobs", "--pca-bases", "-1", "--out", str(o / "t.pvrt")], "--pca-bases"),
     (T, lambda a, d, o: ["pvrt", "blobs", "--g", "1.5", "--out", str(o / "t.pvrt")], "--g"),

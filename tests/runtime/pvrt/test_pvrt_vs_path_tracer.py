@@ -95,3 +95,29 @@ def test_refuses_a_transfer_for_another_transfer_function_or_g(folder: Path, tra
         render_pvrt(_ball(folder, density_scale=40.0), transfer=transfer, progress=False)
     with pytest.raises(InputError, match="phase g = 0.4, the scene has g = 0"):
         render_pvrt(_ball(folder, g=0.0), transfer=transfer, progress=False)
+
+
+@pytest.mark.parametrize(("g", "lmax"), [(0.0, 0), (0.2, 1), (-0.25, 1), (0.3, 2), (0.4, 2), (-0.5, 3), (0.9, 4)])
+def test_the_exitance_order_follows_g(g: float, lmax: int) -> None:
+    """The least l_max whose first dropped HG band, g^(l_max + 1), is at most 0.4^3; capped at the largest."""
+    from photon_fields.runtime.pvrt.constants import EXITANCE_TOLERANCE
+    from photon_fields.runtime.pvrt.sh import auto_exitance_order
+
+    assert auto_exitance_order(g, EXITANCE_TOLERANCE) == lmax
+
+
+def test_an_isotropic_transfer_keeps_band_0_only_and_its_values_are_the_full_ones(folder: Path) -> None:
+    """g = 0 reads band 0 alone (the HG factors of the other bands are 0): the default transfer keeps l_max 0, and
+    its cells hold exactly the band-0 values a transfer with l_max 2 holds (the same photons, splatted alike)."""
+    from photon_fields.runtime.pvrt.basis import make_basis
+    from photon_fields.runtime.pvrt.precompute import precompute_raw
+
+    iso = _ball(folder, g=0.0)
+    assert precompute_transfer(iso, order=0, grid=6, paths=500, clusters=4, progress=False).exitance_order == 0
+    basis = make_basis("dsf", 0)
+    auto = precompute_raw(iso, basis, grid=6, paths=2000, progress=False)
+    full = precompute_raw(iso, basis, grid=6, out_lmax=2, paths=2000, progress=False)
+    assert auto.out_lmax == 0 and auto.matrices.shape[-1] == 1 and full.matrices.shape[-1] == 9
+    assert np.any(full.matrices[..., 1:] != 0)  # the other bands hold something: the l_max 2 transfer is not trivial
+    np.testing.assert_array_equal(auto.matrices[..., 0], full.matrices[..., 0])
+    np.testing.assert_array_equal(auto.mass, full.mass)
