@@ -166,10 +166,18 @@ def cached_transfer(scene: Scene, settings: dict[str, Any], seed: int, cache: Pa
     """The PVRT transfer (``transfer.pvrt``) for ``scene``'s volume, transfer function and g with ``settings``
     (:data:`PVRT_KEYS`): from the cache, else precomputed now (seconds to a minute on 2 cores) and written
     atomically, so an interrupted precomputation leaves no entry behind."""
+    from photon_fields.runtime.pvrt import constants as c
+
     parts = scene.fingerprint_parts()
+    # The defaults that fill what ``settings`` leaves out are part of the key: a transfer made under older defaults
+    # (fewer basis lights, a coarser grid) is not what the same call gives now.
+    defaults = {"order": c.DEFAULT_DSF_ORDER, "sh_order": c.DEFAULT_SH_ORDER, "grid": c.DEFAULT_GRID,
+                "budget": c.TRANSFER_BUDGET_BYTES, "paths": c.DEFAULT_PATHS_PER_BASIS,
+                "exitance_tolerance": c.EXITANCE_TOLERANCE, "clusters": c.DEFAULT_CLUSTERS,
+                "bases": c.DEFAULT_PCA_BASES}
     key = hashlib.sha256(json.dumps({"volume": parts["volume"], "transfer_function": parts["transfer_function"],
-                                     "g": float(scene.g), "kind": "pvrt", "seed": int(seed), "settings": settings},
-                                    sort_keys=True).encode()).hexdigest()[:24]
+                                     "g": float(scene.g), "kind": "pvrt", "seed": int(seed), "settings": settings,
+                                     "defaults": defaults}, sort_keys=True).encode()).hexdigest()[:24]
     target = cache / "fields" / key / "transfer.pvrt"
     if target.exists():
         return target

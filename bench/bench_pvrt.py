@@ -253,9 +253,10 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", nargs="*", default=["vortex"], help="builtin scenes with a directional light")
     ap.add_argument("--resolution", type=int, default=48, help="voxels along each side of the builtin volume")
-    ap.add_argument("--grid", type=int, default=24, help="transfer cells along the longest side")
-    ap.add_argument("--order", type=int, default=1, help="DSF order (1: 42 basis lights)")
-    ap.add_argument("--paths", type=int, default=8000, help="photon paths per basis light")
+    ap.add_argument("--grid", type=int, default=None,
+                    help="transfer cells along the longest side (default: the product's, runtime/pvrt/constants.py)")
+    ap.add_argument("--order", type=int, default=None, help="DSF order (default: the product's; 2: 162 basis lights)")
+    ap.add_argument("--paths", type=int, default=None, help="photon paths per basis light (default: the product's)")
     ap.add_argument("--sizes", type=int, nargs="*", default=[256, 512], help="frame sizes timed (square)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--ref-size", type=int, default=96)
@@ -283,14 +284,18 @@ def main(argv: list[str] | None = None) -> None:
         rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         with Contention() as c_pre:
             t0 = time.perf_counter()
-            transfer = precompute_transfer(base, order=args.order, grid=args.grid, paths=args.paths, seed=0,
-                                           progress=False)
+            given = {k: v for k, v in (("order", args.order), ("grid", args.grid), ("paths", args.paths))
+                     if v is not None}
+            transfer = precompute_transfer(base, seed=0, progress=False, **given)
             pre_s = time.perf_counter() - t0
         peak_mb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0) / 1024
         with tempfile.TemporaryDirectory() as tmp:
             size_mb = save_transfer(transfer, Path(tmp) / "t.pvrt").stat().st_size / 1e6
         pre = {"seconds": pre_s, **(transfer.seconds or {}), "peak_rss_growth_mb": peak_mb, "file_mb": size_mb,
                "grid": transfer.manifest["grid"], "basis_lights": transfer.basis.size,
+               "basis": transfer.manifest["basis"], "exitance_order": transfer.exitance_order,
+               "paths_per_basis": transfer.manifest["photons"]["paths_per_basis"],
+               "cpca_settings": {k: transfer.manifest["cpca"][k] for k in ("clusters", "bases")},
                "cpca_relative_error": transfer.manifest["cpca"]["relative_error"], "other_cores": c_pre.other_cores}
         print(f"\n{name} {args.resolution}^3: precompute {pre_s:.1f} s (trace {pre.get('trace', 0):.1f}, CPCA "
               f"{pre.get('cpca', 0):.1f}), peak RSS +{peak_mb:.0f} MB, file {size_mb:.1f} MB, grid {pre['grid']}, "

@@ -233,3 +233,18 @@ def test_pvrt_precomputes_once_and_relights(tmp_path: Path) -> None:
     assert list(tmp_path.glob("fields/*/transfer.pvrt")) == files and files[0].stat().st_mtime_ns == stamp
     with pytest.raises(pf.InputError, match="^light 1: a point light is local"):
         pf.render(vol, lights="studio", **kwargs)
+
+
+def test_a_pvrt_transfer_made_under_other_defaults_is_not_reused(tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """The cache key holds the defaults that fill what ``training`` leaves out (here the CPCA bases): a transfer
+    cached under older defaults is made again, not handed back as today's."""
+    from photon_fields.runtime.pvrt import constants
+
+    vol = np.random.default_rng(0).random((8, 8, 8))
+    kwargs = {"method": "pvrt", "spp": 1, "size": (8, 8), "cache": tmp_path, "lights": "sun",
+              "training": {"grid": 4, "order": 0, "paths": 200, "clusters": 2}}
+    pf.render(vol, **kwargs)
+    monkeypatch.setattr(constants, "DEFAULT_PCA_BASES", constants.DEFAULT_PCA_BASES + 1)
+    pf.render(vol, **kwargs)
+    assert len(list(tmp_path.glob("fields/*/transfer.pvrt"))) == 2

@@ -6,11 +6,14 @@ from photon_fields.models_spec.pvrt_transfer import PVRT_PARTS
 
 #: Lighting basis kinds: the paper's DSF (Sec. 5) and SH, the comparison it makes (Sec. 6.1, Fig. 11).
 BASIS_KINDS: tuple[str, ...] = ("dsf", "sh")
-#: DSF order = icosahedral subdivision level: 12, 42, 162, 642 directions (Sec. 5.2). The paper uses 642 on a GPU;
-#: on 2 CPU cores 42 keeps the transfer (V x 42 x 4 x 9 floats) at ~200 MB on a 32^3 grid and precomputation under
-#: a minute, and the lighting it blurs (a directional light's multiple scattering) is low-frequency.
+#: DSF order = icosahedral subdivision level: 12, 42, 162, 642 directions (Sec. 5.2), each basis light a cone of
+#: radius h (31.7 degrees at order 1, 15.9 at order 2). The paper uses 642 on a GPU. The basis blurs a directional
+#: light over its cone, and on a thin medium the multiple scattering keeps the light's shadows: the path tracer under
+#: order 1's reconstruction of the vortex's light differs from it by a relative L2 of 0.06-0.07 in L_i, under order
+#: 2's by 0.04 (0.07 with the light behind), under order 3's by 0.035 (bench/README.md, PVRT). Order 2 with l_max 0
+#: and a 48^3 grid holds 290 MB before compression.
 DSF_ORDERS: tuple[int, int] = (0, 3)
-DEFAULT_DSF_ORDER = 1
+DEFAULT_DSF_ORDER = 2
 #: SH lighting order = l_max (so (l_max + 1)^2 basis lights); the paper's SH comparison uses up to l_max 25.
 SH_ORDERS: tuple[int, int] = (0, 8)
 DEFAULT_SH_ORDER = 3
@@ -22,15 +25,22 @@ DEFAULT_SH_ORDER = 3
 #: splatting time for nothing).
 EXITANCE_ORDERS: tuple[int, int] = (0, 4)
 EXITANCE_TOLERANCE = 0.4**3
-#: Transfer grid: cells along the volume box's longest side. The multiple scattering it holds is smooth; the direct
-#: term of a directional light comes from the light volume (NEE) at render time. 32 on 96^3 volumes: 3 voxels a cell.
-DEFAULT_GRID = 32
+#: Transfer grid: cells along the volume box's longest side. The multiple scattering it holds varies over a few
+#: voxels on thin media (the vortex's L_i error falls from 0.12 to 0.09 from 32 to 48 cells at 48^3 voxels); the
+#: direct term of a directional light comes from the light volume (NEE) at render time. By default the grid is the
+#: largest up to DEFAULT_GRID whose uncompressed transfer (cells x basis lights x parts x SH coefficients float32)
+#: fits TRANSFER_BUDGET_BYTES: 48 for an isotropic medium at DSF order 2, ~30 for l_max 2 (``precompute.auto_grid``).
+DEFAULT_GRID = 48
+TRANSFER_BUDGET_BYTES = 512 << 20
 GRID_RANGE: tuple[int, int] = (4, 128)
 #: Photon paths traced per basis light (Sec. 8.3's NP, here per basis light rather than per boundary voxel).
-DEFAULT_PATHS_PER_BASIS = 1 << 16
+#: 2^18: on the vortex the transfer's frozen photon noise at 2^16 was a large part of PVRT's L_i error; 2^18 at
+#: order 2 precomputes in ~20 s there (bench/README.md, PVRT).
+DEFAULT_PATHS_PER_BASIS = 1 << 18
 MAX_BOUNCES = 16  # the path tracer's max_depth: paths of up to 16 scattering vertices
 #: Splatting kernel radius h = c * cell edge (Eq. 14; the paper's c = 4 on a full-resolution grid). Our transfer
-#: grid is already 3x coarser than the volume, so c = 1.5 cells is about the paper's smoothing, at ~14 cells a photon.
+#: grid is already coarser than the volume (2 voxels a cell at 96^3), so c = 1.5 cells is about the paper's
+#: smoothing, at ~14 cells a photon.
 KERNEL_C = 1.5
 #: Quadrature points per voxel along each axis for the transfer's denominators D_v (runtime/pvrt/precompute.py).
 #: sigma_t is the transfer function of the trilinear scalar, so a steep ramp concentrates it near the voxel centres,
@@ -39,13 +49,16 @@ KERNEL_C = 1.5
 #: transfer's bias depended on the volume's resolution and the grid. 8 keeps it within half a percent on the vortex
 #: (bench/README.md, PVRT).
 MASS_POINTS = 8
-#: CPCA (Sec. 6.4): clusters and PCA bases per cluster. The paper uses 128 clusters / 4 bases for 5123 voxels; our
-#: ~10^4 occupied cells need fewer clusters (bench/README.md reports the reconstruction error).
-DEFAULT_CLUSTERS = 32
-DEFAULT_PCA_BASES = 4
+#: CPCA (Sec. 6.4): clusters and PCA bases per cluster. The paper uses 128 clusters / 4 bases for 512^3 voxels. At
+#: order 2 and a 48^3 grid, 32 x 4 added 0.01-0.02 to the vortex's L_i error over the uncompressed transfer; 64 x 8
+#: none (and smooths some photon noise away at 2^18 paths; bench/README.md, PVRT).
+DEFAULT_CLUSTERS = 64
+DEFAULT_PCA_BASES = 8
 KMEANS_ITERATIONS = 12
-#: Light volume of a directional light's direct term (NEE through the medium): cells along the longest side.
-DEFAULT_LIGHT_GRID = 64
+#: Light volume of a directional light's direct term (NEE through the medium): cells along the longest side. On the
+#: 48^3 vortex 64 cells read L_d 4-8 % high (trilinear transmittance across thin lit wisps), 128 cells 1-3 %, for a
+#: 512^2 relit frame of ~36 ms instead of ~15 (bench/README.md, PVRT).
+DEFAULT_LIGHT_GRID = 128
 #: Step, in voxels, of the shadow rays of the basis lighting's optical-depth volumes (runtime/pvrt/direct.py; once
 #: per transfer). sigma_t is a steep transfer function of the interpolated scalar, often narrower than a voxel, and
 #: a midpoint rule of one voxel misses part of it: the direct term came out a few percent high (bench/README.md, PVRT).

@@ -25,6 +25,9 @@ import numpy as np
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.pvrt.constants import KMEANS_ITERATIONS
 
+#: Rows per block of the reconstruction error's pass.
+_ERROR_ROWS = 4096
+
 
 @dataclass
 class CPCA:
@@ -44,25 +47,29 @@ class CPCA:
 
 
 def _kmeans(x: np.ndarray, k: int, rng: np.random.Generator, iterations: int) -> np.ndarray:
-    """Labels (n,) of Lloyd's k-means with k-means++ seeding, in float64."""
+    """Labels (n,) of Lloyd's k-means with k-means++ seeding (distances in ``x``'s precision, centres in float64)."""
     n = len(x)
-    sq = np.einsum("ij,ij->i", x, x)
-    centres = [x[int(rng.integers(n))]]
-    d2 = np.maximum(sq - 2 * x @ centres[0] + centres[0] @ centres[0], 0)
+    sq = np.einsum("ij,ij->i", x, x, dtype=np.float64)
+
+    def dot(c: np.ndarray) -> np.ndarray:  # x @ c in x's precision (no float64 copy of x), as float64
+        return (x @ c.astype(x.dtype)).astype(np.float64)
+
+    centres = [x[int(rng.integers(n))].astype(np.float64)]
+    d2 = np.maximum(sq - 2 * dot(centres[0]) + centres[0] @ centres[0], 0)
     for _ in range(1, k):
         p = d2 / d2.sum() if d2.sum() > 0 else np.full(n, 1.0 / n)
-        c = x[int(rng.choice(n, p=p))]
+        c = x[int(rng.choice(n, p=p))].astype(np.float64)
         centres.append(c)
-        d2 = np.minimum(d2, np.maximum(sq - 2 * x @ c + c @ c, 0))
+        d2 = np.minimum(d2, np.maximum(sq - 2 * dot(c) + c @ c, 0))
     cen = np.array(centres)
     labels = np.zeros(n, np.int64)
     for _ in range(iterations):
-        dist = sq[:, None] - 2 * x @ cen.T + np.einsum("ij,ij->i", cen, cen)[None, :]
+        dist = sq[:, None] - 2 * dot(cen.T) + np.einsum("ij,ij->i", cen, cen)[None, :]
         labels = np.argmin(dist, axis=1)
         for j in range(k):
             sel = labels == j
             if sel.any():
-                cen[j] = x[sel].mean(axis=0)
+                cen[j] = x[sel].mean(axis=0, dtype=np.float64)
     return labels
 
 
@@ -83,14 +90,15 @@ def compress(matrices: np.ndarray, clusters: int, bases: int, seed: int = 0,
     weights = np.zeros((v, bases), np.float32)
     if occupied.size == 0:
         return CPCA(cluster, weights, np.zeros((1, d), np.float32), np.zeros((1, bases, d), np.float32), 0.0)
-    x = x32[occupied].astype(np.float64)
+    # One float32 working copy of the occupied rows, scaled in place: the transfer itself can be hundreds of MB
+    # (constants.TRANSFER_BUDGET_BYTES), and float64 copies of it doubled and tripled the precomputation's memory.
+    x = x32[occupied].astype(np.float32)
     grp = np.zeros(d, np.int64) if groups is None else np.asarray(groups).reshape(-1)
     scale = np.ones(d)
     for gi in np.unique(grp):
-        rms = float(np.sqrt(np.mean(x[:, grp == gi] ** 2)))
+        rms = float(np.sqrt(np.mean(np.square(x[:, grp == gi], dtype=np.float64))))
         scale[grp == gi] = rms if rms > 0 else 1.0
-    x_full = x
-    x = x / scale
+    x /= scale.astype(np.float32)
     k = min(int(clusters), len(x))
     labels = _kmeans(x, k, np.random.default_rng(seed), iterations)
     mean = np.zeros((k, d))
@@ -100,7 +108,7 @@ def compress(matrices: np.ndarray, clusters: int, bases: int, seed: int = 0,
         sel = np.flatnonzero(labels == j)
         if sel.size == 0:
             continue
-        mean[j] = x[sel].mean(axis=0)
+        mean[j] = x[sel].mean(axis=0, dtype=np.float64)
         centred = x[sel] - mean[j]
         if bases > 0 and sel.size > 1:
             _, _, vt = np.linalg.svd(centred, full_matrices=False)
@@ -109,9 +117,17 @@ def compress(matrices: np.ndarray, clusters: int, bases: int, seed: int = 0,
             signs = np.sign(vt[np.arange(nb), np.argmax(np.abs(vt[:nb]), axis=1)])
             basis[j, :nb] = vt[:nb] * signs[:, None]
             w[sel] = centred @ basis[j].T
+        del centred
+    del x
     cluster[occupied] = labels.astype(np.int32)
     weights[occupied] = w.astype(np.float32)
     out = CPCA(cluster, weights, (mean * scale).astype(np.float32), (basis * scale).astype(np.float32), 0.0)
-    err = np.linalg.norm(out.reconstruct()[occupied].astype(np.float64) - x_full)
-    out.relative_error = float(err / max(np.linalg.norm(x_full), 1e-300))
+    err2 = total2 = 0.0
+    for lo in range(0, len(occupied), _ERROR_ROWS):  # the error a block of rows at a time (bounded memory)
+        rows = occupied[lo:lo + _ERROR_ROWS]
+        c = cluster[rows]
+        approx = out.mean[c] + np.einsum("vn,vnd->vd", weights[rows], out.basis[c])
+        err2 += float(np.sum(np.square(approx - x32[rows], dtype=np.float64)))
+        total2 += float(np.sum(np.square(x32[rows], dtype=np.float64)))
+    out.relative_error = float(np.sqrt(err2) / max(np.sqrt(total2), 1e-300))
     return out

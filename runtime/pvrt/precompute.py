@@ -70,6 +70,7 @@ from photon_fields.runtime.pvrt.constants import (
     MASS_POINTS,
     MAX_BOUNCES,
     PARTS,
+    TRANSFER_BUDGET_BYTES,
 )
 from photon_fields.runtime.pvrt.dsf import dsf_weights
 from photon_fields.runtime.pvrt.sh import auto_exitance_order, sh_count, sh_eval
@@ -82,6 +83,16 @@ from photon_fields.runtime.transport.phase import orthonormal_basis
 from photon_fields.runtime.transport.rng import next_float, stream_state
 
 _STREAM_STRIDE = np.uint64(1 << 32)  # basis light k owns random streams k * 2^32 + path
+
+
+def auto_grid(bsize: np.ndarray, bytes_per_cell: int) -> int:
+    """The transfer grid by default: the most cells along the longest side, up to ``DEFAULT_GRID``, whose
+    uncompressed transfer (``bytes_per_cell`` each) fits ``TRANSFER_BUDGET_BYTES`` (at least the least grid
+    ``GRID_RANGE`` allows)."""
+    for grid in range(DEFAULT_GRID, GRID_RANGE[0], -1):
+        if int(np.prod(grid_shape(bsize, grid))) * bytes_per_cell <= TRANSFER_BUDGET_BYTES:
+            return grid
+    return GRID_RANGE[0]
 
 
 def grid_shape(bsize: np.ndarray, grid: int) -> tuple[int, int, int]:
@@ -298,18 +309,20 @@ def check_settings(grid: int, out_lmax: int, paths: int) -> None:
         raise InputError("paths", f"photon paths per basis light must be an integer in [1, 2^32), got {paths!r}")
 
 
-def precompute_raw(scene: Scene, basis: LightingBasis, *, grid: int = DEFAULT_GRID,
+def precompute_raw(scene: Scene, basis: LightingBasis, *, grid: int | None = None,
                    out_lmax: int | None = None, paths: int = DEFAULT_PATHS_PER_BASIS, seed: int = 0,
                    progress: bool = True, on_progress: Callable[[int, int], None] | None = None) -> RawTransfer:
     """Trace every basis light and splat (module docstring). ``out_lmax`` None: the least band limit the scene's
-    g needs (:func:`photon_fields.runtime.pvrt.sh.auto_exitance_order`). ``on_progress(done, total)`` after every
-    group of basis lights."""
+    g needs (:func:`photon_fields.runtime.pvrt.sh.auto_exitance_order`); ``grid`` None: :func:`auto_grid`.
+    ``on_progress(done, total)`` after every group of basis lights."""
     if out_lmax is None:
         out_lmax = auto_exitance_order(scene.g, EXITANCE_TOLERANCE)
-    check_settings(grid, out_lmax, paths)
+    check_settings(DEFAULT_GRID if grid is None else grid, out_lmax, paths)
+    m = scene.medium()
+    if grid is None:
+        grid = auto_grid(m.bsize, basis.size * len(PARTS) * sh_count(out_lmax) * 4)
     from photon_fields.runtime.threads import max_threads
 
-    m = scene.medium()
     shape = grid_shape(m.bsize, grid)
     n_cells = int(np.prod(shape))
     acc = np.zeros((n_cells, basis.size, len(PARTS), sh_count(out_lmax)), dtype=np.float32)

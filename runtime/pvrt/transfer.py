@@ -38,7 +38,6 @@ from photon_fields.runtime.io.atomic import atomic_path
 from photon_fields.runtime.pvrt.basis import LightingBasis, check_basis, make_basis
 from photon_fields.runtime.pvrt.constants import (
     DEFAULT_CLUSTERS,
-    DEFAULT_GRID,
     DEFAULT_PATHS_PER_BASIS,
     DEFAULT_PCA_BASES,
     EXITANCE_ORDERS,
@@ -119,13 +118,14 @@ class Transfer:
 
 
 def precompute_transfer(scene: Scene, *, basis: str = "dsf", order: int | None = None,
-                        grid: int = DEFAULT_GRID, exitance_order: int | None = None,
+                        grid: int | None = None, exitance_order: int | None = None,
                         paths: int = DEFAULT_PATHS_PER_BASIS, clusters: int = DEFAULT_CLUSTERS,
                         bases: int = DEFAULT_PCA_BASES, seed: int = 0, progress: bool = True,
                         on_progress: Callable[[int, int], None] | None = None) -> Transfer:
     """Alg. 1's precomputation: basis-light photon tracing and splatting, then CPCA (module docstring).
     ``exitance_order`` None: the least the scene's g needs (:func:`photon_fields.runtime.pvrt.sh.
-    auto_exitance_order`), recorded in the manifest."""
+    auto_exitance_order`); ``grid`` None: the most cells the memory budget allows
+    (:func:`photon_fields.runtime.pvrt.precompute.auto_grid`); both recorded in the manifest."""
     from photon_fields.runtime.pvrt.constants import DEFAULT_DSF_ORDER, DEFAULT_SH_ORDER
 
     order = (DEFAULT_DSF_ORDER if basis == "dsf" else DEFAULT_SH_ORDER) if order is None else order

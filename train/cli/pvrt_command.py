@@ -32,7 +32,9 @@ def add_pvrt_parser(sub: argparse._SubParsersAction) -> None:
                    help=f"basis order: DSF subdivision level in {list(c.DSF_ORDERS)} (12, 42, 162, 642 lights; "
                         f"default {c.DEFAULT_DSF_ORDER}) or SH l_max in {list(c.SH_ORDERS)} (default "
                         f"{c.DEFAULT_SH_ORDER})")
-    v.add_argument("--grid", type=int, default=c.DEFAULT_GRID, help="transfer cells along the box's longest side")
+    v.add_argument("--grid", default="auto",
+                   help=f"transfer cells along the box's longest side in {list(c.GRID_RANGE)}, or auto: the most up "
+                        f"to {c.DEFAULT_GRID} whose uncompressed transfer fits {c.TRANSFER_BUDGET_BYTES >> 20} MB")
     v.add_argument("--paths", default=str(c.DEFAULT_PATHS_PER_BASIS),
                    help="photon paths per basis light (e.g. 64k)")
     v.add_argument("--exitance-order", default="auto",
@@ -52,8 +54,10 @@ def cmd_pvrt(args: argparse.Namespace) -> int:
     from photon_fields.runtime.pvrt.basis import check_basis
     from photon_fields.runtime.pvrt.constants import (
         DEFAULT_DSF_ORDER,
+        DEFAULT_GRID,
         DEFAULT_SH_ORDER,
         DSF_ORDERS,
+        EXITANCE_ORDERS,
         GRID_RANGE,
         SH_ORDERS,
     )
@@ -68,12 +72,13 @@ def cmd_pvrt(args: argparse.Namespace) -> int:
     if not lo <= order <= hi:
         raise InputError("--order", f"a {args.basis} order must be an integer in [{lo}, {hi}], got {order}")
     check_basis(args.basis, order, "--basis")
-    exitance = _exitance_order(args.exitance_order)
-    ranges = (("--grid", args.grid, GRID_RANGE), ("--paths", paths, (1, 2**32 - 1)))
+    exitance = _auto_or_int(args.exitance_order, "--exitance-order", EXITANCE_ORDERS)
+    grid = _auto_or_int(args.grid, "--grid", GRID_RANGE)
+    ranges = (("--paths", paths, (1, 2**32 - 1)),)
     for flag, value, (lo, hi) in ranges:
         if not lo <= value <= hi:
             raise InputError(flag, f"must be an integer in [{lo}, {hi}], got {value}")
-    check_settings(args.grid, 0 if exitance is None else exitance, paths)
+    check_settings(DEFAULT_GRID if grid is None else grid, 0 if exitance is None else exitance, paths)
     for flag, value, lo, hi in (("--clusters", args.clusters, 1, 4096), ("--pca-bases", args.pca_bases, 0, 64)):
         if not lo <= value <= hi:
             raise InputError(flag, f"must be an integer in [{lo}, {hi}], got {value}")
@@ -86,7 +91,7 @@ def cmd_pvrt(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene).with_overrides(g=args.g)
     prepare_output(out, PVRT_SUFFIX, force=args.force, what="a transfer file")
     progress = open_progress(args, ("trace", "cpca"))
-    transfer = precompute_transfer(scene, basis=args.basis, order=order, grid=args.grid,
+    transfer = precompute_transfer(scene, basis=args.basis, order=order, grid=grid,
                                    exitance_order=exitance, paths=paths, clusters=args.clusters,
                                    bases=args.pca_bases, seed=args.seed, progress=not args.quiet,
                                    on_progress=stage_callback(progress, "trace"))
@@ -102,17 +107,15 @@ def cmd_pvrt(args: argparse.Namespace) -> int:
     return 0
 
 
-def _exitance_order(text: str) -> int | None:
-    """``--exitance-order``: None for ``auto``, else an integer in ``EXITANCE_ORDERS`` (one line otherwise)."""
-    from photon_fields.runtime.pvrt.constants import EXITANCE_ORDERS
-
+def _auto_or_int(text: str, flag: str, limits: tuple[int, int]) -> int | None:
+    """An option that is ``auto`` (None: the precomputation chooses) or an integer within ``limits``."""
     if text == "auto":
         return None
-    lo, hi = EXITANCE_ORDERS
+    lo, hi = limits
     try:
         value = int(text)
     except ValueError:
         value = None
     if value is None or not lo <= value <= hi:
-        raise InputError("--exitance-order", f"must be auto or an integer in [{lo}, {hi}], got {text!r}")
+        raise InputError(flag, f"must be auto or an integer in [{lo}, {hi}], got {text!r}")
     return value
