@@ -121,3 +121,23 @@ def test_an_isotropic_transfer_keeps_band_0_only_and_its_values_are_the_full_one
     assert np.any(full.matrices[..., 1:] != 0)  # the other bands hold something: the l_max 2 transfer is not trivial
     np.testing.assert_array_equal(auto.matrices[..., 0], full.matrices[..., 0])
     np.testing.assert_array_equal(auto.mass, full.mass)
+
+
+@pytest.mark.parametrize("bytes_per_cell", [648 * 4, 5832 * 4, 1512 * 4, 10**9])
+def test_the_default_grid_is_the_finest_that_fits_the_memory_budget(bytes_per_cell: int) -> None:
+    """auto_grid: the most cells along the longest side up to DEFAULT_GRID whose uncompressed transfer fits
+    TRANSFER_BUDGET_BYTES (one more would not), never below the least grid allowed."""
+    from photon_fields.runtime.pvrt.constants import DEFAULT_GRID, GRID_RANGE, TRANSFER_BUDGET_BYTES
+    from photon_fields.runtime.pvrt.precompute import auto_grid, grid_shape
+
+    box = np.array([1.0, 1.25, 0.8])
+    grid = auto_grid(box, bytes_per_cell)
+
+    def size(n: int) -> int:
+        return int(np.prod(grid_shape(box, n))) * bytes_per_cell
+
+    assert GRID_RANGE[0] <= grid <= DEFAULT_GRID
+    if grid > GRID_RANGE[0]:
+        assert size(grid) <= TRANSFER_BUDGET_BYTES
+    if grid < DEFAULT_GRID:
+        assert size(grid + 1) > TRANSFER_BUDGET_BYTES
