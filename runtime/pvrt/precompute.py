@@ -61,6 +61,7 @@ from photon_fields.runtime.photons.photon_path import trace_path
 from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.pvrt.basis import LightingBasis
 from photon_fields.runtime.pvrt.constants import (
+    DEFAULT_DSF_ORDER,
     DEFAULT_GRID,
     DEFAULT_PATHS_PER_BASIS,
     EXITANCE_ORDERS,
@@ -69,6 +70,7 @@ from photon_fields.runtime.pvrt.constants import (
     KERNEL_C,
     MASS_POINTS,
     MAX_BOUNCES,
+    MIN_AUTO_GRID,
     PARTS,
     TRANSFER_BUDGET_BYTES,
 )
@@ -93,6 +95,25 @@ def auto_grid(bsize: np.ndarray, bytes_per_cell: int) -> int:
         if int(np.prod(grid_shape(bsize, grid))) * bytes_per_cell <= TRANSFER_BUDGET_BYTES:
             return grid
     return GRID_RANGE[0]
+
+
+def auto_dsf_order(bsize: np.ndarray, out_lmax: int, grid: int | None = None) -> int:
+    """The DSF order by default: ``DEFAULT_DSF_ORDER`` where its transfer fits ``TRANSFER_BUDGET_BYTES`` with at
+    least ``MIN_AUTO_GRID`` cells along the longest side (or at ``grid`` when one is given), else the next coarser
+    order that does (at least 0). An isotropic medium (l_max 0) takes order 2 at a 48^3 grid; l_max 2 would leave
+    order 2 ~28 cells, and a coarse grid blurs a dense medium's lit skin into its dark inside, so it takes order 1."""
+    for order in range(DEFAULT_DSF_ORDER, 0, -1):
+        per_cell = dsf_size(order) * len(PARTS) * sh_count(out_lmax) * 4
+        if grid is None and auto_grid(bsize, per_cell) >= MIN_AUTO_GRID:
+            return order
+        if grid is not None and int(np.prod(grid_shape(bsize, grid))) * per_cell <= TRANSFER_BUDGET_BYTES:
+            return order
+    return 0
+
+
+def dsf_size(order: int) -> int:
+    """Directions of the DSF of ``order`` (icosahedral subdivision: 10 * 4^order + 2)."""
+    return 10 * 4**order + 2
 
 
 def grid_shape(bsize: np.ndarray, grid: int) -> tuple[int, int, int]:

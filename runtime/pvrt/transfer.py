@@ -125,10 +125,17 @@ def precompute_transfer(scene: Scene, *, basis: str = "dsf", order: int | None =
     """Alg. 1's precomputation: basis-light photon tracing and splatting, then CPCA (module docstring).
     ``exitance_order`` None: the least the scene's g needs (:func:`photon_fields.runtime.pvrt.sh.
     auto_exitance_order`); ``grid`` None: the most cells the memory budget allows
-    (:func:`photon_fields.runtime.pvrt.precompute.auto_grid`); both recorded in the manifest."""
-    from photon_fields.runtime.pvrt.constants import DEFAULT_DSF_ORDER, DEFAULT_SH_ORDER
+    (:func:`photon_fields.runtime.pvrt.precompute.auto_grid`); ``order`` None (DSF): the finer DSF order where its
+    transfer fits that budget at a useful grid (:func:`photon_fields.runtime.pvrt.precompute.auto_dsf_order`); all
+    recorded in the manifest."""
+    from photon_fields.runtime.pvrt.constants import DEFAULT_SH_ORDER, EXITANCE_TOLERANCE
+    from photon_fields.runtime.pvrt.precompute import auto_dsf_order
+    from photon_fields.runtime.pvrt.sh import auto_exitance_order
 
-    order = (DEFAULT_DSF_ORDER if basis == "dsf" else DEFAULT_SH_ORDER) if order is None else order
+    if exitance_order is None:
+        exitance_order = auto_exitance_order(scene.g, EXITANCE_TOLERANCE)
+    if order is None:
+        order = auto_dsf_order(scene.medium().bsize, exitance_order, grid) if basis == "dsf" else DEFAULT_SH_ORDER
     kind, order = check_basis(basis, order)
     lighting_basis = make_basis(kind, order)
     raw = precompute_raw(scene, lighting_basis, grid=grid, out_lmax=exitance_order, paths=paths, seed=seed,

@@ -30,7 +30,8 @@ def add_pvrt_parser(sub: argparse._SubParsersAction) -> None:
                    help="lighting basis: dsf (the paper's discrete spherical functions) or sh")
     v.add_argument("--order", type=int, default=None,
                    help=f"basis order: DSF subdivision level in {list(c.DSF_ORDERS)} (12, 42, 162, 642 lights; "
-                        f"default {c.DEFAULT_DSF_ORDER}) or SH l_max in {list(c.SH_ORDERS)} (default "
+                        f"default {c.DEFAULT_DSF_ORDER}, or 1 where it would not fit the memory budget at "
+                        f"{c.MIN_AUTO_GRID} cells a side) or SH l_max in {list(c.SH_ORDERS)} (default "
                         f"{c.DEFAULT_SH_ORDER})")
     v.add_argument("--grid", default="auto",
                    help=f"transfer cells along the box's longest side in {list(c.GRID_RANGE)}, or auto: the most up "
@@ -67,11 +68,12 @@ def cmd_pvrt(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     paths = parse_count(args.paths, "--paths")
-    order = (DEFAULT_DSF_ORDER if args.basis == "dsf" else DEFAULT_SH_ORDER) if args.order is None else args.order
+    order = args.order  # None: precompute_transfer's default (DSF: by the memory budget)
     lo, hi = DSF_ORDERS if args.basis == "dsf" else SH_ORDERS
-    if not lo <= order <= hi:
+    if order is not None and not lo <= order <= hi:
         raise InputError("--order", f"a {args.basis} order must be an integer in [{lo}, {hi}], got {order}")
-    check_basis(args.basis, order, "--basis")
+    check_basis(args.basis, (DEFAULT_DSF_ORDER if args.basis == "dsf" else DEFAULT_SH_ORDER) if order is None
+                else order, "--basis")
     exitance = _auto_or_int(args.exitance_order, "--exitance-order", EXITANCE_ORDERS)
     grid = _auto_or_int(args.grid, "--grid", GRID_RANGE)
     ranges = (("--paths", paths, (1, 2**32 - 1)),)

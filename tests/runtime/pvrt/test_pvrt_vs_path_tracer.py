@@ -141,3 +141,18 @@ def test_the_default_grid_is_the_finest_that_fits_the_memory_budget(bytes_per_ce
         assert size(grid) <= TRANSFER_BUDGET_BYTES
     if grid < DEFAULT_GRID:
         assert size(grid + 1) > TRANSFER_BUDGET_BYTES
+
+
+@pytest.mark.parametrize(("lmax", "order"), [(0, 2), (1, 2), (2, 1)])
+def test_the_default_dsf_order_is_the_finest_that_fits_at_a_useful_grid(lmax: int, order: int) -> None:
+    """An isotropic medium (l_max 0) takes DSF order 2 at the full default grid; l_max 2 would leave order 2 fewer
+    than MIN_AUTO_GRID cells a side within the budget, so it takes order 1 and a finer grid."""
+    from photon_fields.runtime.pvrt.constants import MIN_AUTO_GRID, PARTS
+    from photon_fields.runtime.pvrt.precompute import auto_dsf_order, auto_grid, dsf_size
+    from photon_fields.runtime.pvrt.sh import sh_count
+
+    box = np.ones(3)
+    assert auto_dsf_order(box, lmax) == order
+    per_cell = len(PARTS) * sh_count(lmax) * 4
+    assert auto_grid(box, dsf_size(order) * per_cell) >= MIN_AUTO_GRID
+    assert order == 2 or auto_grid(box, dsf_size(order + 1) * per_cell) < MIN_AUTO_GRID
