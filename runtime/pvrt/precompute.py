@@ -92,9 +92,14 @@ def auto_grid(bsize: np.ndarray, bytes_per_cell: int) -> int:
     uncompressed transfer (``bytes_per_cell`` each) fits ``TRANSFER_BUDGET_BYTES`` (at least the least grid
     ``GRID_RANGE`` allows)."""
     for grid in range(DEFAULT_GRID, GRID_RANGE[0], -1):
-        if int(np.prod(grid_shape(bsize, grid))) * bytes_per_cell <= TRANSFER_BUDGET_BYTES:
+        if transfer_fits(bsize, grid, bytes_per_cell):
             return grid
     return GRID_RANGE[0]
+
+
+def transfer_fits(bsize: np.ndarray, grid: int, bytes_per_cell: int) -> bool:
+    """Whether the uncompressed transfer on ``grid`` (``bytes_per_cell`` each) fits ``TRANSFER_BUDGET_BYTES``."""
+    return int(np.prod(grid_shape(bsize, grid))) * bytes_per_cell <= TRANSFER_BUDGET_BYTES
 
 
 def auto_dsf_order(bsize: np.ndarray, out_lmax: int, grid: int | None = None) -> int:
@@ -106,7 +111,7 @@ def auto_dsf_order(bsize: np.ndarray, out_lmax: int, grid: int | None = None) ->
         per_cell = dsf_size(order) * len(PARTS) * sh_count(out_lmax) * 4
         if grid is None and auto_grid(bsize, per_cell) >= MIN_AUTO_GRID:
             return order
-        if grid is not None and int(np.prod(grid_shape(bsize, grid))) * per_cell <= TRANSFER_BUDGET_BYTES:
+        if grid is not None and transfer_fits(bsize, grid, per_cell):
             return order
     return 0
 
