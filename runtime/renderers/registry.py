@@ -204,6 +204,6 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
                      "transmittance, sharp shadows) or transfer (from the lighting basis, blurred)", str, "nee",
                      one_of(("nee", "transfer"))),
               Option("--light-grid", "light_grid", "pvrt --direct nee: light-volume cells along the box's longest "
-                     "side", int, 64, int_in(4, 512))),
+                     "side", int, 128, int_in(4, 512))),
              input="transfer", progressive=False, noisy=False),
 )}
