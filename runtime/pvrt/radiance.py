@@ -36,16 +36,20 @@ from photon_fields.runtime.transport.marching import march_transmittance
 from photon_fields.runtime.transport.medium import Medium
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, task_stride
 
-#: Radiance-volume channels: multiple-scattering RGB *photon energy* towards the eye (the CPCA numerators, not
-#: divided by D_v), and D_v itself. The camera divides the trilinear interpolations of the two
-#: (``runtime/renderers/pvrt.py``): the precomputation's ratio estimate carried on to the sample point, i.e. a
-#: D_v-weighted interpolation of the per-cell radiance. Interpolating the per-cell quotients instead weighed a cell
-#: that holds a thin wisp as much as a full one, and CPCA's error in such a cell's numerator, divided by its small
-#: D_v, became a radiance error that did not average out: on the vortex (48^3, 32^3 grid) the L_i mean went from
-#: 1.01 of the path tracer's uncompressed to 1.17 with 32 CPCA clusters and 0.19 with 128; D_v-weighted it is
-#: 1.04, 1.08 and 1.08 (bench/README.md, PVRT). Cells without medium (D_v = 0) weigh nothing. A cell's 4 channels
-#: fill 16 bytes, which the camera's interpolation sums as one vector of 4 floats.
+#: Radiance-volume channels: multiple-scattering RGB radiance towards the eye times each cell's interpolation
+#: weight s_v, and s_v itself (:func:`interpolation_weights`). The camera divides the trilinear interpolations of the
+#: two (``runtime/renderers/pvrt.py``): a trilinear interpolation of the cells' radiance, each cell weighted by s_v.
+#: Plain quotients (s_v = 1 wherever D_v > 0) weighed a cell that holds a thin wisp as much as a full one, and
+#: CPCA's error in such a cell's numerator, divided by its small D_v, became a radiance error that did not average
+#: out (on the vortex, 48^3, 32^3 grid: the L_i mean 1.17 with 32 CPCA clusters, 0.19 with 128); s_v = D_v (the
+#: ratio estimate carried on to the sample) fixed that but weighed a dense medium's dark inside over its lit skin,
+#: which the camera sees (head: L_i 0.81 / 0.78 of the path tracer's at 0 / 180 degrees, grid 40). s_v = D_v /
+#: (D_v + D_0), D_0 = ``MASS_KNEE`` x the median D_v, is D_v-weighted where cells hold little medium and equal where
+#: they hold much: head 0.87 / 0.93, and the vortex's L_i error 7 % lower (bench/README.md, PVRT, 2026-11-29). A
+#: cell's 4 channels fill 16 bytes, which the camera's interpolation sums as one vector of 4 floats.
 CHANNELS = 4
+#: D_0 / median D_v of :func:`interpolation_weights` (0.03 and 0.1 gave the same errors on the vortex).
+MASS_KNEE = 0.1
 #: A light volume's shadow ray stops where its optical depth passes this (transmittance 1e-4, the camera march's
 #: stopping point, runtime/renderers/pvrt.py) and counts as dark: the light it would still let through is at most
 #: 1e-4 of the light's (the same bound the camera march accepts for what lies behind its end). On the head, the skull
@@ -64,9 +68,9 @@ def cluster_responses(transfer: Transfer, lighting: Lighting) -> np.ndarray:
 
 
 @njit(cache=True, parallel=True)
-def _evaluate_cells(cluster: np.ndarray, mass: np.ndarray, weights: np.ndarray, resp: np.ndarray,
-                    band: np.ndarray, lmax: int,
-                    eye: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, gx: int, gy: int, gz: int) -> np.ndarray:
+def _evaluate_cells(cluster: np.ndarray, mass: np.ndarray, interp: np.ndarray, weights: np.ndarray,
+                    resp: np.ndarray, band: np.ndarray, lmax: int, eye: np.ndarray, bmin: np.ndarray,
+                    bsize: np.ndarray, gx: int, gy: int, gz: int) -> np.ndarray:
     out = np.zeros((gx, gy, gz, CHANNELS), dtype=np.float32)
     n = resp.shape[3]
     nb = weights.shape[1]
@@ -78,7 +82,7 @@ def _evaluate_cells(cluster: np.ndarray, mass: np.ndarray, weights: np.ndarray, 
                 k = cluster[v]
                 if mass[v] <= 0.0:
                     continue  # no medium within the kernel's reach: weight 0 in the camera's interpolation
-                out[ix, iy, iz, resp.shape[2]] = mass[v]
+                out[ix, iy, iz, resp.shape[2]] = interp[v]
                 if k < 0:
                     continue  # medium that no photon reached: photon energy 0 (and D_v, it counts as dark)
                 px = bmin[0] + (ix + 0.5) / gx * bsize[0]
@@ -89,6 +93,7 @@ def _evaluate_cells(cluster: np.ndarray, mass: np.ndarray, weights: np.ndarray, 
                 sh_eval(lmax, dx * inv, dy * inv, dz * inv, y)
                 for j in range(n):
                     y[j] *= band[j]
+                scale = interp[v] / mass[v]  # photon energy -> radiance (/ D_v), times the cell's weight s_v
                 for c in range(resp.shape[2]):
                     acc = 0.0
                     for j in range(n):
@@ -96,27 +101,34 @@ def _evaluate_cells(cluster: np.ndarray, mass: np.ndarray, weights: np.ndarray, 
                         for i in range(nb):
                             s += weights[v, i] * resp[k, 1 + i, c, j]
                         acc += y[j] * s
-                    out[ix, iy, iz, c] = acc
+                    out[ix, iy, iz, c] = acc * scale
     return out
 
 
 def radiance_volume(transfer: Transfer, lighting: Lighting, eye: np.ndarray, g: float) -> np.ndarray:
     """The view-dependent radiance volume (gx, gy, gz, CHANNELS) float32 (module docstring): multiply scattered
-    photon energy towards ``eye`` per unit albedo (before the camera's own albedo), and D_v (:data:`CHANNELS`)."""
+    radiance towards ``eye`` per unit albedo (before the camera's own albedo) times each cell's interpolation weight,
+    and the weight (:data:`CHANNELS`)."""
     resp = cluster_responses(transfer, lighting)
     gx, gy, gz = transfer.grid
     box = transfer.manifest["box"]
     lmax = transfer.exitance_order
-    return _evaluate_cells(transfer.cluster, transfer.mass.astype(np.float64), transfer.weights.astype(np.float64),
-                           resp, hg_band_factors(g, lmax),
+    return _evaluate_cells(transfer.cluster, transfer.mass.astype(np.float64),
+                           interpolation_weights(transfer).reshape(-1).astype(np.float64),
+                           transfer.weights.astype(np.float64), resp, hg_band_factors(g, lmax),
                            lmax, np.asarray(eye, dtype=np.float64), np.asarray(box["min"], np.float64),
                            np.asarray(box["size"], np.float64), gx, gy, gz)
 
 
-def mass_volume(transfer: Transfer) -> np.ndarray:
-    """D_v per cell, (gx, gy, gz) float32: the radiance volume's last channel, which does not depend on the
-    lighting."""
-    return np.maximum(transfer.mass, 0.0).astype(np.float32).reshape(transfer.grid)
+def interpolation_weights(transfer: Transfer) -> np.ndarray:
+    """s_v = D_v / (D_v + D_0) per cell, (gx, gy, gz) float32 (:data:`CHANNELS`; 0 where D_v = 0): the radiance
+    volume's last channel, which does not depend on the lighting. Kept on the transfer."""
+    if "interpolation_weights" not in transfer.cache:
+        mass = np.maximum(transfer.mass.astype(np.float64), 0.0)
+        occupied = mass[mass > 0]
+        d0 = MASS_KNEE * float(np.median(occupied)) if occupied.size else 1.0
+        transfer.cache["interpolation_weights"] = (mass / (mass + d0)).astype(np.float32).reshape(transfer.grid)
+    return transfer.cache["interpolation_weights"]
 
 
 @njit(cache=True)

@@ -13,7 +13,7 @@ direct term (Sec. 6.2, ``runtime/pvrt/direct.py``), then ray-march the camera ra
 
 with ``tau_q`` the optical-depth volume towards quadrature direction w_q (trilinear before the exponential,
 computed once per transfer), ``W_q`` the lighting on it, ``R_ms`` the radiance volume of multiple scattering
-(trilinear, cell-centred, D_v-weighted: ``runtime/pvrt/radiance.py``), sigma and
+(trilinear, cell-centred, each cell weighted by s_v: ``runtime/pvrt/radiance.py``), sigma and
 albedo from the full-resolution medium, the same segment quadrature and jittered start as
 ``runtime/renderers/ray_marcher.py`` and its empty-space skipping (``tracking.empty_run``). Layers L, L_d, L_i, L_e
 as the other renderers.
@@ -53,7 +53,7 @@ from photon_fields.runtime.pvrt.direct import (
 )
 from photon_fields.runtime.pvrt.lighting import scene_lighting
 from photon_fields.runtime.pvrt.precompute import grid_shape
-from photon_fields.runtime.pvrt.radiance import CHANNELS, light_volumes, mass_volume, radiance_volume
+from photon_fields.runtime.pvrt.radiance import CHANNELS, interpolation_weights, light_volumes, radiance_volume
 from photon_fields.runtime.pvrt.transfer import Transfer
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.cell_grid import Grid, grid_of, stencil, trilinear
@@ -71,7 +71,7 @@ _T_MIN = 1e-4  # as the ray marcher: stop once the camera ray is this opaque
 @njit(cache=True, inline="always")
 def _radiance_sums(rad: np.ndarray, grid: Grid, x: float, y: float, z: float) -> tuple[float, float, float, float]:
     """The trilinear interpolations at x of the radiance volume's multiple-scattering photon energy (RGB) and of
-    D_v (radiance.CHANNELS); the radiance is their quotient (D_v-weighted interpolation). A corner's 4 channels are
+    the cells' weights s_v (radiance.CHANNELS); the radiance is their quotient. A corner's 4 channels are
     16 adjacent bytes and all share the stencil's weight: summed in float32 (the volume's precision) as 4 scalars,
     which fit one vector register, not in an array the kernel would have to allocate or be handed."""
     i, j, k, fx, fy, fz = stencil(grid, x, y, z)
@@ -99,7 +99,7 @@ def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndar
     """Camera rays lo..hi-1 of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why). Per
     sample with sigma_t > 0 (its weight w = T_s (1 - exp(-sigma_s dt)) albedo_s, RGB), by ``mode``: _EVALUATE adds
     w times what it sends towards the camera per unit albedo (the basis lighting's direct term, ``basis_direct``,
-    plus the lights' NEE, ``nee``, to out[0:3] (L_d); the radiance volume's D_v-weighted interpolation,
+    plus the lights' NEE, ``nee``, to out[0:3] (L_d); the radiance volume's s_v-weighted interpolation,
     :func:`_radiance_sums`, to out[3:6] (L_i)); _COUNT counts
     the ray's samples into ``first[ray]``; _RECORD writes their positions and weights to ``pos`` and ``weight[0:3]``
     from index ``first[ray]`` on. Every mode writes the transmittance into ``trans``.
@@ -195,7 +195,7 @@ def _sum_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarra
                basis: BasisDirect, g: float, d: np.ndarray, first: np.ndarray, pos: np.ndarray, weight: np.ndarray,
                kept_tr: np.ndarray, out: np.ndarray, lo: int, hi: int) -> None:
     """Rays lo..hi-1 of :func:`_sum_kept`: out[0:6, ray] = the sum over the ray's kept samples (from first[ray] to
-    first[ray + 1]) of what :func:`_march_items` adds for them, with their D_v's reciprocal kept in weight[3] and,
+    first[ray + 1]) of what :func:`_march_items` adds for them, with their s_v's reciprocal kept in weight[3] and,
     when ``kept_tr`` has a row per sample, their transmittances towards the quadrature directions."""
     depth, active, b_travel, b_rgb = basis
     ph = np.empty(travel.shape[0])
@@ -245,8 +245,9 @@ def _sum_kept(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarray
 @njit(cache=True)
 def _kept_cells(m: Medium, pos: np.ndarray, weight: np.ndarray, dv: np.ndarray, gx: int, gy: int,
                 gz: int) -> np.ndarray:
-    """For kept samples at ``pos`` (3, n): weight[3] = 1 / D_v at each (``dv``: the transfer grid's D_v, trilinear;
-    0 where it is 0, as the march divides), and the cells of a (gx, gy, gz) light grid their stencils read."""
+    """For kept samples at ``pos`` (3, n): weight[3] = 1 / s at each (``dv``: the transfer grid's interpolation
+    weights s_v, ``radiance.interpolation_weights``, trilinear; 0 where it is 0, as the march divides), and the
+    cells of a (gx, gy, gz) light grid their stencils read."""
     out = np.zeros((gx, gy, gz), dtype=np.bool_)
     rg = grid_of(m, dv.shape[0], dv.shape[1], dv.shape[2])
     lg = grid_of(m, gx, gy, gz)
@@ -402,7 +403,7 @@ class Relighting:
             first = np.zeros(len(rays) + 1, dtype=np.int64)
             np.cumsum(count[:-1], out=first[1:])
             pos = np.empty((3, int(first[-1])), dtype=np.float32)
-            weight = np.empty((4, pos.shape[1]), dtype=np.float32)  # w albedo (RGB), then 1 / D_v (_kept_cells)
+            weight = np.empty((4, pos.shape[1]), dtype=np.float32)  # w albedo (RGB), then 1 / s_v (_kept_cells)
             _march(m, *_empty_lighting(), float(scene.g), rays.o, rays.d, rays.tmax, rays.rng.copy(), h, True,
                    _RECORD, first, pos, weight)
             samples.append((pos, weight))
@@ -416,8 +417,9 @@ class Relighting:
         self.trans = np.concatenate(parts["trans"])
         self.pos = np.ascontiguousarray(np.concatenate([p for p, _ in samples], axis=1))
         self.weight = np.ascontiguousarray(np.concatenate([w for _, w in samples], axis=1))
-        # 1 / D_v of each sample into weight[3]; the light cells they read (a subset of the needed ones)
-        self.cells = _kept_cells(m, self.pos, self.weight, mass_volume(transfer), *grid_shape(m.bsize, light_grid))
+        # 1 / s_v of each sample into weight[3]; the light cells they read (a subset of the needed ones)
+        self.cells = _kept_cells(m, self.pos, self.weight, interpolation_weights(transfer),
+                                 *grid_shape(m.bsize, light_grid))
         self.kept = True
         self.timings_ms["keep_samples"] = (time.perf_counter() - t0) * 1e3
 

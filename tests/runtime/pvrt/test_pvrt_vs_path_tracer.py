@@ -12,7 +12,7 @@ Tolerances come from measurement (this scene, 24x24 pixels, path tracer at 64 sp
 - PVRT's L_i (multiple scattering from the transfer, DSF order 0, 8^3 grid, 8000 paths per basis light) has a mean
   1.11 of the path tracer's with seed 0, and 0.99-1.11 over seeds 0-3 (the spread follows the seed of CPCA's
   k-means more than the photons': 2000 paths give nearly the same values): asserted within 15 %, which every one of
-  those seeds passes; the remaining +5 % in the mean is the D_v-weighted interpolation's (runtime/pvrt/radiance.py).
+  those seeds passes; part of the rest was the D_v-weighted interpolation's, replaced by s_v (runtime/pvrt/radiance.py).
   This dense ball is an easy case: on the thin vortex a coarse grid under-estimates L_i by a quarter
   (bench/README.md), which this test does not cover.
 """
