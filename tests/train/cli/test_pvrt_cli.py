@@ -81,7 +81,9 @@ def test_render_from_transfer(made: dict[str, Path]) -> None:
         assert np.all(np.isfinite(layers[name])) and layers[name].mean() > 0, name
     np.testing.assert_allclose(layers["L"], layers["L_d"] + layers["L_i"] + layers["L_e"], rtol=1e-4, atol=1e-6)
     report = json.loads(out.with_suffix(".json").read_text())
-    assert report["options"] == {"direct": "nee", "light_grid": 64}
+    from photon_fields.runtime.pvrt.constants import DEFAULT_LIGHT_GRID
+
+    assert report["options"] == {"direct": "nee", "light_grid": DEFAULT_LIGHT_GRID}
     assert report["transfer"]["scene_name"] == "ball" and report["transfer"]["grid"] == [4, 4, 4]
     assert "NEE" in report["stats"]["notes"]
 
