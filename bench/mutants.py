@@ -63,6 +63,7 @@ LSAMPLING = "tests/runtime/transport/test_light_sampling.py"
 ENVRENDER = "tests/runtime/renderers/test_environment_map_render.py"
 PVRT_CLI = "tests/train/cli/test_pvrt_cli.py"
 PVRT_PT = "tests/runtime/pvrt/test_pvrt_vs_path_tracer.py"
+PVRT_BASIS = "tests/runtime/pvrt/test_pvrt_basis_and_file.py"
 PVRT_MARCH = "tests/runtime/pvrt/test_pvrt_march.py"
 RAY_MARCHER = "tests/runtime/renderers/test_ray_marcher.py"
 PVRT_DIRECT = "tests/runtime/pvrt/test_pvrt_direct.py"
@@ -621,8 +622,8 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("pvrt_no_nee", "runtime/pvrt/lighting.py", "                nee_rgb.append(rgb)",
            "                nee_rgb.append(0.0 * rgb)", (f"{PVRT_PT}::test_pvrt_matches_path_tracer_under_its_light",),
            "a directional light's direct term is dropped (NEE light volume weighted by 0)"),
-    Mutant("pvrt_no_mass_division", "runtime/pvrt/radiance.py", "out[ix, iy, iz, resp.shape[2]] = mass[v]",
-           "out[ix, iy, iz, resp.shape[2]] = 1.0",
+    Mutant("pvrt_no_mass_division", "runtime/pvrt/radiance.py", "scale = interp[v] / mass[v]",
+           "scale = interp[v]",
            (f"{PVRT_PT}::test_pvrt_matches_path_tracer_under_its_light",),
            "the radiance volume is the photon energy, not divided by the cell's kernel-weighted extinction D_v"),
     Mutant("pvrt_mass_one_point", "runtime/pvrt/constants.py", "MASS_POINTS = 8", "MASS_POINTS = 1",
@@ -651,6 +652,19 @@ MUTANTS: tuple[Mutant, ...] = (
            "    return int(np.prod(grid_shape(bsize, grid))) * bytes_per_cell <= TRANSFER_BUDGET_BYTES",
            "    return True", (f"{PVRT_PT}::test_the_default_grid_is_the_finest_that_fits_the_memory_budget",),
            "the default transfer grid is DEFAULT_GRID whatever its memory (l_max 2 at DSF order 2: 2.6 GB)"),
+    Mutant("pvrt_interpolation_by_mass", "runtime/pvrt/radiance.py",
+           "(mass / (mass + d0)).astype(np.float32)", "mass.astype(np.float32)",
+           (f"{PVRT_PT}::test_the_radiance_volume_weighs_cells_by_their_share_of_medium_saturating",),
+           "the camera's interpolation weighs cells by D_v again (a dense medium's dark inside outweighs its skin)"),
+    Mutant("pvrt_sun_power_halved", "runtime/pvrt/suns.py",
+           "        suns.append((centre, irradiance))", "        suns.append((centre, 0.5 * irradiance))",
+           (f"{PVRT_BASIS}::test_a_sun_the_basis_cannot_resolve_becomes_a_directional_light_and_the_maps_power_is_kept",
+            f"{PVRT_BASIS}::test_a_maps_sun_is_lit_by_nee_from_its_turned_direction_and_projected_without_it"),
+           "a map's sun, split off as a directional light, carries half its irradiance"),
+    Mutant("pvrt_sun_not_turned", "runtime/pvrt/lighting.py", "                travel = -(r @ (to_world @ towards))",
+           "                travel = -towards",
+           (f"{PVRT_BASIS}::test_a_maps_sun_is_lit_by_nee_from_its_turned_direction_and_projected_without_it",),
+           "a map's sun lights from its direction in the map's frame, ignoring the map's and the lighting's rotation"),
     Mutant("pvrt_photon_power_doubled", "runtime/pvrt/precompute.py", "        power = weight * scale",
            "        power = 2.0 * weight * scale", (f"{PVRT_PT}::test_pvrt_matches_path_tracer_under_its_light",),
            "basis-light photons carry twice their energy"),

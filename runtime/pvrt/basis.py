@@ -58,6 +58,12 @@ class LightingBasis:
         """m, the number of basis lights."""
         return self.dsf.size if self.dsf is not None else sh_count(self.order)
 
+    @property
+    def resolution(self) -> float:
+        """The angular detail the basis resolves, radians: a DSF basis light's cone radius h, or pi / (l_max + 1)
+        for SH (the width of its finest band's lobes)."""
+        return float(self.dsf.h) if self.dsf is not None else math.pi / (self.order + 1)
+
     def evaluate(self, w: np.ndarray) -> np.ndarray:
         """B_k(w) at unit directions (q, 3) the light arrives from: (q, m)."""
         return self.dsf.evaluate(w) if self.dsf is not None else sh_basis(self.order, w)

@@ -16,14 +16,21 @@ PVRT precomputes the response to distant basis lights, so it renders distant lig
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.pvrt.basis import LightingBasis, SkyFunction
+from photon_fields.runtime.pvrt.suns import cached_suns
 from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLight, EnvironmentMap, PointLight
-from photon_fields.runtime.transport.environment_map import cached_env_map, env_map_eval_batch, rotation_matrix
+from photon_fields.runtime.transport.environment_map import (
+    EnvMap,
+    cached_env_map,
+    env_map_eval_batch,
+    rotation_matrix,
+)
 
 #: How a directional light's direct term is rendered: "nee" (light volume, sharp) or "transfer" (from the basis).
 DIRECT_MODES = ("nee", "transfer")
@@ -56,7 +63,8 @@ def scene_lighting(lights: tuple, basis: LightingBasis, *, sky: SkyFunction | No
     direct_coeffs = np.zeros((m, 3))
     nee_dirs, nee_rgb, notes = [], [], []
     constant = np.zeros(3)
-    maps = []
+    maps, projected = [], []  # what rays that leave see; what the basis gets (the maps without their suns)
+    directional = suns_found = 0
     for i, light in enumerate(lights):
         if isinstance(light, PointLight):
             raise InputError(f"light {i}", "a point light is local, and PVRT's basis lights are distant: "
@@ -67,6 +75,7 @@ def scene_lighting(lights: tuple, basis: LightingBasis, *, sky: SkyFunction | No
             c = basis.project_directional(-travel, rgb)
             coeffs += c
             if direct == "nee":
+                directional += 1
                 nee_dirs.append(travel)
                 nee_rgb.append(rgb)
             else:
@@ -75,26 +84,49 @@ def scene_lighting(lights: tuple, basis: LightingBasis, *, sky: SkyFunction | No
             constant += rgb
         elif isinstance(light, EnvironmentMap):
             key = f"{light.sha256} {light.image.shape} {light.color.tolist()} {light.power!r}"
-            maps.append(cached_env_map(key, light.radiance, rotation_matrix(*light.rotation)))
+            to_world = rotation_matrix(*light.rotation)
+            maps.append(cached_env_map(key, light.radiance, to_world))
+            suns, rest = cached_suns(key, light.radiance, basis.resolution) if direct == "nee" else ([], None)
+            for towards, irradiance in suns:  # sun: a directional light (NEE), the rest of the map projected
+                travel = -(r @ (to_world @ towards))
+                coeffs += basis.project_directional(-travel, irradiance)
+                nee_dirs.append(travel)
+                nee_rgb.append(irradiance)
+            projected.append(cached_env_map(f"{key} without suns", lambda rest=rest: rest, to_world) if suns
+                             else maps[-1])
+            suns_found += len(suns)
+            if suns:
+                notes.append(f"light {i} (environment map {light.path or ''}): {len(suns)} "
+                             f"sun{'s' if len(suns) > 1 else ''} narrower than the {basis.kind} basis resolves "
+                             f"({math.degrees(basis.resolution):.0f} degrees): "
+                             "direct term by NEE (light volume), multiple scattering from the transfer")
         else:
             raise InputError(f"light {i}", f"{type(light).__name__} is not a light PVRT can project")
-    if nee_dirs:
-        notes.append(f"{len(nee_dirs)} directional light{'s' if len(nee_dirs) > 1 else ''}: a delta the "
+    if directional:
+        notes.append(f"{directional} directional light{'s' if directional > 1 else ''}: a delta the "
                      f"{basis.kind} basis cannot represent sharply; direct term by NEE (light volume), multiple "
                      "scattering from the transfer")
-    sky_fn = None
-    if np.any(constant > 0) or sky is not None or maps:
-        user = sky
-
-        def sky_fn(w: np.ndarray) -> np.ndarray:
-            v = np.broadcast_to(constant, (len(w), 3)).astype(np.float64)
-            turned = np.ascontiguousarray(w @ r)
-            for env in maps:  # radiance arriving from each direction w (the map's own rotation inside)
-                v = v + env_map_eval_batch(env, np.ascontiguousarray(turned.T))[0].T
-            return v + (np.asarray(user(turned), dtype=np.float64) if user is not None else 0.0)
-
-        c = basis.project_sky(sky_fn)
+    sky_fn = _sky_function(constant, maps, sky, r)
+    if sky_fn is not None:
+        c = basis.project_sky(_sky_function(constant, projected, sky, r) if suns_found else sky_fn)
         coeffs += c
         direct_coeffs += c
     return Lighting(coeffs, direct_coeffs, np.array(nee_dirs).reshape(-1, 3), np.array(nee_rgb).reshape(-1, 3),
                     sky_fn if sky is not None or maps else None, constant, notes)
+
+
+def _sky_function(constant: np.ndarray, maps: list[EnvMap], user: SkyFunction | None,
+                  r: np.ndarray) -> SkyFunction | None:
+    """The radiance arriving from each direction ``w`` (n, 3) -> (n, 3): the constant sky, the environment maps
+    (their own rotations inside) and a user's sky function, all turned by ``r``; None where there is nothing."""
+    if not (np.any(constant > 0) or user is not None or maps):
+        return None
+
+    def sky_fn(w: np.ndarray) -> np.ndarray:
+        v = np.broadcast_to(constant, (len(w), 3)).astype(np.float64)
+        turned = np.ascontiguousarray(w @ r)
+        for env in maps:  # radiance arriving from each direction w (the map's own rotation inside)
+            v = v + env_map_eval_batch(env, np.ascontiguousarray(turned.T))[0].T
+        return v + (np.asarray(user(turned), dtype=np.float64) if user is not None else 0.0)
+
+    return sky_fn

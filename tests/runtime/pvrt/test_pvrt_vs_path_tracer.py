@@ -156,3 +156,22 @@ def test_the_default_dsf_order_is_the_finest_that_fits_at_a_useful_grid(lmax: in
     per_cell = len(PARTS) * sh_count(lmax) * 4
     assert auto_grid(box, dsf_size(order) * per_cell) >= MIN_AUTO_GRID
     assert order == 2 or auto_grid(box, dsf_size(order + 1) * per_cell) < MIN_AUTO_GRID
+
+
+def test_the_radiance_volume_weighs_cells_by_their_share_of_medium_saturating(transfer: Transfer) -> None:
+    """s_v = D_v / (D_v + MASS_KNEE median D_v): 0 without medium, D_v-proportional where a cell holds little
+    (CPCA's error in a thin cell's numerator must not become radiance), near 1 where it holds much (a dense
+    medium's dark inside must not outweigh its lit skin); the radiance volume's last channel is s_v."""
+    from photon_fields.runtime.pvrt.lighting import scene_lighting
+    from photon_fields.runtime.pvrt.radiance import MASS_KNEE, interpolation_weights, radiance_volume
+    from photon_fields.runtime.scene.lights import DirectionalLight
+
+    s = interpolation_weights(transfer).reshape(-1)
+    mass = transfer.mass.astype(np.float64)
+    d0 = MASS_KNEE * float(np.median(mass[mass > 0]))
+    np.testing.assert_allclose(s, np.where(mass > 0, mass / (mass + d0), 0.0), rtol=1e-6)
+    assert np.all(s[mass <= 0] == 0) and np.all(s < 1) and s.max() > 0.9
+    light = DirectionalLight(np.array([-1.0, -1.0, -0.5]), np.ones(3), 3.0)
+    rad = radiance_volume(transfer, scene_lighting((light,), transfer.basis), np.array([3.0, 2.0, 1.0]), 0.4)
+    np.testing.assert_array_equal(rad[..., 3].reshape(-1), s.astype(np.float32))
+
