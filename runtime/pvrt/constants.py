@@ -11,8 +11,8 @@ BASIS_KINDS: tuple[str, ...] = ("dsf", "sh")
 #: light over its cone, and on a thin medium the multiple scattering keeps the light's shadows: the path tracer under
 #: order 1's reconstruction of the vortex's light differs from it by a relative L2 of 0.06-0.07 in L_i, under order
 #: 2's by 0.04 (0.07 with the light behind), under order 3's by 0.035 (bench/README.md, PVRT). Order 2 with l_max 0
-#: and a 48^3 grid holds 290 MB before compression; where order 2 would not fit the memory budget at a 32^3 grid
-#: (l_max 2, the anisotropic scenes) the default is order 1 (``precompute.auto_dsf_order``).
+#: and a 48^3 grid holds ~110 MB before compression (its reachable cells); where order 2 would not fit the memory
+#: budget at a 32^3 grid (l_max 2, the anisotropic scenes) the default is order 1 (``precompute.auto_dsf_order``).
 DSF_ORDERS: tuple[int, int] = (0, 3)
 DEFAULT_DSF_ORDER = 2
 #: SH lighting order = l_max (so (l_max + 1)^2 basis lights); the paper's SH comparison uses up to l_max 25.
@@ -29,9 +29,10 @@ EXITANCE_TOLERANCE = 0.4**3
 #: Transfer grid: cells along the volume box's longest side. The multiple scattering it holds varies over a few
 #: voxels on thin media (the vortex's L_i error falls from 0.12 to 0.09 from 32 to 48 cells at 48^3 voxels); the
 #: direct term of a directional light comes from the light volume (NEE) at render time. By default the grid is the
-#: largest up to DEFAULT_GRID whose uncompressed transfer (cells x basis lights x parts x SH coefficients float32)
-#: fits TRANSFER_BUDGET_BYTES: 48 for an isotropic medium at DSF order 2, ~40 for l_max 2 at order 1
-#: (``precompute.auto_grid``).
+#: largest up to DEFAULT_GRID whose uncompressed transfer (the cells photons can reach x basis lights x parts x SH
+#: coefficients float32) fits TRANSFER_BUDGET_BYTES (``precompute.auto_grid``): 48 on the embedded scenes. A budget
+#: of 512 MB let the anisotropic ones take DSF order 2 at a 33^3 grid: head no better (PVRT / field 1.22-1.82), its
+#: precomputation 118 s and +3.2 GB (bench/README.md, PVRT).
 DEFAULT_GRID = 48
 TRANSFER_BUDGET_BYTES = 384 << 20
 #: The least default grid for which the default DSF order is kept (``precompute.auto_dsf_order``): below it the next

@@ -73,6 +73,21 @@ def _kmeans(x: np.ndarray, k: int, rng: np.random.Generator, iterations: int) ->
     return labels
 
 
+def _principal_axes(centred: np.ndarray, count: int) -> np.ndarray:
+    """The first ``count`` principal axes (rows, by decreasing variance) of the centred rows ``centred`` (n, d).
+    With more rows than columns, from the eigenvectors of the d x d scatter matrix (float64): an SVD of the rows
+    held an (n, d) float64 factor besides them, a gigabyte for a large cluster of a head's 1512-long matrices."""
+    n, d = centred.shape
+    if n <= d:
+        return np.linalg.svd(centred.astype(np.float64), full_matrices=False)[2][:count]
+    scatter = np.zeros((d, d))
+    for lo in range(0, n, _ERROR_ROWS):  # in blocks: no float64 copy of the rows
+        block = centred[lo:lo + _ERROR_ROWS].astype(np.float64)
+        scatter += block.T @ block
+    _, vectors = np.linalg.eigh(scatter)
+    return vectors[:, ::-1][:, :count].T
+
+
 def compress(matrices: np.ndarray, clusters: int, bases: int, seed: int = 0,
              iterations: int = KMEANS_ITERATIONS, groups: np.ndarray | None = None) -> CPCA:
     """CPCA of ``matrices`` (V, ...) flattened per cell: ``clusters`` clusters (fewer if there are fewer occupied
@@ -109,14 +124,14 @@ def compress(matrices: np.ndarray, clusters: int, bases: int, seed: int = 0,
         if sel.size == 0:
             continue
         mean[j] = x[sel].mean(axis=0, dtype=np.float64)
-        centred = x[sel] - mean[j]
+        centred = x[sel] - mean[j].astype(x.dtype)
         if bases > 0 and sel.size > 1:
-            _, _, vt = np.linalg.svd(centred, full_matrices=False)
+            vt = _principal_axes(centred, bases)
             nb = min(bases, vt.shape[0])
             # A deterministic sign per component: its largest entry positive.
             signs = np.sign(vt[np.arange(nb), np.argmax(np.abs(vt[:nb]), axis=1)])
             basis[j, :nb] = vt[:nb] * signs[:, None]
-            w[sel] = centred @ basis[j].T
+            w[sel] = centred @ basis[j].T.astype(centred.dtype)  # no float64 copy of the rows
         del centred
     del x
     cluster[occupied] = labels.astype(np.int32)

@@ -43,7 +43,9 @@ the Photon Field Networks paper) follows too.
 
 Determinism and memory: basis light k is one task (a serial kernel called from ``prange``), its path i uses random
 stream ``k * 2^32 + i`` and writes only ``T[:, k]``: the transfer is the same bytes for any thread count. Memory is
-the float32 transfer itself, ``V * m * 4 * (l_max + 1)^2`` floats (200 MB for 32^3 cells, 42 DSF lights, l_max 2).
+the float32 transfer itself, ``R * m * 4 * (l_max + 1)^2`` floats for the R cells photons can reach
+(:func:`reachable_cells`: within the kernel of an occupied macrocell, 30-50 % of the grid on the embedded scenes);
+the default grid and DSF order keep it within ``TRANSFER_BUDGET_BYTES`` (:func:`auto_grid`, :func:`auto_dsf_order`).
 """
 
 from __future__ import annotations
@@ -87,33 +89,63 @@ from photon_fields.runtime.transport.rng import next_float, stream_state
 _STREAM_STRIDE = np.uint64(1 << 32)  # basis light k owns random streams k * 2^32 + path
 
 
-def auto_grid(bsize: np.ndarray, bytes_per_cell: int) -> int:
+def auto_grid(cells_for: Callable[[int], int], bytes_per_cell: int) -> int:
     """The transfer grid by default: the most cells along the longest side, up to ``DEFAULT_GRID``, whose
-    uncompressed transfer (``bytes_per_cell`` each) fits ``TRANSFER_BUDGET_BYTES`` (at least the least grid
-    ``GRID_RANGE`` allows)."""
+    uncompressed transfer, ``cells_for(grid)`` cells of ``bytes_per_cell`` each (the cells photons can reach:
+    :func:`reachable_cells`), fits ``TRANSFER_BUDGET_BYTES`` (at least the least grid ``GRID_RANGE`` allows)."""
     for grid in range(DEFAULT_GRID, GRID_RANGE[0], -1):
-        if transfer_fits(bsize, grid, bytes_per_cell):
+        if cells_for(grid) * bytes_per_cell <= TRANSFER_BUDGET_BYTES:
             return grid
     return GRID_RANGE[0]
 
 
-def transfer_fits(bsize: np.ndarray, grid: int, bytes_per_cell: int) -> bool:
-    """Whether the uncompressed transfer on ``grid`` (``bytes_per_cell`` each) fits ``TRANSFER_BUDGET_BYTES``."""
-    return int(np.prod(grid_shape(bsize, grid))) * bytes_per_cell <= TRANSFER_BUDGET_BYTES
-
-
-def auto_dsf_order(bsize: np.ndarray, out_lmax: int, grid: int | None = None) -> int:
+def auto_dsf_order(cells_for: Callable[[int], int], out_lmax: int, grid: int | None = None) -> int:
     """The DSF order by default: ``DEFAULT_DSF_ORDER`` where its transfer fits ``TRANSFER_BUDGET_BYTES`` with at
     least ``MIN_AUTO_GRID`` cells along the longest side (or at ``grid`` when one is given), else the next coarser
-    order that does (at least 0). An isotropic medium (l_max 0) takes order 2 at a 48^3 grid; l_max 2 would leave
-    order 2 ~28 cells, and a coarse grid blurs a dense medium's lit skin into its dark inside, so it takes order 1."""
+    order that does (at least 0). ``cells_for(grid)``: the cells photons can reach (:func:`reachable_cells`)."""
     for order in range(DEFAULT_DSF_ORDER, 0, -1):
         per_cell = dsf_size(order) * len(PARTS) * sh_count(out_lmax) * 4
-        if grid is None and auto_grid(bsize, per_cell) >= MIN_AUTO_GRID:
+        if grid is None and auto_grid(cells_for, per_cell) >= MIN_AUTO_GRID:
             return order
-        if grid is not None and transfer_fits(bsize, grid, per_cell):
+        if grid is not None and cells_for(grid) * per_cell <= TRANSFER_BUDGET_BYTES:
             return order
     return 0
+
+
+def reachable_counter(m: Medium) -> Callable[[int], int]:
+    """``cells_for(grid)``: how many cells of the transfer grid with ``grid`` cells along the box's longest side
+    photons can splat into (:func:`reachable_cells`)."""
+    return lambda grid: int(np.count_nonzero(reachable_cells(m, *grid_shape(m.bsize, grid), KERNEL_C)))
+
+
+@njit(cache=True)
+def reachable_cells(m: Medium, gx: int, gy: int, gz: int, hc: float) -> np.ndarray:
+    """Which cells (V,) bool, in C order, a photon can splat into: those within the kernel's radius ``hc`` (cells)
+    of a macrocell whose majorant is > 0. A real collision needs sigma_t > 0, which only such macrocells hold, and
+    :func:`_splat` reaches the cells less than ``hc`` from it; the rest of the grid, on sparse volumes most of it,
+    is never written, and the transfer keeps no row for it."""
+    out = np.zeros(gx * gy * gz, dtype=np.bool_)
+    mx, my, mz = m.majorant.shape
+    lo = np.empty(3, dtype=np.int64)
+    hi = np.empty(3, dtype=np.int64)
+    cells = (gx, gy, gz)
+    macro = (mx, my, mz)
+    for a in range(mx):
+        for b in range(my):
+            for c in range(mz):
+                if m.majorant[a, b, c] <= 0.0:
+                    continue
+                idx = (a, b, c)
+                for ax in range(3):  # cell coordinates (centres at integers) of the macrocell's faces, widened
+                    u0 = idx[ax] / macro[ax] * cells[ax] - 0.5
+                    u1 = (idx[ax] + 1) / macro[ax] * cells[ax] - 0.5
+                    lo[ax] = max(0, int(math.floor(u0 - hc)))
+                    hi[ax] = min(cells[ax] - 1, int(math.ceil(u1 + hc)))
+                for i in range(lo[0], hi[0] + 1):
+                    for j in range(lo[1], hi[1] + 1):
+                        for k in range(lo[2], hi[2] + 1):
+                            out[(i * gy + j) * gz + k] = True
+    return out
 
 
 def dsf_size(order: int) -> int:
@@ -129,11 +161,12 @@ def grid_shape(bsize: np.ndarray, grid: int) -> tuple[int, int, int]:
 
 
 @njit(cache=True)
-def _splat(acc: np.ndarray, k: int, part0: int, nparts: int, vals: np.ndarray, y: np.ndarray, n_out: int,
-           gx: int, gy: int, gz: int, ux: float, uy: float, uz: float, hc: float, cells: np.ndarray,
+def _splat(acc: np.ndarray, row: np.ndarray, k: int, part0: int, nparts: int, vals: np.ndarray, y: np.ndarray,
+           n_out: int, gx: int, gy: int, gz: int, ux: float, uy: float, uz: float, hc: float, cells: np.ndarray,
            weights: np.ndarray) -> None:
     """Eq. 14's kernel around the photon at cell coordinates (ux, uy, uz) (cell centres at integers), normalized
-    over the cells it reaches; adds weight * vals[p] * y[j] to acc[cell, k, part0 + p, j]."""
+    over the cells it reaches; adds weight * vals[p] * y[j] to acc[row[cell], k, part0 + p, j] (``row``: each
+    cell's row of ``acc``, :func:`reachable_cells`; every cell a photon reaches has one)."""
     r = int(math.ceil(hc))
     cx, cy, cz = int(math.floor(ux + 0.5)), int(math.floor(uy + 0.5)), int(math.floor(uz + 0.5))
     h2 = hc * hc
@@ -153,7 +186,7 @@ def _splat(acc: np.ndarray, k: int, part0: int, nparts: int, vals: np.ndarray, y
         return
     for c in range(n):
         w = weights[c] / total
-        v = cells[c]
+        v = row[cells[c]]
         for p in range(nparts):
             wp = w * vals[p]
             for jj in range(n_out):
@@ -163,8 +196,9 @@ def _splat(acc: np.ndarray, k: int, part0: int, nparts: int, vals: np.ndarray, y
 @njit(cache=True)
 def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: float, neighbours: np.ndarray,
                        light_lmax: int, out_lmax: int, paths: int, seed: int, g: float, max_bounces: int,
-                       gx: int, gy: int, gz: int, hc: float, acc: np.ndarray, env: EnvMap) -> None:
-    """All photon paths of basis light ``k`` (module docstring), splatted into ``acc[:, k]``. ``env`` is the
+                       gx: int, gy: int, gz: int, hc: float, acc: np.ndarray, row: np.ndarray, env: EnvMap) -> None:
+    """All photon paths of basis light ``k`` (module docstring), splatted into ``acc[:, k]`` (the rows ``row``
+    gives the cells). ``env`` is the
     emitters' environment-map argument, unused by the directional photons traced here (``NO_ENV_MAP``)."""
     cx, cy, cz = m.bmin[0] + 0.5 * m.bsize[0], m.bmin[1] + 0.5 * m.bsize[1], m.bmin[2] + 0.5 * m.bsize[2]
     radius = 0.5 * math.sqrt(m.bsize[0] ** 2 + m.bsize[1] ** 2 + m.bsize[2] ** 2)
@@ -223,20 +257,20 @@ def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: flo
                 uz = (pz - m.bmin[2]) / m.bsize[2] * gz - 0.5
                 if bounce == 0:
                     vals[0] = power
-                    _splat(acc, k, 0, 1, vals, y, n_out, gx, gy, gz, ux, uy, uz, hc, cells, kw)
+                    _splat(acc, row, k, 0, 1, vals, y, n_out, gx, gy, gz, ux, uy, uz, hc, cells, kw)
                 else:
                     for ch in range(3):
                         vals[ch] = power * hit_pow[bounce, ch]
-                    _splat(acc, k, 1, 3, vals, y, n_out, gx, gy, gz, ux, uy, uz, hc, cells, kw)
+                    _splat(acc, row, k, 1, 3, vals, y, n_out, gx, gy, gz, ux, uy, uz, hc, cells, kw)
 
 
 @njit(cache=True, parallel=True)
 def _trace_group(m: Medium, ks: np.ndarray, is_dsf: bool, dirs: np.ndarray, h: float, neighbours: np.ndarray,
                  light_lmax: int, out_lmax: int, paths: int, seed: int, g: float, max_bounces: int, gx: int,
-                 gy: int, gz: int, hc: float, acc: np.ndarray, env: EnvMap) -> None:
+                 gy: int, gz: int, hc: float, acc: np.ndarray, row: np.ndarray, env: EnvMap) -> None:
     for i in prange(ks.shape[0]):
         _trace_basis_light(m, ks[i], is_dsf, dirs, h, neighbours, light_lmax, out_lmax, paths, seed, g,
-                           max_bounces, gx, gy, gz, hc, acc, env)
+                           max_bounces, gx, gy, gz, hc, acc, row, env)
 
 
 @njit(cache=True, inline="always")
@@ -279,6 +313,7 @@ def _extinction_mass(m: Medium, gx: int, gy: int, gz: int, hc: float, sub: int, 
         vals = np.empty(1)
         one = np.ones(1)
         acc = np.zeros((gx * gy * gz, 1, 1, 1), dtype=np.float32)
+        every = np.arange(gx * gy * gz)
         x0 = m.bmin[0] + i * bx
         for j in range(sy):
             y0 = m.bmin[1] + j * by
@@ -300,7 +335,7 @@ def _extinction_mass(m: Medium, gx: int, gy: int, gz: int, hc: float, sub: int, 
                             szw += e * z
                 if s > 0.0:
                     vals[0] = s * dv
-                    _splat(acc, 0, 0, 1, vals, one, 1, gx, gy, gz, (sxw / s - m.bmin[0]) / m.bsize[0] * gx - 0.5,
+                    _splat(acc, every, 0, 0, 1, vals, one, 1, gx, gy, gz, (sxw / s - m.bmin[0]) / m.bsize[0] * gx - 0.5,
                            (syw / s - m.bmin[1]) / m.bsize[1] * gy - 0.5, (szw / s - m.bmin[2]) / m.bsize[2] * gz - 0.5,
                            hc, cells, kw)
         rows[i] = acc[:, 0, 0, 0]
@@ -314,11 +349,18 @@ class RawTransfer:
     are what CPCA compresses: weighted by the medium they cover, unlike the quotients, whose noisy values in cells
     that are barely occupied would take the least-squares fit over."""
 
-    matrices: np.ndarray  # float32 (V, m, len(PARTS), (out_lmax + 1)^2)
+    matrices: np.ndarray  # float32 (R, m, len(PARTS), (out_lmax + 1)^2): the R cells photons can reach
     mass: np.ndarray  # float32 (V,)
     grid: tuple[int, int, int]
     out_lmax: int
     seconds: float
+    reachable: np.ndarray  # bool (V,): the cells ``matrices`` has rows for, in C order (reachable_cells)
+
+    def full(self) -> np.ndarray:
+        """The numerators of every cell (V, ...), zero where photons cannot reach (for tests and tools)."""
+        out = np.zeros((len(self.reachable), *self.matrices.shape[1:]), dtype=self.matrices.dtype)
+        out[self.reachable] = self.matrices
+        return out
 
 
 def check_settings(grid: int, out_lmax: int, paths: int) -> None:
@@ -346,12 +388,14 @@ def precompute_raw(scene: Scene, basis: LightingBasis, *, grid: int | None = Non
     check_settings(DEFAULT_GRID if grid is None else grid, out_lmax, paths)
     m = scene.medium()
     if grid is None:
-        grid = auto_grid(m.bsize, basis.size * len(PARTS) * sh_count(out_lmax) * 4)
+        grid = auto_grid(reachable_counter(m), basis.size * len(PARTS) * sh_count(out_lmax) * 4)
     from photon_fields.runtime.threads import max_threads
 
     shape = grid_shape(m.bsize, grid)
-    n_cells = int(np.prod(shape))
-    acc = np.zeros((n_cells, basis.size, len(PARTS), sh_count(out_lmax)), dtype=np.float32)
+    reachable = reachable_cells(m, shape[0], shape[1], shape[2], KERNEL_C)
+    row = np.full(len(reachable), -1, dtype=np.int64)
+    row[reachable] = np.arange(int(np.count_nonzero(reachable)))
+    acc = np.zeros((int(np.count_nonzero(reachable)), basis.size, len(PARTS), sh_count(out_lmax)), dtype=np.float32)
     if basis.dsf is not None:
         dirs, h, neighbours, light_lmax = basis.dsf.dirs, basis.dsf.h, basis.dsf.neighbours, 0
     else:
@@ -362,7 +406,7 @@ def precompute_raw(scene: Scene, basis: LightingBasis, *, grid: int | None = Non
         for start in range(0, basis.size, group):
             ks = np.arange(start, min(start + group, basis.size), dtype=np.int64)
             _trace_group(m, ks, basis.dsf is not None, dirs, h, neighbours, light_lmax, out_lmax, int(paths),
-                         int(seed), float(scene.g), MAX_BOUNCES, shape[0], shape[1], shape[2], KERNEL_C, acc,
+                         int(seed), float(scene.g), MAX_BOUNCES, shape[0], shape[1], shape[2], KERNEL_C, acc, row,
                          NO_ENV_MAP)
             bar.update(len(ks))
             if on_progress is not None:
@@ -373,4 +417,4 @@ def precompute_raw(scene: Scene, basis: LightingBasis, *, grid: int | None = Non
     q = -(-MASS_POINTS // sub)
     q += (sub * q) % 2 if sub < MASS_POINTS else 0
     mass = _extinction_mass(m, shape[0], shape[1], shape[2], KERNEL_C, sub, q)
-    return RawTransfer(acc, mass.astype(np.float32), shape, out_lmax, time.perf_counter() - t0)
+    return RawTransfer(acc, mass.astype(np.float32), shape, out_lmax, time.perf_counter() - t0, reachable)

@@ -129,20 +129,25 @@ def precompute_transfer(scene: Scene, *, basis: str = "dsf", order: int | None =
     transfer fits that budget at a useful grid (:func:`photon_fields.runtime.pvrt.precompute.auto_dsf_order`); all
     recorded in the manifest."""
     from photon_fields.runtime.pvrt.constants import DEFAULT_SH_ORDER, EXITANCE_TOLERANCE
-    from photon_fields.runtime.pvrt.precompute import auto_dsf_order
+    from photon_fields.runtime.pvrt.precompute import auto_dsf_order, reachable_counter
     from photon_fields.runtime.pvrt.sh import auto_exitance_order
 
     if exitance_order is None:
         exitance_order = auto_exitance_order(scene.g, EXITANCE_TOLERANCE)
     if order is None:
-        order = auto_dsf_order(scene.medium().bsize, exitance_order, grid) if basis == "dsf" else DEFAULT_SH_ORDER
+        order = (auto_dsf_order(reachable_counter(scene.medium()), exitance_order, grid) if basis == "dsf"
+                 else DEFAULT_SH_ORDER)
     kind, order = check_basis(basis, order)
     lighting_basis = make_basis(kind, order)
     raw = precompute_raw(scene, lighting_basis, grid=grid, out_lmax=exitance_order, paths=paths, seed=seed,
                          progress=progress, on_progress=on_progress)
     t0 = time.perf_counter()
     groups = np.broadcast_to(np.arange(len(PVRT_PARTS))[None, :, None], raw.matrices.shape[1:])
-    c = compress(raw.matrices, clusters, bases, seed=seed, groups=groups)
+    c = compress(raw.matrices, clusters, bases, seed=seed, groups=groups)  # the reachable cells' rows
+    cluster = np.full(len(raw.reachable), -1, dtype=np.int32)
+    cluster[raw.reachable] = c.cluster
+    weights = np.zeros((len(raw.reachable), c.weights.shape[1]), dtype=np.float32)
+    weights[raw.reachable] = c.weights
     cpca_s = time.perf_counter() - t0
     del raw.matrices
     parts = scene.fingerprint_parts()
@@ -156,7 +161,7 @@ def precompute_transfer(scene: Scene, *, basis: str = "dsf", order: int | None =
                          "relative_error": float(c.relative_error)},
                 "photons": {"paths_per_basis": int(paths), "seed": int(seed), "max_bounces": MAX_BOUNCES,
                             "kernel_c": KERNEL_C}}
-    return Transfer(c.cluster, raw.mass, c.weights, c.mean, c.basis, manifest,
+    return Transfer(cluster, raw.mass, weights, c.mean, c.basis, manifest,
                     seconds={"trace": float(raw.seconds), "cpca": float(cpca_s)})
 
 

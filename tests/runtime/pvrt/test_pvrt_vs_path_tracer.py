@@ -19,6 +19,7 @@ Tolerances come from measurement (this scene, 24x24 pixels, path tracer at 64 sp
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -131,47 +132,65 @@ def test_the_default_grid_is_the_finest_that_fits_the_memory_budget(bytes_per_ce
     from photon_fields.runtime.pvrt.precompute import auto_grid, grid_shape
 
     box = np.array([1.0, 1.25, 0.8])
-    grid = auto_grid(box, bytes_per_cell)
 
-    def size(n: int) -> int:
-        return int(np.prod(grid_shape(box, n))) * bytes_per_cell
+    def cells(n: int) -> int:
+        return int(np.prod(grid_shape(box, n)))
 
+    grid = auto_grid(cells, bytes_per_cell)
     assert GRID_RANGE[0] <= grid <= DEFAULT_GRID
     if grid > GRID_RANGE[0]:
-        assert size(grid) <= TRANSFER_BUDGET_BYTES
+        assert cells(grid) * bytes_per_cell <= TRANSFER_BUDGET_BYTES
     if grid < DEFAULT_GRID:
-        assert size(grid + 1) > TRANSFER_BUDGET_BYTES
+        assert cells(grid + 1) * bytes_per_cell > TRANSFER_BUDGET_BYTES
 
 
-@pytest.mark.parametrize(("lmax", "order"), [(0, 2), (1, 2), (2, 1)])
-def test_the_default_dsf_order_is_the_finest_that_fits_at_a_useful_grid(lmax: int, order: int) -> None:
-    """An isotropic medium (l_max 0) takes DSF order 2 at the full default grid; l_max 2 would leave order 2 fewer
-    than MIN_AUTO_GRID cells a side within the budget, so it takes order 1 and a finer grid."""
+@pytest.mark.parametrize(("lmax", "fraction", "order"), [(0, 1.0, 2), (1, 1.0, 2), (2, 1.0, 1), (2, 0.3, 2)])
+def test_the_default_dsf_order_is_the_finest_that_fits_at_a_useful_grid(lmax: int, fraction: float,
+                                                                        order: int) -> None:
+    """An isotropic medium (l_max 0) takes DSF order 2; at l_max 2 order 2 fits at MIN_AUTO_GRID cells a side only
+    where photons reach a fraction of the grid (a head in air: ~30 %), else order 1 and a finer grid."""
     from photon_fields.runtime.pvrt.constants import MIN_AUTO_GRID, PARTS
     from photon_fields.runtime.pvrt.precompute import auto_dsf_order, auto_grid, dsf_size
     from photon_fields.runtime.pvrt.sh import sh_count
 
-    box = np.ones(3)
-    assert auto_dsf_order(box, lmax) == order
+    def cells(n: int) -> int:
+        return int(fraction * n**3)
+
+    assert auto_dsf_order(cells, lmax) == order
     per_cell = len(PARTS) * sh_count(lmax) * 4
-    assert auto_grid(box, dsf_size(order) * per_cell) >= MIN_AUTO_GRID
-    assert order == 2 or auto_grid(box, dsf_size(order + 1) * per_cell) < MIN_AUTO_GRID
+    assert auto_grid(cells, dsf_size(order) * per_cell) >= MIN_AUTO_GRID
+    assert order == 2 or auto_grid(cells, dsf_size(order + 1) * per_cell) < MIN_AUTO_GRID
 
 
-def test_the_radiance_volume_weighs_cells_by_their_share_of_medium_saturating(transfer: Transfer) -> None:
-    """s_v = D_v / (D_v + MASS_KNEE median D_v): 0 without medium, D_v-proportional where a cell holds little
-    (CPCA's error in a thin cell's numerator must not become radiance), near 1 where it holds much (a dense
-    medium's dark inside must not outweigh its lit skin); the radiance volume's last channel is s_v."""
-    from photon_fields.runtime.pvrt.lighting import scene_lighting
-    from photon_fields.runtime.pvrt.radiance import MASS_KNEE, interpolation_weights, radiance_volume
-    from photon_fields.runtime.scene.lights import DirectionalLight
+def test_the_transfer_keeps_rows_for_exactly_the_cells_photons_can_reach(folder: Path) -> None:
+    """reachable_cells covers every cell a photon splats into (the kernel around any point of an occupied
+    macrocell: brute force over the cell centres), and none much farther from every occupied macrocell."""
+    from photon_fields.runtime.pvrt.basis import make_basis
+    from photon_fields.runtime.pvrt.constants import KERNEL_C
+    from photon_fields.runtime.pvrt.precompute import grid_shape, precompute_raw, reachable_cells
 
-    s = interpolation_weights(transfer).reshape(-1)
-    mass = transfer.mass.astype(np.float64)
-    d0 = MASS_KNEE * float(np.median(mass[mass > 0]))
-    np.testing.assert_allclose(s, np.where(mass > 0, mass / (mass + d0), 0.0), rtol=1e-6)
-    assert np.all(s[mass <= 0] == 0) and np.all(s < 1) and s.max() > 0.9
-    light = DirectionalLight(np.array([-1.0, -1.0, -0.5]), np.ones(3), 3.0)
-    rad = radiance_volume(transfer, scene_lighting((light,), transfer.basis), np.array([3.0, 2.0, 1.0]), 0.4)
-    np.testing.assert_array_equal(rad[..., 3].reshape(-1), s.astype(np.float32))
-
+    x = (np.arange(24) + 0.5) / 24
+    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
+    np.save(folder / "small.npy", np.maximum(0.0, 1.0 - ((X - 0.4) ** 2 + (Y - 0.5) ** 2 + (Z - 0.6) ** 2) / 0.04))
+    ball = scene_from_dict({"name": "small", "volume": {"path": "small.npy"},
+                            "transfer_function": {"preset": "grey_ramp", "density_scale": 20.0},
+                            "lights": [{"type": "directional", "direction": [-1, -1, -0.5], "power": 3}],
+                            "camera": {"eye": [1.2, 0.7, 1.5], "target": [0, 0, 0], "fov": 40, "width": 8,
+                                       "height": 8}}, base_dir=folder)
+    m = ball.medium()
+    raw = precompute_raw(ball, make_basis("dsf", 0), grid=12, paths=3000, progress=False)
+    assert raw.matrices.shape[0] == int(raw.reachable.sum()) < raw.reachable.size
+    # every cell with D_v > 0 (medium within the kernel's reach) has a row
+    assert np.all(raw.reachable[raw.mass > 0])
+    # brute force: cell centres within KERNEL_C cells (+ half a macrocell's diagonal) of an occupied macrocell
+    shape = grid_shape(m.bsize, 12)
+    occ = np.argwhere(m.majorant > 0)
+    centres = (np.stack(np.meshgrid(*[np.arange(n) for n in shape], indexing="ij"), -1).reshape(-1, 3) + 0.5) \
+        / np.array(shape)
+    mc = (occ + 0.5) / np.array(m.majorant.shape)
+    gap = np.abs(centres[:, None, :] - mc[None, :, :]) - 0.5 / np.array(m.majorant.shape)
+    dist_cells = np.linalg.norm(np.maximum(gap, 0) * np.array(shape), axis=-1).min(axis=1)
+    assert np.all(raw.reachable[dist_cells < KERNEL_C])
+    assert not np.any(raw.reachable[dist_cells > KERNEL_C * math.sqrt(3) + 1e-9])
+    full = reachable_cells(m, *shape, 1e9)  # every cell
+    assert full.all()
