@@ -197,3 +197,21 @@ def test_a_maps_sun_is_lit_by_nee_from_its_turned_direction_and_projected_withou
     # quadrature's error on the small disc in the plain projection, 0.24 % here; the split sun is exact)
     omega = basis.dsf.solid_angle[:, None]
     np.testing.assert_allclose((lit.coeffs * omega).sum(axis=0), (plain.coeffs * omega).sum(axis=0), rtol=1e-2)
+
+
+@pytest.mark.parametrize(("rows", "cols"), [(200, 6), (40, 300)])  # more rows than columns (scatter), fewer (SVD)
+def test_cpca_recovers_clusters_of_low_rank_matrices(rows: int, cols: int) -> None:
+    """Three well separated clusters, each its mean plus a rank-2 part: CPCA with 3 clusters x 2 bases
+    reconstructs them to float32 precision, with 1 basis it cannot (what is left is the second axis)."""
+    from photon_fields.runtime.pvrt.cpca import compress
+
+    rng = np.random.default_rng(3)
+    parts = []
+    for c in range(3):
+        mean = rng.normal(size=cols) + 20.0 * c
+        parts.append(mean + rng.normal(size=(rows, 2)) @ rng.normal(size=(2, cols)))
+    x = np.concatenate(parts).astype(np.float32)
+    exact = compress(x, 3, 2, seed=0)
+    assert exact.relative_error < 1e-5
+    np.testing.assert_allclose(exact.reconstruct(), x, atol=1e-3 * np.abs(x).max())
+    assert compress(x, 3, 1, seed=0).relative_error > 100 * exact.relative_error
