@@ -172,7 +172,7 @@ def cached_transfer(scene: Scene, settings: dict[str, Any], seed: int, cache: Pa
     # The defaults that fill what ``settings`` leaves out are part of the key: a transfer made under older defaults
     # (fewer basis lights, a coarser grid) is not what the same call gives now.
     defaults = {"order": c.DEFAULT_DSF_ORDER, "sh_order": c.DEFAULT_SH_ORDER, "grid": c.DEFAULT_GRID,
-                "budget": c.TRANSFER_BUDGET_BYTES, "paths": c.DEFAULT_PATHS_PER_BASIS,
+                "budget": c.TRANSFER_BUDGET_BYTES, "min_grid": c.MIN_AUTO_GRID, "paths": c.DEFAULT_PATHS_PER_BASIS,
                 "exitance_tolerance": c.EXITANCE_TOLERANCE, "clusters": c.DEFAULT_CLUSTERS,
                 "bases": c.DEFAULT_PCA_BASES}
     key = hashlib.sha256(json.dumps({"volume": parts["volume"], "transfer_function": parts["transfer_function"],

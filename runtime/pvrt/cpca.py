@@ -25,8 +25,8 @@ import numpy as np
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.pvrt.constants import KMEANS_ITERATIONS
 
-#: Rows per block of the reconstruction error's pass.
-_ERROR_ROWS = 4096
+#: Rows per block of the passes over a cluster's or the transfer's rows (bounded float64 temporaries).
+_ROW_BLOCK = 4096
 
 
 @dataclass
@@ -81,8 +81,8 @@ def _principal_axes(centred: np.ndarray, count: int) -> np.ndarray:
     if n <= d:
         return np.linalg.svd(centred.astype(np.float64), full_matrices=False)[2][:count]
     scatter = np.zeros((d, d))
-    for lo in range(0, n, _ERROR_ROWS):  # in blocks: no float64 copy of the rows
-        block = centred[lo:lo + _ERROR_ROWS].astype(np.float64)
+    for lo in range(0, n, _ROW_BLOCK):  # in blocks: no float64 copy of the rows
+        block = centred[lo:lo + _ROW_BLOCK].astype(np.float64)
         scatter += block.T @ block
     _, vectors = np.linalg.eigh(scatter)
     return vectors[:, ::-1][:, :count].T
@@ -138,8 +138,8 @@ def compress(matrices: np.ndarray, clusters: int, bases: int, seed: int = 0,
     weights[occupied] = w.astype(np.float32)
     out = CPCA(cluster, weights, (mean * scale).astype(np.float32), (basis * scale).astype(np.float32), 0.0)
     err2 = total2 = 0.0
-    for lo in range(0, len(occupied), _ERROR_ROWS):  # the error a block of rows at a time (bounded memory)
-        rows = occupied[lo:lo + _ERROR_ROWS]
+    for lo in range(0, len(occupied), _ROW_BLOCK):  # the error a block of rows at a time (bounded memory)
+        rows = occupied[lo:lo + _ROW_BLOCK]
         c = cluster[rows]
         approx = out.mean[c] + np.einsum("vn,vnd->vd", weights[rows], out.basis[c])
         err2 += float(np.sum(np.square(approx - x32[rows], dtype=np.float64)))

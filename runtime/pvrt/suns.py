@@ -33,15 +33,17 @@ _CACHE_SIZE = 8
 _cache: OrderedDict[tuple[str, float], tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]] = OrderedDict()
 
 
-def pixel_directions(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
-    """Unit directions (h, w, 3) of the pixel centres in the map's own frame (``environment_map``'s convention) and
-    the pixels' solid angles (h, w)."""
-    theta = np.pi * (np.arange(h) + 0.5) / h
-    phi = 2 * np.pi * (np.arange(w) + 0.5) / w
-    tt, pp = np.meshgrid(theta, phi, indexing="ij")
-    dirs = np.stack([np.sin(tt) * np.sin(pp), np.cos(tt), -np.sin(tt) * np.cos(pp)], axis=-1)
-    rows = (2 * np.pi / w) * (np.cos(np.pi * np.arange(h) / h) - np.cos(np.pi * (np.arange(h) + 1) / h))
-    return dirs, np.broadcast_to(rows[:, None], (h, w))
+def pixel_directions(h: int, w: int, flat: np.ndarray) -> np.ndarray:
+    """Unit directions (n, 3) of the centres of the pixels ``flat`` (flat indices into an h x w map) in the map's
+    own frame (``environment_map``'s convention)."""
+    i, j = np.divmod(np.asarray(flat, dtype=np.int64), w)
+    theta, phi = np.pi * (i + 0.5) / h, 2 * np.pi * (j + 0.5) / w
+    return np.stack([np.sin(theta) * np.sin(phi), np.cos(theta), -np.sin(theta) * np.cos(phi)], axis=-1)
+
+
+def row_solid_angles(h: int, w: int) -> np.ndarray:
+    """The solid angle (h,) of one pixel in each row of an h x w lat-long map."""
+    return (2 * np.pi / w) * (np.cos(np.pi * np.arange(h) / h) - np.cos(np.pi * (np.arange(h) + 1) / h))
 
 
 def _groups(mask: np.ndarray) -> list[np.ndarray]:
@@ -71,21 +73,21 @@ def split_suns(radiance: np.ndarray, resolution: float) -> tuple[list[tuple[np.n
     (H, W, 3)) of ``radiance`` (module docstring); ``resolution``: the basis' angular resolution in radians."""
     radiance = np.asarray(radiance, dtype=np.float64)
     h, w = radiance.shape[:2]
-    dirs, omega = pixel_directions(h, w)
+    omega = row_solid_angles(h, w)
     lum = radiance @ LUMINANCE
-    mean = float(np.sum(lum * omega)) / (4 * math.pi)
+    mean = float(np.sum(lum.sum(axis=1) * omega)) / (4 * math.pi)
     if not mean > 0:
         return [], radiance
     suns, rest = [], radiance
     cos_res = math.cos(resolution)
     for members in _groups(lum > SUN_RATIO * mean):
-        px = dirs.reshape(-1, 3)[members]
-        power = (lum * omega).reshape(-1)[members]
-        centre = power @ px
+        px = pixel_directions(h, w, members)
+        pixel_omega = omega[members // w]
+        centre = (lum.reshape(-1)[members] * pixel_omega) @ px
         centre /= np.linalg.norm(centre)
         if float(np.min(px @ centre)) < cos_res:
             continue  # wider than the basis resolves: it stays in the map
-        irradiance = (radiance.reshape(-1, 3)[members] * omega.reshape(-1)[members, None]).sum(axis=0)
+        irradiance = (radiance.reshape(-1, 3)[members] * pixel_omega[:, None]).sum(axis=0)
         suns.append((centre, irradiance))
         if rest is radiance:
             rest = radiance.copy()

@@ -149,11 +149,11 @@ def test_a_sun_the_basis_cannot_resolve_becomes_a_directional_light_and_the_maps
     """split_suns: a small bright disc is one sun at the disc's direction with the disc's irradiance, the rest of
     the map keeps everything else (sun + rest = the map's power, per channel); a bright region wider than the
     basis resolves, or no region bright enough, stays in the map."""
-    from photon_fields.runtime.pvrt.suns import pixel_directions, split_suns
+    from photon_fields.runtime.pvrt.suns import row_solid_angles, split_suns
 
     h = 64
     img = _sky_with_sun(h, 0.3, 0.6, 2.0)
-    dirs, omega = pixel_directions(h, 2 * h)
+    omega = np.broadcast_to(row_solid_angles(h, 2 * h)[:, None], (h, 2 * h))
     assert omega.sum() == pytest.approx(4 * math.pi, rel=1e-12)
     resolution = make_basis("dsf", 2).resolution
     suns, rest = split_suns(img, resolution)
