@@ -194,3 +194,21 @@ def test_the_transfer_keeps_rows_for_exactly_the_cells_photons_can_reach(folder:
     assert not np.any(raw.reachable[dist_cells > KERNEL_C * math.sqrt(3) + 1e-9])
     full = reachable_cells(m, *shape, 1e9)  # every cell
     assert full.all()
+
+
+def test_the_radiance_volume_weighs_cells_by_their_share_of_medium_saturating(transfer: Transfer) -> None:
+    """s_v = D_v / (D_v + MASS_KNEE median D_v): 0 without medium, D_v-proportional where a cell holds little
+    (CPCA's error in a thin cell's numerator must not become radiance), near 1 where it holds much (a dense
+    medium's dark inside must not outweigh its lit skin); the radiance volume's last channel is s_v."""
+    from photon_fields.runtime.pvrt.lighting import scene_lighting
+    from photon_fields.runtime.pvrt.radiance import MASS_KNEE, interpolation_weights, radiance_volume
+    from photon_fields.runtime.scene.lights import DirectionalLight
+
+    s = interpolation_weights(transfer).reshape(-1)
+    mass = transfer.mass.astype(np.float64)
+    d0 = MASS_KNEE * float(np.median(mass[mass > 0]))
+    np.testing.assert_allclose(s, np.where(mass > 0, mass / (mass + d0), 0.0), rtol=1e-6)
+    assert np.all(s[mass <= 0] == 0) and np.all(s < 1) and s.max() > 0.9
+    light = DirectionalLight(np.array([-1.0, -1.0, -0.5]), np.ones(3), 3.0)
+    rad = radiance_volume(transfer, scene_lighting((light,), transfer.basis), np.array([3.0, 2.0, 1.0]), 0.4)
+    np.testing.assert_array_equal(rad[..., 3].reshape(-1), s.astype(np.float32))
