@@ -174,7 +174,7 @@ def cached_transfer(scene: Scene, settings: dict[str, Any], seed: int, cache: Pa
     defaults = {"order": c.DEFAULT_DSF_ORDER, "sh_order": c.DEFAULT_SH_ORDER, "grid": c.DEFAULT_GRID,
                 "budget": c.TRANSFER_BUDGET_BYTES, "min_grid": c.MIN_AUTO_GRID, "paths": c.DEFAULT_PATHS_PER_BASIS,
                 "exitance_tolerance": c.EXITANCE_TOLERANCE, "clusters": c.DEFAULT_CLUSTERS,
-                "bases": c.DEFAULT_PCA_BASES}
+                "bases": c.DEFAULT_PCA_BASES, "kernel": c.KERNEL_C, "dense_tau": c.KERNEL_DENSE_TAU}
     key = hashlib.sha256(json.dumps({"volume": parts["volume"], "transfer_function": parts["transfer_function"],
                                      "g": float(scene.g), "kind": "pvrt", "seed": int(seed), "settings": settings,
                                      "defaults": defaults}, sort_keys=True).encode()).hexdigest()[:24]

@@ -48,6 +48,12 @@ MAX_BOUNCES = 16  # the path tracer's max_depth: paths of up to 16 scattering ve
 #: grid is already coarser than the volume (2 voxels a cell at 96^3), so c = 1.5 cells is about the paper's
 #: smoothing, at ~14 cells a photon.
 KERNEL_C = 1.5
+#: Where sigma_t times a cell's edge passes this, the splatting radius shrinks as KERNEL_C sqrt(tau / (sigma_t cell))
+#: down to 1 cell (``precompute.splat_radius``): head's skull (~4 optical depths a cell) splats within ~1 cell, the
+#: vortex's wisps and blobs (~1-1.4) at 1.5. A fixed 1.0 helped head (rel. L2 of L at 90 / 225 degrees 0.209 / 0.163
+#: -> 0.189 / 0.151) and hurt blobs (0.137 / 0.134 at 45 / 135 -> 0.145 / 0.142); this rule gives head 0.190 / 0.148
+#: and leaves blobs and the vortex as they were (bench/README.md, PVRT).
+KERNEL_DENSE_TAU = 2.0
 #: Quadrature points per voxel along each axis for the transfer's denominators D_v (runtime/pvrt/precompute.py).
 #: sigma_t is the transfer function of the trilinear scalar, so a steep ramp concentrates it near the voxel centres,
 #: and a midpoint rule of a few points per voxel aliases with them, the sign alternating with the parity: D_v, which

@@ -70,6 +70,7 @@ from photon_fields.runtime.pvrt.constants import (
     EXITANCE_TOLERANCE,
     GRID_RANGE,
     KERNEL_C,
+    KERNEL_DENSE_TAU,
     MASS_POINTS,
     MAX_BOUNCES,
     MIN_AUTO_GRID,
@@ -160,6 +161,17 @@ def grid_shape(bsize: np.ndarray, grid: int) -> tuple[int, int, int]:
     return tuple(max(2, int(round(grid * float(s) / longest))) for s in bsize)  # type: ignore[return-value]
 
 
+@njit(cache=True, inline="always")
+def splat_radius(hc: float, sigma_cell: float, tau: float) -> float:
+    """The splatting radius (cells) at a point where sigma_t times a cell's edge is ``sigma_cell``: ``hc``, shrunk
+    as hc sqrt(tau / sigma_cell) down to 1 cell where the medium is denser than ``tau`` optical depths a cell
+    (``KERNEL_DENSE_TAU``; tau <= 0: always ``hc``). Dense media have both the steepest radiance (it falls over a
+    mean free path from a lit skin) and the most photons; thin ones need the wider kernel against photon noise."""
+    if tau <= 0.0:
+        return hc
+    return min(hc, max(1.0, hc * math.sqrt(tau / max(sigma_cell, 1e-12))))
+
+
 @njit(cache=True)
 def _splat(acc: np.ndarray, row: np.ndarray, k: int, part0: int, nparts: int, vals: np.ndarray, y: np.ndarray,
            n_out: int, gx: int, gy: int, gz: int, ux: float, uy: float, uz: float, hc: float, cells: np.ndarray,
@@ -196,7 +208,8 @@ def _splat(acc: np.ndarray, row: np.ndarray, k: int, part0: int, nparts: int, va
 @njit(cache=True)
 def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: float, neighbours: np.ndarray,
                        light_lmax: int, out_lmax: int, paths: int, seed: int, g: float, max_bounces: int,
-                       gx: int, gy: int, gz: int, hc: float, acc: np.ndarray, row: np.ndarray, env: EnvMap) -> None:
+                       gx: int, gy: int, gz: int, hc: float, acc: np.ndarray, row: np.ndarray, env: EnvMap,
+                       tau: float) -> None:
     """All photon paths of basis light ``k`` (module docstring), splatted into ``acc[:, k]`` (the rows ``row``
     gives the cells). ``env`` is the
     emitters' environment-map argument, unused by the directional photons traced here (``NO_ENV_MAP``)."""
@@ -250,27 +263,29 @@ def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: flo
                              hit_pow, hit_coll, hit_scalar)  # no floor: the records are the collisions
         for bounce in range(n):
             px, py, pz = hit_pos[bounce, 0], hit_pos[bounce, 1], hit_pos[bounce, 2]
-            if extinction_at(m, px, py, pz) > 0.0:
+            sig = extinction_at(m, px, py, pz)
+            if sig > 0.0:
+                hp = splat_radius(hc, sig * m.bsize[0] / gx, tau)
                 sh_eval(out_lmax, hit_dir[bounce, 0], hit_dir[bounce, 1], hit_dir[bounce, 2], y)
                 ux = (px - m.bmin[0]) / m.bsize[0] * gx - 0.5
                 uy = (py - m.bmin[1]) / m.bsize[1] * gy - 0.5
                 uz = (pz - m.bmin[2]) / m.bsize[2] * gz - 0.5
                 if bounce == 0:
                     vals[0] = power
-                    _splat(acc, row, k, 0, 1, vals, y, n_out, gx, gy, gz, ux, uy, uz, hc, cells, kw)
+                    _splat(acc, row, k, 0, 1, vals, y, n_out, gx, gy, gz, ux, uy, uz, hp, cells, kw)
                 else:
                     for ch in range(3):
                         vals[ch] = power * hit_pow[bounce, ch]
-                    _splat(acc, row, k, 1, 3, vals, y, n_out, gx, gy, gz, ux, uy, uz, hc, cells, kw)
+                    _splat(acc, row, k, 1, 3, vals, y, n_out, gx, gy, gz, ux, uy, uz, hp, cells, kw)
 
 
 @njit(cache=True, parallel=True)
 def _trace_group(m: Medium, ks: np.ndarray, is_dsf: bool, dirs: np.ndarray, h: float, neighbours: np.ndarray,
                  light_lmax: int, out_lmax: int, paths: int, seed: int, g: float, max_bounces: int, gx: int,
-                 gy: int, gz: int, hc: float, acc: np.ndarray, row: np.ndarray, env: EnvMap) -> None:
+                 gy: int, gz: int, hc: float, acc: np.ndarray, row: np.ndarray, env: EnvMap, tau: float) -> None:
     for i in prange(ks.shape[0]):
         _trace_basis_light(m, ks[i], is_dsf, dirs, h, neighbours, light_lmax, out_lmax, paths, seed, g,
-                           max_bounces, gx, gy, gz, hc, acc, row, env)
+                           max_bounces, gx, gy, gz, hc, acc, row, env, tau)
 
 
 @njit(cache=True, inline="always")
@@ -293,10 +308,11 @@ def _empty_block(m: Medium, x0: float, y0: float, z0: float, x1: float, y1: floa
 
 
 @njit(cache=True, parallel=True)
-def _extinction_mass(m: Medium, gx: int, gy: int, gz: int, hc: float, sub: int, q: int) -> np.ndarray:
+def _extinction_mass(m: Medium, gx: int, gy: int, gz: int, hc: float, sub: int, q: int, tau: float) -> np.ndarray:
     """D_v = integral of K_v(x) sigma_t(x) dx (the denominator of the ratio estimate). The volume's voxels are cut
     into ``sub``^3 blocks (fine enough that the kernel, a few cells wide, is resolved); sigma_t is integrated over
-    each block by the midpoint rule on ``q``^3 points and splatted once, at the block's sigma_t-weighted centroid.
+    each block by the midpoint rule on ``q``^3 points and splatted once, at the block's sigma_t-weighted centroid
+    with the radius its mean sigma_t gives (:func:`splat_radius`, as each photon's at its collision).
     The points must be dense: sigma_t is the transfer function of the interpolated scalar, which a steep ramp
     concentrates near the voxel centres, and a few points per voxel alias with them (:data:`MASS_POINTS`).
     Blocks in empty macrocells are skipped (sigma_t is 0 there). Each x-slab of blocks splats into its own row,
@@ -337,7 +353,7 @@ def _extinction_mass(m: Medium, gx: int, gy: int, gz: int, hc: float, sub: int, 
                     vals[0] = s * dv
                     _splat(acc, every, 0, 0, 1, vals, one, 1, gx, gy, gz, (sxw / s - m.bmin[0]) / m.bsize[0] * gx - 0.5,
                            (syw / s - m.bmin[1]) / m.bsize[1] * gy - 0.5, (szw / s - m.bmin[2]) / m.bsize[2] * gz - 0.5,
-                           hc, cells, kw)
+                           splat_radius(hc, s / (q * q * q) * m.bsize[0] / gx, tau), cells, kw)
         rows[i] = acc[:, 0, 0, 0]
     return rows.sum(axis=0)
 
@@ -407,7 +423,7 @@ def precompute_raw(scene: Scene, basis: LightingBasis, *, grid: int | None = Non
             ks = np.arange(start, min(start + group, basis.size), dtype=np.int64)
             _trace_group(m, ks, basis.dsf is not None, dirs, h, neighbours, light_lmax, out_lmax, int(paths),
                          int(seed), float(scene.g), MAX_BOUNCES, shape[0], shape[1], shape[2], KERNEL_C, acc, row,
-                         NO_ENV_MAP)
+                         NO_ENV_MAP, KERNEL_DENSE_TAU)
             bar.update(len(ks))
             if on_progress is not None:
                 on_progress(int(ks[-1]) + 1, basis.size)
@@ -416,5 +432,5 @@ def precompute_raw(scene: Scene, basis: LightingBasis, *, grid: int | None = Non
     sub = max(1, int(math.ceil(3.0 * max(g / n for g, n in zip(shape, m.density.shape, strict=True)))))
     q = -(-MASS_POINTS // sub)
     q += (sub * q) % 2 if sub < MASS_POINTS else 0
-    mass = _extinction_mass(m, shape[0], shape[1], shape[2], KERNEL_C, sub, q)
+    mass = _extinction_mass(m, shape[0], shape[1], shape[2], KERNEL_C, sub, q, KERNEL_DENSE_TAU)
     return RawTransfer(acc, mass.astype(np.float32), shape, out_lmax, time.perf_counter() - t0, reachable)

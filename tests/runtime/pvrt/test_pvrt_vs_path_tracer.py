@@ -212,3 +212,18 @@ def test_the_radiance_volume_weighs_cells_by_their_share_of_medium_saturating(tr
     light = DirectionalLight(np.array([-1.0, -1.0, -0.5]), np.ones(3), 3.0)
     rad = radiance_volume(transfer, scene_lighting((light,), transfer.basis), np.array([3.0, 2.0, 1.0]), 0.4)
     np.testing.assert_array_equal(rad[..., 3].reshape(-1), s.astype(np.float32))
+
+
+def test_the_splatting_radius_shrinks_in_dense_media_only() -> None:
+    """splat_radius: KERNEL_C wherever sigma_t times a cell is at most KERNEL_DENSE_TAU, KERNEL_C sqrt(tau /
+    (sigma_t cell)) beyond, never below one cell; tau <= 0 keeps KERNEL_C everywhere."""
+    from photon_fields.runtime.pvrt.constants import KERNEL_C, KERNEL_DENSE_TAU
+    from photon_fields.runtime.pvrt.precompute import splat_radius
+
+    tau = KERNEL_DENSE_TAU
+    for sigma_cell in (0.0, 0.5 * tau, tau):
+        assert splat_radius(KERNEL_C, sigma_cell, tau) == KERNEL_C
+    denser = 1.5 * tau
+    assert splat_radius(KERNEL_C, denser, tau) == pytest.approx(max(1.0, KERNEL_C * math.sqrt(tau / denser)))
+    assert splat_radius(KERNEL_C, 1e6, tau) == 1.0
+    assert splat_radius(KERNEL_C, 1e6, 0.0) == KERNEL_C
