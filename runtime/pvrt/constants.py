@@ -63,9 +63,11 @@ KERNEL_DENSE_TAU = 2.0
 MASS_POINTS = 8
 #: CPCA (Sec. 6.4): clusters and PCA bases per cluster. The paper uses 128 clusters / 4 bases for 512^3 voxels. At
 #: order 2 and a 48^3 grid, 32 x 4 added 0.01-0.02 to the vortex's L_i error over the uncompressed transfer; 64 x 8
-#: none (and smooths some photon noise away at 2^18 paths; bench/README.md, PVRT).
+#: none (and smooths some photon noise away at 2^18 paths). The anisotropic scenes' longer matrices (l_max 2: 1512
+#: floats a cell at order 1) need more bases: 64 x 16 took head's rel. L2 of L at 90 degrees from 0.190 to 0.179 and
+#: blobs' at 135 from 0.136 to 0.125 (bench/README.md, PVRT).
 DEFAULT_CLUSTERS = 64
-DEFAULT_PCA_BASES = 8
+DEFAULT_PCA_BASES = 16
 KMEANS_ITERATIONS = 12
 #: Light volume of a directional light's direct term (NEE through the medium): cells along the longest side. On the
 #: 48^3 vortex 64 cells read L_d 4-8 % high (trilinear transmittance across thin lit wisps), 128 cells 1-3 %, for a
