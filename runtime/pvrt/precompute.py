@@ -116,7 +116,14 @@ def auto_dsf_order(cells_for: Callable[[int], int], out_lmax: int, grid: int | N
 def reachable_counter(m: Medium) -> Callable[[int], int]:
     """``cells_for(grid)``: how many cells of the transfer grid with ``grid`` cells along the box's longest side
     photons can splat into (:func:`reachable_cells`)."""
-    return lambda grid: int(np.count_nonzero(reachable_cells(m, *grid_shape(m.bsize, grid), KERNEL_C)))
+    counts: dict[int, int] = {}  # the order's and the grid's searches ask for the same grids
+
+    def cells_for(grid: int) -> int:
+        if grid not in counts:
+            counts[grid] = int(np.count_nonzero(reachable_cells(m, *grid_shape(m.bsize, grid), KERNEL_C)))
+        return counts[grid]
+
+    return cells_for
 
 
 @njit(cache=True)
@@ -211,7 +218,7 @@ def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: flo
                        gx: int, gy: int, gz: int, hc: float, acc: np.ndarray, row: np.ndarray, env: EnvMap,
                        tau: float) -> None:
     """All photon paths of basis light ``k`` (module docstring), splatted into ``acc[:, k]`` (the rows ``row``
-    gives the cells). ``env`` is the
+    gives the cells), each with the radius its collision's sigma_t gives (:func:`splat_radius`). ``env`` is the
     emitters' environment-map argument, unused by the directional photons traced here (``NO_ENV_MAP``)."""
     cx, cy, cz = m.bmin[0] + 0.5 * m.bsize[0], m.bmin[1] + 0.5 * m.bsize[1], m.bmin[2] + 0.5 * m.bsize[2]
     radius = 0.5 * math.sqrt(m.bsize[0] ** 2 + m.bsize[1] ** 2 + m.bsize[2] ** 2)
@@ -322,6 +329,7 @@ def _extinction_mass(m: Medium, gx: int, gy: int, gz: int, hc: float, sub: int, 
     bx, by, bz = m.bsize[0] / sx, m.bsize[1] / sy, m.bsize[2] / sz
     dv = bx * by * bz / (q * q * q)
     rows = np.zeros((sx, gx * gy * gz))
+    every = np.arange(gx * gy * gz)  # every cell its own row (D_v is kept for the whole grid)
     for i in prange(sx):
         r = int(math.ceil(hc))
         cells = np.empty((2 * r + 1) ** 3, dtype=np.int64)
@@ -329,7 +337,6 @@ def _extinction_mass(m: Medium, gx: int, gy: int, gz: int, hc: float, sub: int, 
         vals = np.empty(1)
         one = np.ones(1)
         acc = np.zeros((gx * gy * gz, 1, 1, 1), dtype=np.float32)
-        every = np.arange(gx * gy * gz)
         x0 = m.bmin[0] + i * bx
         for j in range(sy):
             y0 = m.bmin[1] + j * by
@@ -371,12 +378,6 @@ class RawTransfer:
     out_lmax: int
     seconds: float
     reachable: np.ndarray  # bool (V,): the cells ``matrices`` has rows for, in C order (reachable_cells)
-
-    def full(self) -> np.ndarray:
-        """The numerators of every cell (V, ...), zero where photons cannot reach (for tests and tools)."""
-        out = np.zeros((len(self.reachable), *self.matrices.shape[1:]), dtype=self.matrices.dtype)
-        out[self.reachable] = self.matrices
-        return out
 
 
 def check_settings(grid: int, out_lmax: int, paths: int) -> None:

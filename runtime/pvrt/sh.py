@@ -21,6 +21,8 @@ import math
 import numpy as np
 from numba import njit
 
+from photon_fields.runtime.pvrt.constants import EXITANCE_ORDERS
+
 
 def sh_count(lmax: int) -> int:
     """Number of coefficients up to band ``lmax``: (lmax + 1)^2."""
@@ -90,8 +92,6 @@ def auto_exitance_order(g: float, tolerance: float) -> int:
     the least l_max with |g|^(l_max + 1) <= tolerance (the HG factors :func:`hg_band_factors` fall as g^l), capped
     at the largest order the transfer takes. g = 0 gives 0: an isotropic phase function reads band 0 only, so the
     other bands would be stored, traced and compressed for nothing."""
-    from photon_fields.runtime.pvrt.constants import EXITANCE_ORDERS
-
     lo, hi = EXITANCE_ORDERS
     a = abs(float(g))
     for lmax in range(lo, hi):

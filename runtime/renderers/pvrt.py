@@ -70,7 +70,7 @@ _T_MIN = 1e-4  # as the ray marcher: stop once the camera ray is this opaque
 
 @njit(cache=True, inline="always")
 def _radiance_sums(rad: np.ndarray, grid: Grid, x: float, y: float, z: float) -> tuple[float, float, float, float]:
-    """The trilinear interpolations at x of the radiance volume's multiple-scattering photon energy (RGB) and of
+    """The trilinear interpolations at x of the radiance volume's multiple-scattering radiance times s_v (RGB) and of
     the cells' weights s_v (radiance.CHANNELS); the radiance is their quotient. A corner's 4 channels are
     16 adjacent bytes and all share the stencil's weight: summed in float32 (the volume's precision) as 4 scalars,
     which fit one vector register, not in an array the kernel would have to allocate or be handed."""
