@@ -8,7 +8,8 @@ For a vertex at ``p`` reached by a path travelling along ``d``, :func:`direct_li
 
 without the path throughput. The direction ``l``, ``Le / rgb`` and ``pdf_l`` of each light come from its
 kind's branch in :func:`photon_fields.runtime.transport.emitters.sample_light_direction`; this module has no
-per-kind code. Transmittance is estimated by ratio tracking. Delta lights (pdf inf: point and
+per-kind code. Transmittance is estimated by ratio tracking (at a boosted majorant, ``SHADOW_BOOST``: less noise
+for a few more lookups; :mod:`photon_fields.runtime.transport.tracking`). Delta lights (pdf inf: point and
 directional) can only be reached by NEE, so their weight is 1. The environment can also be reached by
 phase sampling; both strategies are combined with the power heuristic (Veach 1997):
 ``w_nee = pdf_l^2 / (pdf_l^2 + pdf_phase^2)``, and the phase-sampled escape gets the complement
@@ -43,7 +44,7 @@ from photon_fields.runtime.transport.environment_map import EnvMap
 from photon_fields.runtime.transport.medium import Medium, intersect_box
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
-from photon_fields.runtime.transport.tracking import SHADOW_SWITCH, TASK_ITEMS, ratio_track
+from photon_fields.runtime.transport.tracking import SHADOW_BOOST, SHADOW_SWITCH, TASK_ITEMS, ratio_track
 
 
 @njit(cache=True, inline="always")
@@ -87,20 +88,21 @@ def _light_term(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap,
 
 @njit(cache=True, inline="always")
 def _shadow(m: Medium, px: float, py: float, pz: float, lx: float, ly: float, lz: float, tend: float,
-            state: np.uint64) -> tuple[float, np.uint64]:
-    """Transmittance from p towards the light (direction l, ``tend`` away at most), by ratio tracking, its rest
-    below ``SHADOW_SWITCH`` by delta tracking (:mod:`photon_fields.runtime.transport.tracking`)."""
+            state: np.uint64, boost: float) -> tuple[float, np.uint64]:
+    """Transmittance from p towards the light (direction l, ``tend`` away at most), by ratio tracking at ``boost``
+    times the majorant, its rest below ``SHADOW_SWITCH`` by delta tracking
+    (:mod:`photon_fields.runtime.transport.tracking`)."""
     t0, t1 = intersect_box(m, px, py, pz, lx, ly, lz)
     tr = 1.0
     if t0 < t1:
-        tr, state = ratio_track(m, px, py, pz, lx, ly, lz, t0, min(t1, tend), state, SHADOW_SWITCH)
+        tr, state = ratio_track(m, px, py, pz, lx, ly, lz, t0, min(t1, tend), state, SHADOW_SWITCH, boost)
     return tr, state
 
 
 @njit(cache=True, inline="always")
 def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
                  py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
-                 env_mis: bool) -> tuple[float, float, float, np.uint64]:
+                 env_mis: bool, boost: float = 1.0) -> tuple[float, float, float, np.uint64]:
     """NEE with a shadow ray to every light (module docstring): radiance (r, g, b) and the stream's state."""
     r = 0.0
     gr = 0.0
@@ -110,7 +112,7 @@ def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                                                                 state, env_mis)
         if c <= 0.0:
             continue
-        tr, state = _shadow(m, px, py, pz, lx, ly, lz, tend, state)
+        tr, state = _shadow(m, px, py, pz, lx, ly, lz, tend, state, boost)
         ft = f * tr
         r += ft * lr
         gr += ft * lg
@@ -121,7 +123,7 @@ def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
 @njit(cache=True, inline="always")
 def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
                      py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
-                     env_mis: bool) -> tuple[float, float, float, np.uint64]:
+                     env_mis: bool, boost: float = 1.0) -> tuple[float, float, float, np.uint64]:
     """:func:`direct_light`'s estimate with one shadow ray: one light drawn by its unshadowed contribution (module
     docstring), for two lights or more (:func:`direct_light_batch` gives a single light to :func:`direct_light`,
     which draws nothing: the same numbers)."""
@@ -143,7 +145,7 @@ def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarr
                                                                 state, env_mis)
         acc += c
         if c > 0.0 and (target < acc or acc >= total):  # acc reaches total at the last light with c > 0
-            tr, state = _shadow(m, px, py, pz, lx, ly, lz, tend, state)
+            tr, state = _shadow(m, px, py, pz, lx, ly, lz, tend, state, boost)
             s = tr * total / c
             return (f * lr) * s, (f * lg) * s, (f * lb) * s, state
     return 0.0, 0.0, 0.0, state
@@ -157,10 +159,12 @@ def _items_of(nee: Any) -> Any:
 
     @njit(cache=True)
     def items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, o: np.ndarray,
-              d: np.ndarray, states: np.ndarray, env_mis: bool, out: np.ndarray, lo: int, hi: int) -> None:
+              d: np.ndarray, states: np.ndarray, env_mis: bool, boost: float, out: np.ndarray, lo: int,
+              hi: int) -> None:
         for i in range(lo, hi):
             out[0, i], out[1, i], out[2, i], states[i] = nee(
-                m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis)
+                m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis,
+                boost)
 
     return items
 
@@ -172,12 +176,14 @@ _one_light_items = _items_of(direct_light_one)
 @njit(cache=True, parallel=True)
 def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
                        o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool = True,
-                       one_light: bool = False) -> np.ndarray:
+                       one_light: bool = False, boost: float = SHADOW_BOOST) -> np.ndarray:
     """Stage: NEE at every vertex of a SoA batch; returns radiance (3, n) (times throughput later). ``env`` is
     the scene's environment map (``Scene.packed_environment_map()``, a placeholder when it has none).
     ``env_mis=False`` gives the environment's NEE full weight, for estimators that never reach the
     environment by phase sampling (the first-interaction renderers). ``one_light``: one shadow ray per vertex to a
-    light drawn by its unshadowed contribution (:func:`direct_light_one`) instead of one to every light."""
+    light drawn by its unshadowed contribution (:func:`direct_light_one`) instead of one to every light.
+    ``boost``: shadow rays' tentative collisions at this many times the majorant (default
+    :data:`photon_fields.runtime.transport.tracking.SHADOW_BOOST`, every renderer's; 1: plain ratio tracking)."""
     check_light_kinds(kind)
     n = o.shape[1]
     out = np.empty((3, n))
@@ -185,7 +191,7 @@ def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.nda
     for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
         lo, hi = task * TASK_ITEMS, min(n, (task + 1) * TASK_ITEMS)
         if one:
-            _one_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, out, lo, hi)
+            _one_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, lo, hi)
         else:
-            _every_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, out, lo, hi)
+            _every_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, lo, hi)
     return out

@@ -28,6 +28,13 @@
   flight with the track-length estimate: T_c if it escapes, 0 at a real collision; its mean is T_c times the rest's
   transmittance, so the estimate of T(tmax) stays unbiased.
 
+**A boosted majorant** (shadow rays, ``boost`` > 1): ratio tracking stays unbiased with any majorant at least
+sigma_t, and a larger one lowers its variance. With tentative collisions at rate c mu over a homogeneous stretch
+of extinction sigma and length L, the estimate prod (1 - sigma / (c mu)) over N ~ Poisson(c mu L) has mean
+exp(-sigma L) and second moment exp(-2 sigma L + sigma^2 L / (c mu)): its relative variance exp(tau^2 / (c mu L))
+- 1 falls as 1 / c while the lookups grow as c. Below the switch the rest's flight uses the plain majorant (a
+flight's distribution does not depend on it; the rate may change at any point of a Poisson process).
+
 All walk the majorant grid of :mod:`runtime.transport.medium` with a 3D DDA (Amanatides & Woo 1987) and use the
 macrocell's local majorant; from an empty macrocell they leap over the cube of empty macrocells ahead of it
 (``Medium.leap``), so empty space costs a few steps per ray. Tentative collisions are a Poisson process whose rate
@@ -65,6 +72,11 @@ RR_THRESHOLD = 0.05
 #: delta-tracking flight (module docstring): 0.3 made NEE 5-9 % cheaper at 512x512 on the embedded scenes for
 #: 0.1-0.8 % more noise in L_d (bench/README.md); 0.5 saved 10-13 % for 0.2-2.9 % more.
 SHADOW_SWITCH = 0.3
+#: NEE's shadow rays (every renderer's) draw their tentative collisions at this many times the majorant until
+#: ``SHADOW_SWITCH`` (module docstring, "a boosted majorant"). At 256x256, 1 spp, 2 made the neural frame's
+#: error-squared times time 1.12x better on vortex, 1.27x on shell, 1.05x on blobs, level on head, and the path
+#: tracer's 1.05x / 1.14x on vortex / shell; 4 cost more than it saved on the dense scenes (bench/README.md).
+SHADOW_BOOST = 2.0
 #: The camera walk's transmittance estimate below which it finishes the ray by delta tracking (module docstring,
 #: "the rest of an opaque ray"): 0.3 made the 512x512 first interactions 4-11 % cheaper on the embedded scenes
 #: (alternated A/B) with the 1-spp frames' noise within 0.5 % (bench/README.md); 0.6 added 2-4 % noise on blobs
@@ -192,16 +204,18 @@ def empty_run_in(m: Medium, ix: int, iy: int, iz: int, x: float, y: float, z: fl
 
 @njit(cache=True, inline="always")
 def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmin: float,
-           tmax: float, state: np.uint64, mode: int, floor: float = 0.0,
-           switch: float = 0.0) -> tuple[float, float, float, np.uint64]:
+           tmax: float, state: np.uint64, mode: int, floor: float = 0.0, switch: float = 0.0,
+           boost: float = 1.0) -> tuple[float, float, float, np.uint64]:
     """Shared walk, returning (t, W, T, state).
 
     ``switch`` (modes _RESAMPLE and _RATIO): below this transmittance estimate, the rest of the ray by delta
-    tracking (module docstring). mode _DELTA: t = the real-collision distance (inf on escape). mode _RECORD: delta
-    tracking that also stops at a null collision where sigma_t > 0 if its acceptance draw u is below ``floor``
-    (:func:`record_track`); W = 1 at a real collision, 0 at such a null one. mode _RATIO: T = the transmittance
-    estimate over [tmin, tmax]. mode _RESAMPLE: the ratio-tracking walk that also keeps one tentative collision t
-    (inf if none scored) with W = sum of the scores (module docstring) and T its transmittance estimate.
+    tracking (module docstring). ``boost`` (mode _RATIO): tentative collisions at ``boost`` times the majorant
+    until the switch (module docstring, "a boosted majorant"). mode _DELTA: t = the real-collision distance (inf
+    on escape). mode _RECORD: delta tracking that also stops at a null collision where sigma_t > 0 if its
+    acceptance draw u is below ``floor`` (:func:`record_track`); W = 1 at a real collision, 0 at such a null one.
+    mode _RATIO: T = the transmittance estimate over [tmin, tmax]. mode _RESAMPLE: the ratio-tracking walk that
+    also keeps one tentative collision t (inf if none scored) with W = sum of the scores (module docstring) and T
+    its transmittance estimate.
 
     The walk: a 3D DDA over the majorant grid; in a macrocell with majorant > 0 the optical depth to the next
     tentative collision is spent (module docstring); from an empty macrocell it leaps over the cube of empty macrocells
@@ -269,6 +283,8 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
             continue
         t_end = min(nx_t, ny_t, nz_t, tmax)
         maj = m.majorant[ix, iy, iz]
+        if not rest:
+            maj *= boost
         if maj > 0.0:
             while True:
                 if tau < 0.0:
@@ -309,6 +325,7 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
                 tr *= 1.0 - sigma * inv_maj
                 if tr < switch:
                     rest = True
+                    maj = m.majorant[ix, iy, iz]  # the rest's flight at the plain majorant (tau is drawn anew)
                 elif tr < RR_THRESHOLD:
                     state, u = next_float(state)
                     if u < 0.5:
@@ -359,10 +376,10 @@ def record_track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: floa
 
 @njit(cache=True, inline="always")
 def ratio_track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmin: float,
-                tmax: float, state: np.uint64, switch: float = 0.0) -> tuple[float, np.uint64]:
-    """Unbiased transmittance estimate over [tmin, tmax]; below ``switch`` the rest of the ray by delta tracking
-    (module docstring)."""
-    _, _, tr, state = _track(m, ox, oy, oz, dx, dy, dz, tmin, tmax, state, _RATIO, 0.0, switch)
+                tmax: float, state: np.uint64, switch: float = 0.0, boost: float = 1.0) -> tuple[float, np.uint64]:
+    """Unbiased transmittance estimate over [tmin, tmax]; below ``switch`` the rest of the ray by delta tracking;
+    tentative collisions at ``boost`` (>= 1) times the majorant before it (module docstring)."""
+    _, _, tr, state = _track(m, ox, oy, oz, dx, dy, dz, tmin, tmax, state, _RATIO, 0.0, switch, boost)
     return tr, state
 
 
@@ -400,20 +417,20 @@ def camera_collision(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: 
 
 @njit(cache=True)
 def _track_items(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray, states: np.ndarray,
-                 mode: int, switch: float, out: np.ndarray, lo: int, hi: int) -> None:
+                 mode: int, switch: float, boost: float, out: np.ndarray, lo: int, hi: int) -> None:
     for i in range(lo, hi):
         t, _, tr, states[i] = _track(m, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], tmin[i], tmax[i],
-                                     states[i], mode, 0.0, switch)
+                                     states[i], mode, 0.0, switch, boost)
         out[i] = t if mode == _DELTA else tr
 
 
 @njit(cache=True, parallel=True)
 def _track_batch(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray, states: np.ndarray,
-                 mode: int, switch: float = 0.0) -> np.ndarray:
+                 mode: int, switch: float = 0.0, boost: float = 1.0) -> np.ndarray:
     n = o.shape[1]
     out = np.empty(n)
     for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
-        _track_items(m, o, d, tmin, tmax, states, mode, switch, out, task * TASK_ITEMS,
+        _track_items(m, o, d, tmin, tmax, states, mode, switch, boost, out, task * TASK_ITEMS,
                      min(n, (task + 1) * TASK_ITEMS))
     return out
 
@@ -425,7 +442,7 @@ def delta_track_batch(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray,
 
 
 def ratio_track_batch(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray,
-                      states: np.ndarray, switch: float = 0.0) -> np.ndarray:
-    """Batch ratio tracking over SoA rays (:func:`ratio_track`, ``switch`` as there); advances ``states`` in
-    place."""
-    return _track_batch(m, o, d, tmin, tmax, states, _RATIO, switch)
+                      states: np.ndarray, switch: float = 0.0, boost: float = 1.0) -> np.ndarray:
+    """Batch ratio tracking over SoA rays (:func:`ratio_track`, ``switch`` and ``boost`` as there); advances
+    ``states`` in place."""
+    return _track_batch(m, o, d, tmin, tmax, states, _RATIO, switch, boost)

@@ -20,7 +20,12 @@ from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.scene.volume import make_volume
 from photon_fields.runtime.transport.medium import Medium, build_medium, extinction_batch
 from photon_fields.runtime.transport.rng import stream_states, uniform_batch
-from photon_fields.runtime.transport.tracking import SHADOW_SWITCH, delta_track_batch, ratio_track_batch
+from photon_fields.runtime.transport.tracking import (
+    SHADOW_BOOST,
+    SHADOW_SWITCH,
+    delta_track_batch,
+    ratio_track_batch,
+)
 from photon_fields.runtime.transport.tracking_numpy_baseline import (
     delta_track_numpy,
     extinction_numpy,
@@ -191,17 +196,20 @@ def test_delta_tracking_agrees_statistically(medium: Medium) -> None:
 # --- ratio tracking -------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("switch", [0.0, SHADOW_SWITCH, 0.9])
-def test_ratio_tracking_matches_quadrature(medium: Medium, switch: float) -> None:
+@pytest.mark.parametrize(("switch", "boost"), [(0.0, 1.0), (SHADOW_SWITCH, 1.0), (0.9, 1.0), (0.0, 3.5),
+                                               (SHADOW_SWITCH, SHADOW_BOOST)])
+def test_ratio_tracking_matches_quadrature(medium: Medium, switch: float, boost: float) -> None:
     """Also with the rest of the ray by delta tracking below ``switch`` (the shadow rays' estimator; 0.9: almost
-    all of every ray), which must keep the mean."""
+    all of every ray) and with tentative collisions at ``boost`` times the majorant before it, the rest at the
+    plain one: both must keep the mean."""
     m = medium
     n_rays, k = 6, 5000
     o, d, tmax = _box_rays(m, n_rays, seed=9)
     ref = np.exp(-_optical_depth(m, o, d, tmax))
     O, D, T = _repeat(o, k), _repeat(d, k), _repeat(tmax, k)
     n = n_rays * k
-    tr_nb = ratio_track_batch(m, O, D, np.zeros(n), T, stream_states(10, 0, n), switch).reshape(n_rays, k)
+    tr_nb = ratio_track_batch(m, O, D, np.zeros(n), T, stream_states(10, 0, n), switch, boost)
+    tr_nb = tr_nb.reshape(n_rays, k)
     tr_np = ratio_track_numpy(m, O, D, 0.0, T, stream_states(11, 0, n)).reshape(n_rays, k)
     assert np.all((tr_np >= 0) & (tr_np <= 1))
     for est in (tr_np, tr_nb):
