@@ -82,10 +82,11 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
     elif renderer.input is not None:
         from photon_fields.field_cache import cache_root, training_settings
 
-        settings = training_settings(training, method)
+        settings = training_settings(training, "field" if renderer.input == "bundle" else method)
         root = cache_root(cache)
     elif training is not None:
-        raise InputError("training", f"method {method!r} trains nothing (only field, photonmap and pvrt do)")
+        raise InputError("training", f"method {method!r} trains nothing (only "
+                                     f"{', '.join(n for n, r in RENDERERS.items() if r.input)} do)")
     vol, source = as_volume(volume, spacing)
     tf = _transfer_function(transfer_function, vol)
     cam = (Camera.from_dict(camera, "camera").with_resolution(width, height) if camera is not None
@@ -101,7 +102,7 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
     elif settings is not None:
         from photon_fields.field_cache import cached_input
 
-        path = cached_input(scene, method, settings, seed, root)
+        path = cached_input(scene, "field" if renderer.input == "bundle" else method, settings, seed, root)
         inputs = _load_input(renderer.input, path, scene, threads)
     with numba_threads(threads, "threads"):
         result = renderer.render_function()(scene, spp=spp, seed=seed, progress=progress, **inputs, **options)

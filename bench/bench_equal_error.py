@@ -7,6 +7,8 @@ warm-up, against the path tracer at ``--ref-spp`` (default 512; cached in ``--wo
   the repeats' seeds): its error-time curve;
 - the neural renderer with each camera estimator (``--cameras``, default delta and forced) at ``--spps``
   (default 1, 4, 32): wall time and rel. L2 the same way;
+- "marched" (unless ``--no-marched``): the ray marcher with the field's L_i (``pfn-render --method
+  raymarch-field``) at the same spp: noise-free single scattering from its light volume, biased by a few per cent;
 - per neural point, the **equal-error speedup**: the path tracer's time to reach the neural image's rel. L2,
   interpolated log-log on its curve (extrapolated from the last two points when the neural image is better
   than the curve's end, marked ``>``), over the neural time;
@@ -45,6 +47,7 @@ from photon_fields.runtime.eval.metrics import relative_l2  # noqa: E402
 from photon_fields.runtime.field.field import PhotonField  # noqa: E402
 from photon_fields.runtime.renderers.neural import render_neural  # noqa: E402
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
+from photon_fields.runtime.renderers.ray_marcher import render_ray_marched  # noqa: E402
 from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
 from photon_fields.runtime.wavefront.first_interaction import CAMERA_ESTIMATORS  # noqa: E402
 
@@ -130,13 +133,21 @@ def scene_curves(scene: Scene, est: Any, ref: np.ndarray, args: argparse.Namespa
     def neural(spp: int, camera: str) -> Callable[[int], np.ndarray]:
         return lambda seed: render_neural(scene, est, spp=spp, seed=seed, progress=False, camera=camera).layers["L"]
 
+    def marched(spp: int) -> Callable[[int], np.ndarray]:
+        return lambda seed: render_ray_marched(scene, spp=spp, seed=seed, progress=False, estimator=est).layers["L"]
+
     curves = {"path tracer": [{"spp": s, **measure(pt(s), ref, args.repeats)} for s in pt_spps]}
     for camera in args.cameras:
         curves[f"neural {camera}"] = [{"spp": s, **measure(neural(s, camera), ref, args.repeats)} for s in args.spps]
+    if args.marched:
+        curves["marched"] = [{"spp": s, **measure(marched(s), ref, args.repeats)} for s in args.spps]
     curves["path tracer + WRLS (progressive)"] = progressive_wrls(pt(1), scene, ref, args.wrls_frames, args.repeats)
     for camera in args.cameras:
         curves[f"neural {camera} + WRLS (progressive)"] = progressive_wrls(neural(1, camera), scene, ref,
                                                                          args.wrls_frames, args.repeats)
+    if args.marched:
+        curves["marched + WRLS (progressive)"] = progressive_wrls(marched(1), scene, ref, args.wrls_frames,
+                                                                  args.repeats)
     if denoise is not None:
         curves["path tracer + OIDN"] = [{"spp": s, **measure(pt(s), ref, args.repeats, denoise)} for s in (1, 4)]
         for camera in args.cameras:
@@ -177,6 +188,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--spps", type=int, nargs="*", default=[1, 4, 32], help="neural samples per pixel")
     ap.add_argument("--cameras", nargs="*", default=list(CAMERA_ESTIMATORS), choices=CAMERA_ESTIMATORS,
                     help="camera estimators")
+    ap.add_argument("--no-marched", dest="marched", action="store_false",
+                    help="leave out the ray marcher with the field's L_i (--method raymarch-field)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--wrls-frames", type=int, nargs="*", default=[1, 4, 32],
                     help="progressive WRLS: rel. L2 after these many 1-spp frames")
@@ -201,6 +214,7 @@ def main(argv: list[str] | None = None) -> None:
         render_path_traced(warm, spp=1, progress=False)
         for camera in args.cameras:
             render_neural(warm, est, spp=1, progress=False, camera=camera)
+        render_ray_marched(warm, spp=1, progress=False, estimator=est)
 
         curves = scene_curves(scene, est, ref, args, pt_spps, denoise)
         for method, rows in curves.items():
@@ -223,7 +237,7 @@ def main(argv: list[str] | None = None) -> None:
     write_report(args.out, "equal_error", info, {"size": args.size, "ref_spp": args.ref_spp, "pt_spps": pt_spps,
                                                  "spps": args.spps, "cameras": args.cameras,
                                                  "repeats": args.repeats, "oidn": denoise is not None,
-                                                 "wrls_frames": args.wrls_frames},
+                                                 "wrls_frames": args.wrls_frames, "marched": args.marched},
                  results=results)
     plot(results, args.out.with_suffix(".png"))
     print(f"wrote {args.out.with_suffix('.png')}")

@@ -324,8 +324,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "seen points paired with the opposite direction: the field learns the side no camera sees"),
     # The viewer (issue 15, step 1): session, messages, server.
     Mutant("viewer_preview_denoised", "runtime/renderers/registry.py",
-           '"thicker)", int, 0, int_in(0, MAX_LEVEL))), noisy=False),',
-           '"thicker)", int, 0, int_in(0, MAX_LEVEL)))),',
+           '"photon_fields.runtime.renderers.ray_marcher:render_ray_marched", MARCH_OPTIONS, noisy=False),',
+           '"photon_fields.runtime.renderers.ray_marcher:render_ray_marched", MARCH_OPTIONS),',
            ("tests/runtime/viewer/test_viewer_preview.py::test_preview_frames_average_jittered_marches_and_stop",),
            "the viewer denoises the preview's jittered marches (and accumulates them to --max-spp)"),
     Mutant("viewer_edit_keeps_light_volume", "runtime/viewer/session.py",
@@ -883,6 +883,17 @@ MUTANTS: tuple[Mutant, ...] = (
            "                if tr < switch:\n                    rest = True\n                    tr *= 1.0 / boost\n",
            ("tests/runtime/transport/test_tracking_numpy.py::test_ratio_tracking_matches_quadrature[0.3-2.0]",),
            "the switch to the rest's flight rescales the estimate by the boost: shadows too dark"),
+    Mutant("marched_pick_ignores_weights", "runtime/renderers/ray_marcher.py",
+           "                    if u * w_sum < w:\n",
+           "                    if u < 0.5 or w_sum == w:\n",
+           ("tests/runtime/renderers/test_marched_indirect.py::"
+            "test_the_picks_converge_to_the_neural_renderers_l_i_with_the_same_field",),
+           "the marched L_i keeps each segment with probability 1/2 whatever its weight: later segments too often"),
+    Mutant("marched_indirect_weight_one", "runtime/renderers/ray_marcher.py",
+           "            pick[PICK_W, i] = w_sum\n", "            pick[PICK_W, i] = 1.0\n",
+           ("tests/runtime/renderers/test_marched_indirect.py::"
+            "test_a_constant_field_weights_each_ray_by_its_collision_probability",),
+           "the marched L_i is weighted 1 instead of the ray's collision probability W: thin rays far too bright"),
     Mutant("decode_all_fast_math", "runtime/field/outputs.py", '@njit(cache=True, fastmath={"afn", "nnan"})',
            "@njit(cache=True, fastmath=True)",
            ("tests/runtime/field/test_outputs.py::test_decode_lights_equals_numpy_bit_for_bit",),

@@ -86,6 +86,10 @@ def test_readme_example_with_a_field_trains_once(tmp_path: Path, monkeypatch: py
     again = pf.render(tmp_path / "head.nrrd", method="field", spp=1, size=(16, 16), training=TINY_TRAINING,
                       cache=cache)
     assert np.array_equal(again.L, img.L)
+    # the preview with the field's L_i reads the same cached field (no training) and has L_i too
+    marched = pf.render(tmp_path / "head.nrrd", method="raymarch-field", spp=1, size=(16, 16), training=TINY_TRAINING,
+                        cache=cache)
+    assert marched.info["method"] == "raymarch-field" and marched.L_i.mean() > 0 and np.all(np.isfinite(marched.L))
     # the same lights twice as bright (and bluer): the field renders them exactly, rescaled, without training
     from photon_fields.runtime.scene.rigs import light_rig
 
@@ -170,7 +174,8 @@ def test_the_default_camera_frames_the_volume() -> None:
     (np.full((3, 3, 3), "a"), {}, "volume: must hold real numbers, got dtype <U1"),
     ("no_such_volume.npy", {}, "no_such_volume.npy: file not found"),
     ({"a": 1}, {}, "volume: expected a 3-D numpy array, a volume file path or a pyvista.ImageData, got dict"),
-    (None, {"method": "magic"}, "method: unknown method 'magic' (available: pt, raymarch, photonmap, field, pvrt)"),
+    (None, {"method": "magic"},
+     "method: unknown method 'magic' (available: pt, raymarch, raymarch-field, photonmap, field, pvrt)"),
     (None, {"method": "pvrt", "training": {"grid": 4, "gird": 4}}, "training: unknown key 'gird'"),
     (None, {"lights": "disco"}, "lights: unknown light rig 'disco' (available: studio, sun, sky)"),
     (None, {"transfer_function": "nope"}, "transfer_function: unknown preset 'nope' and not a .json file"),

@@ -52,8 +52,19 @@ still is: the midpoint, half a step deep, read the light after the wall had abso
 dark on the shell, 1 % on the head; measured in bench/README.md). The environment light is not marched (it would
 need a sphere of shadow rays); it only appears unscattered, as ``L_e = T * L_env``. This is the same
 single-scattering integral the path tracer estimates with ``max_depth = 1``; the two agree up to the marcher's
-quadrature error (and the light volume's interpolation), which the tests check. There is no L_i: multiple
+quadrature error (and the light volume's interpolation), which the tests check. Alone it has no L_i: multiple
 scattering is exactly what ray marching leaves out.
+
+Multiple scattering from a field (``estimator``, ``pfn-render --method raymarch-field``): the march's segments also
+estimate L_i = sum_k T_k (1 - e_k) a_k Q(x'_k, d, g), with Q a photon field's in-scattered indirect radiance
+(what the neural renderer asks it at its first interactions) at the segments' scattering centroids x'_k: one
+segment J per ray is drawn with probability w_J / W (w_k = T_k (1 - e_k), W = sum_k w_k = 1 - T_end) and the
+estimate is W a_J Q(x'_J): one field query per ray, unbiased for the sum. With the light volume's noise-free L_d,
+a 1-spp frame's only noise is where along its ray L_i's one query falls, against the neural renderer's shadow
+rays and collision sampling for both terms; the price is the preview's bias in L_d (quadrature and the light
+volume's interpolation: a few per cent, more at dense walls; docs/rendering.md has the figures), which the
+neural renderer's unbiased L_d does not have. So it is the quick look with multiple scattering, not the image to
+converge.
 """
 
 from __future__ import annotations
@@ -94,6 +105,7 @@ from photon_fields.runtime.wavefront import batches
 from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish, scene_environment, work_batches
 from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
 from photon_fields.runtime.wavefront.film import Film
+from photon_fields.runtime.wavefront.first_interaction import IndirectEstimator
 from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box, tile_order, tiled_work
 
 SHADOWS = ("volume", "march")
@@ -109,6 +121,8 @@ MARCH_BATCH = 1 << 17
 _NO_VOLUME = np.ones((2, 2, 2, 1), dtype=np.float32)  # what "march" passes for the light volume it does not read
 _NO_WANTED = np.zeros((1, 1, 1), dtype=np.uint8)
 _NO_GRID: Grid = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 2, 2, 2)
+#: Rows of the picks :func:`march_work` returns: position 0-2, direction 3-5, weight W (PICK_W), albedo (PICK_A..+2).
+PICK_W, PICK_A, PICK_ROWS = 6, 7, 10
 
 
 @njit(cache=True, inline="always")
@@ -135,14 +149,19 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                  width: int, n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int,
                  h: float, h_shadow: float, skip: bool, units: np.ndarray, own: np.ndarray, adaptive: bool,
                  use_volume: bool, lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float, ld: np.ndarray,
-                 trans: np.ndarray, missed: np.ndarray, lo: int, hi: int) -> None:
+                 trans: np.ndarray, missed: np.ndarray, pick: np.ndarray, picking: bool, lo: int, hi: int) -> None:
     """Work items ``work[lo:hi]`` of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why):
     each one's jittered camera ray (:func:`camera_ray`), clipped to the box (:func:`clip_to_box`) and marched
     within its tile's depth bounds (``near`` / ``far``: eye distances), in segments of base steps ``h``: the
     neighbourhood's ``units`` per macrocell, or more where the macrocell's ``own`` units are more and every macrocell
     the segment passes allows them (``adaptive`` False: fixed steps). A ray that reads an unfilled light-volume
     cell is ``missed``: from there on it marks the cells its samples read (:func:`want_stencil`) instead of summing
-    them, to its end (its walk does not depend on the light), so one walk finds every cell it needs."""
+    them, to its end (its walk does not depend on the light), so one walk finds every cell it needs.
+
+    ``picking``: each ray also keeps one of its segments' scattering centroids, drawn with probability
+    proportional to the segment's weight T_k (1 - e_k) (a weighted reservoir of size one, from the ray's own random
+    stream after its jitter: a re-marched ray keeps the same one), and writes ``pick`` (:data:`PICK_ROWS` x n):
+    its position, the ray's direction, W = sum_k T_k (1 - e_k) and the albedo there (W = 0: none)."""
     origin, du, dv = view[ORIGIN:ORIGIN + 3], view[DU:DU + 3], view[DV:DV + 3]
     ex, ey, ez = view[EYE], view[EYE + 1], view[EYE + 2]
     ray_phase = np.empty(kind.shape[0])
@@ -152,6 +171,9 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
         state, jitter = next_float(state)
         ld[0, i] = ld[1, i] = ld[2, i] = 0.0
         trans[i] = 1.0
+        if picking:
+            pick[PICK_W, i] = 0.0
+        w_sum = 0.0
         ty = (p // width) // tile
         tx = (p % width) // tile
         if not near[ty, tx] < math.inf:
@@ -206,6 +228,12 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 w = T * (1.0 - e)
                 ts = t_prev + scattering_centroid(sigma, seg, e)
                 x, y, z = ox + ts * dx, oy + ts * dy, oz + ts * dz
+                if picking and w > 0.0:
+                    w_sum += w
+                    state, u = next_float(state)
+                    if u * w_sum < w:
+                        pick[0, i], pick[1, i], pick[2, i] = x, y, z
+                        pick[PICK_A, i], pick[PICK_A + 1, i], pick[PICK_A + 2, i] = a0, a1, a2
                 ci, cj, ck, fx, fy, fz = stencil(grid, x, y, z)
                 for k in range(kind.shape[0]):
                     # The environment is not marched (module docstring): delta_light_direction gives it 0.
@@ -231,32 +259,37 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
             t_prev = t_next
         ld[0, i], ld[1, i], ld[2, i] = l0, l1, l2
         trans[i] = T if t_min < T else 0.0
+        if picking and w_sum > 0.0:
+            pick[PICK_W, i] = w_sum
+            pick[3, i], pick[4, i], pick[5, i] = dx, dy, dz
 
 
 @njit(cache=True, parallel=True)
 def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, view: np.ndarray, width: int,
            n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int, h: float,
            h_shadow: float, skip: bool, units: np.ndarray, own: np.ndarray, adaptive: bool, use_volume: bool,
-           lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float,
+           picking: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     n = work.shape[0]
     ld = np.empty((3, n))
     trans = np.empty(n)
     missed = np.zeros(n, dtype=np.bool_)
+    pick = np.empty((PICK_ROWS, n if picking else 1))
     per_task = task_items(n)  # fewer than TASK_ITEMS for the few rays re-marched after a fill
     tasks = (n + per_task - 1) // per_task
     stride = task_stride(tasks)
     for task in prange(tasks):
         b = (task * stride) % tasks  # golden-ratio order: each thread gets dense and empty blocks alike
         _march_items(m, kind, vec, rgb, g, view, width, n_pixels, work, seed, near, far, tile, h, h_shadow, skip,
-                     units, own, adaptive, use_volume, lv, wanted, grid, t_min, ld, trans, missed, b * per_task,
-                     min(n, (b + 1) * per_task))
-    return ld, trans, missed
+                     units, own, adaptive, use_volume, lv, wanted, grid, t_min, ld, trans, missed, pick, picking,
+                     b * per_task, min(n, (b + 1) * per_task))
+    return ld, trans, missed, pick
 
 
 def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, skip: bool, lv: LightVolume | None,
-               t_min: float, units: np.ndarray, own: np.ndarray,
-               cancel: Callable[[], bool] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(L_d (3, n), transmittance (n,)) of work items ``work`` (``w = sample * pixels + pixel``, the camera ray
+               t_min: float, units: np.ndarray, own: np.ndarray, cancel: Callable[[], bool] | None = None,
+               picking: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(L_d (3, n), transmittance (n,), picks) of work items ``work`` (``w = sample * pixels + pixel``, the camera ray
     of random stream w under ``seed``; rays that miss the box: 0 and 1). ``skip``: empty space is jumped over and
     each ray is marched only within its tile's depth bounds (:mod:`photon_fields.runtime.wavefront.depth_bounds`);
     False marches every ray through the whole box (the same sums). With a light volume (``lv``), the rays that
@@ -265,7 +298,9 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
     steps per segment per macrocell, the neighbourhood's and each macrocell's own (:func:`scene_step_units`,
     :func:`scene_own_units`; ``own`` all ones: fixed steps). ``cancel``: asked before each chunk of the fill
     (:func:`photon_fields.runtime.transport.light_volume.fill_wanted`); True stops with
-    :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the cells filled so far kept."""
+    :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the cells filled so far kept.
+    ``picking``: picks is (:data:`PICK_ROWS`, n), one scattering point per ray for an L_i estimate
+    (:func:`_march_items`; else (PICK_ROWS, 1), unused)."""
     m = scene.medium()
     adaptive = bool(own.max() > 1)
     cam = scene.camera
@@ -274,20 +309,32 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
     bounds = depth_bounds_for(scene, m) if skip else unbounded()
     args = (pack_view(cam), cam.width, cam.width * cam.height)
 
-    def run(items: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def run(items: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return _march(m, kind, vec, rgb, scene.g, *args, items, int(seed), bounds.near, bounds.far, bounds.tile, h,
-                      hs, skip, units, own, adaptive, lv is not None, values, wanted, grid, t_min)
+                      hs, skip, units, own, adaptive, lv is not None, values, wanted, grid, t_min, picking)
 
-    ld, trans, missed = run(work)
+    ld, trans, missed, pick = run(work)
     if lv is None or not missed.any():
-        return ld, trans
+        return ld, trans, pick
     idx = np.flatnonzero(missed)
     if not fill_wanted(m, kind, vec, lv, cancel):
         raise batches.RenderCancelledError(f"cancelled while filling the light volume for {idx.size} rays")
-    ld[:, idx], trans[idx], still = run(work[idx])
+    ld[:, idx], trans[idx], still, again = run(work[idx])
+    if picking:
+        pick[:, idx] = again
     if still.any():
         raise RuntimeError("ray marcher: a light-volume cell its rays read was not filled")  # cannot happen
-    return ld, trans
+    return ld, trans, pick
+
+
+def add_marched_indirect(film: Film, estimator: IndirectEstimator, g: float, pixel: np.ndarray,
+                         pick: np.ndarray) -> None:
+    """L_i of one batch: W a(x) Q(x, d, g) at each ray's picked point (:func:`march_work` with ``picking``)."""
+    sel = np.flatnonzero(pick[PICK_W] > 0.0)
+    if sel.size == 0:
+        return
+    q = estimator(np.ascontiguousarray(pick[0:3, sel]), np.ascontiguousarray(pick[3:6, sel]), g)
+    film.splat("L_i", pixel[sel], q, True, weight=pick[PICK_A:PICK_A + 3, sel] * pick[PICK_W, sel])
 
 
 def scene_light_volume(scene: Scene, cells_per_voxel: float, shadow_step: float) -> LightVolume:
@@ -354,13 +401,17 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
                        shadow_step: float | None = None, light_grid_scale: float | None = None,
                        min_transmittance: float = 1e-2, max_step: float | None = None, seed: int = 0,
                        batch_size: int = MARCH_BATCH, progress: bool = True, skip_empty: bool = True,
-                       level: int = 0, cancel: Callable[[], bool] | None = None) -> RenderResult:
+                       level: int = 0, cancel: Callable[[], bool] | None = None,
+                       estimator: IndirectEstimator | None = None) -> RenderResult:
     """Single scattering by ray marching (module docstring for the parameters). Layers L, L_e and L_d (L_i stays
     zero). ``skip_empty``: camera and shadow rays look nothing up in empty macrocells (the same image, sooner;
     False: every sample looked up, the reference the tests and ``bench_ray_marcher.py`` compare with).
     ``cancel``: asked before each batch and during the light volume's fill (:func:`march_work`); True stops the
     render with :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError` (the viewer's resting frames:
-    an edit's full-level frame at 256^3 is seconds of work)."""
+    an edit's full-level frame at 256^3 is seconds of work).
+
+    ``estimator`` (a photon field's, ``PhotonField.estimator()``): L_i too, the estimator's Q at one scattering
+    point per ray drawn along the march (module docstring, "Multiple scattering from a field")."""
     scene = scene_at_level(scene, level)
     use_volume = check_choice("--shadows", shadows, SHADOWS) == "volume"
     if use_volume:
@@ -387,10 +438,13 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
                 raise batches.RenderCancelledError(f"cancelled before work item {start}")
             work = tiled_work(start, count, order)
             with timer("march"):
-                ld, trans = march_work(scene, work, seed, h, hs, skip_empty, lv, min_transmittance, units, own,
-                                       cancel)
+                ld, trans, pick = march_work(scene, work, seed, h, hs, skip_empty, lv, min_transmittance, units,
+                                             own, cancel, estimator is not None)
             pixel = work % n_pixels
             film.splat("L_d", pixel, ld, True)
+            if estimator is not None:
+                with timer("estimate_indirect"):
+                    add_marched_indirect(film, estimator, scene.g, pixel, pick)
             if env is not None:
                 film.splat("L_e", pixel, trans[None, :] * env.behind_camera_rays(cam, work, seed), True)
             bar.update(count)

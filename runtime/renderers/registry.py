@@ -159,6 +159,28 @@ GATHER_OPTION = Option("--final-gather-after", "final_gather_after", "a pixel's 
                        "more noise, about 1.5x the time per sample; 0: every sample, never: none", spp_or_never,
                        DEFAULT_GATHER_AFTER, spp_or_none)
 
+#: The ray marcher's own settings (shared by ``raymarch`` and ``raymarch-field``).
+MARCH_OPTIONS = (
+    Option("--step", "step", "camera-ray step length in voxels", float, 1.0, float_in(0.01, 100, "voxels")),
+    Option("--max-step", "max_step", "longest camera-ray segment in voxels (default: 4 steps): where "
+           "sigma_t is smooth and thin a segment spans several steps (--step or less: fixed steps)", float,
+           None, optional(float_in(0.01, 100, "voxels"))),
+    Option("--shadows", "shadows", "volume (each light's transmittance cached in a light volume: the "
+           "preview) or march (a shadow ray per sample and light: the paper's baseline)", str, "volume",
+           one_of(("volume", "march"))),
+    Option("--shadow-step", "shadow_step", "shadow-ray step length in voxels (default: 0.5 for "
+           "--shadows volume, 1 for march; below 1 on media with sharp, dense boundaries: the 1-voxel sum "
+           "reads bright there)", float, None, optional(float_in(0.01, 100, "voxels"))),
+    Option("--light-grid-scale", "light_grid_scale", "--shadows volume: light-volume cells per voxel "
+           "along each axis (default: 1, fewer for volumes over ~320^3 voxels: at most 128 MiB a light)",
+           float, None, optional(float_in(0.25, 4, "cells per voxel"))),
+    Option("--min-transmittance", "min_transmittance", "early ray termination: a camera ray stops once "
+           "this opaque", float, 1e-2, float_in(0, 0.5, "(transmittance)")),
+    Option("--level", "level", "march a coarser level of the volume: blocks of 2^LEVEL voxels a side "
+           "averaged in the same box (a quick look at a large volume; walls one or two voxels thick read "
+           "thicker)", int, 0, int_in(0, MAX_LEVEL)),
+)
+
 RENDERERS: dict[str, Renderer] = {r.name: r for r in (
     Renderer("pt", "volumetric path tracer (reference)",
              "photon_fields.runtime.renderers.path_tracer:render_path_traced",
@@ -167,25 +189,11 @@ RENDERERS: dict[str, Renderer] = {r.name: r for r in (
               Option("--no-nee", "nee", "pure phase sampling (no next-event estimation; reaches the environment "
                      "light only)", check=negate))),
     Renderer("raymarch", "single-scattering ray marcher with global shadows (a noise-free preview without L_i)",
-             "photon_fields.runtime.renderers.ray_marcher:render_ray_marched",
-             (Option("--step", "step", "camera-ray step length in voxels", float, 1.0, float_in(0.01, 100, "voxels")),
-              Option("--max-step", "max_step", "longest camera-ray segment in voxels (default: 4 steps): where "
-                     "sigma_t is smooth and thin a segment spans several steps (--step or less: fixed steps)", float,
-                     None, optional(float_in(0.01, 100, "voxels"))),
-              Option("--shadows", "shadows", "volume (each light's transmittance cached in a light volume: the "
-                     "preview) or march (a shadow ray per sample and light: the paper's baseline)", str, "volume",
-                     one_of(("volume", "march"))),
-              Option("--shadow-step", "shadow_step", "shadow-ray step length in voxels (default: 0.5 for "
-                     "--shadows volume, 1 for march; below 1 on media with sharp, dense boundaries: the 1-voxel sum "
-                     "reads bright there)", float, None, optional(float_in(0.01, 100, "voxels"))),
-              Option("--light-grid-scale", "light_grid_scale", "--shadows volume: light-volume cells per voxel "
-                     "along each axis (default: 1, fewer for volumes over ~320^3 voxels: at most 128 MiB a light)",
-                     float, None, optional(float_in(0.25, 4, "cells per voxel"))),
-              Option("--min-transmittance", "min_transmittance", "early ray termination: a camera ray stops once "
-                     "this opaque", float, 1e-2, float_in(0, 0.5, "(transmittance)")),
-              Option("--level", "level", "march a coarser level of the volume: blocks of 2^LEVEL voxels a side "
-                     "averaged in the same box (a quick look at a large volume; walls one or two voxels thick read "
-                     "thicker)", int, 0, int_in(0, MAX_LEVEL))), noisy=False),
+             "photon_fields.runtime.renderers.ray_marcher:render_ray_marched", MARCH_OPTIONS, noisy=False),
+    Renderer("raymarch-field", "the ray marcher's single scattering plus the photon field's L_i at one point per "
+             "ray drawn along the march: a quick look with multiple scattering, little noise, a few per cent of "
+             "the preview's bias in L_d (needs --bundle)",
+             "photon_fields.runtime.renderers.ray_marcher:render_ray_marched", MARCH_OPTIONS, input="bundle"),
     Renderer("photonmap", "first interactions + NEE + the photon-map estimate of L_i (needs --map)",
              "photon_fields.runtime.renderers.photon_mapped:render_photon_mapped",
              (Option("--k", "k", "photons per estimate (K)", int, 1024, int_in(2, 1 << 16)),

@@ -39,9 +39,10 @@ def build_parser() -> OneLineArgumentParser:
                         "shadows; the default) or transfer (from the lighting basis, blurred)")
     p.add_argument("--light-grid", type=int, default=None, metavar="CELLS",
                    help="pvrt --direct nee: light-volume cells along the box's longest side (default 64)")
-    p.add_argument("--renderer", default=None, choices=["neural", "pt", "preview", "photonmap", "pvrt"],
+    p.add_argument("--renderer", default=None, choices=["neural", "pt", "preview", "marched", "photonmap", "pvrt"],
                    help="renderer to start with (default: neural with --bundle, else pt; preview: the ray marcher, "
-                   "single scattering without training, follows every edit at once)")
+                   "single scattering without training, follows every edit at once; marched: the preview plus the "
+                   "field's L_i, needs --bundle)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=int, default=0, help="port (default 0: any free port)")
     p.add_argument("--out", default="pfn_view_out", help="folder screenshots are written to (the only one)")

@@ -28,8 +28,8 @@ def next_drag_level(level: int, frame_s: float, fps: float = DRAG_FPS) -> int:
 def changing_level(setting: int | str, renderer: str, dims: tuple[int, ...]) -> int:
     """The volume level (:mod:`photon_fields.runtime.scene.levels`) of the first frame after a change (a camera
     move or an edit) with ``renderer`` (a page name): ``setting`` ``"auto"``: :func:`interactive_level` of the
-    volume's ``dims``, an int: that level. 0 for every renderer but the preview: the others' frames cost hardly
-    more on a finer volume (bench/README.md)."""
-    if renderer != "preview":
+    volume's ``dims``, an int: that level. 0 for every renderer but the marching ones (the preview, and with the
+    field's L_i): the others' frames cost hardly more on a finer volume (bench/README.md)."""
+    if renderer not in ("preview", "marched"):
         return 0
     return interactive_level(dims) if setting == "auto" else check_level(setting)  # type: ignore[arg-type]

@@ -63,10 +63,11 @@ def resting_frames(renderer: str, max_spp: int) -> int:
 
 
 def renderers_with_inputs(estimator: Any, pmap: Any, pvrt: Any) -> dict[str, bool]:
-    """Per renderer (a page name), whether its input is there: a field's estimator, a photon map, a PVRT transfer;
-    the path tracer and the preview need none."""
-    return {"neural": estimator is not None, "pt": True, "preview": True, "photonmap": pmap is not None,
-            "pvrt": pvrt is not None}
+    """Per renderer (a page name), whether its input is there: a field's estimator (the neural renderer and the
+    preview with the field's L_i, "marched"), a photon map, a PVRT transfer; the path tracer and the preview need
+    none."""
+    return {"neural": estimator is not None, "pt": True, "preview": True, "marched": estimator is not None,
+            "photonmap": pmap is not None, "pvrt": pvrt is not None}
 
 
 def noisy(renderer: str) -> bool:
@@ -166,12 +167,7 @@ class FieldInUse:
                 from photon_fields.runtime.renderers.neural import render_neural
                 from photon_fields.runtime.wavefront.batches import CANCELLABLE_BATCH, DEFAULT_BATCH
 
-                if scale is None:
-                    est = self.estimator
-                elif scale.ndim == 2:  # one factor per light: the field sums its lights' parts with them
-                    est = self.estimator.field.estimator(scale)
-                else:
-                    est = _Scaled(self.estimator, scale)
+                est = self.scaled_estimator(scale)
                 return render_neural(scene, est, spp=1, seed=seed, progress=False, first_sample=n,
                                      final_gather_after=0 if final_gather else None, cancel=cancel,
                                      batch_size=DEFAULT_BATCH if cancel is None else CANCELLABLE_BATCH).layers
@@ -179,12 +175,14 @@ class FieldInUse:
                 from photon_fields.runtime.renderers.path_tracer import render_path_traced
 
                 return render_path_traced(scene, spp=1, seed=seed + n, progress=False).layers
-            if renderer == "preview":  # its light volume is kept with the scene: camera moves reuse it
+            if renderer in ("preview", "marched"):  # the light volume is kept with the scene: camera moves reuse it
                 from photon_fields.runtime.renderers.ray_marcher import MARCH_BATCH, render_ray_marched
                 from photon_fields.runtime.wavefront.batches import CANCELLABLE_BATCH
 
                 return render_ray_marched(scene, spp=1, seed=seed + n, progress=False, level=level, cancel=cancel,
-                                          batch_size=MARCH_BATCH if cancel is None else CANCELLABLE_BATCH).layers
+                                          batch_size=MARCH_BATCH if cancel is None else CANCELLABLE_BATCH,
+                                          estimator=self.scaled_estimator(scale) if renderer == "marched" else None
+                                          ).layers
             from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped
 
             pmap = self.pmap
@@ -197,6 +195,15 @@ class FieldInUse:
             return layers
         li = (layers["L_i"] * scale).astype(np.float32)
         return {**layers, "L_i": li, "L": (layers["L_e"] + layers["L_d"]) + li}
+
+    def scaled_estimator(self, scale: np.ndarray | None) -> Any:
+        """The field's estimator with L_i following the page's lights (``scale`` from :meth:`indirect_scale`, None:
+        as trained)."""
+        if scale is None:
+            return self.estimator
+        if scale.ndim == 2:  # one factor per light: the field sums its lights' parts with them
+            return self.estimator.field.estimator(scale)
+        return _Scaled(self.estimator, scale)
 
     def kept_apart(self, renderer: str | None = None) -> int:
         """How many lights the L_i of ``renderer`` (a page name; None: the field's, else the map's) keeps apart: a

@@ -107,7 +107,7 @@ def load_inputs(scene: str | None, *, bundle: str | None = None, map_path: str |
     has = renderers_with_inputs(estimator, pmap, transfer)
     if renderer is not None and (renderer not in RENDERER_NAMES or not has[renderer]):
         raise InputError("--renderer", f"must be one of {', '.join(n for n in RENDERER_NAMES if has[n])} here "
-                         f"(neural needs --bundle, photonmap --map, pvrt --transfer), got {renderer!r}")
+                         f"(neural and marched need --bundle, photonmap --map, pvrt --transfer), got {renderer!r}")
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError("--out", f"{str(out)!r} exists and is not a folder")

@@ -66,7 +66,8 @@ MAX_LABEL_EDITS = 32
 #: "03", "+3" or " 3", so two keys never name one label), at most 10 digits.
 LABEL_PATTERN = re.compile(r"-?(0|[1-9][0-9]{0,9})")
 #: Renderers by the names the page uses, and what each is called in the renderer table.
-RENDERER_NAMES = {"neural": "field", "pt": "pt", "preview": "raymarch", "photonmap": "photonmap", "pvrt": "pvrt"}
+RENDERER_NAMES = {"neural": "field", "pt": "pt", "preview": "raymarch", "marched": "raymarch-field",
+                  "photonmap": "photonmap", "pvrt": "pvrt"}
 LAYERS = ("L", "L_d", "L_i")
 FORMATS = ("jpeg", "png")
 #: A screenshot's file stem: letters, digits, ``-``, ``_``, ``.`` (not first), at most 64 characters; no path.

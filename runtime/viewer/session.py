@@ -132,8 +132,8 @@ class ViewerSession:
         if renderer is None:
             renderer = "neural" if estimator is not None else "pt"
         if renderer not in self.available:
-            raise InputError("renderer", f"'{renderer}' needs its input (neural: --bundle, photonmap: --map, pvrt: "
-                                         "--transfer)")
+            raise InputError("renderer", f"'{renderer}' needs its input (neural and marched: --bundle, photonmap: "
+                                         "--map, pvrt: --transfer)")
         cam = scene.camera
         self.state = ViewState(OrbitView.from_camera(cam), renderer, g=scene.g,
                                lights=[LightControl.from_light(lt) for lt in scene.lights], max_spp=int(max_spp),

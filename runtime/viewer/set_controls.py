@@ -28,8 +28,8 @@ def apply_set(s: ViewState, field: FieldInUse, control: str, value: Any) -> tupl
     effect, not have it normalized away."""
     if control == "renderer":
         if not field.has(value):
-            raise MessageError(f"renderer '{value}' is not available here (neural needs --bundle, photonmap "
-                               f"--map, pvrt --transfer); available: {', '.join(field.available)}")
+            raise MessageError(f"renderer '{value}' is not available here (neural and marched need --bundle, "
+                               f"photonmap --map, pvrt --transfer); available: {', '.join(field.available)}")
         field.check(value, s.g, s.transfer)
         s.renderer = value
         return True, True, True, True

@@ -183,7 +183,7 @@ function onRetrain(m) {
 
 function setRenderers(list, current) {
   const names = {neural: "neural (photon field)", pt: "path tracer", preview: "preview (single scattering)",
-                 photonmap: "photon map", pvrt: "PVRT (relighting)"};
+                 marched: "preview + field (L_i)", photonmap: "photon map", pvrt: "PVRT (relighting)"};
   $("renderer").innerHTML = list.map((r) => `<option value="${r}">${names[r] || r}</option>`).join("");
   $("renderer").value = current;
   fixG(current);

@@ -162,6 +162,8 @@ CASES: list[Case] = [
     # bundles
     (R, lambda a, d, o: ["--method", "field", "--scene", str(a["scene"]), *SIZE, "--out", str(o / "r.exr")],
      "--bundle"),
+    (R, lambda a, d, o: ["--method", "raymarch-field", "--scene", str(a["scene"]), *SIZE, "--out",
+                         str(o / "r.exr")], "--bundle"),
     (R, lambda a, d, o: ["--method", "field", "--bundle", str(d / "none.pfn"), "--scene", str(a["scene"]), *SIZE,
                          "--out", str(o / "r.exr")], "none.pfn"),
     (R, lambda a, d, o: ["--method", "field", "--bundle", str((lambda b: (b / "field.onnx").unlink() or b)(

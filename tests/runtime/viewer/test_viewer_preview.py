@@ -162,3 +162,23 @@ def test_a_resting_preview_frame_gives_way_to_a_move_during_its_fill(tmp_path: P
     scene = s.edited_scene(s.state).with_overrides(camera=s.state.view.camera(s.state.width, s.state.height))
     np.testing.assert_allclose(accumulated(s, "L_d"), marched_mean(scene, range(s.seed, s.seed + 2)), rtol=1e-5,
                                atol=1e-7)
+
+
+def test_the_preview_with_the_fields_l_i_is_marched_denoised_and_stale_after_an_edit(tmp_path: Path) -> None:
+    """``marched``: the preview's L_d and the field's L_i at one marched point per ray, a noisy renderer (its frames
+    accumulate to --max-spp and are denoised); its L_i comes from the field, so a transfer-function edit makes it
+    stale as the neural renderer's."""
+    s = make_session(tmp_path, renderer="marched", max_spp=64, retrain=MANUAL)
+    assert "marched" in s.available and "marched" in s.describe()["renderers"]
+    h = s.next_frame().header
+    assert h["spp"] == 1 and not h["stale"]
+    scene = s.edited_scene(s.state).with_overrides(camera=s.state.view.camera(s.state.width, s.state.height))
+    one = render_ray_marched(scene, spp=1, seed=s.seed, progress=False, estimator=s.field.estimator).layers
+    np.testing.assert_allclose(accumulated(s, "L_d"), one["L_d"], rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(accumulated(s, "L_i"), one["L_i"], rtol=1e-5, atol=1e-7)
+    assert one["L_i"].max() > 0.0
+    for _ in range(3):
+        s.next_frame()
+    assert s.next_frame().header["denoised"]
+    s.apply(msg("transfer", **edited(s, density_scale=3 * s.base_scene.tf.density_scale)))
+    assert s.next_frame().header["stale"]

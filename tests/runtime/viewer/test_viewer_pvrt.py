@@ -89,7 +89,7 @@ def test_light_change_is_render_pvrts_frame_relit_without_a_march(server: Viewer
     scene, path = made
     with connect(ws_url(server), max_size=None) as ws:
         state = next_text(ws)
-        assert state["renderers"] == ["neural", "pt", "preview", "pvrt"] and state["renderer"] == "pvrt"
+        assert state["renderers"] == ["neural", "pt", "preview", "marched", "pvrt"] and state["renderer"] == "pvrt"
         assert state["pvrt"] == {"g": pytest.approx(scene.g)}
         header, _ = next_frame(ws, FRAME_TIMEOUT)
         assert header["renderer"] == "pvrt" and header["spp"] == 1 and not header["denoised"]

@@ -196,7 +196,7 @@ def test_a_real_retrain_swaps_a_field_in(tmp_path: Path) -> None:
     s.apply(msg("retrain", action="start"))
     status = poll_until(s, {"done", "failed"})[-1]
     assert status["state"] == "done", status
-    assert status["renderers"] == ["neural", "pt", "preview", "photonmap"] and status["renderer"] == "neural"
+    assert status["renderers"] == ["neural", "pt", "preview", "marched", "photonmap"] and status["renderer"] == "neural"
     assert status["cycle_s"] > 0 and "new field in" in status["message"]
     h = s.next_frame().header
     assert h["renderer"] == "neural" and not h["stale"] and h["warnings"] == []

@@ -68,7 +68,7 @@ def test_state_then_frames_that_report_their_input(server: ViewerServer) -> None
     with connect(ws_url(server), max_size=None) as ws:
         state = json.loads(ws.recv(timeout=30))
         assert state["type"] == "state" and state["renderer"] == "pt"
-        assert state["renderers"] == ["neural", "pt", "preview"]
+        assert state["renderers"] == ["neural", "pt", "preview", "marched"]
         header, image = next_frame(ws)
         assert image[:2] == b"\xff\xd8" and header["width"] == 24  # a JPEG of the view's size
         ws.send(json.dumps({"type": "orbit", "dx": 10, "dy": 0, "seq": 41}))
