@@ -214,7 +214,8 @@ def main(argv: list[str] | None = None) -> None:
         render_path_traced(warm, spp=1, progress=False)
         for camera in args.cameras:
             render_neural(warm, est, spp=1, progress=False, camera=camera)
-        render_ray_marched(warm, spp=1, progress=False, estimator=est)
+        if args.marched:
+            render_ray_marched(warm, spp=1, progress=False, estimator=est)
 
         curves = scene_curves(scene, est, ref, args, pt_spps, denoise)
         for method, rows in curves.items():
