@@ -75,7 +75,8 @@ SHADOW_SWITCH = 0.3
 #: NEE's shadow rays (every renderer's) draw their tentative collisions at this many times the majorant until
 #: ``SHADOW_SWITCH`` (module docstring, "a boosted majorant"). At 256x256, 1 spp, 2 made the neural frame's
 #: error-squared times time 1.12x better on vortex, 1.27x on shell, 1.05x on blobs, level on head, and the path
-#: tracer's 1.05x / 1.14x on vortex / shell; 4 cost more than it saved on the dense scenes (bench/README.md).
+#: tracer's 1.05x / 1.14x on vortex / shell; 4 was 0.94x on head. It costs NEE ~1.4x and a 512x512 frame with
+#: denoising 7-9 % (bench/README.md).
 SHADOW_BOOST = 2.0
 #: The camera walk's transmittance estimate below which it finishes the ray by delta tracking (module docstring,
 #: "the rest of an opaque ray"): 0.3 made the 512x512 first interactions 4-11 % cheaper on the embedded scenes
