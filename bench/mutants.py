@@ -894,6 +894,11 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/renderers/test_marched_indirect.py::"
             "test_a_constant_field_weights_each_ray_by_its_collision_probability",),
            "the marched L_i is weighted 1 instead of the ray's collision probability W: thin rays far too bright"),
+    Mutant("marched_environment_unlit", "runtime/renderers/ray_marcher.py",
+           "        film.splat(\"L_d\", pixel[sel], env, True, weight=weight)\n", "",
+           ("tests/runtime/renderers/test_marched_indirect.py::"
+            "test_an_environments_single_scattering_comes_from_nee_at_the_pick",),
+           "the marched method leaves an environment's single scattering out, as the plain preview does"),
     Mutant("decode_all_fast_math", "runtime/field/outputs.py", '@njit(cache=True, fastmath={"afn", "nnan"})',
            "@njit(cache=True, fastmath=True)",
            ("tests/runtime/field/test_outputs.py::test_decode_lights_equals_numpy_bit_for_bit",),

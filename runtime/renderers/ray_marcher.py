@@ -59,12 +59,13 @@ Multiple scattering from a field (``estimator``, ``pfn-render --method raymarch-
 estimate L_i = sum_k T_k (1 - e_k) a_k Q(x'_k, d, g), with Q a photon field's in-scattered indirect radiance
 (what the neural renderer asks it at its first interactions) at the segments' scattering centroids x'_k: one
 segment J per ray is drawn with probability w_J / W (w_k = T_k (1 - e_k), W = sum_k w_k = 1 - T_end) and the
-estimate is W a_J Q(x'_J): one field query per ray, unbiased for the sum. With the light volume's noise-free L_d,
-a 1-spp frame's only noise is where along its ray L_i's one query falls, against the neural renderer's shadow
-rays and collision sampling for both terms; the price is the preview's bias in L_d (quadrature and the light
-volume's interpolation: a few per cent, more at dense walls; docs/rendering.md has the figures), which the
-neural renderer's unbiased L_d does not have. So it is the quick look with multiple scattering, not the image to
-converge.
+estimate is W a_J Q(x'_J): one field query per ray, unbiased for the sum. An environment light, which the march
+leaves unscattered, gets its single scattering the same way: W a_J NEE_env(x'_J), one shadow ray at the pick.
+With the light volume's noise-free L_d (of delta lights), a 1-spp frame's main noise is where along its ray L_i's
+one query falls, against the neural renderer's shadow rays and collision sampling for both terms; the price is
+the preview's bias in L_d (quadrature and the light volume's interpolation: a few per cent, more at dense walls;
+docs/rendering.md has the figures), which the neural renderer's unbiased L_d does not have. So it is the quick
+look with multiple scattering, not the image to converge.
 """
 
 from __future__ import annotations
@@ -72,6 +73,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -83,7 +85,8 @@ from photon_fields.runtime.scene.levels import scene_at_level
 from photon_fields.runtime.scene.lights import DIRECTIONAL
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.cell_grid import Grid, stencil
-from photon_fields.runtime.transport.emitters import delta_light_direction
+from photon_fields.runtime.transport.direct_light import direct_light_batch
+from photon_fields.runtime.transport.emitters import delta_light_direction, environment_index
 from photon_fields.runtime.transport.light_volume import (
     DEFAULT_SHADOW_STEP,
     SHADOW_SPAN,
@@ -149,7 +152,8 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                  width: int, n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int,
                  h: float, h_shadow: float, skip: bool, units: np.ndarray, own: np.ndarray, adaptive: bool,
                  use_volume: bool, lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float, ld: np.ndarray,
-                 trans: np.ndarray, missed: np.ndarray, pick: np.ndarray, picking: bool, lo: int, hi: int) -> None:
+                 trans: np.ndarray, missed: np.ndarray, pick: np.ndarray, pick_rng: np.ndarray, picking: bool, lo: int,
+                 hi: int) -> None:
     """Work items ``work[lo:hi]`` of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why):
     each one's jittered camera ray (:func:`camera_ray`), clipped to the box (:func:`clip_to_box`) and marched
     within its tile's depth bounds (``near`` / ``far``: eye distances), in segments of base steps ``h``: the
@@ -161,7 +165,8 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
     ``picking``: each ray also keeps one of its segments' scattering centroids, drawn with probability
     proportional to the segment's weight T_k (1 - e_k) (a weighted reservoir of size one, from the ray's own random
     stream after its jitter: a re-marched ray keeps the same one), and writes ``pick`` (:data:`PICK_ROWS` x n):
-    its position, the ray's direction, W = sum_k T_k (1 - e_k) and the albedo there (W = 0: none)."""
+    its position, the ray's direction, W = sum_k T_k (1 - e_k) and the albedo there (W = 0: none), and the ray's
+    random state after its march to ``pick_rng`` (for the environment's NEE there)."""
     origin, du, dv = view[ORIGIN:ORIGIN + 3], view[DU:DU + 3], view[DV:DV + 3]
     ex, ey, ez = view[EYE], view[EYE + 1], view[EYE + 2]
     ray_phase = np.empty(kind.shape[0])
@@ -262,6 +267,7 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
         if picking and w_sum > 0.0:
             pick[PICK_W, i] = w_sum
             pick[3, i], pick[4, i], pick[5, i] = dx, dy, dz
+            pick_rng[i] = state
 
 
 @njit(cache=True, parallel=True)
@@ -269,26 +275,27 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
            n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int, h: float,
            h_shadow: float, skip: bool, units: np.ndarray, own: np.ndarray, adaptive: bool, use_volume: bool,
            lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float,
-           picking: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+           picking: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     n = work.shape[0]
     ld = np.empty((3, n))
     trans = np.empty(n)
     missed = np.zeros(n, dtype=np.bool_)
     pick = np.empty((PICK_ROWS, n if picking else 1))
+    pick_rng = np.zeros(n if picking else 1, np.uint64)
     per_task = task_items(n)  # fewer than TASK_ITEMS for the few rays re-marched after a fill
     tasks = (n + per_task - 1) // per_task
     stride = task_stride(tasks)
     for task in prange(tasks):
         b = (task * stride) % tasks  # golden-ratio order: each thread gets dense and empty blocks alike
         _march_items(m, kind, vec, rgb, g, view, width, n_pixels, work, seed, near, far, tile, h, h_shadow, skip,
-                     units, own, adaptive, use_volume, lv, wanted, grid, t_min, ld, trans, missed, pick, picking,
-                     b * per_task, min(n, (b + 1) * per_task))
-    return ld, trans, missed, pick
+                     units, own, adaptive, use_volume, lv, wanted, grid, t_min, ld, trans, missed, pick, pick_rng,
+                     picking, b * per_task, min(n, (b + 1) * per_task))
+    return ld, trans, missed, pick, pick_rng
 
 
 def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, skip: bool, lv: LightVolume | None,
                t_min: float, units: np.ndarray, own: np.ndarray, cancel: Callable[[], bool] | None = None,
-               picking: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               picking: bool = False) -> tuple[np.ndarray, np.ndarray, Picks]:
     """(L_d (3, n), transmittance (n,), picks) of work items ``work`` (``w = sample * pixels + pixel``, the camera ray
     of random stream w under ``seed``; rays that miss the box: 0 and 1). ``skip``: empty space is jumped over and
     each ray is marched only within its tile's depth bounds (:mod:`photon_fields.runtime.wavefront.depth_bounds`);
@@ -299,8 +306,8 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
     :func:`scene_own_units`; ``own`` all ones: fixed steps). ``cancel``: asked before each chunk of the fill
     (:func:`photon_fields.runtime.transport.light_volume.fill_wanted`); True stops with
     :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the cells filled so far kept.
-    ``picking``: picks is (:data:`PICK_ROWS`, n), one scattering point per ray for an L_i estimate
-    (:func:`_march_items`; else (PICK_ROWS, 1), unused)."""
+    ``picking``: picks holds one scattering point per ray for an L_i estimate (:class:`Picks`, :func:`_march_items`;
+    else placeholders)."""
     m = scene.medium()
     adaptive = bool(own.max() > 1)
     cam = scene.camera
@@ -309,32 +316,50 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
     bounds = depth_bounds_for(scene, m) if skip else unbounded()
     args = (pack_view(cam), cam.width, cam.width * cam.height)
 
-    def run(items: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def run(items: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return _march(m, kind, vec, rgb, scene.g, *args, items, int(seed), bounds.near, bounds.far, bounds.tile, h,
                       hs, skip, units, own, adaptive, lv is not None, values, wanted, grid, t_min, picking)
 
-    ld, trans, missed, pick = run(work)
+    ld, trans, missed, pick, pick_rng = run(work)
     if lv is None or not missed.any():
-        return ld, trans, pick
+        return ld, trans, Picks(pick, pick_rng)
     idx = np.flatnonzero(missed)
     if not fill_wanted(m, kind, vec, lv, cancel):
         raise batches.RenderCancelledError(f"cancelled while filling the light volume for {idx.size} rays")
-    ld[:, idx], trans[idx], still, again = run(work[idx])
+    ld[:, idx], trans[idx], still, again, again_rng = run(work[idx])
     if picking:
-        pick[:, idx] = again
+        pick[:, idx], pick_rng[idx] = again, again_rng
     if still.any():
         raise RuntimeError("ray marcher: a light-volume cell its rays read was not filled")  # cannot happen
-    return ld, trans, pick
+    return ld, trans, Picks(pick, pick_rng)
 
 
-def add_marched_indirect(film: Film, estimator: IndirectEstimator, g: float, pixel: np.ndarray,
-                         pick: np.ndarray) -> None:
-    """L_i of one batch: W a(x) Q(x, d, g) at each ray's picked point (:func:`march_work` with ``picking``)."""
-    sel = np.flatnonzero(pick[PICK_W] > 0.0)
+class Picks(NamedTuple):
+    """One scattering point per ray (:func:`march_work` with ``picking``): ``values`` (:data:`PICK_ROWS`, n) and
+    each ray's random state after its march ``rng`` (n,)."""
+
+    values: np.ndarray
+    rng: np.ndarray
+
+
+def add_marched_picks(film: Film, estimator: IndirectEstimator, scene: Scene, pixel: np.ndarray,
+                      picks: Picks) -> None:
+    """At each ray's picked point x (weight W, albedo a): L_i += W a Q(x, d, g), and, when the scene has an
+    environment light, L_d += W a NEE_env(x) (one sample of the environment's single scattering, which the
+    light volume of delta lights does not hold)."""
+    p = picks.values
+    sel = np.flatnonzero(p[PICK_W] > 0.0)
     if sel.size == 0:
         return
-    q = estimator(np.ascontiguousarray(pick[0:3, sel]), np.ascontiguousarray(pick[3:6, sel]), g)
-    film.splat("L_i", pixel[sel], q, True, weight=pick[PICK_A:PICK_A + 3, sel] * pick[PICK_W, sel])
+    x, d = np.ascontiguousarray(p[0:3, sel]), np.ascontiguousarray(p[3:6, sel])
+    weight = p[PICK_A:PICK_A + 3, sel] * p[PICK_W, sel]
+    film.splat("L_i", pixel[sel], estimator(x, d, scene.g), True, weight=weight)
+    kind, vec, rgb = scene.packed_lights()
+    e = environment_index(kind)
+    if e >= 0:
+        env = direct_light_batch(scene.medium(), kind[e:e + 1], vec[e:e + 1], rgb[e:e + 1],
+                                 scene.packed_environment_map(), scene.g, x, d, picks.rng[sel].copy(), False)
+        film.splat("L_d", pixel[sel], env, True, weight=weight)
 
 
 def scene_light_volume(scene: Scene, cells_per_voxel: float, shadow_step: float) -> LightVolume:
@@ -438,13 +463,13 @@ def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows
                 raise batches.RenderCancelledError(f"cancelled before work item {start}")
             work = tiled_work(start, count, order)
             with timer("march"):
-                ld, trans, pick = march_work(scene, work, seed, h, hs, skip_empty, lv, min_transmittance, units,
+                ld, trans, picks = march_work(scene, work, seed, h, hs, skip_empty, lv, min_transmittance, units,
                                              own, cancel, estimator is not None)
             pixel = work % n_pixels
             film.splat("L_d", pixel, ld, True)
             if estimator is not None:
                 with timer("estimate_indirect"):
-                    add_marched_indirect(film, estimator, scene.g, pixel, pick)
+                    add_marched_picks(film, estimator, scene, pixel, picks)
             if env is not None:
                 film.splat("L_e", pixel, trans[None, :] * env.behind_camera_rays(cam, work, seed), True)
             bar.update(count)
