@@ -37,14 +37,15 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
         (:func:`photon_fields.runtime.scene.labels.labels_transfer` builds one).
     lights: a rig name (:data:`photon_fields.runtime.scene.rigs.LIGHT_RIGS`: studio, sun, sky) or a list of
         light dicts in the scene-file form.
-    method: a renderer's name (pt, raymarch, photonmap, field, pvrt); ``options`` are its own settings by keyword
-        (e.g. ``max_depth=4`` for pt). ``pvrt`` precomputes a PVRT transfer for the volume, transfer function and g
-        on first use (cached like a field; ``training`` a dict of ``grid``, ``paths``, ``order``, ``basis``,
-        ``exitance_order``, ``clusters``, ``bases``) and relights it with ``lights`` (distant lights only).
-        ``field`` trains a photon field on first use (needs the ``train``
-        extra), ``photonmap`` traces a photon map, both cached in ``cache`` (default ``$PFN_CACHE`` or
-        ``~/.cache/photon-fields``); ``training`` is a trainer preset name (default ``cpu``) or a dict of
-        ``preset``, ``photons``, ``steps``, ``batch``, ``k``, ``threads``.
+    method: a renderer's name (pt, raymarch, raymarch-field, photonmap, field, pvrt); ``options`` are its own
+        settings by keyword (e.g. ``max_depth=4`` for pt). ``pvrt`` precomputes a PVRT transfer for the volume,
+        transfer function and g on first use (cached like a field; ``training`` a dict of ``grid``, ``paths``,
+        ``order``, ``basis``, ``exitance_order``, ``clusters``, ``bases``) and relights it with ``lights`` (distant
+        lights only). ``field`` trains a photon field on first use (needs the ``train`` extra; ``raymarch-field``,
+        the ray marcher with the field's L_i, uses the same cached field), ``photonmap`` traces a photon map, both
+        cached in ``cache`` (default ``$PFN_CACHE`` or ``~/.cache/photon-fields``); ``training`` is a trainer
+        preset name (default ``cpu``) or a dict of ``preset``, ``photons``, ``steps``, ``batch``, ``k``,
+        ``threads``.
     spp, seed: samples per pixel and the random seed (the same seed renders the same image).
     size: (width, height); camera: a camera dict (scene-file form) instead of the framing default.
     g: the phase function's anisotropy in (-1, 1).
