@@ -39,7 +39,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
 from bench_render import bundle_for  # noqa: E402
-from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
+from common import add_reference_args, finish_info, machine_info, parse_scenes, write_report  # noqa: E402
 
 from photon_fields.runtime.denoise.oidn import denoise_oidn, oidn_available  # noqa: E402
 from photon_fields.runtime.denoise.wrls import for_scene  # noqa: E402
@@ -181,9 +181,7 @@ def plot(results: dict[str, Any], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--scenes", nargs="*", help="builtin scenes (default: all)")
-    ap.add_argument("--size", type=int, default=256)
-    ap.add_argument("--ref-spp", type=int, default=512)
+    add_reference_args(ap)
     ap.add_argument("--pt-max-spp", type=int, default=64)
     ap.add_argument("--spps", type=int, nargs="*", default=[1, 4, 32], help="neural samples per pixel")
     ap.add_argument("--cameras", nargs="*", default=list(CAMERA_ESTIMATORS), choices=CAMERA_ESTIMATORS,

@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +42,16 @@ HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "results" / "render.json"
 BUNDLES = HERE / "results" / "render"
 TRAINING = HERE / "results" / "training"
+
+
+def scenes_with_fields(args: argparse.Namespace) -> Iterator[tuple[str, Scene, Any]]:
+    """Per scene of ``args.scenes`` (all builtins by default): its name, the scene at ``args.size`` squared and
+    its field's estimator (``args.bundle`` entries SCENE=PATH, else :func:`bundle_for`)."""
+    given = dict(b.split("=", 1) for b in args.bundle)
+    for name in parse_scenes(args.scenes):
+        base = builtin_scene(name)
+        field = PhotonField.load(bundle_for(name, base, given), expected_fingerprint=base.fingerprint())
+        yield name, base.with_overrides(width=args.size, height=args.size), field.estimator()
 
 
 def bundle_for(name: str, scene: Scene, given: dict[str, str]) -> Path:

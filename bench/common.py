@@ -8,6 +8,7 @@ of the usable cores.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import platform
@@ -62,6 +63,14 @@ def finish_info(info: dict[str, Any], results: dict[str, dict[str, Any]]) -> dic
               "those figures are pessimistic, numba's parallel kernels most of all")
     return {**info, "numba_threading_layer": layer, "load_avg_end": load_average(),
             "machine_busy": bool(disturbed)}
+
+
+def add_reference_args(ap: argparse.ArgumentParser) -> None:
+    """The options of a bench that scores images against the path tracer: ``--scenes`` (default: all builtins),
+    ``--size`` (square images, default 256) and ``--ref-spp`` (the reference's samples, default 512)."""
+    ap.add_argument("--scenes", nargs="*", help="builtin scenes (default: all)")
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--ref-spp", type=int, default=512)
 
 
 def parse_scenes(values: list[str] | None) -> list[str]:

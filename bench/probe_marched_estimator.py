@@ -30,17 +30,15 @@ from typing import Any
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
-from bench_render import bundle_for  # noqa: E402
-from common import finish_info, machine_info, parse_scenes, write_report  # noqa: E402
+from bench_render import scenes_with_fields  # noqa: E402
+from common import add_reference_args, finish_info, machine_info, write_report  # noqa: E402
 from numba import njit, prange  # noqa: E402
 
 from photon_fields.runtime.denoise.reprojection import DU, DV, EYE, ORIGIN, pack_view  # noqa: E402
 from photon_fields.runtime.eval.metrics import relative_l2  # noqa: E402
-from photon_fields.runtime.field.field import PhotonField  # noqa: E402
 from photon_fields.runtime.renderers.neural import render_neural  # noqa: E402
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
 from photon_fields.runtime.renderers.ray_marcher import light_volume_settings, scene_light_volume  # noqa: E402
-from photon_fields.runtime.scene.scene import builtin_scene  # noqa: E402
 from photon_fields.runtime.transport.cell_grid import stencil  # noqa: E402
 from photon_fields.runtime.transport.direct_light import direct_light_batch  # noqa: E402
 from photon_fields.runtime.transport.emitters import delta_light_direction  # noqa: E402
@@ -183,28 +181,22 @@ def marched_frame(scene: Any, est: Any, lv: Any, seed: int, shadow_rays: int) ->
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--scenes", nargs="*", help="builtin scenes (default: all)")
-    ap.add_argument("--size", type=int, default=256)
+    add_reference_args(ap)
     ap.add_argument("--seeds", type=int, default=4)
-    ap.add_argument("--ref-spp", type=int, default=512)
     ap.add_argument("--shadow-rays", type=int, default=2)
     ap.add_argument("--bundle", action="append", default=[], metavar="SCENE=PATH")
     ap.add_argument("--work", type=Path, default=HERE / "results" / "marched_estimator")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "marched_estimator.json")
     args = ap.parse_args(argv)
-    given = dict(b.split("=", 1) for b in args.bundle)
     info = machine_info()
     results: dict[str, Any] = {}
-    for name in parse_scenes(args.scenes):
-        base = builtin_scene(name)
-        scene = base.with_overrides(width=args.size, height=args.size)
+    for name, scene, est in scenes_with_fields(args):
         ref_path = args.work / f"ref_{name}_{args.size}_{args.ref_spp}.npz"
         if not ref_path.exists():
             r = render_path_traced(scene, spp=args.ref_spp, seed=10_000, progress=False).layers
             ref_path.parent.mkdir(parents=True, exist_ok=True)
             np.savez(ref_path, **{k: r[k] for k in ("L", "L_e", "L_d", "L_i")})
         ref = np.load(ref_path)
-        est = PhotonField.load(bundle_for(name, base, given), expected_fingerprint=base.fingerprint()).estimator()
         lv = scene_light_volume(scene, *light_volume_settings(scene))
         lv.values[lv.values < 0] = WANTED  # every cell: the probe reads them anywhere
         lv.wanted[:] = 1
