@@ -75,6 +75,7 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
     width, height = _size(size)
     check_g(g, "g")
     settings = None
+    trained = "field" if renderer.input == "bundle" else method  # what the cache holds for it
     if renderer.input == "transfer":
         from photon_fields.field_cache import cache_root, training_settings
 
@@ -83,7 +84,7 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
     elif renderer.input is not None:
         from photon_fields.field_cache import cache_root, training_settings
 
-        settings = training_settings(training, "field" if renderer.input == "bundle" else method)
+        settings = training_settings(training, trained)
         root = cache_root(cache)
     elif training is not None:
         raise InputError("training", f"method {method!r} trains nothing (only "
@@ -103,7 +104,7 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
     elif settings is not None:
         from photon_fields.field_cache import cached_input
 
-        path = cached_input(scene, "field" if renderer.input == "bundle" else method, settings, seed, root)
+        path = cached_input(scene, trained, settings, seed, root)
         inputs = _load_input(renderer.input, path, scene, threads)
     with numba_threads(threads, "threads"):
         result = renderer.render_function()(scene, spp=spp, seed=seed, progress=progress, **inputs, **options)

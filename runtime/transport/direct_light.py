@@ -102,7 +102,7 @@ def _shadow(m: Medium, px: float, py: float, pz: float, lx: float, ly: float, lz
 @njit(cache=True, inline="always")
 def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
                  py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
-                 env_mis: bool, boost: float = 1.0) -> tuple[float, float, float, np.uint64]:
+                 env_mis: bool, boost: float) -> tuple[float, float, float, np.uint64]:
     """NEE with a shadow ray to every light (module docstring): radiance (r, g, b) and the stream's state."""
     r = 0.0
     gr = 0.0
@@ -123,7 +123,7 @@ def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
 @njit(cache=True, inline="always")
 def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
                      py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
-                     env_mis: bool, boost: float = 1.0) -> tuple[float, float, float, np.uint64]:
+                     env_mis: bool, boost: float) -> tuple[float, float, float, np.uint64]:
     """:func:`direct_light`'s estimate with one shadow ray: one light drawn by its unshadowed contribution (module
     docstring), for two lights or more (:func:`direct_light_batch` gives a single light to :func:`direct_light`,
     which draws nothing: the same numbers)."""
