@@ -5,9 +5,9 @@ warm-up, against the path tracer at ``--ref-spp`` (default 512; cached in ``--wo
 
 - the path tracer at 1, 2, 4, ... ``--pt-max-spp`` spp: wall time (best of ``--repeats``) and rel. L2 (mean over
   the repeats' seeds): its error-time curve;
-- the neural renderer with each camera estimator (``--cameras``, default delta and forced) at ``--spps``
+- the neural renderer with each camera estimator (``--cameras``, default all of them) at ``--spps``
   (default 1, 4, 32): wall time and rel. L2 the same way;
-- "marched" (unless ``--no-marched``): the ray marcher with the field's L_i (``pfn-render --method
+- "raymarch-field" (unless ``--no-raymarch-field``): the ray marcher with the field's L_i (``pfn-render --method
   raymarch-field``) at the same spp: noise-free single scattering from its light volume, biased by a few per cent;
 - per neural point, the **equal-error speedup**: the path tracer's time to reach the neural image's rel. L2,
   interpolated log-log on its curve (extrapolated from the last two points when the neural image is better
@@ -133,21 +133,21 @@ def scene_curves(scene: Scene, est: Any, ref: np.ndarray, args: argparse.Namespa
     def neural(spp: int, camera: str) -> Callable[[int], np.ndarray]:
         return lambda seed: render_neural(scene, est, spp=spp, seed=seed, progress=False, camera=camera).layers["L"]
 
-    def marched(spp: int) -> Callable[[int], np.ndarray]:
+    def raymarch_field(spp: int) -> Callable[[int], np.ndarray]:
         return lambda seed: render_ray_marched(scene, spp=spp, seed=seed, progress=False, estimator=est).layers["L"]
 
     curves = {"path tracer": [{"spp": s, **measure(pt(s), ref, args.repeats)} for s in pt_spps]}
     for camera in args.cameras:
         curves[f"neural {camera}"] = [{"spp": s, **measure(neural(s, camera), ref, args.repeats)} for s in args.spps]
-    if args.marched:
-        curves["marched"] = [{"spp": s, **measure(marched(s), ref, args.repeats)} for s in args.spps]
+    if args.raymarch_field:
+        curves["raymarch-field"] = [{"spp": s, **measure(raymarch_field(s), ref, args.repeats)} for s in args.spps]
     curves["path tracer + WRLS (progressive)"] = progressive_wrls(pt(1), scene, ref, args.wrls_frames, args.repeats)
     for camera in args.cameras:
         curves[f"neural {camera} + WRLS (progressive)"] = progressive_wrls(neural(1, camera), scene, ref,
                                                                          args.wrls_frames, args.repeats)
-    if args.marched:
-        curves["marched + WRLS (progressive)"] = progressive_wrls(marched(1), scene, ref, args.wrls_frames,
-                                                                  args.repeats)
+    if args.raymarch_field:
+        curves["raymarch-field + WRLS (progressive)"] = progressive_wrls(raymarch_field(1), scene, ref,
+                                                                         args.wrls_frames, args.repeats)
     if denoise is not None:
         curves["path tracer + OIDN"] = [{"spp": s, **measure(pt(s), ref, args.repeats, denoise)} for s in (1, 4)]
         for camera in args.cameras:
@@ -186,7 +186,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--spps", type=int, nargs="*", default=[1, 4, 32], help="neural samples per pixel")
     ap.add_argument("--cameras", nargs="*", default=list(CAMERA_ESTIMATORS), choices=CAMERA_ESTIMATORS,
                     help="camera estimators")
-    ap.add_argument("--no-marched", dest="marched", action="store_false",
+    ap.add_argument("--no-raymarch-field", dest="raymarch_field", action="store_false",
                     help="leave out the ray marcher with the field's L_i (--method raymarch-field)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--wrls-frames", type=int, nargs="*", default=[1, 4, 32],
@@ -212,7 +212,7 @@ def main(argv: list[str] | None = None) -> None:
         render_path_traced(warm, spp=1, progress=False)
         for camera in args.cameras:
             render_neural(warm, est, spp=1, progress=False, camera=camera)
-        if args.marched:
+        if args.raymarch_field:
             render_ray_marched(warm, spp=1, progress=False, estimator=est)
 
         curves = scene_curves(scene, est, ref, args, pt_spps, denoise)
@@ -236,7 +236,8 @@ def main(argv: list[str] | None = None) -> None:
     write_report(args.out, "equal_error", info, {"size": args.size, "ref_spp": args.ref_spp, "pt_spps": pt_spps,
                                                  "spps": args.spps, "cameras": args.cameras,
                                                  "repeats": args.repeats, "oidn": denoise is not None,
-                                                 "wrls_frames": args.wrls_frames, "marched": args.marched},
+                                                 "wrls_frames": args.wrls_frames,
+                                                 "raymarch_field": args.raymarch_field},
                  results=results)
     plot(results, args.out.with_suffix(".png"))
     print(f"wrote {args.out.with_suffix('.png')}")

@@ -53,6 +53,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from photon_fields.runtime.renderers.ray_marcher import camera_light_volume
 from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.wavefront.batches import DEFAULT_BATCH, RenderResult
@@ -86,7 +87,8 @@ def render_neural(scene: Scene, estimator: IndirectEstimator | None, *, spp: int
     result = render_first_interaction(scene, estimator, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
                                       desc="neural rendering", direct=direct, film=film, first_sample=first_sample,
                                       camera=camera, final_gather_after=final_gather_after, cancel=cancel,
-                                      light_sampling=light_sampling)
+                                      light_sampling=light_sampling,
+                                      light_volume=camera_light_volume(scene, camera))
     after = _field_seconds(estimator)
     for key, value in after.items():  # the field's own split of stage 4: encoding / inference / decoding
         result.timings_ms[f"estimate_indirect.{key}"] = (value - stats_before.get(key, 0.0)) * 1e3

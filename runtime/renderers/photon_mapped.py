@@ -17,6 +17,7 @@ from photon_fields.runtime.photons.estimate import (
 )
 from photon_fields.runtime.photons.phase_window import answerable, map_window
 from photon_fields.runtime.photons.photon_map import PhotonMap
+from photon_fields.runtime.renderers.ray_marcher import camera_light_volume
 from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.wavefront.batches import DEFAULT_BATCH, RenderResult
@@ -47,7 +48,7 @@ def render_photon_mapped(scene: Scene, pmap: PhotonMap, *, k: int = DEFAULT_K, r
     est = PhotonMapEstimator(pmap, scene.medium(), k=k, radius=radius, g_window=window)
     result = render_first_interaction(scene, est, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
                                       desc="photon mapping", camera=camera, final_gather_after=final_gather_after,
-                                      light_sampling=light_sampling)
+                                      light_sampling=light_sampling, light_volume=camera_light_volume(scene, camera))
     if est.found:
         found = np.concatenate(est.found)
         result.stats.update({"k_mean_found": float(found.mean()), "k_saturated": float(np.mean(found >= k))})

@@ -422,6 +422,13 @@ def light_volume_settings(scene: Scene, light_grid_scale: float | None = None,
     return scale, DEFAULT_SHADOW_STEP / min(1.0, scale) if shadow_step is None else shadow_step
 
 
+def camera_light_volume(scene: Scene, camera: str) -> LightVolume | None:
+    """What a first-interaction renderer's ``camera`` estimator reads: for "marched"
+    (:mod:`photon_fields.runtime.wavefront.marched_camera`) the light volume of the preview's default settings
+    (:func:`light_volume_settings`) from the scene's cache, shared with the preview's frames; None for the others."""
+    return scene_light_volume(scene, *light_volume_settings(scene)) if camera == "marched" else None
+
+
 def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows: str = "volume",
                        shadow_step: float | None = None, light_grid_scale: float | None = None,
                        min_transmittance: float = 1e-2, max_step: float | None = None, seed: int = 0,

@@ -126,8 +126,10 @@ MAX_LEVEL = 5
 #: The first-interaction renderers' camera estimator (runtime.wavefront.first_interaction.CAMERA_ESTIMATORS; spelt
 #: out here so that building the command line does not import numba kernels).
 CAMERA_OPTION = Option("--camera-estimator", "camera", "camera estimator: forced (a collision resampled from the "
-                       "whole ray, weighted by its collision probability; less noise in thin media) or delta (delta "
-                       "tracking, the path tracer's first bounce)", str, "forced", one_of(("forced", "delta")))
+                       "whole ray, weighted by its collision probability; less noise in thin media), marched (the "
+                       "preview's cached light summed along the whole ray and corrected at one point: least noise in "
+                       "sparse media, 2-3x the time per sample) or delta (delta tracking, the path tracer's first "
+                       "bounce)", str, "forced", one_of(("forced", "marched", "delta")))
 
 #: The first-interaction renderers' NEE over several lights (runtime.wavefront.first_interaction.LIGHT_SAMPLINGS).
 LIGHT_OPTION = Option("--light-sampling", "light_sampling", "next-event estimation with several lights: one (one "

@@ -204,6 +204,89 @@ def empty_run_in(m: Medium, ix: int, iy: int, iz: int, x: float, y: float, z: fl
 
 
 @njit(cache=True, inline="always")
+def macrocell_boundaries(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, ivx: float,
+                         ivy: float, ivz: float, ix: int, iy: int, iz: int) -> tuple[float, float, float]:
+    """Distances along the ray to where it leaves macrocell (ix, iy, iz) on each axis (inf where it does not move)."""
+    cx, cy, cz = m.majorant.shape
+    return (_next_boundary(ox, ivx, m.bmin[0], m.bsize[0] / cx, ix, _sign(dx)),
+            _next_boundary(oy, ivy, m.bmin[1], m.bsize[1] / cy, iy, _sign(dy)),
+            _next_boundary(oz, ivz, m.bmin[2], m.bsize[2] / cz, iz, _sign(dz)))
+
+
+@njit(cache=True, inline="always")
+def enter_macrocell(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, ivx: float,
+                    ivy: float, ivz: float, t: float) -> tuple[int, int, int, float, float, float]:
+    """The DDA's start at distance t: the macrocell holding the point and the distances to its boundaries."""
+    ix, iy, iz = macrocell_of(m, ox + t * dx, oy + t * dy, oz + t * dz)
+    return (ix, iy, iz, *macrocell_boundaries(m, ox, oy, oz, dx, dy, dz, ivx, ivy, ivz, ix, iy, iz))
+
+
+@njit(cache=True, inline="always")
+def leap_cube(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, ivx: float, ivy: float,
+              ivz: float, ix: int, iy: int, iz: int, r: int) -> tuple[float, int, int, int, bool]:
+    """From macrocell (ix, iy, iz), whose ``Medium.leap`` entry r says that the r^3 macrocells from it on towards
+    the ray's octant are empty, to where the ray leaves them: (t, the macrocell entered there, whether it is inside
+    the grid). The index on the exit axis is known; on the others the cube bounds the one found from the position.
+    ``iv*``: 1 / d per axis (inf where d is 0)."""
+    cx, cy, cz = m.majorant.shape
+    bx, by, bz = m.bmin[0], m.bmin[1], m.bmin[2]
+    hx, hy, hz = m.bsize[0] / cx, m.bsize[1] / cy, m.bsize[2] / cz
+    gx, gy, gz = cx / m.bsize[0], cy / m.bsize[1], cz / m.bsize[2]
+    sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
+    ex = _cube_exit(ox, ivx, bx, hx, ix, sx, r)
+    ey = _cube_exit(oy, ivy, by, hy, iy, sy, r)
+    ez = _cube_exit(oz, ivz, bz, hz, iz, sz, r)
+    t = min(ex, ey, ez)
+    if ex <= ey and ex <= ez:
+        iy = _within(_cell_index(oy + t * dy, by, gy, cy), iy, sy, r)
+        iz = _within(_cell_index(oz + t * dz, bz, gz, cz), iz, sz, r)
+        ix += sx * r
+        return t, ix, iy, iz, 0 <= ix < cx
+    if ey <= ez:
+        ix = _within(_cell_index(ox + t * dx, bx, gx, cx), ix, sx, r)
+        iz = _within(_cell_index(oz + t * dz, bz, gz, cz), iz, sz, r)
+        iy += sy * r
+        return t, ix, iy, iz, 0 <= iy < cy
+    ix = _within(_cell_index(ox + t * dx, bx, gx, cx), ix, sx, r)
+    iy = _within(_cell_index(oy + t * dy, by, gy, cy), iy, sy, r)
+    iz += sz * r
+    return t, ix, iy, iz, 0 <= iz < cz
+
+
+@njit(cache=True, inline="always")
+def leap_if_empty(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, ivx: float, ivy: float,
+                  ivz: float, octant: int, ix: int, iy: int, iz: int, t: float, nx_t: float, ny_t: float,
+                  nz_t: float) -> tuple[bool, bool, float, int, int, int, float, float, float]:
+    """The DDA's leap over empty space: when ``Medium.leap`` says that at least 2^3 macrocells from (ix, iy, iz) on
+    towards the ray's ``octant`` are empty, go to where the ray leaves them (:func:`leap_cube`). Returns (leapt,
+    inside the grid, t, the macrocell, its boundaries); unchanged values and leapt False otherwise."""
+    r = int(m.leap[octant, ix, iy, iz])
+    if r < 2:
+        return False, True, t, ix, iy, iz, nx_t, ny_t, nz_t
+    t, ix, iy, iz, inside = leap_cube(m, ox, oy, oz, dx, dy, dz, ivx, ivy, ivz, ix, iy, iz, r)
+    if inside:
+        nx_t, ny_t, nz_t = macrocell_boundaries(m, ox, oy, oz, dx, dy, dz, ivx, ivy, ivz, ix, iy, iz)
+    return True, inside, t, ix, iy, iz, nx_t, ny_t, nz_t
+
+
+@njit(cache=True, inline="always")
+def step_macrocell(m: Medium, ox: float, oy: float, oz: float, ivx: float, ivy: float, ivz: float, sx: int, sy: int,
+                   sz: int, ix: int, iy: int, iz: int, nx_t: float, ny_t: float,
+                   nz_t: float) -> tuple[int, int, int, float, float, float, bool]:
+    """The DDA's step into the neighbouring macrocell across the nearest boundary (``n*_t``: the distances to the
+    current macrocell's boundaries): the new macrocell, its boundaries, whether it is inside the grid."""
+    cx, cy, cz = m.majorant.shape
+    if nx_t <= ny_t and nx_t <= nz_t:
+        ix += sx
+        return ix, iy, iz, _next_boundary(ox, ivx, m.bmin[0], m.bsize[0] / cx, ix, sx), ny_t, nz_t, 0 <= ix < cx
+    if ny_t <= nz_t:
+        iy += sy
+        return ix, iy, iz, nx_t, _next_boundary(oy, ivy, m.bmin[1], m.bsize[1] / cy, iy, sy), nz_t, 0 <= iy < cy
+    iz += sz
+    return ix, iy, iz, nx_t, ny_t, _next_boundary(oz, ivz, m.bmin[2], m.bsize[2] / cz, iz, sz), 0 <= iz < cz
+
+
+@njit(cache=True, inline="always")
 def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmin: float,
            tmax: float, state: np.uint64, mode: int, floor: float = 0.0, switch: float = 0.0,
            boost: float = 1.0) -> tuple[float, float, float, np.uint64]:
@@ -230,57 +313,21 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
     tr = 1.0
     if tmin >= tmax:
         return kept, w_sum, tr, state
-    cx, cy, cz = m.majorant.shape
-    bx, by, bz = m.bmin[0], m.bmin[1], m.bmin[2]
-    hx, hy, hz = m.bsize[0] / cx, m.bsize[1] / cy, m.bsize[2] / cz
-    gx, gy, gz = cx / m.bsize[0], cy / m.bsize[1], cz / m.bsize[2]
     sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
     ivx = 1.0 / dx if sx != 0 else math.inf
     ivy = 1.0 / dy if sy != 0 else math.inf
     ivz = 1.0 / dz if sz != 0 else math.inf
     t = tmin
-    ix = _cell_index(ox + t * dx, bx, gx, cx)
-    iy = _cell_index(oy + t * dy, by, gy, cy)
-    iz = _cell_index(oz + t * dz, bz, gz, cz)
-    nx_t = _next_boundary(ox, ivx, bx, hx, ix, sx)
-    ny_t = _next_boundary(oy, ivy, by, hy, iy, sy)
-    nz_t = _next_boundary(oz, ivz, bz, hz, iz, sz)
+    ix, iy, iz, nx_t, ny_t, nz_t = enter_macrocell(m, ox, oy, oz, dx, dy, dz, ivx, ivy, ivz, t)
     octant = (sx >= 0) + 2 * (sy >= 0) + 4 * (sz >= 0)
     tau = -1.0  # majorant optical depth left to the next tentative collision (< 0: not drawn yet)
     rest = False  # past ``switch``: the rest of the ray by delta tracking
     while True:
-        r = int(m.leap[octant, ix, iy, iz])
-        if r >= 2:
-            # The r^3 macrocells from this one on towards the ray's octant are empty: go to where the ray leaves
-            # them. The index on the exit axis is known; on the others the cube bounds the one found from the
-            # position.
-            ex = _cube_exit(ox, ivx, bx, hx, ix, sx, r)
-            ey = _cube_exit(oy, ivy, by, hy, iy, sy, r)
-            ez = _cube_exit(oz, ivz, bz, hz, iz, sz, r)
-            t = min(ex, ey, ez)
-            if t >= tmax:
+        leapt, inside, t, ix, iy, iz, nx_t, ny_t, nz_t = leap_if_empty(m, ox, oy, oz, dx, dy, dz, ivx, ivy, ivz, octant,
+                                                                      ix, iy, iz, t, nx_t, ny_t, nz_t)
+        if leapt:
+            if not inside or t >= tmax:
                 break
-            if ex <= ey and ex <= ez:
-                iy = _within(_cell_index(oy + t * dy, by, gy, cy), iy, sy, r)
-                iz = _within(_cell_index(oz + t * dz, bz, gz, cz), iz, sz, r)
-                ix += sx * r
-                if ix < 0 or ix >= cx:
-                    break
-            elif ey <= ez:
-                ix = _within(_cell_index(ox + t * dx, bx, gx, cx), ix, sx, r)
-                iz = _within(_cell_index(oz + t * dz, bz, gz, cz), iz, sz, r)
-                iy += sy * r
-                if iy < 0 or iy >= cy:
-                    break
-            else:
-                ix = _within(_cell_index(ox + t * dx, bx, gx, cx), ix, sx, r)
-                iy = _within(_cell_index(oy + t * dy, by, gy, cy), iy, sy, r)
-                iz += sz * r
-                if iz < 0 or iz >= cz:
-                    break
-            nx_t = _next_boundary(ox, ivx, bx, hx, ix, sx)
-            ny_t = _next_boundary(oy, ivy, by, hy, iy, sy)
-            nz_t = _next_boundary(oz, ivz, bz, hz, iz, sz)
             continue
         t_end = min(nx_t, ny_t, nz_t, tmax)
         maj = m.majorant[ix, iy, iz]
@@ -335,22 +382,10 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
         if t_end >= tmax:
             break
         t = t_end
-        # Step into the neighbouring macrocell across the nearest boundary.
-        if nx_t <= ny_t and nx_t <= nz_t:
-            ix += sx
-            if ix < 0 or ix >= cx:
-                break
-            nx_t = _next_boundary(ox, ivx, bx, hx, ix, sx)
-        elif ny_t <= nz_t:
-            iy += sy
-            if iy < 0 or iy >= cy:
-                break
-            ny_t = _next_boundary(oy, ivy, by, hy, iy, sy)
-        else:
-            iz += sz
-            if iz < 0 or iz >= cz:
-                break
-            nz_t = _next_boundary(oz, ivz, bz, hz, iz, sz)
+        ix, iy, iz, nx_t, ny_t, nz_t, inside = step_macrocell(m, ox, oy, oz, ivx, ivy, ivz, sx, sy, sz, ix, iy, iz,
+                                                              nx_t, ny_t, nz_t)
+        if not inside:
+            break
     return kept, w_sum, tr, state
 
 

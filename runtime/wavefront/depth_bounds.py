@@ -153,6 +153,17 @@ def _rasterize(majorant: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, view: 
     return near, far
 
 
+@njit(cache=True, inline="always")
+def ray_interval(near: np.ndarray, far: np.ndarray, tile: int, width: int, pixel: int, eye: np.ndarray, ox: float,
+                 oy: float, oz: float, dx: float, dy: float, dz: float, tmax: float) -> tuple[float, float]:
+    """The part [t0, t1] of a camera ray of ``pixel``, entering the box at o (its distances from there), where its
+    tile's rays can meet an occupied macrocell; t0 >= t1: nowhere."""
+    ty = (pixel // width) // tile
+    tx = (pixel % width) // tile
+    entry = (ox - eye[0]) * dx + (oy - eye[1]) * dy + (oz - eye[2]) * dz
+    return max(0.0, near[ty, tx] - entry), min(tmax, far[ty, tx] - entry)
+
+
 def camera_depth_bounds(m: Medium, camera: Camera, tile: int = TILE) -> DepthBounds:
     """The depth bounds of ``camera``'s tiles over ``m``'s occupied macrocells (module docstring)."""
     return grid_depth_bounds(m.majorant, m.bmin, m.bsize, camera, tile)

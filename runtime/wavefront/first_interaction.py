@@ -62,6 +62,7 @@ from photon_fields.runtime.errors import check_choice
 from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.direct_light import LIGHT_SAMPLINGS, direct_light_batch
+from photon_fields.runtime.transport.light_volume import LightVolume
 from photon_fields.runtime.transport.medium import Medium, albedo_at
 from photon_fields.runtime.transport.tracking import camera_collision, task_stride
 from photon_fields.runtime.wavefront.batches import (
@@ -74,9 +75,10 @@ from photon_fields.runtime.wavefront.batches import (
     scene_environment,
     work_batches,
 )
-from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
+from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, ray_interval, unbounded
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.final_gather import gather_indirect
+from photon_fields.runtime.wavefront.marched_camera import compact_marched, correction_direct, march_camera_rays
 from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box
 
 
@@ -91,8 +93,10 @@ class IndirectEstimator(Protocol):
 #: "delta": delta tracking to the first real collision, weight 1 (the path tracer's first bounce, bit for bit);
 #: "forced": one collision resampled from the ratio-tracking walk along the whole ray, weighted by the walk's
 #: estimate W of the collision probability (runtime.transport.tracking), so that a ray through thin media
-#: interacts with weight W instead of rarely with weight 1.
-CAMERA_ESTIMATORS = ("delta", "forced")
+#: interacts with weight W instead of rarely with weight 1; "marched": the light volume's single scattering summed
+#: over strata of the whole ray, corrected by NEE at one of them, where the field is asked too
+#: (runtime.wavefront.marched_camera; needs the scene's light volume).
+CAMERA_ESTIMATORS = ("delta", "forced", "marched")
 DEFAULT_CAMERA_ESTIMATOR = "forced"
 #: NEE at the first interactions (and at a final gather's bounce): "one" light per sample, drawn by its unshadowed
 #: contribution, or "all" lights (runtime.transport.direct_light). "one" is the default: on the embedded two-light
@@ -151,11 +155,7 @@ def _first_interactions_block(m: Medium, eye: np.ndarray, origin: np.ndarray, du
             continue
         inside += 1
         # The walk only where the tile's rays can meet an occupied macrocell (depth_bounds.py): the same samples.
-        ty = (p // width) // tile
-        tx = (p % width) // tile
-        entry = (ox - eye[0]) * dx + (oy - eye[1]) * dy + (oz - eye[2]) * dz
-        tmin = max(0.0, near[ty, tx] - entry)
-        tmax = min(tmax, far[ty, tx] - entry)
+        tmin, tmax = ray_interval(near, far, tile, width, p, eye, ox, oy, oz, dx, dy, dz, tmax)
         if not tmin < tmax:
             status[i] = ESCAPED
             continue
@@ -230,8 +230,9 @@ def check_light_sampling(name: str) -> bool:
 
 
 def check_camera_estimator(name: str) -> bool:
-    """Whether ``name`` is the forced estimator; refuses names not in :data:`CAMERA_ESTIMATORS` in one line."""
-    return check_choice("camera estimator", name, CAMERA_ESTIMATORS) == "forced"
+    """Whether ``name`` weights its collisions (forced, marched: not delta tracking's weight 1); refuses names not in
+    :data:`CAMERA_ESTIMATORS` in one line."""
+    return check_choice("camera estimator", name, CAMERA_ESTIMATORS) != "delta"
 
 
 def sample_first_interactions(scene: Scene, m: Medium, start: int, count: int, seed: int,
@@ -276,9 +277,11 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
                              camera: str = DEFAULT_CAMERA_ESTIMATOR,
                              final_gather_after: int | None = None,
                              cancel: Callable[[], bool] | None = None,
-                             light_sampling: str = DEFAULT_LIGHT_SAMPLING) -> RenderResult:
+                             light_sampling: str = DEFAULT_LIGHT_SAMPLING,
+                             light_volume: LightVolume | None = None) -> RenderResult:
     """Render ``spp`` samples per pixel (stages in the module docstring) with the ``camera`` estimator and NEE's
-    ``light_sampling`` (:data:`LIGHT_SAMPLINGS`).
+    ``light_sampling`` (:data:`LIGHT_SAMPLINGS`). The "marched" estimator reads the scene's ``light_volume`` (the
+    ray marcher's, ``runtime.renderers.ray_marcher.camera_light_volume``; filled where its rays need it).
 
     ``cancel``: asked before each batch; when it returns True the render stops with
     :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError` (the film holds part of the samples).
@@ -306,6 +309,10 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
     first, total = first_sample * n_pixels, n_pixels * spp
     batch = min(batch_size, total)
     forced = check_camera_estimator(camera)
+    marched = camera == "marched"
+    if marched and light_volume is None:
+        raise ValueError("the marched camera estimator needs the scene's light volume")
+    bounds = depth_bounds_for(scene, m) if marched else None
     one_light = check_light_sampling(light_sampling)
     scratch, status, transmit = FirstInteractions.empty(batch), np.empty(batch, np.uint8), np.empty(batch)
     distinct = batch <= n_pixels  # consecutive work items: no pixel twice in one batch (Film.splat)
@@ -315,14 +322,27 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
         for start, count in work_batches(first, total, batch, gather_from):
             if cancel is not None and cancel():
                 raise RenderCancelledError(f"cancelled before work item {start}")
-            with timer("sample_first_interactions"):
-                counts = sample_first_interactions(scene, m, start, count, seed, scratch, status, transmit, camera)
-            n_rays += int(counts[:, 1].sum())
+            cached = None
+            if marched:
+                with timer("sample_first_interactions"):
+                    items = march_camera_rays(scene, m, light_volume, np.arange(start, start + count), seed, bounds,
+                                              cancel)
+                status[:count], transmit[:count] = items.status, items.transmit
+                n_rays += int(np.count_nonzero(items.status != MISSED_BOX))
+            else:
+                with timer("sample_first_interactions"):
+                    counts = sample_first_interactions(scene, m, start, count, seed, scratch, status, transmit,
+                                                       camera)
+                n_rays += int(counts[:, 1].sum())
             if env is not None:
                 splat_environment(film, env, status[:count], transmit[:count], start, n_pixels, distinct, forced,
                                   scene, seed)
             with timer("compact"):
-                fi = compact_first_interactions(scratch, counts)
+                if marched:
+                    pixel, kept, cached = compact_marched(items, start, n_pixels)
+                    fi = FirstInteractions(pixel, kept.x, kept.d, kept.albedo, kept.rng, kept.weight)
+                else:
+                    fi = compact_first_interactions(scratch, counts)
             n_samples += len(fi)
             bar.update(count)
             if len(fi) == 0:
@@ -340,8 +360,13 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
             if direct:
                 with timer("estimate_direct"):
                     nee = direct_light_batch(m, kind, vec, rgb, env_map, scene.g, fi.x, fi.d, fi.rng, False, one_light)
+                    if cached is not None:  # marched_camera's correction: more shadow rays, less the cached light
+                        nee = correction_direct(nee, m, (kind, vec, rgb, env_map), scene.g, fi.x, fi.d, fi.rng,
+                                                cached, one_light)
                 with timer("compose"):
                     film.splat("L_d", fi.pixel, nee, distinct, weight=throughput)
+                    if cached is not None:
+                        film.splat("L_d", fi.pixel, cached.strata, distinct)
     gathered = 0 if gather_from is None else max(0, first + total - max(first, gather_from)) // n_pixels
     return finish(film, timer, spp, t_start, {"rays_in_volume": float(n_rays), "samples_in_volume": float(n_samples),
                                              "compaction_removed": 1.0 - n_samples / max(n_rays, 1),

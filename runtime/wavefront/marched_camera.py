@@ -1,0 +1,417 @@
+"""The "marched" camera estimator: every stratum of a camera ray scatters the cached light; one point is corrected.
+
+Parameters (module constants)
+-----------------------------
+STRATA_PER_DEPTH : float
+    Strata per unit of majorant optical depth (2: half an optical depth each; 1 left shell's 1-spp error at 0.50
+    instead of 0.35, its walls' residual factors too wild).
+STRATUM_VOXELS : float
+    The longest stratum, in voxels (1: the light volume's cell; 4 saved 6 % of vortex's frame for 1 % more error).
+RESIDUAL_BOOST : float
+    The residual tracker's events at this many times the majorant (4: 1-spp error of L on shell 0.350 -> 0.303, head
+    0.267 -> 0.230, vortex 0.256 -> 0.246 against 1, for a few per cent more time: the events are cheap beside the
+    strata, and the factors' spread, which makes W noisy at walls, falls as 1 / boost).
+CORRECTION_SHADOW_RAYS : int
+    Shadow rays (NEE, :func:`photon_fields.runtime.transport.direct_light.direct_light_batch`) at the picked point.
+
+The forced estimator (:mod:`photon_fields.runtime.wavefront.first_interaction`) gives every ray that crosses the
+medium one collision x, weighted by the walk's estimate W of 1 - T; its L_d is W a(x) NEE(x). On sparse media most
+of a 1-spp frame's noise is where along the ray x falls, and the one shadow ray there: the ray marcher, whose
+light volume holds each delta light's transmittance on a grid, has neither noise, but its L_d is biased by the
+cache (docs/rendering.md, "The light volume as a control variate"). This estimator takes the cache as a control
+variate and corrects it at one point, so it is unbiased and keeps most of the march's smoothness.
+
+**Strata.** Per macrocell that the ray crosses with majorant mu > 0, its stretch [t_a, t_b] is cut into n equal
+strata of length l no longer than a voxel and 1 / (STRATA_PER_DEPTH mu) (a partition fixed by the medium and the
+ray); each stratum k is sampled at t_k = its start + u l with one jitter u per ray, so that
+``sum_k l f(t_k)`` is an unbiased estimate of the integral of f along the ray.
+
+**Transmittance to each point: residual ratio tracking** (Novak et al. 2014). With a control extinction sigma_c
+piecewise constant along the ray (here sigma_t(t_k) over stratum k: one lookup per stratum, which also gives the
+albedo there; the control may depend on u, since the tracking's events are independent of it),
+
+    T^(t) = exp(-integral_0^t sigma_c) * prod_{events e < t} (1 - (sigma_t(e) - sigma_c(e)) / mu(e))
+
+over a Poisson process of events at rate mu >= the local majorant (here ``RESIDUAL_BOOST`` times it) is an
+unbiased estimate of T(t) for any such control: each factor's mean given its position cancels the residual's
+share of the optical depth. Since 0 <= sigma_t <= mu, a factor lies in [sigma_c / mu, 1 + sigma_c / mu]: never
+negative where sigma_c <= mu, and closer to 1 the larger mu. The exponential carries
+the bulk of the attenuation without noise; the events only correct the control's error within a stratum.
+
+**The opaque rest.** Once the estimate T_c falls below ``CAMERA_SWITCH`` (the forced walk's switch,
+:mod:`photon_fields.runtime.transport.tracking`), the rest of the ray is one delta-tracking flight, and its real
+collision, if any, is one more candidate of weight T_c (the transmittance estimate at the end becomes 0; an escape
+keeps T_c). Unbiased for the same reason as the forced walk's rest: T_c is an unbiased estimate of T at the switch
+and independent of the flight, which collides in dt with probability T(t_c -> t) sigma_t dt. A dense wall costs a
+flight of about one optical depth instead of strata down to a few per cent.
+
+**The estimator.** w_k = l sigma_t(t_k) T^(t_k) estimates, summed against f, the integral of T sigma_t f along the
+ray (the pdf of delta tracking's first collision, unnormalised). With the light volume's delta-light direct light
+D_lv (the ray marcher's, :mod:`photon_fields.runtime.transport.light_volume`; phase and fall-off at t_k) and one
+index J drawn with probability |w_J| / sum |w_k| over the candidates (the strata and the rest's collision; a
+reservoir of size one along the walk), W = sign(w_J) sum |w_k|:
+
+    L_d = sum_k w_k a_k D_lv(x_k) + W a_J (NEE - D_lv)(x_J),    L_i = W a_J Q(x_J, d, g)
+
+Both terms of L_d and L_i are unbiased for the path tracer's single-scattering and multiply-scattered light at
+the first collision (given the walk, W a_J g(x_J) has mean sum_k w_k a_k g(x_k) for any g), so the image converges
+to the delta and forced estimators' (tests/runtime/wavefront/test_camera_estimators.py, with a light volume of
+random values too). NEE includes the environment light, which D_lv does not hold: its single scattering is
+estimated at x_J alone. The transmittance estimate T^ at the ray's end weighs the environment behind the volume.
+
+Where the variance goes: the sum over strata replaces "where along the ray" by a stratified quadrature of a
+smooth cached light; the correction's noise is W (NEE - D_lv), small where the cache is close (away from sharp
+lit walls), halved by ``CORRECTION_SHADOW_RAYS`` = 2. L_i keeps one field query per ray, now at a point drawn by
+the strata's weights. Costs and figures: docs/rendering.md, bench/README.md.
+
+**The cache.** The light volume is filled on demand (a stratum that reads an unfilled cell marks it, the marked
+cells are marched, those rays walked once more from the same random state: the same sums as with a filled
+volume), and kept in the scene's cache, shared with the ray marcher (``camera_light_volume`` in
+runtime/renderers/ray_marcher.py gives it to the renderers, which pass it here).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from photon_fields.runtime.scene.lights import DIRECTIONAL
+from photon_fields.runtime.scene.scene import Scene
+from photon_fields.runtime.transport.cell_grid import Grid, stencil
+from photon_fields.runtime.transport.direct_light import direct_light_batch
+from photon_fields.runtime.transport.emitters import delta_light_direction
+from photon_fields.runtime.transport.light_volume import LightVolume, fill_wanted, light_transmittance, want_stencil
+from photon_fields.runtime.transport.medium import Medium, albedo_at, extinction_albedo_at, extinction_at
+from photon_fields.runtime.transport.phase import hg_eval
+from photon_fields.runtime.transport.rng import next_float
+from photon_fields.runtime.transport.tracking import (
+    CAMERA_SWITCH,
+    _sign,
+    enter_macrocell,
+    leap_if_empty,
+    step_macrocell,
+    task_items,
+    task_stride,
+)
+from photon_fields.runtime.wavefront.batches import RenderCancelledError
+from photon_fields.runtime.wavefront.depth_bounds import DepthBounds, ray_interval
+from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box
+
+STRATA_PER_DEPTH = 2.0
+STRATUM_VOXELS = 1.0
+CORRECTION_SHADOW_RAYS = 2
+RESIDUAL_BOOST = 4.0
+#: Status of a work item (the values of first_interaction's MISSED_BOX, ESCAPED, INTERACTED).
+_MISSED_BOX, _ESCAPED, _INTERACTED = 0, 1, 2
+
+
+@dataclass
+class MarchedItems:
+    """Per work item of one batch, structure of arrays: the picked point ``x`` and ray direction ``d`` (3, n), the
+    albedo there (3, n), the weight W (n,), the random state after the walk (n,); the strata's sum
+    ``cached`` = sum_k w_k a_k D_lv(x_k) (3, n) and ``cached_at_pick`` = D_lv(x_J) (3, n); ``status`` (n,) and
+    the transmittance estimate to the ray's end ``transmit`` (n,)."""
+
+    x: np.ndarray
+    d: np.ndarray
+    albedo: np.ndarray
+    weight: np.ndarray
+    rng: np.ndarray
+    cached: np.ndarray
+    cached_at_pick: np.ndarray
+    status: np.ndarray
+    transmit: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int) -> MarchedItems:
+        return cls(np.empty((3, n)), np.empty((3, n)), np.empty((3, n)), np.empty(n), np.empty(n, np.uint64),
+                   np.empty((3, n)), np.empty((3, n)), np.empty(n, np.uint8), np.empty(n))
+
+    def take(self, idx: np.ndarray) -> MarchedItems:
+        return MarchedItems(*(a[..., idx] for a in (self.x, self.d, self.albedo, self.weight, self.rng, self.cached,
+                                                    self.cached_at_pick, self.status, self.transmit)))
+
+    def put(self, idx: np.ndarray, other: MarchedItems) -> None:
+        for name in ("x", "d", "albedo", "weight", "rng", "cached", "cached_at_pick", "status", "transmit"):
+            getattr(self, name)[..., idx] = getattr(other, name)
+
+
+@njit(cache=True, inline="always")
+def cached_direct(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, ray_phase: np.ndarray,
+                  lv: np.ndarray, wanted: np.ndarray, grid: Grid, x: float, y: float, z: float, dx: float, dy: float,
+                  dz: float) -> tuple[float, float, float, bool]:
+    """D_lv at x for a ray along d: every delta light's phase, fall-off, colour and cached transmittance; False
+    (and the unfilled corners marked, :func:`want_stencil`) when a cell it reads is not filled yet.
+    ``ray_phase``: the phase of each directional light for this ray (the same at every point of it)."""
+    ci, cj, ck, fx, fy, fz = stencil(grid, x, y, z)
+    r = gg = b = 0.0
+    ok = True
+    for k in range(kind.shape[0]):
+        lx, ly, lz, scale, _ = delta_light_direction(kind[k], vec[k], x, y, z)
+        if scale <= 0.0:
+            continue
+        tl = light_transmittance(lv, k, ci, cj, ck, fx, fy, fz)
+        if tl < 0.0:
+            want_stencil(lv, wanted, k, ci, cj, ck)
+            ok = False
+            continue
+        ph = ray_phase[k] if kind[k] == DIRECTIONAL else hg_eval(g, dx * lx + dy * ly + dz * lz)
+        c = ph * scale * tl
+        r += c * rgb[k, 0]
+        gg += c * rgb[k, 1]
+        b += c * rgb[k, 2]
+    return r, gg, b, ok
+
+
+@njit(cache=True, inline="always")
+def majorant_events(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, t: float,
+                    t_end: float, mu: float, sigma_c: float, tau: float, ratio: float, state: np.uint64,
+                    flight: bool) -> tuple[float, float, float, np.uint64]:
+    """The Poisson events at majorant ``mu`` over [t, t_end]: (tau left, ratio, collision distance, state).
+    ``tau`` is the majorant optical depth left to the next event (< 0: not drawn yet), carried across calls so that
+    the events are one Poisson process along the ray. ``flight`` False: residual ratio tracking against the control
+    ``sigma_c`` (module docstring), ``ratio`` times each event's factor, no collision (inf). True: delta tracking,
+    the first real collision's distance (inf if none in the stretch), ``ratio`` unchanged."""
+    while True:
+        if tau < 0.0:
+            state, u = next_float(state)
+            tau = -math.log(1.0 - u)
+        depth = mu * (t_end - t)
+        if tau >= depth:
+            return tau - depth, ratio, math.inf, state
+        t += tau / mu
+        tau = -1.0
+        sigma = extinction_at(m, ox + t * dx, oy + t * dy, oz + t * dz)
+        if flight:
+            state, u = next_float(state)
+            if u * mu < sigma:
+                return tau, ratio, t, state
+            continue
+        ratio *= 1.0 - (sigma - sigma_c) / mu
+
+
+@njit(cache=True, inline="always")
+def _score(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, ray_phase: np.ndarray, lv: np.ndarray,
+           wanted: np.ndarray, grid: Grid, x: float, y: float, z: float, dx: float, dy: float, dz: float, a0: float,
+           a1: float, a2: float, w: float, w_abs: float, i: int, state: np.uint64, out_x: np.ndarray,
+           out_a: np.ndarray, at_pick: np.ndarray,
+           missed: np.ndarray) -> tuple[float, float, float, float, bool, np.uint64]:
+    """One candidate of weight w at x (albedo a): its share w a D_lv(x) of the strata's sum and its turn in the
+    reservoir (kept with probability |w| / the running sum of |w|, written to item i's pick): (share, the sum of
+    |w|, whether it was kept, state). A cache cell not filled yet marks the item ``missed``."""
+    l0, l1, l2, ok = cached_direct(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx, dy, dz)
+    if not ok:
+        missed[i] = True
+    kept = False
+    if w != 0.0:
+        w_abs += abs(w)
+        state, v = next_float(state)
+        if v * w_abs < abs(w):
+            kept = True
+            out_x[0, i], out_x[1, i], out_x[2, i] = x, y, z
+            out_a[0, i], out_a[1, i], out_a[2, i] = a0, a1, a2
+            at_pick[0, i], at_pick[1, i], at_pick[2, i] = l0, l1, l2
+    return w * a0 * l0, w * a1 * l1, w * a2 * l2, w_abs, kept, state
+
+
+@njit(cache=True)
+def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, eye: np.ndarray,
+                 origin: np.ndarray, du: np.ndarray, dv: np.ndarray, width: int, n_pixels: int, work: np.ndarray,
+                 s0: np.uint64, near: np.ndarray, far: np.ndarray, tile: int,
+                 walk: tuple[float, float, float, float], lv: np.ndarray, wanted: np.ndarray, grid: Grid,
+                 out_x: np.ndarray, out_d: np.ndarray, out_a: np.ndarray, out_w: np.ndarray, out_rng: np.ndarray,
+                 cached: np.ndarray, at_pick: np.ndarray, status: np.ndarray, transmit: np.ndarray, missed: np.ndarray,
+                 lo: int, hi: int) -> None:
+    """Items lo .. hi - 1 of :func:`_march`, serially (the walk of the module docstring). ``walk``: the longest
+    stratum (world units), strata per majorant optical depth, the switch to the opaque rest, the residual events'
+    boost (:func:`march_camera_rays`)."""
+    voxel, per_depth, switch, boost = walk
+    ray_phase = np.empty(kind.shape[0])
+    for i in range(lo, hi):
+        dx, dy, dz, p, s = camera_ray(origin, du, dv, width, n_pixels, work[i], s0)
+        hit, ox, oy, oz, tmax = clip_to_box(m, eye[0], eye[1], eye[2], dx, dy, dz)
+        transmit[i] = 1.0
+        out_w[i] = 0.0
+        cached[0, i] = cached[1, i] = cached[2, i] = 0.0
+        if not hit:
+            status[i] = _MISSED_BOX
+            continue
+        status[i] = _ESCAPED
+        t, tmax = ray_interval(near, far, tile, width, p, eye, ox, oy, oz, dx, dy, dz, tmax)
+        if not t < tmax:
+            continue
+        for k in range(kind.shape[0]):
+            if kind[k] == DIRECTIONAL:
+                ray_phase[k] = hg_eval(g, -(dx * vec[k, 0] + dy * vec[k, 1] + dz * vec[k, 2]))
+        s, u = next_float(s)  # the strata's jitter
+        sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
+        ivx = 1.0 / dx if sx != 0 else math.inf
+        ivy = 1.0 / dy if sy != 0 else math.inf
+        ivz = 1.0 / dz if sz != 0 else math.inf
+        octant = (sx >= 0) + 2 * (sy >= 0) + 4 * (sz >= 0)
+        ix, iy, iz, nx_t, ny_t, nz_t = enter_macrocell(m, ox, oy, oz, dx, dy, dz, ivx, ivy, ivz, t)
+        tau = -1.0
+        ratio = 1.0  # the residual tracker's product; the transmittance estimate is exp(-tau_c) ratio
+        tau_c = 0.0
+        w_abs = 0.0
+        w_pick = 0.0
+        m0 = m1 = m2 = 0.0
+        rest = -1.0  # >= 0: the transmittance estimate where the rest's flight began
+        done = False
+        while not done:
+            leapt, inside, t, ix, iy, iz, nx_t, ny_t, nz_t = leap_if_empty(m, ox, oy, oz, dx, dy, dz, ivx, ivy, ivz,
+                                                                          octant, ix, iy, iz, t, nx_t, ny_t, nz_t)
+            if leapt:
+                if not inside or t >= tmax:
+                    break
+                continue
+            t_end = min(nx_t, ny_t, nz_t, tmax)
+            mu = m.majorant[ix, iy, iz]
+            if mu > 0.0 and t_end > t and rest < 0.0:
+                n = int(math.ceil((t_end - t) / min(voxel, 1.0 / (per_depth * mu))))
+                length = (t_end - t) / n
+                for j in range(n):
+                    a = t + j * length
+                    b = t_end if j == n - 1 else a + length
+                    tk = a + u * (b - a)
+                    x, y, z = ox + tk * dx, oy + tk * dy, oz + tk * dz
+                    sc, a0, a1, a2 = extinction_albedo_at(m, x, y, z)
+                    tau, ratio, _, s = majorant_events(m, ox, oy, oz, dx, dy, dz, a, tk, boost * mu, sc, tau, ratio, s,
+                                                       False)
+                    if sc > 0.0:
+                        w = (b - a) * sc * math.exp(-(tau_c + sc * (tk - a))) * ratio
+                        d0, d1, d2, w_abs, kept, s = _score(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z,
+                                                            dx, dy, dz, a0, a1, a2, w, w_abs, i, s, out_x, out_a,
+                                                            at_pick, missed)
+                        m0 += d0
+                        m1 += d1
+                        m2 += d2
+                        if kept:
+                            w_pick = w
+                    tau, ratio, _, s = majorant_events(m, ox, oy, oz, dx, dy, dz, tk, b, boost * mu, sc, tau, ratio, s,
+                                                       False)
+                    tau_c += sc * (b - a)
+                    if math.exp(-tau_c) * ratio < switch:
+                        rest = math.exp(-tau_c) * ratio
+                        t = b  # the rest of this macrocell by the flight below
+                        break
+            if mu > 0.0 and t_end > t and rest >= 0.0:
+                tau, _, tc, s = majorant_events(m, ox, oy, oz, dx, dy, dz, t, t_end, mu, 0.0, tau, 1.0, s, True)
+                if tc < math.inf:
+                    x, y, z = ox + tc * dx, oy + tc * dy, oz + tc * dz
+                    a0, a1, a2 = albedo_at(m, x, y, z)
+                    d0, d1, d2, w_abs, kept, s = _score(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx,
+                                                        dy, dz, a0, a1, a2, rest, w_abs, i, s, out_x, out_a, at_pick,
+                                                        missed)
+                    m0 += d0
+                    m1 += d1
+                    m2 += d2
+                    if kept:
+                        w_pick = rest
+                    rest = 0.0
+                    done = True
+            if done or t_end >= tmax:
+                break
+            t = t_end
+            ix, iy, iz, nx_t, ny_t, nz_t, inside = step_macrocell(m, ox, oy, oz, ivx, ivy, ivz, sx, sy, sz, ix, iy,
+                                                                  iz, nx_t, ny_t, nz_t)
+            if not inside:
+                break
+        transmit[i] = rest if rest >= 0.0 else math.exp(-tau_c) * ratio
+        cached[0, i], cached[1, i], cached[2, i] = m0, m1, m2
+        if w_abs > 0.0:
+            status[i] = _INTERACTED
+            out_w[i] = w_abs if w_pick > 0.0 else -w_abs
+            out_d[0, i], out_d[1, i], out_d[2, i] = dx, dy, dz
+            out_rng[i] = s
+
+
+@njit(cache=True, parallel=True)
+def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, eye: np.ndarray,
+           origin: np.ndarray, du: np.ndarray, dv: np.ndarray, width: int, n_pixels: int, work: np.ndarray,
+           seed: int, near: np.ndarray, far: np.ndarray, tile: int, walk: tuple[float, float, float, float],
+           lv: np.ndarray, wanted: np.ndarray, grid: Grid, out_x: np.ndarray, out_d: np.ndarray, out_a: np.ndarray,
+           out_w: np.ndarray, out_rng: np.ndarray, cached: np.ndarray, at_pick: np.ndarray, status: np.ndarray,
+           transmit: np.ndarray) -> np.ndarray:
+    n = work.shape[0]
+    missed = np.zeros(n, np.bool_)
+    per_task = task_items(n)
+    tasks = (n + per_task - 1) // per_task
+    stride = task_stride(tasks)
+    s0 = np.uint64(seed)
+    for task in prange(tasks):
+        b = (task * stride) % tasks  # golden-ratio order: each thread gets dense and empty blocks alike
+        _march_items(m, kind, vec, rgb, g, eye, origin, du, dv, width, n_pixels, work, s0, near, far, tile, walk,
+                     lv, wanted, grid, out_x, out_d, out_a, out_w, out_rng, cached, at_pick, status, transmit, missed,
+                     b * per_task, min(n, (b + 1) * per_task))
+    return missed
+
+
+def march_camera_rays(scene: Scene, m: Medium, lv: LightVolume, work: np.ndarray, seed: int, bounds: DepthBounds,
+                      cancel: object = None) -> MarchedItems:
+    """Stage 1 of the marched estimator for work items ``work`` (``sample * pixels + pixel``; the camera ray of
+    random stream w under ``seed``, as every renderer's): the walk of the module docstring per item. Rays that read
+    unfilled light-volume cells mark them; the cells are marched and those rays walked again from the same random
+    state, so the result is the one a filled volume gives. ``cancel`` (a callable or None) is asked during the
+    fill; True stops with :class:`RenderCancelledError`."""
+    kind, vec, rgb = scene.packed_lights()
+    cam = scene.camera
+    origin, du, dv = cam.image_plane()
+    eye = np.ascontiguousarray(cam.eye, dtype=np.float64)
+    walk = (float(scene.volume.voxel_size) * STRATUM_VOXELS, float(STRATA_PER_DEPTH), float(CAMERA_SWITCH),
+            float(RESIDUAL_BOOST))
+
+    def run(items: np.ndarray) -> tuple[MarchedItems, np.ndarray]:
+        out = MarchedItems.empty(items.shape[0])
+        missed = _march(m, kind, vec, rgb, float(scene.g), eye, origin, du, dv, cam.width, cam.width * cam.height,
+                        items, int(seed), bounds.near, bounds.far, bounds.tile, walk, lv.values, lv.wanted, lv.grid,
+                        out.x, out.d, out.albedo, out.weight, out.rng, out.cached, out.cached_at_pick, out.status,
+                        out.transmit)
+        return out, missed
+
+    items, missed = run(work)
+    if missed.any():
+        idx = np.flatnonzero(missed)
+        if not fill_wanted(m, kind, vec, lv, cancel):  # type: ignore[arg-type]
+            raise RenderCancelledError(f"cancelled while filling the light volume for {idx.size} rays")
+        again, still = run(work[idx])
+        if still.any():
+            raise RuntimeError("marched camera: a light-volume cell its rays read was not filled")  # cannot happen
+        items.put(idx, again)
+    return items
+
+
+class CachedLight(NamedTuple):
+    """The interacting items' light-volume terms (3, n) each: ``strata`` = sum_k w_k a_k D_lv(x_k), the control
+    variate's integral, and ``at_pick`` = D_lv(x_J), what the correction subtracts."""
+
+    strata: np.ndarray
+    at_pick: np.ndarray
+
+
+def compact_marched(items: MarchedItems, start: int, n_pixels: int) -> tuple[np.ndarray, MarchedItems, CachedLight]:
+    """The interacting items (a pick was made) in work-item order: their flat pixels, their arrays, their cached
+    light (the strata's sum is 0 on every other item)."""
+    idx = np.flatnonzero(items.status == _INTERACTED)
+    kept = items.take(idx)
+    return (start + idx) % n_pixels, kept, CachedLight(kept.cached, kept.cached_at_pick)
+
+
+#: Salt of the random streams of the correction's extra shadow rays (xor'ed into each item's state).
+_SHADOW_SALT = np.uint64(0xD1B54A32D192ED03)
+
+
+def correction_direct(nee: np.ndarray, m: Medium, lights: tuple, g: float, x: np.ndarray, d: np.ndarray,
+                      rng: np.ndarray, cached: CachedLight, one_light: bool) -> np.ndarray:
+    """(NEE - D_lv)(x_J) per item (3, n), NEE averaged over :data:`CORRECTION_SHADOW_RAYS` (``nee``: the first,
+    from the item's own random state; the others from salted copies of it)."""
+    kind, vec, rgb, env_map = lights
+    total = nee.copy()
+    for r in range(1, CORRECTION_SHADOW_RAYS):
+        states = rng ^ (_SHADOW_SALT * np.uint64(r))
+        total += direct_light_batch(m, kind, vec, rgb, env_map, g, x, d, states, False, one_light)
+    return total / CORRECTION_SHADOW_RAYS - cached.at_pick
