@@ -196,7 +196,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = ap.parse_args(argv)
     given = dict(b.split("=", 1) for b in args.bundle)
-    denoise = denoise_oidn if oidn_available() else None
+    # As pfn-render --denoise: the marched estimator's rare negative pixels clamped to 0 first.
+    denoise = (lambda img: denoise_oidn(np.maximum(img, 0.0))) if oidn_available() else None
     if denoise is None:
         print("pyoidn is not installed: no OIDN rows (pip install 'photon-fields[oidn]')")
     info = machine_info()

@@ -233,9 +233,14 @@ def denoise_layers(layers: dict[str, Any], denoiser: Denoiser | None,
     without one)."""
     if denoiser is None:
         return layers, None
+    import numpy as np  # the CLI module imports no numpy at start-up
+
     what = f"--denoise {denoiser.name}"
     t0 = time.perf_counter()
-    clean = denoiser.denoise_function()(layers["L"], threads=threads, what=what)
+    # An unbiased estimator with a control variate (the "marched" camera estimator) leaves a pixel of a few samples
+    # slightly negative now and then; a denoiser takes radiance >= 0, and clamping them costs far less than the
+    # noise it removes.
+    clean = denoiser.denoise_function()(np.maximum(layers["L"], 0.0), threads=threads, what=what)
     ms = (time.perf_counter() - t0) * 1e3
     out = {"L": clean, "L_noisy": layers["L"], **{k: v for k, v in layers.items() if k != "L"}}
     return out, {"name": denoiser.name, "ms": ms, "input": "L", "noisy_layer": "L_noisy",

@@ -245,3 +245,22 @@ def test_cli_writes_denoised_l_and_keeps_the_noisy_layers(tmp_path: Path, capsys
         png = np.asarray(im)
     assert np.array_equal(png, tonemap_srgb(layers["L"], float(meta[EXPOSURE_METADATA])))
     assert report["exposure"]["stops"] == float(meta[EXPOSURE_METADATA])
+
+
+def test_cli_denoises_radiance_clamped_at_zero() -> None:
+    """pfn-render --denoise gives the denoiser L with its negative pixels (an unbiased estimator's control variate
+    leaves a few at low spp: the "marched" camera estimator) at 0, and keeps the renderer's own L as L_noisy."""
+    from photon_fields.runtime.cli.render import denoise_layers
+    from photon_fields.runtime.denoise.registry import Denoiser
+
+    seen = []
+
+    class StandIn(Denoiser):
+        def denoise_function(self):  # noqa: ANN202
+            return lambda image, threads, what: seen.append(image) or image + 1.0
+
+    noisy = np.full((4, 5, 3), 0.5, np.float32)
+    noisy[1, 2, 0] = -0.01
+    out, report = denoise_layers({"L": noisy, "L_d": noisy}, StandIn("stand-in", "test"), None)
+    assert seen[0].min() == 0.0 and seen[0][0, 0, 0] == 0.5
+    assert out["L_noisy"] is noisy and out["L"][1, 2, 0] == 1.0 and report["name"] == "stand-in"
