@@ -44,7 +44,9 @@ restricted to the ray (pdf sigma_t T / (1 - T(t_max)) in expectation), and W, th
 1 - T(t_max), weights it, so every ray that crosses the medium contributes; the environment behind the
 volume is weighted by the walk's transmittance estimate instead of being seen or not. Both estimate the
 same image (tests/runtime/wavefront/test_camera_estimators.py); docs/rendering.md has the derivation and
-what each costs.
+what each costs. "marched" (:mod:`photon_fields.runtime.wavefront.marched_camera`) replaces stages 1-2 by its own
+walk, which also sums the ray marcher's cached single scattering over strata of the ray; its L_d adds that sum to
+the correction W a(x) (NEE - cached)(x) at the picked x.
 """
 
 from __future__ import annotations
@@ -254,6 +256,8 @@ def sample_first_interactions(scene: Scene, m: Medium, start: int, count: int, s
     (:mod:`photon_fields.runtime.wavefront.depth_bounds`, computed once per scene object); the same samples, bit
     for bit, as the walk of the whole ray (False)."""
     forced = check_camera_estimator(camera)
+    if camera == "marched":
+        raise ValueError("the marched estimator samples its own first interactions (marched_camera.march_camera_rays)")
     cam = scene.camera
     origin, du, dv = cam.image_plane()
     bounds = depth_bounds_for(scene, m) if depth_bounds else unbounded()
