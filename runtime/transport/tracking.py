@@ -287,6 +287,22 @@ def step_macrocell(m: Medium, ox: float, oy: float, oz: float, ivx: float, ivy: 
 
 
 @njit(cache=True, inline="always")
+def next_event(t: float, t_end: float, mu: float, tau: float,
+               state: np.uint64) -> tuple[bool, float, float, np.uint64]:
+    """The next tentative collision of a Poisson process of rate ``mu`` after t, if it falls before ``t_end``:
+    (whether it does, its distance, tau, state). ``tau`` is the optical depth of rate ``mu`` left to it (< 0: draw
+    it now), spent across calls so that a walk's stretches of different rates make one process; after an event it
+    is -1, otherwise what is left past ``t_end``."""
+    if tau < 0.0:
+        state, u = next_float(state)
+        tau = -math.log(1.0 - u)
+    depth = mu * (t_end - t)
+    if tau >= depth:
+        return False, t_end, tau - depth, state
+    return True, t + tau * (1.0 / mu), -1.0, state
+
+
+@njit(cache=True, inline="always")
 def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, tmin: float,
            tmax: float, state: np.uint64, mode: int, floor: float = 0.0, switch: float = 0.0,
            boost: float = 1.0) -> tuple[float, float, float, np.uint64]:
@@ -335,16 +351,11 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
             maj *= boost
         if maj > 0.0:
             while True:
-                if tau < 0.0:
-                    state, u = next_float(state)
-                    tau = -math.log(1.0 - u)
-                depth = maj * (t_end - t)
-                if tau >= depth:
-                    tau -= depth
+                hit, t_event, tau, state = next_event(t, t_end, maj, tau, state)
+                if not hit:
                     break
+                t = t_event
                 inv_maj = 1.0 / maj  # one division per tentative collision, not three
-                t += tau * inv_maj
-                tau = -1.0
                 sigma = extinction_at(m, ox + t * dx, oy + t * dy, oz + t * dz)
                 if rest:
                     state, u = next_float(state)

@@ -93,6 +93,7 @@ from photon_fields.runtime.transport.tracking import (
     _sign,
     enter_macrocell,
     leap_if_empty,
+    next_event,
     step_macrocell,
     task_items,
     task_stride,
@@ -177,14 +178,9 @@ def majorant_events(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: f
     ``sigma_c`` (module docstring), ``ratio`` times each event's factor, no collision (inf). True: delta tracking,
     the first real collision's distance (inf if none in the stretch), ``ratio`` unchanged."""
     while True:
-        if tau < 0.0:
-            state, u = next_float(state)
-            tau = -math.log(1.0 - u)
-        depth = mu * (t_end - t)
-        if tau >= depth:
-            return tau - depth, ratio, math.inf, state
-        t += tau / mu
-        tau = -1.0
+        hit, t, tau, state = next_event(t, t_end, mu, tau, state)
+        if not hit:
+            return tau, ratio, math.inf, state
         sigma = extinction_at(m, ox + t * dx, oy + t * dy, oz + t * dz)
         if flight:
             state, u = next_float(state)
