@@ -320,7 +320,8 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
     The walk: a 3D DDA over the majorant grid; in a macrocell with majorant > 0 the optical depth to the next
     tentative collision is spent (module docstring); from an empty macrocell it leaps over the cube of empty macrocells
     ahead of it (``Medium.leap``). Inlined into every caller: a call passing the medium's arrays costs more
-    than a short walk."""
+    than a short walk. (Its DDA is written out here, not through the helpers above that the marched camera walk
+    uses: calling them inline made every kernel that inlines this walk compile 35-65 % slower.)"""
     t0, t1 = intersect_box(m, ox, oy, oz, dx, dy, dz)
     tmin = max(tmin, t0)
     tmax = min(tmax, t1)
@@ -329,21 +330,57 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
     tr = 1.0
     if tmin >= tmax:
         return kept, w_sum, tr, state
+    cx, cy, cz = m.majorant.shape
+    bx, by, bz = m.bmin[0], m.bmin[1], m.bmin[2]
+    hx, hy, hz = m.bsize[0] / cx, m.bsize[1] / cy, m.bsize[2] / cz
+    gx, gy, gz = cx / m.bsize[0], cy / m.bsize[1], cz / m.bsize[2]
     sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
     ivx = 1.0 / dx if sx != 0 else math.inf
     ivy = 1.0 / dy if sy != 0 else math.inf
     ivz = 1.0 / dz if sz != 0 else math.inf
     t = tmin
-    ix, iy, iz, nx_t, ny_t, nz_t = enter_macrocell(m, ox, oy, oz, dx, dy, dz, ivx, ivy, ivz, t)
+    ix = _cell_index(ox + t * dx, bx, gx, cx)
+    iy = _cell_index(oy + t * dy, by, gy, cy)
+    iz = _cell_index(oz + t * dz, bz, gz, cz)
+    nx_t = _next_boundary(ox, ivx, bx, hx, ix, sx)
+    ny_t = _next_boundary(oy, ivy, by, hy, iy, sy)
+    nz_t = _next_boundary(oz, ivz, bz, hz, iz, sz)
     octant = (sx >= 0) + 2 * (sy >= 0) + 4 * (sz >= 0)
     tau = -1.0  # majorant optical depth left to the next tentative collision (< 0: not drawn yet)
     rest = False  # past ``switch``: the rest of the ray by delta tracking
     while True:
-        leapt, inside, t, ix, iy, iz, nx_t, ny_t, nz_t = leap_if_empty(m, ox, oy, oz, dx, dy, dz, ivx, ivy, ivz, octant,
-                                                                      ix, iy, iz, t, nx_t, ny_t, nz_t)
-        if leapt:
-            if not inside or t >= tmax:
+        r = int(m.leap[octant, ix, iy, iz])
+        if r >= 2:
+            # The r^3 macrocells from this one on towards the ray's octant are empty: go to where the ray leaves
+            # them. The index on the exit axis is known; on the others the cube bounds the one found from the
+            # position.
+            ex = _cube_exit(ox, ivx, bx, hx, ix, sx, r)
+            ey = _cube_exit(oy, ivy, by, hy, iy, sy, r)
+            ez = _cube_exit(oz, ivz, bz, hz, iz, sz, r)
+            t = min(ex, ey, ez)
+            if t >= tmax:
                 break
+            if ex <= ey and ex <= ez:
+                iy = _within(_cell_index(oy + t * dy, by, gy, cy), iy, sy, r)
+                iz = _within(_cell_index(oz + t * dz, bz, gz, cz), iz, sz, r)
+                ix += sx * r
+                if ix < 0 or ix >= cx:
+                    break
+            elif ey <= ez:
+                ix = _within(_cell_index(ox + t * dx, bx, gx, cx), ix, sx, r)
+                iz = _within(_cell_index(oz + t * dz, bz, gz, cz), iz, sz, r)
+                iy += sy * r
+                if iy < 0 or iy >= cy:
+                    break
+            else:
+                ix = _within(_cell_index(ox + t * dx, bx, gx, cx), ix, sx, r)
+                iy = _within(_cell_index(oy + t * dy, by, gy, cy), iy, sy, r)
+                iz += sz * r
+                if iz < 0 or iz >= cz:
+                    break
+            nx_t = _next_boundary(ox, ivx, bx, hx, ix, sx)
+            ny_t = _next_boundary(oy, ivy, by, hy, iy, sy)
+            nz_t = _next_boundary(oz, ivz, bz, hz, iz, sz)
             continue
         t_end = min(nx_t, ny_t, nz_t, tmax)
         maj = m.majorant[ix, iy, iz]
@@ -351,11 +388,16 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
             maj *= boost
         if maj > 0.0:
             while True:
-                hit, t_event, tau, state = next_event(t, t_end, maj, tau, state)
-                if not hit:
+                if tau < 0.0:
+                    state, u = next_float(state)
+                    tau = -math.log(1.0 - u)
+                depth = maj * (t_end - t)
+                if tau >= depth:
+                    tau -= depth
                     break
-                t = t_event
                 inv_maj = 1.0 / maj  # one division per tentative collision, not three
+                t += tau * inv_maj
+                tau = -1.0
                 sigma = extinction_at(m, ox + t * dx, oy + t * dy, oz + t * dz)
                 if rest:
                     state, u = next_float(state)
@@ -393,10 +435,22 @@ def _track(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz:
         if t_end >= tmax:
             break
         t = t_end
-        ix, iy, iz, nx_t, ny_t, nz_t, inside = step_macrocell(m, ox, oy, oz, ivx, ivy, ivz, sx, sy, sz, ix, iy, iz,
-                                                              nx_t, ny_t, nz_t)
-        if not inside:
-            break
+        # Step into the neighbouring macrocell across the nearest boundary.
+        if nx_t <= ny_t and nx_t <= nz_t:
+            ix += sx
+            if ix < 0 or ix >= cx:
+                break
+            nx_t = _next_boundary(ox, ivx, bx, hx, ix, sx)
+        elif ny_t <= nz_t:
+            iy += sy
+            if iy < 0 or iy >= cy:
+                break
+            ny_t = _next_boundary(oy, ivy, by, hy, iy, sy)
+        else:
+            iz += sz
+            if iz < 0 or iz >= cz:
+                break
+            nz_t = _next_boundary(oz, ivz, bz, hz, iz, sz)
     return kept, w_sum, tr, state
 
 
