@@ -86,19 +86,11 @@ from photon_fields.runtime.transport.cell_grid import Grid, stencil
 from photon_fields.runtime.transport.direct_light import direct_light_batch
 from photon_fields.runtime.transport.emitters import delta_light_direction
 from photon_fields.runtime.transport.light_volume import LightVolume, fill_wanted, light_transmittance, want_stencil
+from photon_fields.runtime.transport.macrocell_walk import enter_macrocell, leap_if_empty, next_event, step_macrocell
 from photon_fields.runtime.transport.medium import Medium, albedo_at, extinction_albedo_at, extinction_at
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
-from photon_fields.runtime.transport.tracking import (
-    CAMERA_SWITCH,
-    _sign,
-    enter_macrocell,
-    leap_if_empty,
-    next_event,
-    step_macrocell,
-    task_items,
-    task_stride,
-)
+from photon_fields.runtime.transport.tracking import CAMERA_SWITCH, _sign, task_items, task_stride
 from photon_fields.runtime.wavefront.batches import RenderCancelledError
 from photon_fields.runtime.wavefront.depth_bounds import DepthBounds, ray_interval
 from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box
