@@ -95,8 +95,8 @@ MUTANTS: tuple[Mutant, ...] = (
             "tests/runtime/field/test_bundle.py::test_fit_records_its_psi_and_the_bundle_decodes_with_it"),
            "the runtime decodes Eq. 7 with the default psi = 5 instead of the bundle's"),
     Mutant("li_without_albedo", "runtime/wavefront/first_interaction.py",
-           'film.splat("L_i", fi.pixel, q, distinct, weight=throughput)',
-           'film.splat("L_i", fi.pixel, q, distinct, weight=throughput / fi.albedo)',
+           'splat_runs(film, "L_i", fi.pixel, q, distinct, throughput, run)',
+           'splat_runs(film, "L_i", fi.pixel, q, distinct, throughput / fi.albedo, run)',
            (f"{LIGHTS}[point_outside]", f"{LIGHTS}[directional]", f"{LIGHTS}[environment]"),
            "L_i composed without the albedo at the camera vertex (neural and photon-map renderers)"),
     Mutant("hg_cos_sign", "runtime/transport/phase.py", "denom = 1.0 + g * g - 2.0 * g * cos_theta",
@@ -906,19 +906,17 @@ MUTANTS: tuple[Mutant, ...] = (
            "the marched camera's transmittance is the control's exp(-integral sigma_c) alone, without the residual "
            "ratio tracking's events: biased wherever sigma_t varies within a stratum (a thin wall in a long one)"),
     Mutant("marched_camera_keeps_the_last", "runtime/wavefront/marched_camera.py",
-           "        if v * w_abs < abs(w):\n", "        if v >= 0.0:\n",
+           "            if v * w_abs < abs(w):\n", "            if v >= 0.0:\n",
            (f"{CAMERA}::test_camera_estimators_estimate_the_same_image[L_i-marched]",),
            "the marched camera's reservoir keeps the last candidate whatever the weights: the field is asked at the "
            "far end of the medium"),
     Mutant("marched_camera_no_correction", "runtime/wavefront/marched_camera.py",
-           "    return total / CORRECTION_SHADOW_RAYS - cached.at_pick\n",
-           "    return total / CORRECTION_SHADOW_RAYS - total / CORRECTION_SHADOW_RAYS\n",
+           "    return nee - cached.at_pick\n", "    return nee - nee\n",
            (f"{CAMERA}::test_camera_estimators_estimate_the_same_image[L_d-marched, scrambled cache]",),
            "the marched camera's L_d is the light volume's sum alone, without NEE's correction at the pick: the "
            "cache's error and the environment's single scattering reach the image"),
     Mutant("marched_camera_rest_weight_one", "runtime/wavefront/marched_camera.py",
-           "                                                        dy, dz, a0, a1, a2, rest, w_abs,",
-           "                                                        dy, dz, a0, a1, a2, 1.0, w_abs,",
+           "a0, a1, a2, rest, w_abs,", "a0, a1, a2, 1.0, w_abs,",
            (f"{CAMERA}::test_camera_estimators_estimate_the_same_image[L_d-marched, dense]",),
            "the marched camera's opaque rest scores its collision with weight 1, not the transmittance estimate at "
            "the switch: dense media too bright"),

@@ -342,12 +342,14 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
                 splat_environment(film, env, status[:count], transmit[:count], start, n_pixels, distinct, forced,
                                   scene, seed)
             with timer("compact"):
-                if marched:
-                    pixel, kept, cached = compact_marched(items, start, n_pixels)
-                    fi = FirstInteractions(pixel, kept.x, kept.d, kept.albedo, kept.rng, kept.weight)
+                if marched:  # several picks per ray, in runs of distinct pixels
+                    picks, cached = compact_marched(items, start, n_pixels)
+                    fi = FirstInteractions(picks.pixel, picks.x, picks.d, picks.albedo, picks.rng, picks.weight)
+                    run = picks.rays
                 else:
                     fi = compact_first_interactions(scratch, counts)
-            n_samples += len(fi)
+                    run = len(fi)
+            n_samples += run
             bar.update(count)
             if len(fi) == 0:
                 continue
@@ -360,21 +362,28 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
                     else:
                         q = estimator(fi.x, fi.d, scene.g)
                 with timer("compose"):
-                    film.splat("L_i", fi.pixel, q, distinct, weight=throughput)
+                    splat_runs(film, "L_i", fi.pixel, q, distinct, throughput, run)
             if direct:
                 with timer("estimate_direct"):
                     nee = direct_light_batch(m, kind, vec, rgb, env_map, scene.g, fi.x, fi.d, fi.rng, False, one_light)
-                    if cached is not None:  # marched_camera's correction: more shadow rays, less the cached light
-                        nee = correction_direct(nee, m, (kind, vec, rgb, env_map), scene.g, fi.x, fi.d, fi.rng,
-                                                cached, one_light)
+                    if cached is not None:  # marched_camera's correction: NEE less the cached light at each pick
+                        nee = correction_direct(nee, cached)
                 with timer("compose"):
-                    film.splat("L_d", fi.pixel, nee, distinct, weight=throughput)
+                    splat_runs(film, "L_d", fi.pixel, nee, distinct, throughput, run)
                     if cached is not None:
-                        film.splat("L_d", fi.pixel, cached.strata, distinct)
+                        film.splat("L_d", fi.pixel[:run], cached.strata, distinct)
     gathered = 0 if gather_from is None else max(0, first + total - max(first, gather_from)) // n_pixels
     return finish(film, timer, spp, t_start, {"rays_in_volume": float(n_rays), "samples_in_volume": float(n_samples),
                                              "compaction_removed": 1.0 - n_samples / max(n_rays, 1),
                                              "final_gather_spp": float(gathered)})
+
+
+def splat_runs(film: Film, layer: str, pixel: np.ndarray, rgb: np.ndarray, distinct: bool, weight: np.ndarray,
+               run: int) -> None:
+    """``film.splat`` of contributions that come in runs of ``run`` distinct pixels (the marched estimator's picks,
+    pick-major): each run added as distinct when the batch's pixels are."""
+    for a in range(0, pixel.shape[0], max(run, 1)):
+        film.splat(layer, pixel[a:a + run], rgb[:, a:a + run], distinct, weight=weight[:, a:a + run])
 
 
 def splat_environment(film: Film, env: Environment, status: np.ndarray, transmit: np.ndarray, start: int,
