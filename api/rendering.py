@@ -9,6 +9,7 @@ field and ``photonmap`` a photon map, each trained (traced) on first use and cac
 
 from __future__ import annotations
 
+import inspect
 import os
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,8 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
     lights: a rig name (:data:`photon_fields.runtime.scene.rigs.LIGHT_RIGS`: studio, sun, sky) or a list of
         light dicts in the scene-file form.
     method: a renderer's name (pt, raymarch, raymarch-field, photonmap, field, pvrt); ``options`` are its own
-        settings by keyword (e.g. ``max_depth=4`` for pt). ``pvrt`` precomputes a PVRT transfer for the volume,
+        settings by keyword (e.g. ``max_depth=4`` for pt, ``camera_estimator="marched"`` for field: less noise
+        on sparse media). ``pvrt`` precomputes a PVRT transfer for the volume,
         transfer function and g on first use (cached like a field; ``training`` a dict of ``grid``, ``paths``,
         ``order``, ``basis``, ``exitance_order``, ``clusters``, ``bases``) and relights it with ``lights`` (distant
         lights only). ``field`` trains a photon field on first use (needs the ``train`` extra; ``raymarch-field``,
@@ -62,12 +64,12 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
     if method not in RENDERERS:
         raise InputError("method", f"unknown method {method!r} (available: {', '.join(RENDERERS)})")
     renderer = RENDERERS[method]
-    known = {opt.keyword: opt for opt in renderer.options}
+    known = {_option_name(opt): opt for opt in renderer.options}
     unknown = [k for k in options if k not in known]
     if unknown:
         raise InputError(unknown[0], f"not an option of method {method!r} (its options: "
                                      f"{', '.join(known) or 'none'})")
-    options = {k: _option(known[k], k, v) for k, v in options.items()}
+    options = {known[k].keyword: _option(known[k], k, v) for k, v in options.items()}
     spp = int_in(1, 1 << 16)("spp", spp)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise InputError("seed", f"must be an integer, got {seed!r}")
@@ -113,6 +115,16 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
             "lights": [lt.to_dict() for lt in scene.lights], "camera": cam.to_dict(),
             "timings_ms": result.timings_ms}
     return Image({k: result.layers[k] for k in result.layers}, info)
+
+
+def _option_name(option: Any) -> str:
+    """A renderer option's keyword here: the render function's, unless :func:`render` has a parameter of that name
+    (the camera estimator's ``camera``): then the command-line flag's (``camera_estimator``)."""
+    return option.flag.lstrip("-").replace("-", "_") if option.keyword in _OWN_PARAMETERS else option.keyword
+
+
+#: :func:`render`'s own keyword parameters, which a renderer option cannot take as its name.
+_OWN_PARAMETERS = tuple(inspect.signature(render).parameters)
 
 
 def _option(option: Any, keyword: str, value: Any) -> Any:

@@ -910,6 +910,12 @@ MUTANTS: tuple[Mutant, ...] = (
            (f"{CAMERA}::test_camera_estimators_estimate_the_same_image[L_i-marched]",),
            "the marched camera's reservoir keeps the last candidate whatever the weights: the field is asked at the "
            "far end of the medium"),
+    Mutant("marched_camera_one_draw_for_all_picks", "runtime/wavefront/marched_camera.py",
+           "        for q in range(out_w.shape[0]):\n            state, v = next_float(state)\n",
+           "        state, v = next_float(state)\n        for q in range(out_w.shape[0]):\n",
+           (f"{CAMERA}::test_marched_walk_matches_delta_tracking_on_sharp_walls[16.0-default]",),
+           "the marched camera's picks share one random number per candidate: every pick is the same point, the "
+           "three field queries and shadow rays one sample bought three times"),
     Mutant("marched_camera_no_correction", "runtime/wavefront/marched_camera.py",
            "    return nee - cached.at_pick\n", "    return nee - nee\n",
            (f"{CAMERA}::test_camera_estimators_estimate_the_same_image[L_d-marched, scrambled cache]",),

@@ -90,6 +90,15 @@ def test_readme_example_with_a_field_trains_once(tmp_path: Path, monkeypatch: py
     marched = pf.render(tmp_path / "head.nrrd", method="raymarch-field", spp=1, size=(16, 16), training=TINY_TRAINING,
                         cache=cache)
     assert marched.info["method"] == "raymarch-field" and marched.L_i.mean() > 0 and np.all(np.isfinite(marched.L))
+    # the camera estimator by its command-line name (render's own ``camera`` is the view): the same field, another
+    # estimator of the same image, so another image of the same mean
+    thin = pf.render(tmp_path / "head.nrrd", method="field", spp=1, size=(16, 16), training=TINY_TRAINING,
+                     cache=cache, camera_estimator="marched")
+    assert thin.info["options"] == {"camera": "marched"} and not np.array_equal(thin.L, img.L)
+    assert np.all(np.isfinite(thin.L)) and thin.L_i.mean() > 0
+    with pytest.raises(pf.InputError, match="^camera_estimator"):
+        pf.render(tmp_path / "head.nrrd", method="field", spp=1, size=(16, 16), training=TINY_TRAINING, cache=cache,
+                  camera_estimator="ratio")
     # the same lights twice as bright (and bluer): the field renders them exactly, rescaled, without training
     from photon_fields.runtime.scene.rigs import light_rig
 
