@@ -143,7 +143,8 @@ class FieldInUse:
 
     def render(self, scene: Scene, renderer: str, *, seed: int, n: int, lights: list[LightControl],
                threads: int | None = None, final_gather: bool = False, moving: bool = False,
-               cancel: Callable[[], bool] | None = None, level: int = 0) -> dict[str, np.ndarray]:
+               cancel: Callable[[], bool] | None = None, level: int = 0,
+               camera: str | None = None) -> dict[str, np.ndarray]:
         """Frame ``n`` of a session's accumulation with ``renderer``: 1 sample per pixel; the neural renderer draws
         samples ``first_sample = n`` of ``seed``, the others use seed ``seed + n``. L_i follows the page's
         ``lights`` where it can (:meth:`indirect_scale`; L_d, from NEE with the edited lights, is right anyway).
@@ -154,7 +155,8 @@ class FieldInUse:
         the preview work in batches of :data:`photon_fields.runtime.wavefront.batches.CANCELLABLE_BATCH` and ask it
         before each, the preview also during its light volume's fill (True:
         :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the frame is given up).
-        ``level``: the preview marches that level of the volume (:mod:`photon_fields.runtime.scene.levels`)."""
+        ``level``: the preview marches that level of the volume (:mod:`photon_fields.runtime.scene.levels`).
+        ``camera``: the neural renderer's camera estimator (None: its default; ``pfn-view --camera-estimator``)."""
         from photon_fields.runtime.threads import numba_threads
 
         if renderer == "pvrt":  # L_i from the transfer under the edited lights: nothing to rescale
@@ -166,11 +168,13 @@ class FieldInUse:
             if renderer == "neural":
                 from photon_fields.runtime.renderers.neural import render_neural
                 from photon_fields.runtime.wavefront.batches import CANCELLABLE_BATCH, DEFAULT_BATCH
+                from photon_fields.runtime.wavefront.first_interaction import DEFAULT_CAMERA_ESTIMATOR
 
                 est = self.scaled_estimator(scale)
                 return render_neural(scene, est, spp=1, seed=seed, progress=False, first_sample=n,
                                      final_gather_after=0 if final_gather else None, cancel=cancel,
-                                     batch_size=DEFAULT_BATCH if cancel is None else CANCELLABLE_BATCH).layers
+                                     batch_size=DEFAULT_BATCH if cancel is None else CANCELLABLE_BATCH,
+                                     camera=camera or DEFAULT_CAMERA_ESTIMATOR).layers
             if renderer == "pt":
                 from photon_fields.runtime.renderers.path_tracer import render_path_traced
 

@@ -42,6 +42,7 @@ class ViewerInputs:
     threads: int | None = None
     transfer: Any = None  # a PVRT transfer checked against the scene (pfn-view --transfer), or None
     pvrt_options: Any = None  # PvrtOptions of its frames (pfn-view --direct, --light-grid), None: the defaults
+    camera_estimator: str | None = None  # the neural renderer's (pfn-view --camera-estimator), None: its default
 
 
 def load_inputs(scene: str | None, *, bundle: str | None = None, map_path: str | None = None,
@@ -208,7 +209,7 @@ class ViewerServer:
                                     width=inputs.width, height=inputs.height, renderer=inputs.renderer,
                                     max_spp=max_spp or DEFAULT_MAX_SPP, info=inputs.info, drag_scale=drag_scale,
                                     retrain=retrain, gather_after=gather_after, pvrt_options=inputs.pvrt_options,
-                                    interactive_level=interactive_level)
+                                    interactive_level=interactive_level, camera_estimator=inputs.camera_estimator)
             session.field_threads = inputs.threads
             return session
 
@@ -242,12 +243,18 @@ def start(scene: str | None = None, *, bundle: str | None = None, map: str | Non
           renderer: str | None = None, warm: bool = True, max_spp: int | None = None,
           drag_scale: float | str = "auto", retrain: RetrainSettings | None = None,
           gather_after: int | None = DEFAULT_GATHER_AFTER, transfer: str | None = None,
-          pvrt_options: Any = None, interactive_level: int | str = "auto") -> ViewerServer:
+          pvrt_options: Any = None, interactive_level: int | str = "auto",
+          camera_estimator: str | None = None) -> ViewerServer:
     """Load the inputs and serve the viewer (module docstring); returns the running :class:`ViewerServer`.
     ``transfer``: a PVRT transfer file (NAME.pvrt) of the scene: enables the pvrt renderer, whose frames are made
     as ``pvrt_options`` (:class:`photon_fields.runtime.viewer.pvrt_view.PvrtOptions`; None: its defaults) say.
     ``interactive_level``: the preview's volume level for the first frame of every change
-    (:func:`photon_fields.runtime.viewer.drag_levels.changing_level`)."""
+    (:func:`photon_fields.runtime.viewer.drag_levels.changing_level`). ``camera_estimator``: the neural renderer's
+    (None: its default)."""
+    if camera_estimator is not None:
+        from photon_fields.runtime.renderers.registry import CAMERA_OPTION
+
+        CAMERA_OPTION.check(CAMERA_OPTION.flag, camera_estimator)
     if drag_scale != "auto" and (isinstance(drag_scale, bool) or not isinstance(drag_scale, (int, float))
                                  or not 0.25 <= drag_scale <= 1.0):
         raise InputError("--drag-scale", f"must be auto or a number in [0.25, 1], got {drag_scale!r}")
@@ -264,6 +271,7 @@ def start(scene: str | None = None, *, bundle: str | None = None, map: str | Non
     if pvrt_options is not None and inputs.transfer is None:
         raise InputError("--direct/--light-grid", "apply to the pvrt renderer only, which needs --transfer")
     inputs.pvrt_options = pvrt_options
+    inputs.camera_estimator = camera_estimator
     return ViewerServer(inputs, host=host, port=port, warm=warm, max_spp=max_spp,
                         drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale), retrain=retrain,
                         gather_after=gather_after, interactive_level=interactive_level)

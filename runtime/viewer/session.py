@@ -118,8 +118,13 @@ class ViewerSession:
                  denoise_frames: int = DEFAULT_DENOISE_FRAMES, info: dict[str, Any] | None = None,
                  drag_scale: float | str = 1.0, retrain: RetrainSettings | None = None,
                  gather_after: int | None = DEFAULT_GATHER_AFTER, pvrt_options: PvrtOptions | None = None,
-                 interactive_level: int | str = "auto") -> None:
+                 interactive_level: int | str = "auto", camera_estimator: str | None = None) -> None:
+        from photon_fields.runtime.renderers.registry import CAMERA_OPTION
+
         self.base_scene = scene
+        # the neural renderer's camera estimator (pfn-view --camera-estimator; None: the renderer's default)
+        self.camera_estimator = (None if camera_estimator is None
+                                 else CAMERA_OPTION.check(CAMERA_OPTION.flag, camera_estimator))
         changing_level(interactive_level, "preview", scene.volume.dims)  # refuses a bad one here
         self.interactive_level = interactive_level
         self.field = FieldInUse(scene, estimator, pmap, FieldInUse.run_folder_of((info or {}).get("bundle")),
@@ -448,7 +453,8 @@ class ViewerSession:
 
         threads = max(1, max_threads() - self.updater.settings.threads) if self.updater.busy else None
         return self.field.render(scene, s.renderer, seed=self.seed, n=n, lights=s.lights, threads=threads,
-                                 final_gather=gather, moving=moving, cancel=cancel, level=level)
+                                 final_gather=gather, moving=moving, cancel=cancel, level=level,
+                                 camera=self.camera_estimator)
 
     def gathers(self, renderer: str, n: int) -> bool:
         """Whether resting frame ``n`` of an accumulation with ``renderer`` takes the final gather (moving frames

@@ -1,0 +1,42 @@
+"""The viewer's camera estimator (``pfn-view --camera-estimator``): the neural renderer's frames are those of
+``render_neural`` with that estimator, the default stays the renderer's own, a bad name is refused in one line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from viewer_helpers import AnalyticField, make_session, tiny_scene
+
+from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.renderers.neural import render_neural
+from photon_fields.runtime.viewer.cli import build_parser
+
+
+def first_frame(out_dir: Path, **kw: object) -> np.ndarray:
+    s = make_session(out_dir, gather_after=None, **kw)
+    s.next_frame()
+    with s.lock:
+        return s._acc["L"] / s._acc.samples
+
+
+def test_marched_frames_are_render_neurals_with_that_estimator(tmp_path: Path) -> None:
+    marched = first_frame(tmp_path / "m", camera_estimator="marched")
+    default = first_frame(tmp_path / "d")
+    scene = tiny_scene().with_overrides(camera=make_session(tmp_path / "v").state.view.camera(24, 24))
+
+    def ref(**kw: object) -> np.ndarray:
+        return render_neural(scene, AnalyticField(), spp=1, seed=5, progress=False, **kw).layers["L"]
+
+    np.testing.assert_allclose(marched, ref(camera="marched"), rtol=2e-5, atol=1e-7)
+    np.testing.assert_allclose(default, ref(), rtol=2e-5, atol=1e-7)
+    assert np.abs(marched - default).max() > 1e-4  # another estimator: another image of the same mean
+
+
+def test_a_bad_camera_estimator_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="^--camera-estimator: .*'ratio'"):
+        make_session(tmp_path, camera_estimator="ratio")
+    parse = build_parser().parse_args
+    assert parse(["blobs", "--camera-estimator", "marched"]).camera_estimator == "marched"
+    assert parse(["blobs"]).camera_estimator is None
