@@ -127,9 +127,15 @@ MAX_LEVEL = 5
 #: out here so that building the command line does not import numba kernels).
 CAMERA_OPTION = Option("--camera-estimator", "camera", "camera estimator: forced (a collision resampled from the "
                        "whole ray, weighted by its collision probability; less noise in thin media), marched (the "
-                       "preview's cached light summed along the whole ray and corrected at one point: least noise in "
-                       "sparse media, 2-3x the time per sample) or delta (delta tracking, the path tracer's first "
-                       "bounce)", str, "forced", one_of(("forced", "marched", "delta")))
+                       "preview's cached light summed along the whole ray and corrected at three points: least noise "
+                       "per millisecond in sparse media, 3-4x the time per sample) or delta (delta tracking, the path "
+                       "tracer's first bounce)", str, "forced", one_of(("forced", "marched", "delta")))
+
+
+def checked_camera_estimator(name: str | None) -> str | None:
+    """``name`` if it is a camera estimator (None: the renderer's default), else a one-line error naming the flag."""
+    return None if name is None else CAMERA_OPTION.check(CAMERA_OPTION.flag, name)
+
 
 #: The first-interaction renderers' NEE over several lights (runtime.wavefront.first_interaction.LIGHT_SAMPLINGS).
 LIGHT_OPTION = Option("--light-sampling", "light_sampling", "next-event estimation with several lights: one (one "

@@ -251,10 +251,9 @@ def start(scene: str | None = None, *, bundle: str | None = None, map: str | Non
     ``interactive_level``: the preview's volume level for the first frame of every change
     (:func:`photon_fields.runtime.viewer.drag_levels.changing_level`). ``camera_estimator``: the neural renderer's
     (None: its default)."""
-    if camera_estimator is not None:
-        from photon_fields.runtime.renderers.registry import CAMERA_OPTION
+    from photon_fields.runtime.renderers.registry import checked_camera_estimator
 
-        CAMERA_OPTION.check(CAMERA_OPTION.flag, camera_estimator)
+    checked_camera_estimator(camera_estimator)
     if drag_scale != "auto" and (isinstance(drag_scale, bool) or not isinstance(drag_scale, (int, float))
                                  or not 0.25 <= drag_scale <= 1.0):
         raise InputError("--drag-scale", f"must be auto or a number in [0.25, 1], got {drag_scale!r}")

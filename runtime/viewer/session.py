@@ -73,7 +73,7 @@ from typing import Any
 import numpy as np
 
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER
+from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER, checked_camera_estimator
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.viewer import screenshot
 from photon_fields.runtime.viewer.accumulation import Accumulation
@@ -119,12 +119,8 @@ class ViewerSession:
                  drag_scale: float | str = 1.0, retrain: RetrainSettings | None = None,
                  gather_after: int | None = DEFAULT_GATHER_AFTER, pvrt_options: PvrtOptions | None = None,
                  interactive_level: int | str = "auto", camera_estimator: str | None = None) -> None:
-        from photon_fields.runtime.renderers.registry import CAMERA_OPTION
-
         self.base_scene = scene
-        # the neural renderer's camera estimator (pfn-view --camera-estimator; None: the renderer's default)
-        self.camera_estimator = (None if camera_estimator is None
-                                 else CAMERA_OPTION.check(CAMERA_OPTION.flag, camera_estimator))
+        self.camera_estimator = checked_camera_estimator(camera_estimator)  # the neural renderer's (pfn-view)
         changing_level(interactive_level, "preview", scene.volume.dims)  # refuses a bad one here
         self.interactive_level = interactive_level
         self.field = FieldInUse(scene, estimator, pmap, FieldInUse.run_folder_of((info or {}).get("bundle")),
