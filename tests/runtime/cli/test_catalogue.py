@@ -539,6 +539,8 @@ CASES += [
     (V, lambda a, d, o: [str(a["scene"]), *VIEW, "--out", (d / "f").write_text("x") and str(d / "f")], "--out"),
     (V, lambda a, d, o: [str(a["scene"]), "--renderer", "neural", *VIEW, "--out", str(o / "shots")], "--renderer"),
     (V, lambda a, d, o: [str(a["scene"]), "--direct", "blurred", *VIEW, "--out", str(o / "shots")], "--direct"),
+    (V, lambda a, d, o: [str(a["scene"]), "--camera-estimator", "ratio", *VIEW, "--out", str(o / "shots")],
+     "--camera-estimator"),
     (V, lambda a, d, o: [str(a["scene"]), "--light-grid", "2", *VIEW, "--out", str(o / "shots")], "--light-grid"),
     (V, lambda a, d, o: [str(a["scene"]), "--host", "999.1.1.1", *VIEW, "--out", str(o / "shots")], "--host"),
     (V, lambda a, d, o: [str(a["scene"]), "--port", "65536", *VIEW, "--out", str(o / "shots")], "--port"),

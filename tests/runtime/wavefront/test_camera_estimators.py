@@ -194,8 +194,9 @@ def test_marched_walk_matches_delta_tracking_on_sharp_walls(density: float, stra
     for a, b, what in ((1.0 - collided, marched.transmit, "transmittance"), (collided, w_marched, "W")):
         z = abs(a.mean() - b.mean()) / math.sqrt(a.var() / n + b.var() / n)
         assert z < 4.5, (what, a.mean(), b.mean(), z)
-    # The picks are independent draws from the walk's candidates: two coincide with probability sum_k p_k^2 (about
-    # 0.2 on these walls), not always.
-    interacting = marched.status == first_interaction.INTERACTED
-    for p, q in ((0, 1), (1, 2)):
-        assert np.all(marched.x[p] == marched.x[q], axis=0)[interacting].mean() < 0.5, (p, q)
+    if strata == "default":
+        # The picks are independent draws from the walk's candidates: two coincide with probability sum_k p_k^2
+        # (0.2-0.25 over the default strata of these walls; ~0.6 over the coarse ones, few candidates), not always.
+        interacting = marched.status == first_interaction.INTERACTED
+        for p, q in ((0, 1), (1, 2)):
+            assert np.all(marched.x[p] == marched.x[q], axis=0)[interacting].mean() < 0.5, (p, q)
