@@ -69,7 +69,7 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
     if unknown:
         raise InputError(unknown[0], f"not an option of method {method!r} (its options: "
                                      f"{', '.join(known) or 'none'})")
-    options = {known[k].keyword: _option(known[k], k, v) for k, v in options.items()}
+    options = {k: _option(known[k], k, v) for k, v in options.items()}  # as given (info records them so)
     spp = int_in(1, 1 << 16)("spp", spp)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise InputError("seed", f"must be an integer, got {seed!r}")
@@ -109,7 +109,8 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
         path = cached_input(scene, trained, settings, seed, root)
         inputs = _load_input(renderer.input, path, scene, threads)
     with numba_threads(threads, "threads"):
-        result = renderer.render_function()(scene, spp=spp, seed=seed, progress=progress, **inputs, **options)
+        result = renderer.render_function()(scene, spp=spp, seed=seed, progress=progress, **inputs,
+                                            **{known[k].keyword: v for k, v in options.items()})
     info = {"method": method, "spp": spp, "seed": seed, "g": scene.g, "size": [width, height],
             "options": options, "scene_fingerprint": scene.fingerprint(), "transfer_function": tf.to_dict(),
             "lights": [lt.to_dict() for lt in scene.lights], "camera": cam.to_dict(),

@@ -94,7 +94,7 @@ def test_readme_example_with_a_field_trains_once(tmp_path: Path, monkeypatch: py
     # estimator of the same image, so another image of the same mean
     thin = pf.render(tmp_path / "head.nrrd", method="field", spp=1, size=(16, 16), training=TINY_TRAINING,
                      cache=cache, camera_estimator="marched")
-    assert thin.info["options"] == {"camera": "marched"} and not np.array_equal(thin.L, img.L)
+    assert thin.info["options"] == {"camera_estimator": "marched"} and not np.array_equal(thin.L, img.L)
     assert np.all(np.isfinite(thin.L)) and thin.L_i.mean() > 0
     with pytest.raises(pf.InputError, match="^camera_estimator"):
         pf.render(tmp_path / "head.nrrd", method="field", spp=1, size=(16, 16), training=TINY_TRAINING, cache=cache,
