@@ -125,16 +125,17 @@ MAX_LEVEL = 5
 
 #: The first-interaction renderers' camera estimator (runtime.wavefront.first_interaction.CAMERA_ESTIMATORS; spelt
 #: out here so that building the command line does not import numba kernels).
+CAMERA_ESTIMATOR_NAMES = ("forced", "marched", "delta")
 CAMERA_OPTION = Option("--camera-estimator", "camera", "camera estimator: forced (a collision resampled from the "
                        "whole ray, weighted by its collision probability; less noise in thin media), marched (the "
                        "preview's cached light summed along the whole ray and corrected at three points: least noise "
                        "per millisecond in sparse media, 3-4x the time per sample) or delta (delta tracking, the path "
-                       "tracer's first bounce)", str, "forced", one_of(("forced", "marched", "delta")))
+                       "tracer's first bounce)", str, "forced", one_of(CAMERA_ESTIMATOR_NAMES))
 
 
-def checked_camera_estimator(name: str | None) -> str | None:
-    """``name`` if it is a camera estimator (None: the renderer's default), else a one-line error naming the flag."""
-    return None if name is None else CAMERA_OPTION.check(CAMERA_OPTION.flag, name)
+def checked_camera_estimator(name: str | None) -> str:
+    """``name`` if it is a camera estimator (None: the default), else a one-line error naming the flag."""
+    return CAMERA_OPTION.default if name is None else CAMERA_OPTION.check(CAMERA_OPTION.flag, name)
 
 
 #: The first-interaction renderers' NEE over several lights (runtime.wavefront.first_interaction.LIGHT_SAMPLINGS).

@@ -52,6 +52,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from photon_fields.runtime.renderers.registry import CAMERA_ESTIMATOR_NAMES
+
 #: The largest text frame accepted (bytes of UTF-8). Real messages are under 200 bytes.
 MAX_MESSAGE_BYTES = 4096
 #: Frame sizes a page may ask for (each side), and the most pixels in one frame: bounds the memory a page
@@ -164,6 +166,7 @@ CONTROLS: dict[str, Check] = {
     "denoise": lambda key, value: _boolean(key, value),
     "max_spp": integer(1, 1 << 16),
     "drag_scale": lambda key, value: drag_scale(key, value),
+    "camera_estimator": choice(CAMERA_ESTIMATOR_NAMES),
 }
 
 

@@ -120,7 +120,6 @@ class ViewerSession:
                  gather_after: int | None = DEFAULT_GATHER_AFTER, pvrt_options: PvrtOptions | None = None,
                  interactive_level: int | str = "auto", camera_estimator: str | None = None) -> None:
         self.base_scene = scene
-        self.camera_estimator = checked_camera_estimator(camera_estimator)  # the neural renderer's (pfn-view)
         changing_level(interactive_level, "preview", scene.volume.dims)  # refuses a bad one here
         self.interactive_level = interactive_level
         self.field = FieldInUse(scene, estimator, pmap, FieldInUse.run_folder_of((info or {}).get("bundle")),
@@ -140,7 +139,8 @@ class ViewerSession:
                                lights=[LightControl.from_light(lt) for lt in scene.lights], max_spp=int(max_spp),
                                width=width or cam.width, height=height or cam.height,
                                drag_scale=drag_scale if drag_scale == "auto" else float(drag_scale),
-                               transfer=scene.tf, labels=label_panel(scene.tf, scene.volume))
+                               transfer=scene.tf, labels=label_panel(scene.tf, scene.volume),
+                               camera_estimator=checked_camera_estimator(camera_estimator))
         self.max_size = (self.state.width, self.state.height)  # the largest frame (pfn-view --size)
         self.updater = FieldUpdater(self.out_dir, retrain or RetrainSettings(), seed=self.seed)
         self.drag_level = 0  # drag_scale "auto": the index in DRAG_LEVELS of the next moving frame
@@ -398,7 +398,7 @@ class ViewerSession:
                   "renderer": s.renderer, "layer": s.layer, "g": s.g, "width": size[0], "height": size[1],
                   "view_size": list(s.view_size) if s.view_size else None, "format": s.format, "exposure": stops,
                   "denoised": denoised, "moving": moved_only, "gathered": gathered, "level": level,
-                  "rendered": render, "warnings": warnings,
+                  "rendered": render, "warnings": warnings, "camera_estimator": s.camera_estimator,
                   "pvrt": dict(self.field.pvrt.last) if s.renderer == "pvrt" and self.field.pvrt else None,
                   **{k: round(v, 2) for k, v in timings.items()}}
         self._last_header = header
@@ -450,7 +450,7 @@ class ViewerSession:
         threads = max(1, max_threads() - self.updater.settings.threads) if self.updater.busy else None
         return self.field.render(scene, s.renderer, seed=self.seed, n=n, lights=s.lights, threads=threads,
                                  final_gather=gather, moving=moving, cancel=cancel, level=level,
-                                 camera=self.camera_estimator)
+                                 camera=s.camera_estimator)
 
     def gathers(self, renderer: str, n: int) -> bool:
         """Whether resting frame ``n`` of an accumulation with ``renderer`` takes the final gather (moving frames
@@ -492,6 +492,7 @@ class ViewerSession:
                       "transfer_function": (s.transfer or self.base_scene.tf).to_dict(),
                       "stale_indirect": self.field.stale_for(s.renderer, s.transfer, s.lights),
                       "final_gather_samples": gathered, "level": header.get("level", 0),
+                      "camera_estimator": s.camera_estimator,
                       "frame_timings_ms": {k: v for k, v in header.items() if k.endswith("_ms")}, **self.info}
             return screenshot.write(self.out_dir, stem, layers, report, png_layer=s.layer,
                                     exposure=header.get("exposure"))

@@ -18,6 +18,7 @@ _FIELD_CONTROLS: dict[str, tuple[bool, bool, bool, bool]] = {
     "denoise": (False, True, True, False),
     "max_spp": (False, False, True, False),
     "drag_scale": (False, False, False, False),
+    "camera_estimator": (True, True, True, False),  # another estimator of the same image: its samples anew
 }
 
 

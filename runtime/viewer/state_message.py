@@ -20,7 +20,8 @@ def state_message(session: ViewerSession) -> dict[str, Any]:
             "format": s.format, "denoise": s.denoise, "max_spp": s.max_spp, "width": s.width,
             "height": s.height, "max_size": list(session.max_size),
             "view_limits": {"min_side": MIN_SIDE, "max_side": MAX_SIDE, "max_pixels": MAX_PIXELS},
-            "drag_scale": s.drag_scale, "lights": [lt.to_dict() for lt in s.lights],
+            "drag_scale": s.drag_scale, "camera_estimator": s.camera_estimator,
+            "lights": [lt.to_dict() for lt in s.lights],
             "out_dir": str(session.out_dir),
             # a PVRT transfer renders the g it was precomputed for only: the page fixes its g slider
             "pvrt": {"g": session.field.pvrt.g} if session.field.pvrt else None,

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from photon_fields.runtime.renderers.registry import CAMERA_OPTION
 from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.viewer.camera import OrbitView
@@ -34,6 +35,8 @@ class ViewState:
     """The size of the page's view box in device pixels, as its last ``view`` message said (None: not yet)."""
     drag_scale: float | str = 1.0
     """Moving frames are rendered at this fraction of the size (1: full size); resting frames always full."""
+    camera_estimator: str = CAMERA_OPTION.default
+    """The neural renderer's camera estimator (``pfn-view --camera-estimator``, then the page's select)."""
     transfer: TransferFunction | LabelTransfer | None = None
     """The transfer function as the page edited it (None: the scene's)."""
     labels: LabelPanel | None = None

@@ -219,6 +219,7 @@ function buildControls(s) {
   if (s.view_limits) viewLimits = s.view_limits;
   fitCanvas();
   $("drag_scale").value = String(s.drag_scale);
+  $("camera_estimator").value = s.camera_estimator;
   $("lights").innerHTML = "";
   s.lights.forEach((lt, i) => {
     const f = document.createElement("fieldset");
@@ -280,6 +281,7 @@ $("g").addEventListener("input", (e) => { $("g_value").textContent = Number(e.ta
 $("exposure").addEventListener("input", (e) => { $("exposure_value").textContent = (e.target.value >= 0 ? "+" : "") + Number(e.target.value).toFixed(1); setControl("exposure", Number(e.target.value)); });
 $("auto_exposure").addEventListener("click", () => { $("exposure").value = 0; $("exposure_value").textContent = "+0.0"; setControl("exposure", "auto"); });
 $("denoise").addEventListener("change", (e) => setControl("denoise", e.target.checked));
+$("camera_estimator").addEventListener("change", (e) => setControl("camera_estimator", e.target.value));
 $("drag_scale").addEventListener("change", (e) => {
   const v = e.target.value;
   setControl("drag_scale", v === "auto" ? "auto" : Number(v));

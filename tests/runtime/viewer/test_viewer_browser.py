@@ -94,6 +94,18 @@ def test_page_shows_a_frame_and_dragging_orbits(page: tuple[Any, ViewerServer]) 
     assert np.abs(after - before).mean() > 2.0, np.abs(after - before).mean()
 
 
+def test_the_camera_estimator_select_reaches_the_frames(page: tuple[Any, ViewerServer]) -> None:
+    driver, _ = page
+    settled(driver)
+    before = pixels(driver)
+    Select(driver.find_element(By.ID, "camera_estimator")).select_by_value("marched")
+    settled(driver, camera_estimator="marched")
+    after = pixels(driver)
+    Select(driver.find_element(By.ID, "camera_estimator")).select_by_value("forced")
+    settled(driver, camera_estimator="forced")
+    assert np.abs(after - before).mean() > 0.0  # another estimator: other samples of the same image
+
+
 def test_g_slider_changes_the_indirect_layer(page: tuple[Any, ViewerServer]) -> None:
     driver, _ = page
     Select(driver.find_element(By.ID, "layer")).select_by_value("L_i")

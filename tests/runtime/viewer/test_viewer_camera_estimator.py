@@ -1,5 +1,6 @@
-"""The viewer's camera estimator (``pfn-view --camera-estimator``): the neural renderer's frames are those of
-``render_neural`` with that estimator, the default stays the renderer's own, a bad name is refused in one line."""
+"""The viewer's camera estimator (``pfn-view --camera-estimator``, then the page's ``set camera_estimator``): the
+neural renderer's frames are those of ``render_neural`` with that estimator, the default stays the renderer's own,
+a change restarts the accumulation, a bad name is refused in one line."""
 
 from __future__ import annotations
 
@@ -7,11 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from viewer_helpers import AnalyticField, make_session, tiny_scene
+from viewer_helpers import AnalyticField, make_session, msg, tiny_scene
 
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.renderers.neural import render_neural
 from photon_fields.runtime.viewer.cli import build_parser
+from photon_fields.runtime.viewer.state_message import state_message
 
 
 def first_frame(out_dir: Path, **kw: object) -> np.ndarray:
@@ -40,3 +42,17 @@ def test_a_bad_camera_estimator_is_refused(tmp_path: Path) -> None:
     parse = build_parser().parse_args
     assert parse(["blobs", "--camera-estimator", "marched"]).camera_estimator == "marched"
     assert parse(["blobs"]).camera_estimator is None
+
+
+def test_the_page_switches_the_estimator_and_the_accumulation_starts_again(tmp_path: Path) -> None:
+    s = make_session(tmp_path / "s", gather_after=None)
+    for _ in range(2):
+        s.next_frame()
+    with s.lock:
+        assert state_message(s)["camera_estimator"] == "forced" and s._acc.samples == 2
+    s.apply(msg("set", control="camera_estimator", value="marched"))
+    s.next_frame()
+    with s.lock:
+        assert state_message(s)["camera_estimator"] == "marched" and s._acc.samples == 1
+        shown = s._acc["L"] / s._acc.samples
+    np.testing.assert_allclose(shown, first_frame(tmp_path / "m", camera_estimator="marched"), rtol=2e-5, atol=1e-7)
