@@ -346,6 +346,17 @@ MUTANTS: tuple[Mutant, ...] = (
             "test_preview_follows_transfer_and_light_edits_with_the_edited_scenes_light_volume",
             "tests/runtime/viewer/test_viewer_preview.py::test_a_light_edit_keeps_what_depends_on_the_medium_alone"),
            "a viewer's light edit reads the light volume of the lights before it"),
+    Mutant("viewer_camera_estimator_ignored", "runtime/viewer/session.py", "camera=s.camera_estimator)",
+           "camera=None)",
+           ("tests/runtime/viewer/test_viewer_camera_estimator.py::"
+            "test_marched_frames_are_render_neurals_with_that_estimator",),
+           "the viewer renders its neural frames with the default camera estimator whatever the page or the "
+           "command line chose"),
+    Mutant("viewer_camera_estimator_keeps_samples", "runtime/viewer/set_controls.py",
+           '"camera_estimator": (True, True, True, False),', '"camera_estimator": (False, True, True, False),',
+           ("tests/runtime/viewer/test_viewer_camera_estimator.py::"
+            "test_the_page_switches_the_estimator_and_the_accumulation_starts_again",),
+           "switching the camera estimator keeps accumulating onto the other estimator's samples"),
     Mutant("viewer_same_samples", "runtime/viewer/field_in_use.py", "first_sample=n,", "first_sample=0,",
            (f"{VSESSION}::test_neural_accumulation_equals_one_render_with_all_samples",),
            "every progressive neural frame draws the same samples: the view never converges"),
