@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 from photon_fields.runtime.cli.common import OneLineArgumentParser, check_seed, guarded, parse_count
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER, spp_or_never
+from photon_fields.runtime.renderers.registry import CAMERA_ESTIMATOR_NAMES, DEFAULT_GATHER_AFTER, spp_or_never
 from photon_fields.runtime.threads import set_threads
 
 
@@ -43,7 +43,7 @@ def build_parser() -> OneLineArgumentParser:
                    help="renderer to start with (default: neural with --bundle, else pt; preview: the ray marcher, "
                    "single scattering without training, follows every edit at once; marched: the preview plus the "
                    "field's L_i, needs --bundle)")
-    p.add_argument("--camera-estimator", default=None, choices=["forced", "marched", "delta"],
+    p.add_argument("--camera-estimator", default=None, choices=list(CAMERA_ESTIMATOR_NAMES),
                    help="the neural renderer's camera estimator (default forced; marched: the preview's cached light "
                         "along each ray, corrected at three points: less noise per millisecond on sparse transfer "
                         "functions, e.g. 0.4x the error of a forced frame for 3x its time; docs/rendering.md)")
