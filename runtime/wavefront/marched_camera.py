@@ -193,13 +193,13 @@ def majorant_events(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: f
 @njit(cache=True, inline="always")
 def _score(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, ray_phase: np.ndarray, lv: np.ndarray,
            wanted: np.ndarray, grid: Grid, x: float, y: float, z: float, dx: float, dy: float, dz: float, a0: float,
-           a1: float, a2: float, w: float, w_abs: float, i: int, state: np.uint64, out_x: np.ndarray,
-           out_a: np.ndarray, at_pick: np.ndarray, out_w: np.ndarray,
+           a1: float, a2: float, w: float, w_abs: float, m0: float, m1: float, m2: float, i: int, state: np.uint64,
+           out_x: np.ndarray, out_a: np.ndarray, at_pick: np.ndarray, out_w: np.ndarray,
            missed: np.ndarray) -> tuple[float, float, float, float, np.uint64]:
-    """One candidate of weight w at x (albedo a): its share w a D_lv(x) of the strata's sum and its turn in each
-    pick's reservoir (kept with probability |w| / the running sum of |w|, written to item i's pick, ``out_w`` its
-    w until the walk's end): (share, the sum of |w|, state). A cache cell not filled yet marks the item
-    ``missed``."""
+    """One candidate of weight w at x (albedo a): its share w a D_lv(x) added to the strata's sum (m0, m1, m2) and
+    its turn in each pick's reservoir (kept with probability |w| / the running sum of |w|, written to item i's pick,
+    ``out_w`` its w until the walk's end): (the sum, the sum of |w|, state). A cache cell not filled yet marks the
+    item ``missed``."""
     l0, l1, l2, ok = cached_direct(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx, dy, dz)
     if not ok:
         missed[i] = True
@@ -212,7 +212,7 @@ def _score(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, ray_pha
                 out_a[q, 0, i], out_a[q, 1, i], out_a[q, 2, i] = a0, a1, a2
                 at_pick[q, 0, i], at_pick[q, 1, i], at_pick[q, 2, i] = l0, l1, l2
                 out_w[q, i] = w
-    return w * a0 * l0, w * a1 * l1, w * a2 * l2, w_abs, state
+    return m0 + w * a0 * l0, m1 + w * a1 * l1, m2 + w * a2 * l2, w_abs, state
 
 
 @njit(cache=True)
@@ -281,12 +281,9 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                                                        False)
                     if sc > 0.0:
                         w = (b - a) * sc * math.exp(-(tau_c + sc * (tk - a))) * ratio
-                        d0, d1, d2, w_abs, s = _score(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx,
-                                                      dy, dz, a0, a1, a2, w, w_abs, i, s, out_x, out_a, at_pick, out_w,
-                                                      missed)
-                        m0 += d0
-                        m1 += d1
-                        m2 += d2
+                        m0, m1, m2, w_abs, s = _score(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx,
+                                                      dy, dz, a0, a1, a2, w, w_abs, m0, m1, m2, i, s, out_x, out_a,
+                                                      at_pick, out_w, missed)
                     tau, ratio, _, s = majorant_events(m, ox, oy, oz, dx, dy, dz, tk, b, boost * mu, sc, tau, ratio, s,
                                                        False)
                     tau_c += sc * (b - a)
@@ -299,12 +296,9 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 if tc < math.inf:
                     x, y, z = ox + tc * dx, oy + tc * dy, oz + tc * dz
                     a0, a1, a2 = albedo_at(m, x, y, z)
-                    d0, d1, d2, w_abs, s = _score(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx,
-                                                  dy, dz, a0, a1, a2, rest, w_abs, i, s, out_x, out_a, at_pick, out_w,
-                                                  missed)
-                    m0 += d0
-                    m1 += d1
-                    m2 += d2
+                    m0, m1, m2, w_abs, s = _score(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx,
+                                                  dy, dz, a0, a1, a2, rest, w_abs, m0, m1, m2, i, s, out_x, out_a,
+                                                  at_pick, out_w, missed)
                     rest = 0.0
                     done = True
             if done or t_end >= tmax:
