@@ -57,9 +57,9 @@ from photon_fields.runtime.renderers.ray_marcher import camera_light_volume
 from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.wavefront.batches import DEFAULT_BATCH, RenderResult
+from photon_fields.runtime.wavefront.camera_choice import AUTO, resolve_camera_estimator
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.first_interaction import (
-    DEFAULT_CAMERA_ESTIMATOR,
     DEFAULT_LIGHT_SAMPLING,
     IndirectEstimator,
     render_first_interaction,
@@ -69,26 +69,30 @@ from photon_fields.runtime.wavefront.first_interaction import (
 def render_neural(scene: Scene, estimator: IndirectEstimator | None, *, spp: int = 1, seed: int = 0,
                   batch_size: int = DEFAULT_BATCH, progress: bool = True, direct: bool = True,
                   film: Film | None = None, first_sample: int = 0,
-                  camera: str = DEFAULT_CAMERA_ESTIMATOR,
+                  camera: str = AUTO,
                   final_gather_after: int | None = DEFAULT_GATHER_AFTER,
                   cancel: Callable[[], bool] | None = None,
                   light_sampling: str = DEFAULT_LIGHT_SAMPLING) -> RenderResult:
     """Alg. 2 with ``estimator`` (normally ``PhotonField.estimator()``) for L_i; see the module docstring.
     ``estimator=None`` renders L_d only, ``direct=False`` L_i only (for timing the terms separately).
-    ``camera`` picks how first interactions are sampled (``first_interaction.CAMERA_ESTIMATORS``), ``light_sampling``
-    how NEE treats several lights (``first_interaction.LIGHT_SAMPLINGS``).
+    ``camera`` picks how first interactions are sampled (``first_interaction.CAMERA_ESTIMATORS``, or "auto": the
+    forced or the marched one, whichever has less noise per unit of work on this scene,
+    :mod:`photon_fields.runtime.wavefront.camera_choice`; ``stats["camera_estimator"]`` names the one used),
+    ``light_sampling`` how NEE treats several lights (``first_interaction.LIGHT_SAMPLINGS``).
     Samples from index ``final_gather_after`` on (counting ``first_sample``'s; 0: all, None: none) take one real
     bounce before the field (:mod:`photon_fields.runtime.wavefront.final_gather`: the field's bias reaches the image
     attenuated and blurred, at about 1.5x the work per sample): a render of many samples converges to the less
     biased image while one of few stays plain (its noise is larger than the bias the gather removes).
     ``cancel``: asked before each batch; True stops the render with
     :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`."""
+    light_volume = camera_light_volume(scene, camera)
+    camera = resolve_camera_estimator(scene, estimator, camera, light_volume, light_sampling)
     stats_before = _field_seconds(estimator)
     result = render_first_interaction(scene, estimator, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
                                       desc="neural rendering", direct=direct, film=film, first_sample=first_sample,
                                       camera=camera, final_gather_after=final_gather_after, cancel=cancel,
-                                      light_sampling=light_sampling,
-                                      light_volume=camera_light_volume(scene, camera))
+                                      light_sampling=light_sampling, light_volume=light_volume)
+    result.stats["camera_estimator"] = camera
     after = _field_seconds(estimator)
     for key, value in after.items():  # the field's own split of stage 4: encoding / inference / decoding
         result.timings_ms[f"estimate_indirect.{key}"] = (value - stats_before.get(key, 0.0)) * 1e3
@@ -116,7 +120,7 @@ class ProgressiveRender:
     ``timings_ms["denoise"]`` the denoiser's time; the other layers stay the accumulation's."""
 
     def __init__(self, scene: Scene, estimator: IndirectEstimator | None, *, spp: int = 1, seed: int = 0,
-                 batch_size: int = DEFAULT_BATCH, camera: str = DEFAULT_CAMERA_ESTIMATOR,
+                 batch_size: int = DEFAULT_BATCH, camera: str = AUTO,
                  denoiser: Any = None, final_gather_after: int | None = DEFAULT_GATHER_AFTER,
                  light_sampling: str = DEFAULT_LIGHT_SAMPLING) -> None:
         self.scene, self.estimator, self.spp, self.seed, self.batch_size = scene, estimator, int(spp), seed, batch_size

@@ -21,8 +21,8 @@ from photon_fields.runtime.renderers.ray_marcher import camera_light_volume
 from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.wavefront.batches import DEFAULT_BATCH, RenderResult
+from photon_fields.runtime.wavefront.camera_choice import AUTO, resolve_camera_estimator
 from photon_fields.runtime.wavefront.first_interaction import (
-    DEFAULT_CAMERA_ESTIMATOR,
     DEFAULT_LIGHT_SAMPLING,
     render_first_interaction,
 )
@@ -31,7 +31,7 @@ from photon_fields.runtime.wavefront.first_interaction import (
 def render_photon_mapped(scene: Scene, pmap: PhotonMap, *, k: int = DEFAULT_K, radius: float = DEFAULT_RADIUS,
                          spp: int = 1, seed: int = 0, batch_size: int = DEFAULT_BATCH, progress: bool = True,
                          force: bool = False, g_window: float | str | None = "auto",
-                         camera: str = DEFAULT_CAMERA_ESTIMATOR,
+                         camera: str = AUTO,
                          final_gather_after: int | None = DEFAULT_GATHER_AFTER,
                          light_sampling: str = DEFAULT_LIGHT_SAMPLING) -> RenderResult:
     """Render ``scene`` with L_i from ``pmap`` (K nearest photons within ``radius`` of each first interaction),
@@ -39,16 +39,20 @@ def render_photon_mapped(scene: Scene, pmap: PhotonMap, *, k: int = DEFAULT_K, r
     traced for another scene is refused unless ``force``. The scene's g must be one of the map's phases or, read
     with a kernel in g of half-width ``g_window`` (:mod:`photon_fields.runtime.photons.phase_window`; "auto":
     for a map traced in narrow phase bins), have a bin within it. ``camera``: how first interactions are sampled
-    (``first_interaction.CAMERA_ESTIMATORS``); samples from index ``final_gather_after`` on (None: none) take one
-    real bounce before the map's estimate (:mod:`photon_fields.runtime.wavefront.final_gather`, Jensen's final
-    gathering); ``light_sampling``: NEE to one light per sample or to all (``first_interaction.LIGHT_SAMPLINGS``)."""
+    (``first_interaction.CAMERA_ESTIMATORS``, or "auto", :mod:`photon_fields.runtime.wavefront.camera_choice`);
+    samples from index ``final_gather_after`` on (None: none) take one real bounce before the map's estimate
+    (:mod:`photon_fields.runtime.wavefront.final_gather`, Jensen's final gathering); ``light_sampling``: NEE to
+    one light per sample or to all (``first_interaction.LIGHT_SAMPLINGS``)."""
     check_map_matches_scene(pmap, scene, force)
     window = map_window(pmap.phases, g_window)
     answerable(pmap.phases, scene.g, window)  # fail before rendering if g cannot be answered
     est = PhotonMapEstimator(pmap, scene.medium(), k=k, radius=radius, g_window=window)
+    light_volume = camera_light_volume(scene, camera)
+    camera = resolve_camera_estimator(scene, est, camera, light_volume, light_sampling)
     result = render_first_interaction(scene, est, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
                                       desc="photon mapping", camera=camera, final_gather_after=final_gather_after,
-                                      light_sampling=light_sampling, light_volume=camera_light_volume(scene, camera))
+                                      light_sampling=light_sampling, light_volume=light_volume)
+    result.stats["camera_estimator"] = camera
     if est.found:
         found = np.concatenate(est.found)
         result.stats.update({"k_mean_found": float(found.mean()), "k_saturated": float(np.mean(found >= k))})

@@ -123,14 +123,15 @@ class Renderer:
 #: the command line does not import numpy, and tested to agree).
 MAX_LEVEL = 5
 
-#: The first-interaction renderers' camera estimator (runtime.wavefront.first_interaction.CAMERA_ESTIMATORS; spelt
-#: out here so that building the command line does not import numba kernels).
-CAMERA_ESTIMATOR_NAMES = ("forced", "marched", "delta")
-CAMERA_OPTION = Option("--camera-estimator", "camera", "camera estimator: forced (a collision resampled from the "
-                       "whole ray, weighted by its collision probability; less noise in thin media), marched (the "
-                       "preview's cached light summed along the whole ray and corrected at three points: least noise "
-                       "per millisecond in sparse media, 3-4x the time per sample) or delta (delta tracking, the path "
-                       "tracer's first bounce)", str, "forced", one_of(CAMERA_ESTIMATOR_NAMES))
+#: The first-interaction renderers' camera estimator (runtime.wavefront.first_interaction.CAMERA_ESTIMATORS and
+#: camera_choice.AUTO; spelt out here so that building the command line does not import numba kernels).
+CAMERA_ESTIMATOR_NAMES = ("auto", "forced", "marched", "delta")
+CAMERA_OPTION = Option("--camera-estimator", "camera", "camera estimator: auto (forced or marched, whichever has less "
+                       "noise per unit of work on this scene, from a probe of a band of rows), forced (a collision "
+                       "resampled from the whole ray, weighted by its collision probability; less noise in thin "
+                       "media), marched (the preview's cached light summed along the whole ray and corrected at three "
+                       "points: least noise per millisecond in sparse media, 3-4x the time per sample) or delta (delta "
+                       "tracking, the path tracer's first bounce)", str, "auto", one_of(CAMERA_ESTIMATOR_NAMES))
 
 
 def checked_camera_estimator(name: str | None) -> str:

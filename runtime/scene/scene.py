@@ -62,7 +62,7 @@ _SCENE_KEYS = {"name", "volume", "transfer_function", "lights", "camera", "phase
 
 
 #: The dicts :meth:`Scene.shared_cache` keeps, carried over by :meth:`Scene.with_overrides`.
-SHARED_CACHES = ("light_volumes", "depth_bounds", "step_units", "light_volumes_before", "levels")
+SHARED_CACHES = ("light_volumes", "depth_bounds", "step_units", "light_volumes_before", "levels", "camera_estimator")
 #: Those of :data:`SHARED_CACHES` that depend on the medium alone, not on the lights (:meth:`Scene.adopt_medium`).
 MEDIUM_CACHES = ("depth_bounds", "step_units")
 
@@ -129,7 +129,8 @@ class Scene:
         """A dict kept with the scene for what depends on its medium and lights, and on nothing else or on what
         its keys name (the ray marcher's light volumes, ``"light_volumes"``, and step grids, ``"step_units"``; the
         camera walks' depth bounds per camera, ``"depth_bounds"``; the volume's coarser levels' scenes, ``"levels"``,
-        :mod:`photon_fields.runtime.scene.levels`): one of :data:`SHARED_CACHES`, carried over by
+        :mod:`photon_fields.runtime.scene.levels`; the auto camera estimator's choices, ``"camera_estimator"``,
+        :mod:`photon_fields.runtime.wavefront.camera_choice`): one of :data:`SHARED_CACHES`, carried over by
         :meth:`with_overrides`, which changes neither medium nor lights."""
         if key not in SHARED_CACHES:
             raise ValueError(f"unknown shared cache {key!r} (one of {SHARED_CACHES})")

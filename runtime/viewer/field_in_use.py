@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from photon_fields.runtime.renderers.registry import CAMERA_OPTION
 from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.light_rescale import lights_rescale
 from photon_fields.runtime.scene.scene import Scene
@@ -168,13 +169,12 @@ class FieldInUse:
             if renderer == "neural":
                 from photon_fields.runtime.renderers.neural import render_neural
                 from photon_fields.runtime.wavefront.batches import CANCELLABLE_BATCH, DEFAULT_BATCH
-                from photon_fields.runtime.wavefront.first_interaction import DEFAULT_CAMERA_ESTIMATOR
 
                 est = self.scaled_estimator(scale)
                 return render_neural(scene, est, spp=1, seed=seed, progress=False, first_sample=n,
                                      final_gather_after=0 if final_gather else None, cancel=cancel,
                                      batch_size=DEFAULT_BATCH if cancel is None else CANCELLABLE_BATCH,
-                                     camera=camera or DEFAULT_CAMERA_ESTIMATOR).layers
+                                     camera=camera or CAMERA_OPTION.default).layers
             if renderer == "pt":
                 from photon_fields.runtime.renderers.path_tracer import render_path_traced
 

@@ -39,7 +39,7 @@ class RenderCancelledError(Exception):
 class RenderResult:
     layers: dict[str, np.ndarray]  # name -> (H, W, 3) float32
     timings_ms: dict[str, float] = field(default_factory=dict)
-    stats: dict[str, float] = field(default_factory=dict)
+    stats: dict[str, float | str] = field(default_factory=dict)  # numbers, and what a renderer chose (names)
 
 
 class StageTimer:

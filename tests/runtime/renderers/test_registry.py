@@ -54,7 +54,7 @@ def test_options_reach_only_their_renderer_and_are_all_checked() -> None:
     assert renderer_options(args, "raymarch") == {"step": 2.0, "max_step": None, "shadow_step": 0.25,
                                                   "shadows": "volume", "light_grid_scale": None,
                                                   "min_transmittance": 1e-2, "level": 0}
-    assert renderer_options(args, "field") == {"camera": "forced", "light_sampling": "one",
+    assert renderer_options(args, "field") == {"camera": "auto", "light_sampling": "one",
                                                "final_gather_after": DEFAULT_GATHER_AFTER}
     delta = parser.parse_args(["--method", "field", "--camera-estimator", "delta", "--final-gather-after", "0",
                                "--light-sampling", "all"])

@@ -266,8 +266,9 @@ def test_final_gather_reaches_the_field_renderer_and_its_report(bundle: Path, tm
                                      str(out)], capsys)
         assert code == 0 and err == [], err
         gathers = flags[1] == "0"
-        assert report["options"] == {"camera": "forced", "light_sampling": "one",
+        assert report["options"] == {"camera": "auto", "light_sampling": "one",
                                      "final_gather_after": 0 if gathers else None}
+        assert report["stats"]["camera_estimator"] in ("forced", "marched")  # what auto chose
         images[gathers] = read_exr(out)[0]
     np.testing.assert_array_equal(images[False]["L_d"], images[True]["L_d"])
     assert not np.array_equal(images[False]["L_i"], images[True]["L_i"])

@@ -49,7 +49,7 @@ def test_the_page_switches_the_estimator_and_the_accumulation_starts_again(tmp_p
     for _ in range(2):
         s.next_frame()
     with s.lock:
-        assert state_message(s)["camera_estimator"] == "forced" and s._acc.samples == 2
+        assert state_message(s)["camera_estimator"] == "auto" and s._acc.samples == 2
     s.apply(msg("set", control="camera_estimator", value="marched"))
     s.next_frame()
     with s.lock:

@@ -27,6 +27,7 @@ from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.scene.volume import make_volume
 from photon_fields.runtime.transport.tracking import camera_collision, delta_track, resampled_collision
 from photon_fields.runtime.wavefront import first_interaction
+from photon_fields.runtime.wavefront.camera_choice import AUTO
 
 
 def _thin_scene(density: float = 4.0) -> Scene:
@@ -146,9 +147,9 @@ def test_unknown_camera_estimator_is_refused() -> None:
 def test_command_line_offers_every_camera_estimator() -> None:
     from photon_fields.runtime.renderers.registry import CAMERA_OPTION
 
-    assert CAMERA_OPTION.default == first_interaction.DEFAULT_CAMERA_ESTIMATOR
-    assert [CAMERA_OPTION.value(name) for name in first_interaction.CAMERA_ESTIMATORS] == ["delta", "forced",
-                                                                                           "marched"]
+    assert CAMERA_OPTION.default == AUTO  # the renderers' default; first_interaction's own is forced
+    assert sorted(CAMERA_OPTION.value(name) for name in (*first_interaction.CAMERA_ESTIMATORS, AUTO)) == [
+        "auto", "delta", "forced", "marched"]
     with pytest.raises(InputError, match="--camera-estimator"):
         CAMERA_OPTION.value("ratio")
 

@@ -116,7 +116,7 @@ def test_gathered_li_is_affine_in_the_estimator() -> None:
     value is used once, linearly, at every bounce that collides."""
     scene = _scene()
     li = {c: render_neural(scene, _Recorder(c) if c else _Zero(), spp=2, seed=5, progress=False,
-                           final_gather_after=0).layers["L_i"] for c in (0.0, 1.0, 3.0)}
+                           final_gather_after=0, camera="forced").layers["L_i"] for c in (0.0, 1.0, 3.0)}
     assert (li[1.0] - li[0.0]).mean() > 0.0
     np.testing.assert_allclose(li[3.0] - li[0.0], 3.0 * (li[1.0] - li[0.0]), rtol=1e-5, atol=1e-7)  # float32 layers
 

@@ -1,0 +1,103 @@
+"""The "auto" camera estimator: the forced or the marched one, whichever gives this scene less noise per unit of work.
+
+Parameters (module constants)
+-----------------------------
+PROBE_RAYS : int
+    Camera rays per probe render (8192): a band of whole rows across the middle of the image at the render's own
+    pixel size, so the probe costs about the same on any image size (a 256^2 frame's eighth, a 512^2 frame's
+    32nd) and sees the pixel footprint the render will have (at a quarter of the resolution vortex's ratio below
+    was 2.7 instead of 6.8: a larger pixel's own variation, which neither estimator removes, dilutes it).
+COST_RATIO : float
+    The marched estimator's time per sample over the forced one's (4: measured 3.2-4.5 with a field on the embedded
+    scenes at 256^2, ~3 in the viewer's 512^2 frames; bench/README.md). It is a constant, not a timing of the
+    probe, so that the choice, and with it the image, depends on the scene and the seed alone, never on the machine.
+
+Which estimator has less noise per millisecond depends on the medium and the transfer function (docs/rendering.md,
+"Which camera estimator"): marched sums the cached light over the whole ray and wins where rays cross thin or
+partly lit matter (noise variance 6.8x lower on vortex, 4.6x on shell, at 256^2 with a field), forced wins where a
+dense surface ends the ray and the field's noise at its one point is most of the frame's (blobs 3.8x, head 3.5x,
+against a time ratio of ~4). No cheaper statistic of the scene predicted it (the rays' mean transmittance puts shell,
+where marched wins, with the opaque head), so the choice is measured: two probe renders per estimator with fixed
+seeds, the variance of their difference (an unbiased estimate of twice a render's noise variance, whatever the
+field's bias), and marched when var(forced) / var(marched) > ``COST_RATIO``. The choice is kept in the scene's
+cache (``"camera_estimator"``), keyed by g, the NEE's light sampling, the estimator's type and the pixel's size
+(its angle, in half-octave classes: a pixel's own variation is part of the noise both estimators share), so a
+camera move or a progressive render's next frame do not probe again; a viewer's smaller frames while dragging probe
+once for their size, and a transfer-function or light edit (a new scene) probes anew.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from photon_fields.runtime.scene.scene import Scene
+from photon_fields.runtime.transport.light_volume import LightVolume
+from photon_fields.runtime.wavefront.first_interaction import IndirectEstimator, render_first_interaction
+
+AUTO = "auto"
+PROBE_RAYS = 8192
+COST_RATIO = 4.0
+#: The probe renders' seeds (each estimator renders the band with both; fixed, so the choice is reproducible).
+PROBE_SEEDS = (7919, 7920)
+
+
+def probe_band(scene: Scene, rays: int = PROBE_RAYS) -> Scene:
+    """``scene`` with its camera cut to the band of whole rows across the image's middle that holds about ``rays``
+    pixels (the whole image if it has fewer): the same eye, direction and pixel size, so each of its rays is one of
+    the full camera's middle rows' (up to rounding)."""
+    cam = scene.camera
+    rows = min(cam.height, max(1, math.ceil(rays / cam.width)))
+    if rows == cam.height:
+        return scene
+    aspect = cam.width / cam.height
+    half = math.tan(math.radians(cam.fov) * 0.5)
+    half_w = half * aspect if cam.fov_axis == "y" else half
+    band = replace(cam, fov=math.degrees(2.0 * math.atan(half_w)), fov_axis="x", height=rows)
+    return scene.with_overrides(camera=band)
+
+
+def pixel_class(scene: Scene) -> int:
+    """The camera's pixel size as a class of half an octave: round(2 log2(the pixel's angle))."""
+    _, _, dv = scene.camera.image_plane()
+    return round(2.0 * math.log2(float(np.linalg.norm(dv))))
+
+
+def noise_variance(scene: Scene, estimator: IndirectEstimator | None, camera: str, light_volume: LightVolume | None,
+                   light_sampling: str) -> float:
+    """Half the summed squared difference of two 1-spp renders of ``scene`` with ``camera`` (seeds
+    :data:`PROBE_SEEDS`): an unbiased estimate of one render's noise variance, summed over pixels and channels."""
+    a, b = (render_first_interaction(scene, estimator, spp=1, seed=seed, progress=False, camera=camera,
+                                     light_sampling=light_sampling,
+                                     light_volume=light_volume).layers["L"].astype(np.float64)
+            for seed in PROBE_SEEDS)
+    return 0.5 * float(np.sum((a - b) ** 2))
+
+
+def choose_camera_estimator(scene: Scene, estimator: IndirectEstimator | None, light_volume: LightVolume,
+                            light_sampling: str) -> str:
+    """"forced" or "marched" for ``scene`` (module docstring), probed on :func:`probe_band` once per g, light
+    sampling and estimator type and kept in the scene's cache. ``light_volume``: the marched estimator's (the
+    scene's, ``ray_marcher.camera_light_volume``); the probe fills the cells its rays read, which the render then
+    finds filled."""
+    key = (round(float(scene.g), 9), light_sampling, type(estimator).__name__, pixel_class(scene))
+    choices = scene.shared_cache("camera_estimator")
+    if key not in choices:
+        band = probe_band(scene)
+        forced = noise_variance(band, estimator, "forced", None, light_sampling)
+        marched = noise_variance(band, estimator, "marched", light_volume, light_sampling)
+        choices[key] = "marched" if forced > COST_RATIO * marched else "forced"
+    return choices[key]
+
+
+def resolve_camera_estimator(scene: Scene, estimator: IndirectEstimator | None, camera: str,
+                             light_volume: LightVolume | None, light_sampling: str) -> str:
+    """``camera`` itself, or for :data:`AUTO` the choice of :func:`choose_camera_estimator` (which needs the
+    scene's light volume)."""
+    if camera != AUTO:
+        return camera
+    if light_volume is None:
+        raise ValueError("the auto camera estimator needs the scene's light volume")
+    return choose_camera_estimator(scene, estimator, light_volume, light_sampling)
