@@ -51,6 +51,7 @@ LIGHTS = "tests/runtime/photons/test_light_kinds.py::test_photon_map_li_matches_
 EMITTERS = "tests/runtime/transport/test_emitters.py"
 TRACING = "tests/train/photons/test_photon_tracing.py"
 CAMERA = "tests/runtime/wavefront/test_camera_estimators.py"
+CHOICE = "tests/runtime/wavefront/test_camera_choice.py"
 DEPTH = "tests/runtime/wavefront/test_depth_bounds.py"
 VSESSION = "tests/runtime/viewer/test_viewer_session.py"
 GATHER = "tests/runtime/wavefront/test_final_gather.py"
@@ -927,6 +928,22 @@ MUTANTS: tuple[Mutant, ...] = (
            (f"{CAMERA}::test_marched_walk_matches_delta_tracking_on_sharp_walls[16.0-default]",),
            "the marched camera's picks share one random number per candidate: every pick is the same point, the "
            "three field queries and shadow rays one sample bought three times"),
+    Mutant("camera_choice_inverted", "runtime/wavefront/camera_choice.py",
+           'choices[key] = "marched" if forced > COST_RATIO * marched else "forced"',
+           'choices[key] = "forced" if forced > COST_RATIO * marched else "marched"',
+           (f"{CHOICE}::test_the_choice_follows_the_probed_noise_ratio",
+            f"{CHOICE}::test_auto_chooses_the_estimator_with_less_noise_per_unit_of_work"),
+           "auto takes the estimator with more noise per unit of work"),
+    Mutant("camera_choice_band_pixels_stretched", "runtime/wavefront/camera_choice.py",
+           'half_w = half * aspect if cam.fov_axis == "y" else half', "half_w = half",
+           (f"{CHOICE}::test_the_probe_band_is_the_full_cameras_middle_rows[y]",),
+           "the probe's band has other pixels than the render (a wide image's band sees a narrower view): its noise "
+           "is not the render's"),
+    Mutant("camera_choice_key_without_pixel_size", "runtime/wavefront/camera_choice.py",
+           "type(estimator).__name__, pixel_class(scene))", "type(estimator).__name__)",
+           (f"{CHOICE}::test_the_choice_follows_the_probed_noise_ratio",),
+           "auto keeps the choice made at one pixel size for every other (a viewer's small dragging frames decide "
+           "its full-size resting frames' estimator)"),
     Mutant("marched_camera_no_correction", "runtime/wavefront/marched_camera.py",
            "    return nee - cached.at_pick\n", "    return nee - nee\n",
            (f"{CAMERA}::test_camera_estimators_estimate_the_same_image[L_d-marched, scrambled cache]",),
