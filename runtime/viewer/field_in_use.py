@@ -91,6 +91,7 @@ class FieldInUse:
         self.tf: TransferFunction | LabelTransfer = scene.tf
         self.lights = [LightControl.from_light(lt) for lt in scene.lights]
         self._rescaled_map: tuple[bytes, Any] | None = None  # (the factors, the map rescaled by them)
+        self.camera_used: str | None = None  # the camera estimator of the last neural frame ("auto" resolved)
 
     @classmethod
     def from_job(cls, job: RetrainJob, threads: int | None = None) -> FieldInUse:
@@ -171,10 +172,12 @@ class FieldInUse:
                 from photon_fields.runtime.wavefront.batches import CANCELLABLE_BATCH, DEFAULT_BATCH
 
                 est = self.scaled_estimator(scale)
-                return render_neural(scene, est, spp=1, seed=seed, progress=False, first_sample=n,
-                                     final_gather_after=0 if final_gather else None, cancel=cancel,
-                                     batch_size=DEFAULT_BATCH if cancel is None else CANCELLABLE_BATCH,
-                                     camera=camera or CAMERA_OPTION.default).layers
+                result = render_neural(scene, est, spp=1, seed=seed, progress=False, first_sample=n,
+                                       final_gather_after=0 if final_gather else None, cancel=cancel,
+                                       batch_size=DEFAULT_BATCH if cancel is None else CANCELLABLE_BATCH,
+                                       camera=camera or CAMERA_OPTION.default)
+                self.camera_used = str(result.stats["camera_estimator"])
+                return result.layers
             if renderer == "pt":
                 from photon_fields.runtime.renderers.path_tracer import render_path_traced
 
@@ -199,6 +202,11 @@ class FieldInUse:
             return layers
         li = (layers["L_i"] * scale).astype(np.float32)
         return {**layers, "L_i": li, "L": (layers["L_e"] + layers["L_d"]) + li}
+
+    def estimator_report(self, camera: str, renderer: str) -> dict[str, str | None]:
+        """What frame headers and screenshots record of the camera estimator: the one set (``camera``, e.g. "auto")
+        and, for the neural renderer, the one its last frame used."""
+        return {"camera_estimator": camera, "camera_estimator_used": self.camera_used if renderer == "neural" else None}
 
     def scaled_estimator(self, scale: np.ndarray | None) -> Any:
         """The field's estimator with L_i following the page's lights (``scale`` from :meth:`indirect_scale`, None:

@@ -397,8 +397,8 @@ class ViewerSession:
                   "stale": self.field.stale_for(s.renderer, s.transfer, s.lights),
                   "renderer": s.renderer, "layer": s.layer, "g": s.g, "width": size[0], "height": size[1],
                   "view_size": list(s.view_size) if s.view_size else None, "format": s.format, "exposure": stops,
-                  "denoised": denoised, "moving": moved_only, "gathered": gathered, "level": level,
-                  "rendered": render, "warnings": warnings, "camera_estimator": s.camera_estimator,
+                  "denoised": denoised, "moving": moved_only, "gathered": gathered, "level": level, "rendered": render,
+                  "warnings": warnings, **self.field.estimator_report(s.camera_estimator, s.renderer),
                   "pvrt": dict(self.field.pvrt.last) if s.renderer == "pvrt" and self.field.pvrt else None,
                   **{k: round(v, 2) for k, v in timings.items()}}
         self._last_header = header
@@ -492,7 +492,7 @@ class ViewerSession:
                       "transfer_function": (s.transfer or self.base_scene.tf).to_dict(),
                       "stale_indirect": self.field.stale_for(s.renderer, s.transfer, s.lights),
                       "final_gather_samples": gathered, "level": header.get("level", 0),
-                      "camera_estimator": s.camera_estimator,
+                      **self.field.estimator_report(s.camera_estimator, s.renderer),
                       "frame_timings_ms": {k: v for k, v in header.items() if k.endswith("_ms")}, **self.info}
             return screenshot.write(self.out_dir, stem, layers, report, png_layer=s.layer,
                                     exposure=header.get("exposure"))

@@ -155,7 +155,9 @@ function showStatus(h) {
     `${h.renderer} ${h.layer} g=${h.g.toFixed(2)}\n` +
     `${h.width}x${h.height}` + (h.view_size && (h.view_size[0] !== h.width || h.view_size[1] !== h.height) ?
       ` of ${h.view_size[0]}x${h.view_size[1]}` : "") + `  spp ${h.spp}${h.denoised ? " (denoised)" : ""}${h.gathered ? ` (${h.gathered} with final gather)` : ""}` +
-    (h.level ? `  volume level ${h.level} (coarser while changing)` : "") + "\n" +
+    (h.level ? `  volume level ${h.level} (coarser while changing)` : "") +
+    (h.camera_estimator_used ? `  camera estimator ${h.camera_estimator_used}` +
+      (h.camera_estimator === "auto" ? " (auto)" : "") : "") + "\n" +
     `frame ${h.total_ms.toFixed(0)} ms  render ${(h.render_ms || 0).toFixed(0)} ms\n` +
     `${fps.toFixed(1)} frames/s` + (lastLatency !== null ? `  input->image ${lastLatency.toFixed(0)} ms` : "") +
     (h.pvrt ? (h.pvrt.relit ? `\nrelit from ${h.pvrt.kept_samples} kept samples` : "\ncamera rays marched") : "");

@@ -56,3 +56,16 @@ def test_the_page_switches_the_estimator_and_the_accumulation_starts_again(tmp_p
         assert state_message(s)["camera_estimator"] == "marched" and s._acc.samples == 1
         shown = s._acc["L"] / s._acc.samples
     np.testing.assert_allclose(shown, first_frame(tmp_path / "m", camera_estimator="marched"), rtol=2e-5, atol=1e-7)
+
+
+def test_frame_headers_name_the_estimator_a_frame_used(tmp_path: Path) -> None:
+    """"auto" (the default) in ``camera_estimator``, what it chose for the scene in ``camera_estimator_used`` (the
+    page's status line shows it); no estimator for renderers without one."""
+    s = make_session(tmp_path / "a", gather_after=None)
+    header = s.next_frame().header
+    scene = tiny_scene().with_overrides(camera=s.state.view.camera(24, 24))
+    chosen = render_neural(scene, AnalyticField(), spp=1, seed=5, progress=False).stats["camera_estimator"]
+    assert (header["camera_estimator"], header["camera_estimator_used"]) == ("auto", chosen)
+    marched = make_session(tmp_path / "m", gather_after=None, camera_estimator="marched").next_frame().header
+    assert (marched["camera_estimator"], marched["camera_estimator_used"]) == ("marched", "marched")
+    assert make_session(tmp_path / "p", renderer="pt").next_frame().header["camera_estimator_used"] is None
