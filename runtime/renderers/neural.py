@@ -85,8 +85,9 @@ def render_neural(scene: Scene, estimator: IndirectEstimator | None, *, spp: int
     biased image while one of few stays plain (its noise is larger than the bias the gather removes).
     ``cancel``: asked before each batch; True stops the render with
     :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`."""
+    camera = resolve_camera_estimator(scene, estimator, camera, lambda: camera_light_volume(scene, "marched"),
+                                      light_sampling, spp)
     light_volume = camera_light_volume(scene, camera)
-    camera = resolve_camera_estimator(scene, estimator, camera, light_volume, light_sampling)
     stats_before = _field_seconds(estimator)
     result = render_first_interaction(scene, estimator, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
                                       desc="neural rendering", direct=direct, film=film, first_sample=first_sample,

@@ -47,8 +47,9 @@ def render_photon_mapped(scene: Scene, pmap: PhotonMap, *, k: int = DEFAULT_K, r
     window = map_window(pmap.phases, g_window)
     answerable(pmap.phases, scene.g, window)  # fail before rendering if g cannot be answered
     est = PhotonMapEstimator(pmap, scene.medium(), k=k, radius=radius, g_window=window)
+    camera = resolve_camera_estimator(scene, est, camera, lambda: camera_light_volume(scene, "marched"),
+                                      light_sampling, spp)
     light_volume = camera_light_volume(scene, camera)
-    camera = resolve_camera_estimator(scene, est, camera, light_volume, light_sampling)
     result = render_first_interaction(scene, est, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
                                       desc="photon mapping", camera=camera, final_gather_after=final_gather_after,
                                       light_sampling=light_sampling, light_volume=light_volume)

@@ -424,10 +424,9 @@ def light_volume_settings(scene: Scene, light_grid_scale: float | None = None,
 
 def camera_light_volume(scene: Scene, camera: str) -> LightVolume | None:
     """What a first-interaction renderer's ``camera`` estimator reads: for "marched"
-    (:mod:`photon_fields.runtime.wavefront.marched_camera`) and "auto" (which may choose it,
-    :mod:`photon_fields.runtime.wavefront.camera_choice`) the light volume of the preview's default settings
+    (:mod:`photon_fields.runtime.wavefront.marched_camera`) the light volume of the preview's default settings
     (:func:`light_volume_settings`) from the scene's cache, shared with the preview's frames; None for the others."""
-    return scene_light_volume(scene, *light_volume_settings(scene)) if camera in ("marched", "auto") else None
+    return scene_light_volume(scene, *light_volume_settings(scene)) if camera == "marched" else None
 
 
 def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows: str = "volume",

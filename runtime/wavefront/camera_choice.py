@@ -23,12 +23,15 @@ field's bias), and marched when var(forced) / var(marched) > ``COST_RATIO``. The
 cache (``"camera_estimator"``), keyed by g, the NEE's light sampling, the estimator's type and the pixel's size
 (its angle, in half-octave classes: a pixel's own variation is part of the noise both estimators share), so a
 camera move or a progressive render's next frame do not probe again; a viewer's smaller frames while dragging probe
-once for their size, and a transfer-function or light edit (a new scene) probes anew.
+once for their size, and a transfer-function or light edit (a new scene) probes anew. A render of fewer samples
+than one probe render's rays (a 16x16 still, a thumbnail) is not worth four of them: it takes forced, the estimator
+without a light volume, unless the scene's choice was made already.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -76,28 +79,30 @@ def noise_variance(scene: Scene, estimator: IndirectEstimator | None, camera: st
     return 0.5 * float(np.sum((a - b) ** 2))
 
 
-def choose_camera_estimator(scene: Scene, estimator: IndirectEstimator | None, light_volume: LightVolume,
-                            light_sampling: str) -> str:
+def choose_camera_estimator(scene: Scene, estimator: IndirectEstimator | None,
+                            light_volume: Callable[[], LightVolume], light_sampling: str, samples: int) -> str:
     """"forced" or "marched" for ``scene`` (module docstring), probed on :func:`probe_band` once per g, light
-    sampling and estimator type and kept in the scene's cache. ``light_volume``: the marched estimator's (the
-    scene's, ``ray_marcher.camera_light_volume``); the probe fills the cells its rays read, which the render then
-    finds filled."""
+    sampling, estimator type and pixel class and kept in the scene's cache; for a render of fewer than
+    :data:`PROBE_RAYS` ``samples`` without a choice made, "forced" unprobed. ``light_volume``: gives the marched
+    estimator's (the scene's, ``ray_marcher.camera_light_volume``), asked only for a probe, which fills the cells its
+    rays read (the render then finds them filled)."""
     key = (round(float(scene.g), 9), light_sampling, type(estimator).__name__, pixel_class(scene))
     choices = scene.shared_cache("camera_estimator")
+    if key not in choices and samples < PROBE_RAYS:
+        return "forced"
     if key not in choices:
         band = probe_band(scene)
         forced = noise_variance(band, estimator, "forced", None, light_sampling)
-        marched = noise_variance(band, estimator, "marched", light_volume, light_sampling)
+        marched = noise_variance(band, estimator, "marched", light_volume(), light_sampling)
         choices[key] = "marched" if forced > COST_RATIO * marched else "forced"
     return choices[key]
 
 
 def resolve_camera_estimator(scene: Scene, estimator: IndirectEstimator | None, camera: str,
-                             light_volume: LightVolume | None, light_sampling: str) -> str:
-    """``camera`` itself, or for :data:`AUTO` the choice of :func:`choose_camera_estimator` (which needs the
-    scene's light volume)."""
+                             light_volume: Callable[[], LightVolume], light_sampling: str, spp: int) -> str:
+    """``camera`` itself, or for :data:`AUTO` the choice of :func:`choose_camera_estimator` for a render of
+    ``spp`` samples per pixel of ``scene``'s camera (``light_volume`` gives the scene's, for the probe)."""
     if camera != AUTO:
         return camera
-    if light_volume is None:
-        raise ValueError("the auto camera estimator needs the scene's light volume")
-    return choose_camera_estimator(scene, estimator, light_volume, light_sampling)
+    samples = scene.camera.width * scene.camera.height * spp
+    return choose_camera_estimator(scene, estimator, light_volume, light_sampling, samples)

@@ -54,23 +54,31 @@ def test_the_choice_follows_the_probed_noise_ratio(forced: float, marched: float
 
     monkeypatch.setattr(camera_choice, "noise_variance", probed)
     scene = _tiny("blobs", 256)  # 8192 probe rays: a band of 32 rows
-    lv = camera_light_volume(scene, AUTO)
-    assert camera_choice.resolve_camera_estimator(scene, None, AUTO, lv, "one") == chosen
+
+    def lv() -> object:
+        return camera_light_volume(scene, "marched")
+
+    def resolve(view: Scene, spp: int = 1) -> str:
+        return camera_choice.resolve_camera_estimator(view, None, AUTO, lv, "one", spp)
+
+    # A render of fewer samples than a probe's rays takes forced unprobed, unless the choice was made.
+    small = scene.with_overrides(camera=scene.camera.with_resolution(64, 64))
+    assert resolve(small) == "forced" and calls == []
+    assert resolve(scene) == chosen
     assert sorted(calls) == [("forced", 32, scene.g), ("marched", 32, scene.g)]
     # Kept with the scene: a camera move asks no new probe; another g, or pixels twice the size, do.
     moved = scene.with_overrides(camera=orbit_camera(scene.camera, 40.0))
-    assert camera_choice.resolve_camera_estimator(moved, None, AUTO, lv, "one") == chosen and len(calls) == 2
-    assert camera_choice.resolve_camera_estimator(scene.with_overrides(g=0.5), None, AUTO, lv, "one") == chosen
-    assert len(calls) == 4
+    assert resolve(moved) == chosen and len(calls) == 2
+    assert resolve(scene.with_overrides(g=0.5)) == chosen and len(calls) == 4
     coarse = scene.with_overrides(camera=scene.camera.with_resolution(128, 128))
-    assert camera_choice.resolve_camera_estimator(coarse, None, AUTO, lv, "one") == chosen
+    assert resolve(coarse) == chosen
     assert len(calls) == 6 and calls[-1][1] == 64  # the band: 8192 rays in rows of 128
-    assert camera_choice.resolve_camera_estimator(scene, None, "delta", None, "one") == "delta"
-    with pytest.raises(ValueError, match="light volume"):
-        camera_choice.resolve_camera_estimator(scene.with_overrides(g=0.1), None, AUTO, None, "one")
+    assert resolve(small, spp=2) == chosen and len(calls) == 8  # 64^2 x 2 samples: worth a probe
+    assert resolve(small) == chosen and len(calls) == 8  # and now the choice is made for that size
+    assert camera_choice.resolve_camera_estimator(scene, None, "delta", lv, "one", 1) == "delta"
 
 
-def _independent_ratio(scene: Scene, lv: object) -> float:
+def _independent_ratio(scene: Scene) -> float:
     """forced's noise variance over marched's from four seed pairs of their own (not the probe's), whole image."""
     var = {}
     for camera in ("forced", "marched"):
@@ -84,12 +92,12 @@ def _independent_ratio(scene: Scene, lv: object) -> float:
 def test_auto_chooses_the_estimator_with_less_noise_per_unit_of_work(name: str, size: int, chosen: str) -> None:
     """L_d alone (no field) of two tiny scenes, one on either side of COST_RATIO: the probe's choice is the side an
     independent measurement of the noise ratio puts the scene on, and the render is the chosen estimator's, bit
-    for bit, with the choice in its stats."""
+    for bit, with the choice in its stats (``spp`` enough for a probe: PROBE_RAYS samples)."""
     scene = _tiny(name, size)
-    lv = camera_light_volume(scene, AUTO)
-    ratio = _independent_ratio(scene, lv)
+    ratio = _independent_ratio(scene)
     assert (ratio > 1.5 * COST_RATIO) if chosen == "marched" else (ratio < COST_RATIO / 1.5), ratio
-    auto = render_neural(scene, None, spp=1, seed=3, progress=False)
+    spp = -(-camera_choice.PROBE_RAYS // (size * size))
+    auto = render_neural(scene, None, spp=spp, seed=3, progress=False)
     assert auto.stats["camera_estimator"] == chosen
-    same = render_neural(scene, None, spp=1, seed=3, progress=False, camera=chosen)
+    same = render_neural(scene, None, spp=spp, seed=3, progress=False, camera=chosen)
     assert np.array_equal(auto.layers["L"], same.layers["L"])
