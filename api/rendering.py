@@ -114,7 +114,7 @@ def render(volume: Any, *, transfer_function: Any = "auto", lights: Any = "studi
     info = {"method": method, "spp": spp, "seed": seed, "g": scene.g, "size": [width, height],
             "options": options, "scene_fingerprint": scene.fingerprint(), "transfer_function": tf.to_dict(),
             "lights": [lt.to_dict() for lt in scene.lights], "camera": cam.to_dict(),
-            "timings_ms": result.timings_ms}
+            "timings_ms": result.timings_ms, "stats": dict(result.stats)}
     return Image({k: result.layers[k] for k in result.layers}, info)
 
 

@@ -95,6 +95,8 @@ def test_readme_example_with_a_field_trains_once(tmp_path: Path, monkeypatch: py
     thin = pf.render(tmp_path / "head.nrrd", method="field", spp=1, size=(16, 16), training=TINY_TRAINING,
                      cache=cache, camera_estimator="marched")
     assert thin.info["options"] == {"camera_estimator": "marched"} and not np.array_equal(thin.L, img.L)
+    # what the default (auto) used: forced for a 16x16 frame (fewer samples than a probe); the estimator named
+    assert (img.info["stats"]["camera_estimator"], thin.info["stats"]["camera_estimator"]) == ("forced", "marched")
     assert np.all(np.isfinite(thin.L)) and thin.L_i.mean() > 0
     with pytest.raises(pf.InputError, match="^camera_estimator"):
         pf.render(tmp_path / "head.nrrd", method="field", spp=1, size=(16, 16), training=TINY_TRAINING, cache=cache,
