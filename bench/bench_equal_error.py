@@ -48,8 +48,8 @@ from photon_fields.runtime.field.field import PhotonField  # noqa: E402
 from photon_fields.runtime.renderers.neural import render_neural  # noqa: E402
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
 from photon_fields.runtime.renderers.ray_marcher import render_ray_marched  # noqa: E402
+from photon_fields.runtime.renderers.registry import CAMERA_ESTIMATOR_NAMES  # noqa: E402
 from photon_fields.runtime.scene.scene import Scene, builtin_scene  # noqa: E402
-from photon_fields.runtime.wavefront.first_interaction import CAMERA_ESTIMATORS  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "results" / "equal_error.json"
@@ -184,7 +184,7 @@ def main(argv: list[str] | None = None) -> None:
     add_reference_args(ap)
     ap.add_argument("--pt-max-spp", type=int, default=64)
     ap.add_argument("--spps", type=int, nargs="*", default=[1, 4, 32], help="neural samples per pixel")
-    ap.add_argument("--cameras", nargs="*", default=list(CAMERA_ESTIMATORS), choices=CAMERA_ESTIMATORS,
+    ap.add_argument("--cameras", nargs="*", default=list(CAMERA_ESTIMATOR_NAMES), choices=CAMERA_ESTIMATOR_NAMES,
                     help="camera estimators")
     ap.add_argument("--no-raymarch-field", dest="raymarch_field", action="store_false",
                     help="leave out the ray marcher with the field's L_i (--method raymarch-field)")
@@ -213,6 +213,9 @@ def main(argv: list[str] | None = None) -> None:
         render_path_traced(warm, spp=1, progress=False)
         for camera in args.cameras:
             render_neural(warm, est, spp=1, progress=False, camera=camera)
+        # auto probes once per scene and pixel size (runtime/wavefront/camera_choice.py): before the timed frames,
+        # as a viewer's or a progressive render's later frames find it made
+        chosen = render_neural(scene, est, spp=1, progress=False).stats["camera_estimator"]
         if args.raymarch_field:
             render_ray_marched(warm, spp=1, progress=False, estimator=est)
 
@@ -224,8 +227,8 @@ def main(argv: list[str] | None = None) -> None:
                 t, extrapolated = time_to_error(curves["path tracer"], row["rel_l2"])
                 row["equal_error_speedup"] = t / row["ms"]
                 row["extrapolated"] = extrapolated
-        results[name] = {"bundle": str(bundle_for(name, base, given)), "curves": curves}
-        print(f"\n{name} ({args.size}x{args.size}, reference: path tracer {args.ref_spp} spp)")
+        results[name] = {"bundle": str(bundle_for(name, base, given)), "curves": curves, "auto_chose": chosen}
+        print(f"\n{name} ({args.size}x{args.size}, reference: path tracer {args.ref_spp} spp; auto: {chosen})")
         print(f"  {'method':36s} {'spp':>4s} {'ms':>8s} {'rel. L2':>8s} {'speedup':>8s}")
         for method, rows in curves.items():
             for row in rows:

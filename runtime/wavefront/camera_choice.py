@@ -5,19 +5,18 @@ Parameters (module constants)
 PROBE_RAYS : int
     Camera rays per probe render (8192): a band of whole rows across the middle of the image at the render's own
     pixel size, so the probe costs about the same on any image size (a 256^2 frame's eighth, a 512^2 frame's
-    32nd) and sees the pixel footprint the render will have (at a quarter of the resolution vortex's ratio below
-    was 2.7 instead of 6.8: a larger pixel's own variation, which neither estimator removes, dilutes it).
+    32nd) and sees the pixel footprint the render will have (a larger pixel's own variation, which neither
+    estimator removes, dilutes the ratio: docs/rendering.md).
 COST_RATIO : float
-    The marched estimator's time per sample over the forced one's (4: measured 3.2-4.5 with a field on the embedded
-    scenes at 256^2, ~3 in the viewer's 512^2 frames; bench/README.md). It is a constant, not a timing of the
-    probe, so that the choice, and with it the image, depends on the scene and the seed alone, never on the machine.
+    The marched estimator's time per sample over the forced one's (4, from the embedded scenes' frames with a
+    field; docs/rendering.md). It is a constant, not a timing of the probe, so that the choice, and with it the
+    image, depends on the scene and the seed alone, never on the machine.
 
 Which estimator has less noise per millisecond depends on the medium and the transfer function (docs/rendering.md,
 "Which camera estimator"): marched sums the cached light over the whole ray and wins where rays cross thin or
-partly lit matter (noise variance 6.8x lower on vortex, 4.6x on shell, at 256^2 with a field), forced wins where a
-dense surface ends the ray and the field's noise at its one point is most of the frame's (blobs 3.8x, head 3.5x,
-against a time ratio of ~4). No cheaper statistic of the scene predicted it (the rays' mean transmittance puts shell,
-where marched wins, with the opaque head), so the choice is measured: two probe renders per estimator with fixed
+partly lit matter, forced where a dense surface ends the ray and the field's noise at its one point is most of the
+frame's. No cheaper statistic of the scene predicted it (the rays' mean transmittance puts a thin-walled shell,
+where marched wins, with the opaque scenes), so the choice is measured: two probe renders per estimator with fixed
 seeds, the variance of their difference (an unbiased estimate of twice a render's noise variance, whatever the
 field's bias), and marched when var(forced) / var(marched) > ``COST_RATIO``. The choice is kept in the scene's
 cache (``"camera_estimator"``), keyed by g, the NEE's light sampling, the estimator's type and the pixel's size
