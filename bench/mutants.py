@@ -923,10 +923,10 @@ MUTANTS: tuple[Mutant, ...] = (
            "the marched camera's reservoir keeps the last candidate whatever the weights: the field is asked at the "
            "far end of the medium"),
     Mutant("marched_camera_one_draw_for_all_picks", "runtime/wavefront/marched_camera.py",
-           "        for q in range(out_w.shape[0]):\n            state, v = next_float(state)\n",
-           "        state, v = next_float(state)\n        for q in range(out_w.shape[0]):\n",
+           "            v = u + q * step\n", "            v = u\n",
            (f"{CAMERA}::test_marched_walk_matches_delta_tracking_on_sharp_walls[16.0-default]",),
-           "the marched camera's picks share one random number per candidate: every pick is the same point, the "
+           "the marched camera's picks share one random number per candidate unshifted: every pick is the same "
+           "point, the "
            "three field queries and shadow rays one sample bought three times"),
     Mutant("camera_choice_inverted", "runtime/wavefront/camera_choice.py",
            'choices[key] = "marched" if forced > COST_RATIO * marched else "forced"',

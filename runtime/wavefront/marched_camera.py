@@ -58,10 +58,13 @@ reservoir of size one along the walk), W = sign(w_J) sum |w_k|:
     L_d = sum_k w_k a_k D_lv(x_k) + W a_J (NEE - D_lv)(x_J),    L_i = W a_J Q(x_J, d, g)
 
 Both terms of L_d and L_i are unbiased for the path tracer's single-scattering and multiply-scattered light at
-the first collision (given the walk, W a_J g(x_J) has mean sum_k w_k a_k g(x_k) for any g). ``PICKS`` independent
-reservoirs draw J_1 .. J_P from the same walk (P random numbers per candidate), and the correction and L_i are
-their mean, each point with its own shadow ray and field query: the same mean, and the walk, which is most of the
-cost, serves P points. So the image converges
+the first collision (given the walk, W a_J g(x_J) has mean sum_k w_k a_k g(x_k) for any g). ``PICKS``
+reservoirs draw J_1 .. J_P from the same walk, and the correction and L_i are their mean, each point with its own
+shadow ray and field query: the same mean, and the walk, which is most of the cost, serves P points. The reservoirs
+share one random number u_k per candidate, shifted by q / P (mod 1) for reservoir q: each reservoir still sees
+independent uniform numbers, so each pick has the single pick's distribution, but at every candidate the number of
+reservoirs that take it is P p_k rounded up or down (p_k its acceptance probability), not binomial: the picks are
+stratified over the walk's candidates and coincide less often than independent ones would. So the image converges
 to the delta and forced estimators' (tests/runtime/wavefront/test_camera_estimators.py, with a light volume of
 random values too). NEE includes the environment light, which D_lv does not hold: its single scattering is
 estimated at x_J alone. The transmittance estimate T^ at the ray's end weighs the environment behind the volume.
@@ -198,15 +201,20 @@ def _score(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, ray_pha
            missed: np.ndarray) -> tuple[float, float, float, float, np.uint64]:
     """One candidate of weight w at x (albedo a): its share w a D_lv(x) added to the strata's sum (m0, m1, m2) and
     its turn in each pick's reservoir (kept with probability |w| / the running sum of |w|, written to item i's pick,
-    ``out_w`` its w until the walk's end): (the sum, the sum of |w|, state). A cache cell not filled yet marks the
+    ``out_w`` its w until the walk's end; one random number for all the reservoirs, shifted by q / P for reservoir q:
+    the module docstring): (the sum, the sum of |w|, state). A cache cell not filled yet marks the
     item ``missed``."""
     l0, l1, l2, ok = cached_direct(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx, dy, dz)
     if not ok:
         missed[i] = True
     if w != 0.0:
         w_abs += abs(w)
+        state, u = next_float(state)
+        step = 1.0 / out_w.shape[0]
         for q in range(out_w.shape[0]):
-            state, v = next_float(state)
+            v = u + q * step
+            if v >= 1.0:
+                v -= 1.0
             if v * w_abs < abs(w):
                 out_x[q, 0, i], out_x[q, 1, i], out_x[q, 2, i] = x, y, z
                 out_a[q, 0, i], out_a[q, 1, i], out_a[q, 2, i] = a0, a1, a2
