@@ -929,8 +929,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "point, the "
            "three field queries and shadow rays one sample bought three times"),
     Mutant("camera_choice_inverted", "runtime/wavefront/camera_choice.py",
-           'choices[key] = "marched" if forced > COST_RATIO * marched else "forced"',
-           'choices[key] = "forced" if forced > COST_RATIO * marched else "marched"',
+           'choices[key] = "marched" if forced > cost_ratio(scene) * marched else "forced"',
+           'choices[key] = "forced" if forced > cost_ratio(scene) * marched else "marched"',
            (f"{CHOICE}::test_the_choice_follows_the_probed_noise_ratio",
             f"{CHOICE}::test_auto_chooses_the_estimator_with_less_noise_per_unit_of_work"),
            "auto takes the estimator with more noise per unit of work"),
@@ -939,6 +939,11 @@ MUTANTS: tuple[Mutant, ...] = (
            (f"{CHOICE}::test_the_probe_band_is_the_full_cameras_middle_rows[y]",),
            "the probe's band has other pixels than the render (a wide image's band sees a narrower view): its noise "
            "is not the render's"),
+    Mutant("camera_choice_cost_fixed", "runtime/wavefront/camera_choice.py",
+           "return COST_RATIO * max(1.0, across / COST_RESOLUTION) ** COST_EXPONENT", "return COST_RATIO",
+           (f"{CHOICE}::test_the_cost_ratio_grows_with_the_volumes_resolution",),
+           "auto weighs the marched estimator's cost as on a 96^3 volume at any resolution (at 256^3 it costs ~1.8x "
+           "more against forced)"),
     Mutant("camera_choice_key_without_pixel_size", "runtime/wavefront/camera_choice.py",
            "type(estimator).__name__, pixel_class(scene))", "type(estimator).__name__)",
            (f"{CHOICE}::test_the_choice_follows_the_probed_noise_ratio",),

@@ -7,10 +7,13 @@ PROBE_RAYS : int
     pixel size, so the probe costs about the same on any image size (a 256^2 frame's eighth, a 512^2 frame's
     32nd) and sees the pixel footprint the render will have (a larger pixel's own variation, which neither
     estimator removes, dilutes the ratio: docs/rendering.md).
-COST_RATIO : float
-    The marched estimator's time per sample over the forced one's (4, from the embedded scenes' frames with a
-    field; docs/rendering.md). It is a constant, not a timing of the probe, so that the choice, and with it the
-    image, depends on the scene and the seed alone, never on the machine.
+COST_RATIO, COST_RESOLUTION, COST_EXPONENT : float
+    The marched estimator's time per sample over the forced one's: 4 on volumes of ``COST_RESOLUTION`` (96) voxels
+    across, from the embedded scenes' frames with a field, growing as (voxels across / 96) ^ ``COST_EXPONENT``
+    (0.6) on finer volumes (:func:`cost_ratio`: the marched walk's strata are at most two voxels long, so it takes
+    more of them on a finer grid, while the forced walk's cost follows the optical depth; docs/rendering.md). A
+    model, not a timing of the probe, so that the choice, and with it the image, depends on the scene and the seed
+    alone, never on the machine.
 
 Which estimator has less noise per millisecond depends on the medium and the transfer function (docs/rendering.md,
 "Which camera estimator"): marched sums the cached light over the whole ray and wins where rays cross thin or
@@ -18,7 +21,7 @@ partly lit matter, forced where a dense surface ends the ray and the field's noi
 frame's. No cheaper statistic of the scene predicted it (the rays' mean transmittance puts a thin-walled shell,
 where marched wins, with the opaque scenes), so the choice is measured: two probe renders per estimator with fixed
 seeds, the variance of their difference (an unbiased estimate of twice a render's noise variance, whatever the
-field's bias), and marched when var(forced) / var(marched) > ``COST_RATIO``. The choice is kept in the scene's
+field's bias), and marched when var(forced) / var(marched) > :func:`cost_ratio`. The choice is kept in the scene's
 cache (``"camera_estimator"``), keyed by g, the NEE's light sampling, the estimator's type and the pixel's size
 (its angle, in half-octave classes: a pixel's own variation is part of the noise both estimators share), so a
 camera move or a progressive render's next frame do not probe again; a viewer's smaller frames while dragging probe
@@ -42,6 +45,8 @@ from photon_fields.runtime.wavefront.first_interaction import IndirectEstimator,
 AUTO = "auto"
 PROBE_RAYS = 8192
 COST_RATIO = 4.0
+COST_RESOLUTION = 96.0
+COST_EXPONENT = 0.6
 #: The probe renders' seeds (each estimator renders the band with both; fixed, so the choice is reproducible).
 PROBE_SEEDS = (7919, 7920)
 
@@ -59,6 +64,14 @@ def probe_band(scene: Scene, rays: int = PROBE_RAYS) -> Scene:
     half_w = half * aspect if cam.fov_axis == "y" else half
     band = replace(cam, fov=math.degrees(2.0 * math.atan(half_w)), fov_axis="x", height=rows)
     return scene.with_overrides(camera=band)
+
+
+def cost_ratio(scene: Scene) -> float:
+    """The marched estimator's modelled time per sample over the forced one's on ``scene``'s volume (module
+    docstring): :data:`COST_RATIO` up to :data:`COST_RESOLUTION` voxels across the box's longest side (in its
+    smallest voxel edge), growing as that count to the power :data:`COST_EXPONENT` beyond."""
+    across = 1.0 / float(scene.volume.voxel_size)
+    return COST_RATIO * max(1.0, across / COST_RESOLUTION) ** COST_EXPONENT
 
 
 def pixel_class(scene: Scene) -> int:
@@ -93,7 +106,7 @@ def choose_camera_estimator(scene: Scene, estimator: IndirectEstimator | None,
         band = probe_band(scene)
         forced = noise_variance(band, estimator, "forced", None, light_sampling)
         marched = noise_variance(band, estimator, "marched", light_volume(), light_sampling)
-        choices[key] = "marched" if forced > COST_RATIO * marched else "forced"
+        choices[key] = "marched" if forced > cost_ratio(scene) * marched else "forced"
     return choices[key]
 
 
