@@ -10,8 +10,8 @@ PROBE_RAYS : int
 COST_RATIO, COST_RESOLUTION, COST_EXPONENT : float
     The marched estimator's time per sample over the forced one's: 4 on volumes of ``COST_RESOLUTION`` (96) voxels
     across, from the embedded scenes' frames with a field, growing as (voxels across / 96) ^ ``COST_EXPONENT``
-    (0.6) on finer volumes (:func:`cost_ratio`: the marched walk's strata are at most two voxels long, so it takes
-    more of them on a finer grid, while the forced walk's cost follows the optical depth; docs/rendering.md). A
+    (0.3) on finer volumes (:func:`cost_ratio`: the marched walk's strata shorten at sharp walls, which a finer grid
+    resolves, while the forced walk's cost follows the optical depth; docs/rendering.md). A
     model, not a timing of the probe, so that the choice, and with it the image, depends on the scene and the seed
     alone, never on the machine.
 
@@ -46,7 +46,7 @@ AUTO = "auto"
 PROBE_RAYS = 8192
 COST_RATIO = 4.0
 COST_RESOLUTION = 96.0
-COST_EXPONENT = 0.6
+COST_EXPONENT = 0.3
 #: The probe renders' seeds (each estimator renders the band with both; fixed, so the choice is reproducible).
 PROBE_SEEDS = (7919, 7920)
 

@@ -5,9 +5,11 @@ Parameters (module constants)
 STRATA_PER_DEPTH : float
     Strata per unit of majorant optical depth (2: half an optical depth each; 1 left shell's 1-spp error at 0.50
     instead of 0.35, its walls' residual factors too wild).
-STRATUM_VOXELS : float
-    The longest stratum, in voxels (2: against 1, 10-20 % less time in the walk for the same error on vortex, shell
-    and head, blobs 0.192 -> 0.197 at 1 spp; 4 saved no more).
+STRATUM_VOXELS, STRATUM_BOX_FRACTION : float
+    The longest stratum: ``STRATUM_VOXELS`` voxels (2: against 1, 10-20 % less time in the walk for the same error on
+    vortex, shell and head, blobs 0.192 -> 0.197 at 1 spp; 4 saved no more), or ``STRATUM_BOX_FRACTION`` of the
+    box's longest side (1/48: two voxels of a 96^3 volume) where that is longer, so that a finer volume's walk does
+    not take more strata for the same medium (docs/rendering.md, "Strata at 256^3").
 RESIDUAL_BOOST : float
     The residual tracker's events at this many times the majorant (4: 1-spp error of L on shell 0.350 -> 0.303, head
     0.267 -> 0.230, vortex 0.256 -> 0.246 against 1, for a few per cent more time: the events are cheap beside the
@@ -105,6 +107,7 @@ from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box
 
 STRATA_PER_DEPTH = 2.0
 STRATUM_VOXELS = 2.0
+STRATUM_BOX_FRACTION = 1.0 / 48.0
 PICKS = 3
 RESIDUAL_BOOST = 4.0
 #: Status of a work item (the values of first_interaction's MISSED_BOX, ESCAPED, INTERACTED).
@@ -358,8 +361,8 @@ def march_camera_rays(scene: Scene, m: Medium, lv: LightVolume, work: np.ndarray
     cam = scene.camera
     origin, du, dv = cam.image_plane()
     eye = np.ascontiguousarray(cam.eye, dtype=np.float64)
-    walk = (float(scene.volume.voxel_size) * STRATUM_VOXELS, float(STRATA_PER_DEPTH), float(CAMERA_SWITCH),
-            float(RESIDUAL_BOOST))
+    longest = max(float(scene.volume.voxel_size) * STRATUM_VOXELS, STRATUM_BOX_FRACTION)
+    walk = (longest, float(STRATA_PER_DEPTH), float(CAMERA_SWITCH), float(RESIDUAL_BOOST))
 
     def run(items: np.ndarray) -> tuple[MarchedItems, np.ndarray]:
         out = MarchedItems.empty(items.shape[0], PICKS)

@@ -104,14 +104,15 @@ def test_auto_chooses_the_estimator_with_less_noise_per_unit_of_work(name: str, 
 
 
 def test_the_cost_ratio_grows_with_the_volumes_resolution(monkeypatch: pytest.MonkeyPatch) -> None:
-    """COST_RATIO up to 96 voxels across, (n / 96) ^ 0.6 times it beyond; the choice weighs the probe's noise ratio
-    against the scene's own cost ratio."""
+    """COST_RATIO up to 96 voxels across, (n / 96) ^ COST_EXPONENT times it beyond; the choice weighs the probe's
+    noise ratio against the scene's own cost ratio."""
     coarse, fine = _tiny("blobs", 256), scene_from_dict({**tiny_scene_dict("blobs"), "volume": {
         "builtin": "blobs", "resolution": 192}, "camera": {**tiny_scene_dict("blobs")["camera"], "width": 256,
                                                            "height": 256}})
     assert camera_choice.cost_ratio(coarse) == COST_RATIO
-    assert camera_choice.cost_ratio(fine) == pytest.approx(COST_RATIO * 2.0**0.6)
-    noise = {"forced": 5.0 * COST_RATIO, "marched": 4.0}  # a ratio of 1.25 COST_RATIO: below 2^0.6 of it
+    assert camera_choice.cost_ratio(fine) == pytest.approx(COST_RATIO * 2.0**camera_choice.COST_EXPONENT)
+    between = 0.5 * (1.0 + 2.0**camera_choice.COST_EXPONENT) * COST_RATIO  # above the coarse ratio, below the fine
+    noise = {"forced": between, "marched": 1.0}
     monkeypatch.setattr(camera_choice, "noise_variance", lambda scene, est, camera, lv, ls: noise[camera])
     chosen = [camera_choice.resolve_camera_estimator(s, None, AUTO, lambda: None, "one", 1) for s in (coarse, fine)]
     assert chosen == ["marched", "forced"]
