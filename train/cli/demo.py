@@ -173,7 +173,9 @@ def run_demo(args: argparse.Namespace) -> dict[str, Any]:
     from photon_fields.train.eval.field_images import map_at_g
 
     ref_map = map_at_g(scene, pmap, scene.g, seed=args.seed + 1, progress=progress)
-    renders["photon map"] = render_photon_mapped(scene, ref_map, spp=spp, seed=args.seed, progress=progress)
+    # the same samples as the neural image: its camera estimator (what auto chose for the field), not its own choice
+    renders["photon map"] = render_photon_mapped(scene, ref_map, spp=spp, seed=args.seed, progress=progress,
+                                                 camera=str(renders["neural"].stats["camera_estimator"]))
     times["render_photon_map"] = time.perf_counter() - t
     step(f"rendering: path-traced reference ({ref_spp} spp) ...")
     t = time.perf_counter()
