@@ -225,11 +225,13 @@ def score(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], config:
                                "field": compare(li, ref)}
         if with_map and map_answers(pmap, config, g):
             pm = render_photon_mapped(view, pmap, k=settings["k"], radius=radius, spp=args.spp, seed=7,
-                                      progress=False, g_window=config.g_window, final_gather_after=None).layers["L_i"]
+                                      progress=False, g_window=config.g_window, final_gather_after=None,
+                                      camera="forced").layers["L_i"]  # the field's first interactions
             row["photon_map"] = compare(pm, ref)
             if args.gathered_map:  # the map one real bounce away: what gathered training targets would learn
                 pm = render_photon_mapped(view, pmap, k=settings["k"], radius=radius, spp=args.spp, seed=7,
-                                          progress=False, g_window=config.g_window, final_gather_after=0)
+                                          progress=False, g_window=config.g_window, final_gather_after=0,
+                                          camera="forced")
                 row["photon_map_gathered"] = compare(pm.layers["L_i"], ref)
         rows.append(row)
     return rows
@@ -302,7 +304,7 @@ def converged(scene: Scene, pmap: Any, model: Any, settings: dict[str, Any], con
     if map_answers(pmap, config, scene.g):
         renders["photon_map"] = lambda seed: render_photon_mapped(
             view, pmap, k=settings["k"], radius=final_radius(settings), spp=args.converged_neural_spp, seed=seed,
-            progress=False, g_window=config.g_window, final_gather_after=None).layers["L"]
+            progress=False, g_window=config.g_window, final_gather_after=None, camera="forced").layers["L"]
     for name, render in renders.items():
         t0 = time.perf_counter()
         a, b = render(7), render(8)

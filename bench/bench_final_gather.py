@@ -146,7 +146,8 @@ def main(argv: list[str] | None = None) -> None:
 
             pmap = PhotonMap.load(Path(bundle).parent / "map.npz")
             renderers["photon map"] = lambda spp, seed, after, scene=scene, pmap=pmap: render_photon_mapped(
-                scene, pmap, k=64, spp=spp, seed=seed, progress=False, final_gather_after=after).layers["L"]
+                scene, pmap, k=64, spp=spp, seed=seed, progress=False, final_gather_after=after,
+                camera="forced").layers["L"]
         warm = scene.with_overrides(width=16, height=16)
         render_neural(warm, est, spp=1, progress=False, final_gather_after=0)
         curves: dict[str, list[dict[str, Any]]] = {}

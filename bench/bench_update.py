@@ -240,7 +240,7 @@ def main(argv: list[str] | None = None) -> None:
             cold_settings = FitSettings.from_preset("cpu", seed=args.seed)
             radius = cold_settings.resolve_schedule(len(pmap)).final_radius
             ref_map = render_photon_mapped(view, pmap, k=cold_settings.k, radius=radius, spp=args.spp, seed=7,
-                                           progress=False, g_window=PHASE_WINDOW,
+                                           progress=False, g_window=PHASE_WINDOW, camera="forced",
                                            final_gather_after=None).layers["L_i"]
             # A rescale renders the base field for the edited scene (its camera interactions) times the factor.
             upd_li = field_li(new, res.out, args.size, args.spp) if res is not None else \

@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> None:
             view = scene.with_overrides(width=args.size, height=args.size)
             radius = settings.resolve_schedule(len(pmap)).final_radius
             ref_map = render_photon_mapped(view, pmap, k=settings.k, radius=radius, spp=args.spp, seed=7,
-                                           progress=False, g_window=PHASE_WINDOW,
+                                           progress=False, g_window=PHASE_WINDOW, camera="forced",
                                            final_gather_after=None).layers["L_i"]
             upd, cold_li = field_li(scene, run, args.size, args.spp), field_li(scene, cold_folder, args.size, args.spp)
             images["update"].append(upd)

@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> None:
             view = scene.with_overrides(g=g, width=args.size, height=args.size)
             if g not in maps:
                 maps[g] = float(render_photon_mapped(view, pmap, k=settings.k, radius=radius, spp=args.spp, seed=7,
-                                                     progress=False, g_window=PHASE_WINDOW,
+                                                     progress=False, g_window=PHASE_WINDOW, camera="forced",
                                                      final_gather_after=None).layers["L_i"].mean())
             li = render_first_interaction(view, estimator, spp=args.spp, seed=7, progress=False).layers["L_i"]
             row = {"g": g, "image": float(li.mean()) / maps[g],

@@ -79,15 +79,18 @@ def time_renderers(scene: Scene, field: PhotonField, size: tuple[int, int], repe
     docstring), best of ``repeats`` after a warm-up, with the field's time split and compaction stats."""
     sc = scene.with_overrides(width=size[0], height=size[1])
     est = field.estimator()
+    # One camera estimator for every column (auto would probe with each estimator, None's and the field's, and could
+    # time L_d and L with different ones): forced, the first interaction of the paper's Alg. 2.
     kw: dict[str, Any] = {"spp": 1, "seed": 0, "progress": False}
-    render_neural(sc.with_overrides(width=32, height=32), est, **kw)  # warm-up: compile, start sessions
+    nkw: dict[str, Any] = {**kw, "camera": "forced"}
+    render_neural(sc.with_overrides(width=32, height=32), est, **nkw)  # warm-up: compile, start sessions
     render_path_traced(sc.with_overrides(width=32, height=32), max_depth=max_depth, **kw)
     with Contention() as c:
-        t_nd, _ = timed(lambda: render_neural(sc, None, **kw), repeats)
+        t_nd, _ = timed(lambda: render_neural(sc, None, **nkw), repeats)
         field.timers.reset()
-        t_ni, res_i = timed(lambda: render_neural(sc, est, direct=False, **kw), repeats)
+        t_ni, res_i = timed(lambda: render_neural(sc, est, direct=False, **nkw), repeats)
         split = {k: v / repeats for k, v in field.timers.to_dict().items() if k.endswith("_s")}
-        t_n, res = timed(lambda: render_neural(sc, est, **kw), repeats)
+        t_n, res = timed(lambda: render_neural(sc, est, **nkw), repeats)
         t_pd, _ = timed(lambda: render_path_traced(sc, max_depth=1, **kw), repeats)
         t_p, _ = timed(lambda: render_path_traced(sc, max_depth=max_depth, **kw), repeats)
     samples = res.stats["samples_in_volume"]

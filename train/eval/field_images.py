@@ -142,7 +142,7 @@ def _scores(scene: Scene, model: TorchPhotonField, maps: list[PhotonMap], gs: tu
             if key not in cache:
                 t0 = time.perf_counter()
                 ref = render_photon_mapped(sc, pmap, k=k, radius=radius, spp=spp, seed=seed, progress=False,
-                                           final_gather_after=None)
+                                           final_gather_after=None, camera="forced")  # the field's samples below
                 cache[key] = (ref, time.perf_counter() - t0)
             ref, ref_s = cache[key]
             t1 = time.perf_counter()

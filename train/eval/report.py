@@ -311,9 +311,11 @@ class Evaluation:
             scene = self.scene(name, (size, size))
             pmap = self.photon_map(name, self.plan.train_photons)
             pmap = map_at_g(scene, pmap, scene.g, seed=self.seed + 1)
-            renders = {
-                "neural": render_neural(scene, self.field(name).estimator(), spp=spp, seed=self.seed, progress=False),
-                "photon map": render_photon_mapped(scene, pmap, spp=spp, seed=self.seed, progress=False),
+            neural = render_neural(scene, self.field(name).estimator(), spp=spp, seed=self.seed, progress=False)
+            renders = {  # the photon map with the neural image's camera estimator (auto's choice): the same samples
+                "neural": neural,
+                "photon map": render_photon_mapped(scene, pmap, spp=spp, seed=self.seed, progress=False,
+                                                   camera=str(neural.stats["camera_estimator"])),
                 "ray marcher": render_ray_marched(scene, spp=spp, seed=self.seed, progress=False),
                 "path tracer": render_path_traced(scene, spp=self.plan.reference_spp, seed=self.seed + 1,
                                                   progress=self.progress),
