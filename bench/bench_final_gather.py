@@ -139,7 +139,8 @@ def main(argv: list[str] | None = None) -> None:
         # (spp, seed, final_gather_after) -> L
         renderers: dict[str, Callable[[int, int, int | None], np.ndarray]] = {
             "neural": lambda spp, seed, after, scene=scene, est=est: render_neural(
-                scene, est, spp=spp, seed=seed, progress=False, final_gather_after=after).layers["L"]}
+                scene, est, spp=spp, seed=seed, progress=False, final_gather_after=after,
+                camera="forced").layers["L"]}
         if args.photon_map:
             from photon_fields.runtime.photons.photon_map import PhotonMap
             from photon_fields.runtime.renderers.photon_mapped import render_photon_mapped

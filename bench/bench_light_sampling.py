@@ -46,7 +46,7 @@ def measure(name: str, size: int, frames: int, ref_spp: int, bundle: Path) -> di
 
     def frame(setting: str, seed: int, spp: int = 1) -> Any:
         return render_neural(scene, est, spp=spp, seed=seed, progress=False, light_sampling=setting,
-                             final_gather_after=None)
+                             final_gather_after=None, camera="forced")  # one estimator for both settings
 
     ref = frame("all", 10_000, ref_spp).layers
     for s in SETTINGS:

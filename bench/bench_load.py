@@ -54,7 +54,8 @@ def renderers(scene: Scene) -> dict[str, Callable[[int], Any]]:
     return {
         "path tracer 1 spp": lambda seed: render_path_traced(scene, spp=1, seed=seed, progress=False),
         "path tracer 16 spp": lambda seed: render_path_traced(scene, spp=16, seed=seed, progress=False),
-        "neural L_d 1 spp": lambda seed: render_neural(scene, None, spp=1, seed=seed, progress=False),
+        "neural L_d 1 spp": lambda seed: render_neural(scene, None, spp=1, seed=seed, progress=False,
+                                                       camera="forced"),
         "ray marcher": lambda seed: render_ray_marched(scene, progress=False),
     }
 

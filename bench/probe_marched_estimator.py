@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> None:
         fill_wanted(scene.medium(), *scene.packed_lights()[:2], lv)
         rows: dict[str, list[list[float]]] = {"neural forced": [], "marched residual": []}
         for seed in range(args.seeds):
-            nl = render_neural(scene, est, spp=1, seed=seed, progress=False).layers
+            nl = render_neural(scene, est, spp=1, seed=seed, progress=False, camera="forced").layers
             ld, li, per_ray = marched_frame(scene, est, lv, seed, args.shadow_rays)
             for key, (d_, i_) in (("neural forced", (nl["L_d"], nl["L_i"])), ("marched residual", (ld, li))):
                 total = d_ + i_ + ref["L_e"]
