@@ -11,6 +11,7 @@ import base64
 import io
 import os
 import shutil
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -34,8 +35,10 @@ def require_browser() -> None:
     pytest.importorskip("uvicorn", reason="the view extra is not installed (pip install -e '.[view]')")
 
 
-def open_chrome(url: str) -> Any:
-    """A headless Chromium (900x700 window) showing ``url``; the caller quits it."""
+def open_chrome(url: str, scratch: str) -> Any:
+    """A headless Chromium (900x700 window) showing ``url``, its temporary files (profile, the singleton socket it
+    would otherwise leave in /tmp as ``org.chromium.Chromium.*``) in the folder ``scratch``; the caller quits it
+    and removes the folder."""
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -45,7 +48,9 @@ def open_chrome(url: str) -> Any:
                 "--window-size=900,700", "--no-first-run", "--disable-extensions"):
         opts.add_argument(arg)
     os.environ.setdefault("SE_OFFLINE", "true")  # selenium must not fetch a browser or a driver
-    driver = webdriver.Chrome(options=opts, service=Service(executable_path=DRIVER))
+    opts.add_argument(f"--user-data-dir={os.path.join(scratch, 'profile')}")
+    driver = webdriver.Chrome(options=opts, service=Service(executable_path=DRIVER, env={**os.environ,
+                                                                                          "TMPDIR": scratch}))
     driver.set_script_timeout(30)
     try:
         driver.get(url)
@@ -62,14 +67,16 @@ def served_page(inputs: Any, **server: Any) -> Iterator[tuple[Any, Any]]:
     from photon_fields.runtime.viewer.launch import ViewerServer
 
     srv = ViewerServer(inputs, port=0, warm=False, **server)
+    scratch = tempfile.mkdtemp(prefix="pfn-chromium-")
     try:
-        driver = open_chrome(srv.url)
+        driver = open_chrome(srv.url, scratch)
         try:
             yield driver, srv
         finally:
             driver.quit()
     finally:
         srv.stop()
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def wait_for(cond: Callable[[], Any], what: str, timeout: float = 600.0) -> Any:
