@@ -353,6 +353,12 @@ MUTANTS: tuple[Mutant, ...] = (
             "test_marched_frames_are_render_neurals_with_that_estimator",),
            "the viewer renders its neural frames with the default camera estimator whatever the page or the "
            "command line chose"),
+    Mutant("viewer_auto_first_frame_waits", "runtime/viewer/field_in_use.py",
+           "if camera == AUTO and n == 0 and made_choice(scene, est, LIGHT_OPTION.default) is None:",
+           "if camera == AUTO and n < 0:",
+           ("tests/runtime/viewer/test_viewer_camera_estimator.py::test_auto_does_not_hold_up_a_scenes_first_frame",),
+           "the viewer's first frame of a scene waits for auto's probe (an edit's first image half a second later on "
+           "a sparse scene at 512^2)"),
     Mutant("viewer_camera_estimator_keeps_samples", "runtime/viewer/set_controls.py",
            '"camera_estimator": (True, True, True, False),', '"camera_estimator": (False, True, True, False),',
            ("tests/runtime/viewer/test_viewer_camera_estimator.py::"
@@ -945,7 +951,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "auto weighs the marched estimator's cost as on a 96^3 volume at any resolution (at 256^3 it costs ~1.8x "
            "more against forced)"),
     Mutant("camera_choice_key_without_pixel_size", "runtime/wavefront/camera_choice.py",
-           "type(estimator).__name__, pixel_class(scene))", "type(estimator).__name__)",
+           "type(estimator).__name__, pixel_class(scene)\n", "type(estimator).__name__\n",
            (f"{CHOICE}::test_the_choice_follows_the_probed_noise_ratio",),
            "auto keeps the choice made at one pixel size for every other (a viewer's small dragging frames decide "
            "its full-size resting frames' estimator)"),

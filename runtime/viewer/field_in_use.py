@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from photon_fields.runtime.renderers.registry import CAMERA_OPTION
+from photon_fields.runtime.renderers.registry import CAMERA_OPTION, LIGHT_OPTION
 from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.light_rescale import lights_rescale
 from photon_fields.runtime.scene.scene import Scene
@@ -158,7 +158,10 @@ class FieldInUse:
         before each, the preview also during its light volume's fill (True:
         :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the frame is given up).
         ``level``: the preview marches that level of the volume (:mod:`photon_fields.runtime.scene.levels`).
-        ``camera``: the neural renderer's camera estimator (None: its default; ``pfn-view --camera-estimator``)."""
+        ``camera``: the neural renderer's camera estimator (None: its default; ``pfn-view --camera-estimator``); with
+        "auto", the first frame of an accumulation renders forced unless the scene's choice is made (an edit's first
+        frame does not wait for the probe), and the frames after it what auto chooses (both estimate the same
+        image)."""
         from photon_fields.runtime.threads import numba_threads
 
         if renderer == "pvrt":  # L_i from the transfer under the edited lights: nothing to rescale
@@ -170,12 +173,16 @@ class FieldInUse:
             if renderer == "neural":
                 from photon_fields.runtime.renderers.neural import render_neural
                 from photon_fields.runtime.wavefront.batches import CANCELLABLE_BATCH, DEFAULT_BATCH
+                from photon_fields.runtime.wavefront.camera_choice import AUTO, made_choice
 
                 est = self.scaled_estimator(scale)
+                camera = camera or CAMERA_OPTION.default
+                if camera == AUTO and n == 0 and made_choice(scene, est, LIGHT_OPTION.default) is None:
+                    camera = "forced"  # a scene's first frame does not wait for auto's probe; the next one probes
                 result = render_neural(scene, est, spp=1, seed=seed, progress=False, first_sample=n,
                                        final_gather_after=0 if final_gather else None, cancel=cancel,
                                        batch_size=DEFAULT_BATCH if cancel is None else CANCELLABLE_BATCH,
-                                       camera=camera or CAMERA_OPTION.default)
+                                       camera=camera)
                 self.camera_used = str(result.stats["camera_estimator"])
                 return result.layers
             if renderer == "pt":

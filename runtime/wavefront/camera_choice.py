@@ -91,6 +91,17 @@ def noise_variance(scene: Scene, estimator: IndirectEstimator | None, camera: st
     return 0.5 * float(np.sum((a - b) ** 2))
 
 
+def _key(scene: Scene, estimator: IndirectEstimator | None, light_sampling: str) -> tuple:
+    """The cache key of a choice (module docstring)."""
+    return round(float(scene.g), 9), light_sampling, type(estimator).__name__, pixel_class(scene)
+
+
+def made_choice(scene: Scene, estimator: IndirectEstimator | None, light_sampling: str) -> str | None:
+    """The choice auto has made for this scene, g, light sampling, estimator type and pixel class, or None when it
+    has not probed yet (a viewer's first frame of a scene renders forced rather than wait for the probe)."""
+    return scene.shared_cache("camera_estimator").get(_key(scene, estimator, light_sampling))
+
+
 def choose_camera_estimator(scene: Scene, estimator: IndirectEstimator | None,
                             light_volume: Callable[[], LightVolume], light_sampling: str, samples: int) -> str:
     """"forced" or "marched" for ``scene`` (module docstring), probed on :func:`probe_band` once per g, light
@@ -98,7 +109,7 @@ def choose_camera_estimator(scene: Scene, estimator: IndirectEstimator | None,
     :data:`PROBE_RAYS` ``samples`` without a choice made, "forced" unprobed. ``light_volume``: gives the marched
     estimator's (the scene's, ``ray_marcher.camera_light_volume``), asked only for a probe, which fills the cells its
     rays read (the render then finds them filled)."""
-    key = (round(float(scene.g), 9), light_sampling, type(estimator).__name__, pixel_class(scene))
+    key = _key(scene, estimator, light_sampling)
     choices = scene.shared_cache("camera_estimator")
     if key not in choices and samples < PROBE_RAYS:
         return "forced"

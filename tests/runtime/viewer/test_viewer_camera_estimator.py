@@ -69,3 +69,23 @@ def test_frame_headers_name_the_estimator_a_frame_used(tmp_path: Path) -> None:
     marched = make_session(tmp_path / "m", gather_after=None, camera_estimator="marched").next_frame().header
     assert (marched["camera_estimator"], marched["camera_estimator_used"]) == ("marched", "marched")
     assert make_session(tmp_path / "p", renderer="pt").next_frame().header["camera_estimator_used"] is None
+
+
+def test_auto_does_not_hold_up_a_scenes_first_frame(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With auto, the first frame of an accumulation whose choice is not made renders forced (it does not wait for
+    the probe); the next frame probes and renders what auto chose; a later accumulation (a camera move, full-size
+    moving frames) starts with the choice made."""
+    from photon_fields.runtime.wavefront import camera_choice
+
+    probes = []
+
+    def noise(scene: object, est: object, camera: str, lv: object, ls: str) -> float:
+        probes.append(camera)
+        return {"forced": 100.0, "marched": 1.0}[camera]  # marched by far
+
+    monkeypatch.setattr(camera_choice, "noise_variance", noise)
+    s = make_session(tmp_path, size=96, gather_after=None, drag_scale=1.0)  # 96^2 pixels: enough for a probe
+    used = [s.next_frame().header["camera_estimator_used"] for _ in range(3)]
+    assert used == ["forced", "marched", "marched"] and len(probes) == 2
+    s.apply(msg("orbit", dx=5.0, dy=0.0))
+    assert s.next_frame().header["camera_estimator_used"] == "marched" and len(probes) == 2
