@@ -10,6 +10,10 @@ STRATUM_VOXELS, STRATUM_BOX_FRACTION : float
     vortex, shell and head, blobs 0.192 -> 0.197 at 1 spp; 4 saved no more), or ``STRATUM_BOX_FRACTION`` of the
     box's longest side (1/48: two voxels of a 96^3 volume) where that is longer, so that a finer volume's walk does
     not take more strata for the same medium (docs/rendering.md, "Strata at 256^3").
+CORRECTION_SHADOW_BOOST : float
+    The picks' shadow rays (NEE, whose difference from the cache is the correction) track at this many times the
+    majorant (4, against every other shadow ray's ``tracking.SHADOW_BOOST`` of 2): with the cached light's noise
+    gone, the shadow rays' transmittance noise is most of the marched L_d's at thin walls (docs/rendering.md).
 RESIDUAL_BOOST : float
     The residual tracker's events at this many times the majorant (4: 1-spp error of L on shell 0.350 -> 0.303, head
     0.267 -> 0.230, vortex 0.256 -> 0.246 against 1, for a few per cent more time: the events are cheap beside the
@@ -109,6 +113,7 @@ STRATA_PER_DEPTH = 2.0
 STRATUM_VOXELS = 2.0
 STRATUM_BOX_FRACTION = 1.0 / 48.0
 PICKS = 3
+CORRECTION_SHADOW_BOOST = 4.0
 RESIDUAL_BOOST = 4.0
 #: Status of a work item (the values of first_interaction's MISSED_BOX, ESCAPED, INTERACTED).
 _MISSED_BOX, _ESCAPED, _INTERACTED = 0, 1, 2
