@@ -53,11 +53,11 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from photon_fields.runtime.renderers.ray_marcher import camera_light_volume
+from photon_fields.runtime.renderers.ray_marcher import camera_estimator_for
 from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.wavefront.batches import DEFAULT_BATCH, RenderResult
-from photon_fields.runtime.wavefront.camera_choice import AUTO, resolve_camera_estimator
+from photon_fields.runtime.wavefront.camera_choice import AUTO
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.first_interaction import (
     DEFAULT_LIGHT_SAMPLING,
@@ -85,9 +85,7 @@ def render_neural(scene: Scene, estimator: IndirectEstimator | None, *, spp: int
     biased image while one of few stays plain (its noise is larger than the bias the gather removes).
     ``cancel``: asked before each batch; True stops the render with
     :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`."""
-    camera = resolve_camera_estimator(scene, estimator, camera, lambda: camera_light_volume(scene, "marched"),
-                                      light_sampling, spp)
-    light_volume = camera_light_volume(scene, camera)
+    camera, light_volume = camera_estimator_for(scene, estimator, camera, light_sampling, spp)
     stats_before = _field_seconds(estimator)
     result = render_first_interaction(scene, estimator, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
                                       desc="neural rendering", direct=direct, film=film, first_sample=first_sample,

@@ -17,11 +17,11 @@ from photon_fields.runtime.photons.estimate import (
 )
 from photon_fields.runtime.photons.phase_window import answerable, map_window
 from photon_fields.runtime.photons.photon_map import PhotonMap
-from photon_fields.runtime.renderers.ray_marcher import camera_light_volume
+from photon_fields.runtime.renderers.ray_marcher import camera_estimator_for
 from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.wavefront.batches import DEFAULT_BATCH, RenderResult
-from photon_fields.runtime.wavefront.camera_choice import AUTO, resolve_camera_estimator
+from photon_fields.runtime.wavefront.camera_choice import AUTO
 from photon_fields.runtime.wavefront.first_interaction import (
     DEFAULT_LIGHT_SAMPLING,
     render_first_interaction,
@@ -47,9 +47,7 @@ def render_photon_mapped(scene: Scene, pmap: PhotonMap, *, k: int = DEFAULT_K, r
     window = map_window(pmap.phases, g_window)
     answerable(pmap.phases, scene.g, window)  # fail before rendering if g cannot be answered
     est = PhotonMapEstimator(pmap, scene.medium(), k=k, radius=radius, g_window=window)
-    camera = resolve_camera_estimator(scene, est, camera, lambda: camera_light_volume(scene, "marched"),
-                                      light_sampling, spp)
-    light_volume = camera_light_volume(scene, camera)
+    camera, light_volume = camera_estimator_for(scene, est, camera, light_sampling, spp)
     result = render_first_interaction(scene, est, spp=spp, seed=seed, batch_size=batch_size, progress=progress,
                                       desc="photon mapping", camera=camera, final_gather_after=final_gather_after,
                                       light_sampling=light_sampling, light_volume=light_volume)

@@ -106,6 +106,7 @@ from photon_fields.runtime.transport.step_grid import own_units, step_lengths, u
 from photon_fields.runtime.transport.tracking import empty_run_in, macrocell_of, task_items, task_stride
 from photon_fields.runtime.wavefront import batches
 from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish, scene_environment, work_batches
+from photon_fields.runtime.wavefront.camera_choice import resolve_camera_estimator
 from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, unbounded
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.first_interaction import IndirectEstimator
@@ -427,6 +428,16 @@ def camera_light_volume(scene: Scene, camera: str) -> LightVolume | None:
     (:mod:`photon_fields.runtime.wavefront.marched_camera`) the light volume of the preview's default settings
     (:func:`light_volume_settings`) from the scene's cache, shared with the preview's frames; None for the others."""
     return scene_light_volume(scene, *light_volume_settings(scene)) if camera == "marched" else None
+
+
+def camera_estimator_for(scene: Scene, estimator: IndirectEstimator | None, camera: str, light_sampling: str,
+                         spp: int) -> tuple[str, LightVolume | None]:
+    """A first-interaction renderer's ``camera`` estimator with "auto" resolved
+    (:func:`photon_fields.runtime.wavefront.camera_choice.resolve_camera_estimator`, for a render of ``spp``), and
+    the light volume it reads (:func:`camera_light_volume`)."""
+    camera = resolve_camera_estimator(scene, estimator, camera, lambda: camera_light_volume(scene, "marched"),
+                                      light_sampling, spp)
+    return camera, camera_light_volume(scene, camera)
 
 
 def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows: str = "volume",

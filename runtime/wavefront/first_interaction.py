@@ -102,9 +102,9 @@ class IndirectEstimator(Protocol):
 #: estimate W of the collision probability (runtime.transport.tracking), so that a ray through thin media
 #: interacts with weight W instead of rarely with weight 1; "marched": the light volume's single scattering summed
 #: over strata of the whole ray, corrected by NEE at three of them, where the field is asked too
-#: (runtime.wavefront.marched_camera; needs the scene's light volume). The renderers also take "auto"
-#: (runtime.wavefront.camera_choice: forced or marched, whichever has less noise per unit of work on the scene),  the
-#: renderers' default (render_neural, render_photon_mapped, and so the command line, the Python API and the viewer);
+#: (runtime.wavefront.marched_camera; needs the scene's light volume). The renderers (render_neural,
+#: render_photon_mapped, and so the command line, the Python API and the viewer) also take "auto", their default
+#: (runtime.wavefront.camera_choice: forced or marched, whichever has less noise per unit of work on the scene);
 #: this module's functions take the three above, forced by default.
 CAMERA_ESTIMATORS = ("delta", "forced", "marched")
 DEFAULT_CAMERA_ESTIMATOR = "forced"
