@@ -3,8 +3,12 @@
 For each scene (default: every builtin) at ``--size`` (default 256x256), everything in one process after a
 warm-up, against the path tracer at ``--ref-spp`` (default 512; cached in ``--work``):
 
-- the path tracer at 1, 2, 4, ... ``--pt-max-spp`` spp: wall time (best of ``--repeats``) and rel. L2 (mean over
-  the repeats' seeds): its error-time curve;
+- the path tracer at 1, 2, 4, ... spp: wall time (best of ``--repeats``) and rel. L2 (mean over the repeats'
+  seeds): its error-time curve, up to ``--pt-max-spp``, or by default (``--pt-max-spp 0``) until it is at or below
+  the least error of the neural renderer's plain rows (every camera estimator at ``--spps``, not denoised: the
+  rows issue 14's 10x is about), so that their speedups are interpolated rather than extrapolated bounds; it stops
+  at a quarter of ``--ref-spp`` (beyond, the reference's own noise is a large part of the curve's error) and says
+  so, with the ``--ref-spp`` that would let it go on;
 - the neural renderer with each camera estimator (``--cameras``, default all of them) at ``--spps``
   (default 1, 4, 32): wall time and rel. L2 the same way;
 - "raymarch-field" (unless ``--no-raymarch-field``): the ray marcher with the field's L_i (``pfn-render --method
@@ -29,6 +33,7 @@ machine record, and a plot of error against time per scene beside it (PNG).
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import time
 from collections.abc import Callable
@@ -122,7 +127,28 @@ def progressive_wrls(frame: Callable[[int], np.ndarray], scene: Scene, ref: np.n
              "rel_l2_spread": float(np.std(errors[k]))} for k in frames]
 
 
-def scene_curves(scene: Scene, est: Any, ref: np.ndarray, args: argparse.Namespace, pt_spps: list[int],
+def path_tracer_curve(point: Callable[[int], dict[str, float]], pt_spps: list[int] | None, target: float,
+                      ref_spp: int, label: str = "") -> list[dict[str, Any]]:
+    """The path tracer's error-time curve: ``point(spp)`` at ``pt_spps``, or (None) at 1, 2, 4, ... spp until its
+    error is at or below ``target`` (two points at least) or the next count would pass ``ref_spp / 4`` (then a line
+    says so, naming ``label``)."""
+    if pt_spps is not None:
+        return [{"spp": s, **point(s)} for s in pt_spps]
+    rows: list[dict[str, Any]] = []
+    spp = 1
+    while True:
+        rows.append({"spp": spp, **point(spp)})
+        if rows[-1]["rel_l2"] <= target and len(rows) > 1:  # two points at least: time_to_error interpolates
+            return rows
+        if 2 * spp > ref_spp // 4:
+            print(f"  {label}: the path tracer's curve stops at {spp} spp (rel. L2 {rows[-1]['rel_l2']:.3f} > "
+                  f"{target:.3f}): a quarter of the reference's; --ref-spp {8 * spp} would let it reach further",
+                  flush=True)
+            return rows
+        spp *= 2
+
+
+def scene_curves(scene: Scene, est: Any, ref: np.ndarray, args: argparse.Namespace, pt_spps: list[int] | None,
                  denoise: Callable[[np.ndarray], np.ndarray] | None) -> dict[str, list[dict[str, Any]]]:
     """Per method, its (spp, ms, rel. L2) points: the path tracer's curve, the neural renderer's per camera
     estimator and, with ``denoise``, both at 1 and 4 spp denoised."""
@@ -136,9 +162,12 @@ def scene_curves(scene: Scene, est: Any, ref: np.ndarray, args: argparse.Namespa
     def raymarch_field(spp: int) -> Callable[[int], np.ndarray]:
         return lambda seed: render_ray_marched(scene, spp=spp, seed=seed, progress=False, estimator=est).layers["L"]
 
-    curves = {"path tracer": [{"spp": s, **measure(pt(s), ref, args.repeats)} for s in pt_spps]}
+    curves: dict[str, list[dict[str, Any]]] = {}
     for camera in args.cameras:
         curves[f"neural {camera}"] = [{"spp": s, **measure(neural(s, camera), ref, args.repeats)} for s in args.spps]
+    target = min((row["rel_l2"] for rows in curves.values() for row in rows), default=math.inf)
+    curves = {"path tracer": path_tracer_curve(lambda s: measure(pt(s), ref, args.repeats), pt_spps, target,
+                                               args.ref_spp, scene.name), **curves}
     if args.raymarch_field:
         curves["raymarch-field"] = [{"spp": s, **measure(raymarch_field(s), ref, args.repeats)} for s in args.spps]
     curves["path tracer + WRLS (progressive)"] = progressive_wrls(pt(1), scene, ref, args.wrls_frames, args.repeats)
@@ -182,7 +211,9 @@ def plot(results: dict[str, Any], path: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     add_reference_args(ap)
-    ap.add_argument("--pt-max-spp", type=int, default=64)
+    ap.add_argument("--pt-max-spp", type=int, default=0,
+                    help="the path tracer's curve up to this many spp (0: until it reaches the neural rows' least "
+                         "error, at most a quarter of --ref-spp)")
     ap.add_argument("--spps", type=int, nargs="*", default=[1, 4, 32], help="neural samples per pixel")
     ap.add_argument("--cameras", nargs="*", default=list(CAMERA_ESTIMATOR_NAMES), choices=CAMERA_ESTIMATOR_NAMES,
                     help="camera estimators")
@@ -202,7 +233,7 @@ def main(argv: list[str] | None = None) -> None:
         print("pyoidn is not installed: no OIDN rows (pip install 'photon-fields[oidn]')")
     info = machine_info()
     results: dict[str, Any] = {}
-    pt_spps = [1 << i for i in range(int(np.log2(args.pt_max_spp)) + 1)]
+    pt_spps = [1 << i for i in range(int(np.log2(args.pt_max_spp)) + 1)] if args.pt_max_spp > 0 else None
     for name in parse_scenes(args.scenes):
         base = builtin_scene(name)
         scene = base.with_overrides(width=args.size, height=args.size)
@@ -237,7 +268,8 @@ def main(argv: list[str] | None = None) -> None:
                 speed_s = f"{mark}{speed:6.1f}x" if speed is not None else ""
                 print(f"  {method:36s} {row['spp']:4d} {row['ms']:8.1f} {row['rel_l2']:8.3f} {speed_s:>8s}", flush=True)
     info = finish_info(info, {})
-    write_report(args.out, "equal_error", info, {"size": args.size, "ref_spp": args.ref_spp, "pt_spps": pt_spps,
+    pt_record = pt_spps or "until the neural rows' least error (each scene's curve lists its points)"
+    write_report(args.out, "equal_error", info, {"size": args.size, "ref_spp": args.ref_spp, "pt_spps": pt_record,
                                                  "spps": args.spps, "cameras": args.cameras,
                                                  "repeats": args.repeats, "oidn": denoise is not None,
                                                  "wrls_frames": args.wrls_frames,
