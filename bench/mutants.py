@@ -970,6 +970,11 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/field/test_outputs.py::test_decode_lights_equals_numpy_bit_for_bit",),
            "the decode's sums contracted into fused multiply-adds: the field's output differs from numpy's in last "
            "bits"),
+    Mutant("demo_warm_up_auto_only", "train/cli/demo.py", "    for camera in AUTO_CHOICES:\n",
+           "    for camera in (\"auto\",):\n",
+           ("tests/train/cli/test_demo.py::test_the_warm_up_compiles_every_estimator_that_auto_may_take",),
+           "the demo warms up with auto alone, which renders its tiny view forced: a fresh clone's marched kernels "
+           "compile inside the timed neural render, and the equal-time path tracer gets that time as samples"),
 )
 
 

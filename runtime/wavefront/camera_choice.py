@@ -43,6 +43,9 @@ from photon_fields.runtime.transport.light_volume import LightVolume
 from photon_fields.runtime.wavefront.first_interaction import IndirectEstimator, render_first_interaction
 
 AUTO = "auto"
+#: The estimators auto chooses between (:func:`choose_camera_estimator`); a caller that times a render compiles both
+#: first (``pfn-demo``: the probe may take either, and an estimator's first use compiles its kernels).
+AUTO_CHOICES = ("forced", "marched")
 PROBE_RAYS = 8192
 COST_RATIO = 4.0
 COST_RESOLUTION = 96.0

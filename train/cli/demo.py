@@ -99,6 +99,22 @@ def comparison_figure(path: Path, images: dict[str, dict[str, np.ndarray]], refe
     return row_stops
 
 
+def warm_up_renderers(scene: Any, estimator: Any, seed: int) -> None:
+    """Untimed renders of an 8x8 view with the neural renderer's every camera estimator that ``auto`` may take
+    (``camera_choice.AUTO_CHOICES``) and with the path tracer. numba compiles each kernel on first use (tens of
+    seconds in a fresh clone), and the equal-time comparison must time rendering, not compilation: a warm-up with
+    ``auto`` alone renders so small a view forced, so the marched kernels compiled inside the timed render and
+    the path tracer got the compile time as extra samples."""
+    from photon_fields.runtime.renderers.neural import render_neural
+    from photon_fields.runtime.renderers.path_tracer import render_path_traced
+    from photon_fields.runtime.wavefront.camera_choice import AUTO_CHOICES
+
+    tiny = scene.with_overrides(width=8, height=8)
+    for camera in AUTO_CHOICES:
+        render_neural(tiny, estimator, spp=1, seed=seed, progress=False, camera=camera)
+    render_path_traced(tiny, spp=1, seed=seed, progress=False)
+
+
 def run_demo(args: argparse.Namespace) -> dict[str, Any]:
     from photon_fields.runtime.cli.render import parse_size
     from photon_fields.train.cli.train import parse_count
@@ -159,11 +175,7 @@ def run_demo(args: argparse.Namespace) -> dict[str, Any]:
 
     field = PhotonField.load(bundle, threads=args.threads, expected_fingerprint=scene.fingerprint())
     renders: dict[str, Any] = {}
-    # Untimed warm-up: numba compiles each kernel on first use (seconds in a fresh clone), and the
-    # equal-time comparison below must time rendering, not compilation.
-    tiny = scene.with_overrides(width=8, height=8)
-    render_neural(tiny, field.estimator(), spp=1, seed=args.seed, progress=False)
-    render_path_traced(tiny, spp=1, seed=args.seed, progress=False)
+    warm_up_renderers(scene, field.estimator(), args.seed)
     step(f"rendering: neural ({spp} spp) ...")
     t = time.perf_counter()
     renders["neural"] = render_neural(scene, field.estimator(), spp=spp, seed=args.seed, progress=progress)
