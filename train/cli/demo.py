@@ -175,7 +175,10 @@ def run_demo(args: argparse.Namespace) -> dict[str, Any]:
 
     field = PhotonField.load(bundle, threads=args.threads, expected_fingerprint=scene.fingerprint())
     renders: dict[str, Any] = {}
+    step("compiling the renderers (untimed in the comparison; cached for later runs) ...")
+    t = time.perf_counter()
     warm_up_renderers(scene, field.estimator(), args.seed)
+    times["warm_up"] = time.perf_counter() - t
     step(f"rendering: neural ({spp} spp) ...")
     t = time.perf_counter()
     renders["neural"] = render_neural(scene, field.estimator(), spp=spp, seed=args.seed, progress=progress)
@@ -244,6 +247,7 @@ def summary_text(s: dict[str, Any]) -> str:
         f"  trace {s['photons']:,} photons   {t['trace']:7.1f} s",
         f"  fit ({s['preset']}, {s['steps']} steps) {t['fit']:7.1f} s   (loss curve: run/loss.png)",
         f"  export bundle          {t['export']:7.1f} s   ({s['bundle']})",
+        f"  renderers' warm-up     {t['warm_up']:7.1f} s   (numba compiles on a first run; not in the comparison)",
         f"  neural render, {s['spp']} spp   {t['render_neural']:7.2f} s",
         f"  photon map, {s['spp']} spp      {t['render_photon_map']:7.2f} s",
         f"  path traced, {s['reference_spp']} spp  {t['render_path_traced']:7.2f} s",
