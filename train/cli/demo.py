@@ -101,8 +101,8 @@ def comparison_figure(path: Path, images: dict[str, dict[str, np.ndarray]], refe
 
 def warm_up_renderers(scene: Any, estimator: Any, seed: int) -> None:
     """Untimed renders of an 8x8 view with the neural renderer's every camera estimator that ``auto`` may take
-    (``camera_choice.AUTO_CHOICES``) and with the path tracer. numba compiles each kernel on first use (tens of
-    seconds in a fresh clone), and the equal-time comparison must time rendering, not compilation: a warm-up with
+    (``camera_choice.AUTO_CHOICES``) and with the path tracer. numba compiles each kernel on first use (in a fresh
+    clone, before its cache exists), and the equal-time comparison must time rendering, not compilation: a warm-up with
     ``auto`` alone renders so small a view forced, so the marched kernels compiled inside the timed render and
     the path tracer got the compile time as extra samples."""
     from photon_fields.runtime.renderers.neural import render_neural
