@@ -138,7 +138,10 @@ def path_tracer_curve(point: Callable[[int], dict[str, float]], pt_spps: list[in
     spp = 1
     while True:
         rows.append({"spp": spp, **point(spp)})
-        if rows[-1]["rel_l2"] <= target and len(rows) > 1:  # two points at least: time_to_error interpolates
+        if len(rows) < 2:  # two points at least: time_to_error interpolates between them
+            spp *= 2
+            continue
+        if rows[-1]["rel_l2"] <= target:
             return rows
         if 2 * spp > ref_spp // 4:
             print(f"  {label}: the path tracer's curve stops at {spp} spp (rel. L2 {rows[-1]['rel_l2']:.3f} > "
