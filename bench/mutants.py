@@ -919,10 +919,24 @@ MUTANTS: tuple[Mutant, ...] = (
             "test_an_environments_single_scattering_comes_from_nee_at_the_pick",),
            "the marched method leaves an environment's single scattering out, as the plain preview does"),
     Mutant("marched_camera_no_residual", "runtime/wavefront/marched_camera.py",
-           "        ratio *= 1.0 - (sigma - sigma_c) / mu\n", "        ratio *= 1.0\n",
+           "        ratio *= 1.0 - (sigma - (sigma_c + slope * (t - t0))) / mu\n", "        ratio *= 1.0\n",
            (f"{CAMERA}::test_marched_walk_matches_delta_tracking_on_sharp_walls[16.0-coarse]",),
            "the marched camera's transmittance is the control's exp(-integral sigma_c) alone, without the residual "
            "ratio tracking's events: biased wherever sigma_t varies within a stratum (a thin wall in a long one)"),
+    Mutant("marched_camera_flat_control_events", "runtime/wavefront/marched_camera.py",
+           "slope = (sc - p_s) / (tk - p_t) if tk > p_t else 0.0", "slope = 0.0",
+           (f"{CAMERA}::test_marched_walk_control_follows_a_linear_medium",),
+           "the residual events between two points correct a flat control while the exponential integrates the "
+           "linear one: the marched camera's transmittance biased wherever sigma_t changes between points"),
+    Mutant("marched_camera_rest_from_the_point", "runtime/wavefront/marched_camera.py",
+           "tau, ratio, dc, s = constant_control_events(m, ox, oy, oz, dx, dy, dz, tk, b, boost * mu, sc,\n"
+           "                                                                    tau, ratio, s)\n"
+           "                        tau_c += dc\n                        rest = math.exp(-tau_c) * ratio\n"
+           "                        t = b\n",
+           "rest = tr\n                        t = tk\n",
+           (f"{CAMERA}::test_camera_estimators_estimate_the_same_image[L_i-marched, dense]",),
+           "the opaque rest's flight starts at the switching point, not at its stratum's end: the stretch between is "
+           "counted twice (the stratum's candidate and the flight), dense media too bright"),
     Mutant("marched_camera_keeps_the_last", "runtime/wavefront/marched_camera.py",
            "            if v * w_abs < abs(w):\n", "            if v >= 0.0:\n",
            (f"{CAMERA}::test_camera_estimators_estimate_the_same_image[L_i-marched]",),

@@ -15,9 +15,10 @@ CORRECTION_SHADOW_BOOST : float
     majorant (4, against every other shadow ray's ``tracking.SHADOW_BOOST`` of 2): with the cached light's noise
     gone, the shadow rays' transmittance noise is most of the marched L_d's at thin walls (docs/rendering.md).
 RESIDUAL_BOOST : float
-    The residual tracker's events at this many times the majorant (4: 1-spp error of L on shell 0.350 -> 0.303, head
-    0.267 -> 0.230, vortex 0.256 -> 0.246 against 1, for a few per cent more time: the events are cheap beside the
-    strata, and the factors' spread, which makes W noisy at walls, falls as 1 / boost).
+    The residual tracker's events at this many times the majorant (2; the factors' spread, which makes W noisy at
+    walls, falls as 1 / boost, and each event is a lookup). With the piecewise-linear control below, 2 and 4 are
+    level in efficiency on shell, head and blobs, and 2 is 5 % better on vortex; 1 loses on shell and head
+    (bench/README.md, "A linear control").
 PICKS : int
     Points drawn from one walk's candidates, each with its own shadow ray (NEE,
     :func:`photon_fields.runtime.transport.direct_light.direct_light_batch`) and field query, weighted W / PICKS
@@ -37,23 +38,35 @@ the medium and the ray); each stratum k is sampled at t_k = its start + u l with
 ``sum_k l f(t_k)`` is an unbiased estimate of the integral of f along the ray.
 
 **Transmittance to each point: residual ratio tracking** (Novak et al. 2014). With a control extinction sigma_c
-piecewise constant along the ray (here sigma_t(t_k) over stratum k: one lookup per stratum, which also gives the
-albedo there; the control may depend on u, since the tracking's events are independent of it),
+along the ray that does not depend on the tracker's events,
 
     T^(t) = exp(-integral_0^t sigma_c) * prod_{events e < t} (1 - (sigma_t(e) - sigma_c(e)) / mu(e))
 
 over a Poisson process of events at rate mu >= the local majorant (here ``RESIDUAL_BOOST`` times it) is an
-unbiased estimate of T(t) for any such control: each factor's mean given its position cancels the residual's
-share of the optical depth. Since 0 <= sigma_t <= mu, a factor lies in [sigma_c / mu, 1 + sigma_c / mu]: never
-negative where sigma_c <= mu, and closer to 1 the larger mu. The exponential carries
-the bulk of the attenuation without noise; the events only correct the control's error within a stratum.
+unbiased estimate of T(t): each factor's mean given its position cancels the residual's share of the optical
+depth. The control here is **piecewise linear through the strata's points**: sigma_t(t_k) is looked up once per
+stratum (which also gives the albedo there), and between two consecutive points t_k, t_k+1 of one run of
+occupied macrocells sigma_c goes linearly from sigma_t(t_k) to sigma_t(t_k+1); before a run's first point and
+after its last it is that point's value. The points depend on the jitter u and the medium only, so the control is
+fixed before any event is drawn; the events of [t_k, t_k+1] are drawn when the walk reaches t_k+1 (the stretch
+from t_k to the end of its stratum in t_k's macrocell at that majorant, then the new stratum's start to t_k+1).
+Since sigma_t(t) is trilinear in the volume, and the transfer function is usually smooth on a stratum's scale,
+the linear control's residual is mostly the kinks at voxel boundaries: against a control constant per stratum
+(sigma_t(t_k) on either side of t_k) it is 3-16x smaller in mean square on the embedded scenes, which makes the
+walk's W much less noisy at walls (1-spp efficiency +5-40 %; bench/README.md, "A linear control"). A factor is
+never negative (sigma_t - sigma_c <= mu, sigma_c >= 0 as an interpolation of values >= 0); where a point of a dense
+macrocell precedes one of a thin macrocell it can exceed 1, which costs variance, not bias. The exponential
+carries the bulk of the attenuation without noise; the events only correct the control's error.
 
-**The opaque rest.** Once the estimate T_c falls below ``CAMERA_SWITCH`` (the forced walk's switch,
-:mod:`photon_fields.runtime.transport.tracking`), the rest of the ray is one delta-tracking flight, and its real
-collision, if any, is one more candidate of weight T_c (the transmittance estimate at the end becomes 0; an escape
-keeps T_c). Unbiased for the same reason as the forced walk's rest: T_c is an unbiased estimate of T at the switch
-and independent of the flight, which collides in dt with probability T(t_c -> t) sigma_t dt. A dense wall costs a
-flight of about one optical depth instead of strata down to a few per cent.
+**The opaque rest.** Once the estimate T^(t_k) at a point falls below ``CAMERA_SWITCH`` (the forced walk's switch,
+:mod:`photon_fields.runtime.transport.tracking`), the point's stratum is tracked to its end with the control
+constant (chosen from what precedes t_k, so still independent of the events it weighs), and the rest of the ray
+from there is one delta-tracking flight, whose real collision, if any, is one more candidate of weight T_c =
+T^(stratum's end) (the transmittance estimate at the end becomes 0; an escape keeps T_c). The flight must start
+at the stratum's end, not at t_k: the stratum's candidate already stands for all of it. Unbiased for the same
+reason as the forced walk's rest: T_c is an unbiased estimate of T at the switch and independent of the flight,
+which collides in dt with probability T(t_c -> t) sigma_t dt. A dense wall costs a flight of about one optical
+depth instead of strata down to a few per cent.
 
 **The estimator.** w_k = l sigma_t(t_k) T^(t_k) estimates, summed against f, the integral of T sigma_t f along the
 ray (the pdf of delta tracking's first collision, unnormalised). With the light volume's delta-light direct light
@@ -114,7 +127,7 @@ STRATUM_VOXELS = 2.0
 STRATUM_BOX_FRACTION = 1.0 / 48.0
 PICKS = 3
 CORRECTION_SHADOW_BOOST = 4.0
-RESIDUAL_BOOST = 4.0
+RESIDUAL_BOOST = 2.0
 #: Status of a work item (the values of first_interaction's MISSED_BOX, ESCAPED, INTERACTED).
 _MISSED_BOX, _ESCAPED, _INTERACTED = 0, 1, 2
 
@@ -181,13 +194,14 @@ def cached_direct(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, 
 
 @njit(cache=True, inline="always")
 def majorant_events(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, t: float,
-                    t_end: float, mu: float, sigma_c: float, tau: float, ratio: float, state: np.uint64,
-                    flight: bool) -> tuple[float, float, float, np.uint64]:
+                    t_end: float, mu: float, sigma_c: float, slope: float, t0: float, tau: float, ratio: float,
+                    state: np.uint64, flight: bool) -> tuple[float, float, float, np.uint64]:
     """The Poisson events at majorant ``mu`` over [t, t_end]: (tau left, ratio, collision distance, state).
     ``tau`` is the majorant optical depth left to the next event (< 0: not drawn yet), carried across calls so that
     the events are one Poisson process along the ray. ``flight`` False: residual ratio tracking against the control
-    ``sigma_c`` (module docstring), ``ratio`` times each event's factor, no collision (inf). True: delta tracking,
-    the first real collision's distance (inf if none in the stretch), ``ratio`` unchanged."""
+    ``sigma_c + slope (t' - t0)`` at the event's distance t' (module docstring), ``ratio`` times each event's factor,
+    no collision (inf). True: delta tracking, the first real collision's distance (inf if none in the stretch),
+    ``ratio`` unchanged."""
     while True:
         hit, t, tau, state = next_event(t, t_end, mu, tau, state)
         if not hit:
@@ -198,7 +212,18 @@ def majorant_events(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: f
             if u * mu < sigma:
                 return tau, ratio, t, state
             continue
-        ratio *= 1.0 - (sigma - sigma_c) / mu
+        ratio *= 1.0 - (sigma - (sigma_c + slope * (t - t0))) / mu
+
+
+@njit(cache=True, inline="always")
+def constant_control_events(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, t: float,
+                            t_end: float, mu: float, sigma_c: float, tau: float, ratio: float,
+                            state: np.uint64) -> tuple[float, float, float, np.uint64]:
+    """Residual ratio tracking over [t, t_end] against the constant control ``sigma_c`` (:func:`majorant_events`):
+    (tau left, ratio, the control's optical depth over the stretch, state)."""
+    tau, ratio, _, state = majorant_events(m, ox, oy, oz, dx, dy, dz, t, t_end, mu, sigma_c, 0.0, t, tau, ratio, state,
+                                           False)
+    return tau, ratio, sigma_c * (t_end - t), state
 
 
 @njit(cache=True, inline="always")
@@ -275,9 +300,17 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
         m0 = m1 = m2 = 0.0
         rest = -1.0  # >= 0: the transmittance estimate where the rest's flight began
         done = False
+        # The last point's tail, not tracked yet: [p_t, p_b] in a macrocell of majorant p_mu, sigma_t p_s at p_t.
+        pend = False
+        p_t = p_b = p_mu = p_s = 0.0
         while not done:
             leapt, inside, t, ix, iy, iz, nx_t, ny_t, nz_t = leap_if_empty(m, ox, oy, oz, dx, dy, dz, ivx, ivy, ivz,
                                                                           octant, ix, iy, iz, t, nx_t, ny_t, nz_t)
+            if pend and (leapt or not m.majorant[ix, iy, iz] > 0.0):  # empty space: the tail's control is constant
+                tau, ratio, dc, s = constant_control_events(m, ox, oy, oz, dx, dy, dz, p_t, p_b, boost * p_mu, p_s,
+                                                            tau, ratio, s)
+                tau_c += dc
+                pend = False
             if leapt:
                 if not inside or t >= tmax:
                     break
@@ -293,22 +326,34 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                     tk = a + u * (b - a)
                     x, y, z = ox + tk * dx, oy + tk * dy, oz + tk * dz
                     sc, a0, a1, a2 = extinction_albedo_at(m, x, y, z)
-                    tau, ratio, _, s = majorant_events(m, ox, oy, oz, dx, dy, dz, a, tk, boost * mu, sc, tau, ratio, s,
-                                                       False)
+                    if pend:  # the control: linear from the last point to this one
+                        slope = (sc - p_s) / (tk - p_t) if tk > p_t else 0.0
+                        tau, ratio, _, s = majorant_events(m, ox, oy, oz, dx, dy, dz, p_t, p_b, boost * p_mu, p_s,
+                                                           slope, p_t, tau, ratio, s, False)
+                        tau, ratio, _, s = majorant_events(m, ox, oy, oz, dx, dy, dz, a, tk, boost * mu, p_s, slope,
+                                                           p_t, tau, ratio, s, False)
+                        tau_c += 0.5 * (p_s + sc) * (tk - p_t)
+                    else:  # the first point of a run: the control is its value
+                        tau, ratio, dc, s = constant_control_events(m, ox, oy, oz, dx, dy, dz, a, tk, boost * mu, sc,
+                                                                    tau, ratio, s)
+                        tau_c += dc
+                    tr = math.exp(-tau_c) * ratio
                     if sc > 0.0:
-                        w = (b - a) * sc * math.exp(-(tau_c + sc * (tk - a))) * ratio
                         m0, m1, m2, w_abs, s = _score(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx,
-                                                      dy, dz, a0, a1, a2, w, w_abs, m0, m1, m2, i, s, out_x, out_a,
-                                                      at_pick, out_w, missed)
-                    tau, ratio, _, s = majorant_events(m, ox, oy, oz, dx, dy, dz, tk, b, boost * mu, sc, tau, ratio, s,
-                                                       False)
-                    tau_c += sc * (b - a)
-                    if math.exp(-tau_c) * ratio < switch:
+                                                      dy, dz, a0, a1, a2, (b - a) * sc * tr, w_abs, m0, m1, m2, i, s,
+                                                      out_x, out_a, at_pick, out_w, missed)
+                    pend, p_t, p_b, p_mu, p_s = True, tk, b, mu, sc
+                    if tr < switch:  # the stratum's tail with the point's value, then the rest by the flight below
+                        tau, ratio, dc, s = constant_control_events(m, ox, oy, oz, dx, dy, dz, tk, b, boost * mu, sc,
+                                                                    tau, ratio, s)
+                        tau_c += dc
                         rest = math.exp(-tau_c) * ratio
-                        t = b  # the rest of this macrocell by the flight below
+                        t = b
+                        pend = False
                         break
             if mu > 0.0 and t_end > t and rest >= 0.0:
-                tau, _, tc, s = majorant_events(m, ox, oy, oz, dx, dy, dz, t, t_end, mu, 0.0, tau, 1.0, s, True)
+                tau, _, tc, s = majorant_events(m, ox, oy, oz, dx, dy, dz, t, t_end, mu, 0.0, 0.0, 0.0, tau, 1.0, s,
+                                                True)
                 if tc < math.inf:
                     x, y, z = ox + tc * dx, oy + tc * dy, oz + tc * dz
                     a0, a1, a2 = albedo_at(m, x, y, z)
@@ -324,6 +369,10 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                                                                   iz, nx_t, ny_t, nz_t)
             if not inside:
                 break
+        if pend:  # the last point's tail, for the transmittance to the ray's end
+            tau, ratio, dc, s = constant_control_events(m, ox, oy, oz, dx, dy, dz, p_t, p_b, boost * p_mu, p_s, tau,
+                                                        ratio, s)
+            tau_c += dc
         transmit[i] = rest if rest >= 0.0 else math.exp(-tau_c) * ratio
         cached[0, i], cached[1, i], cached[2, i] = m0, m1, m2
         if w_abs > 0.0:

@@ -202,3 +202,45 @@ def test_marched_walk_matches_delta_tracking_on_sharp_walls(density: float, stra
         interacting = marched.status == first_interaction.INTERACTED
         for p, q in ((0, 1), (1, 2)):
             assert np.all(marched.x[p] == marched.x[q], axis=0)[interacting].mean() < 0.15, (p, q)
+
+
+def _ramp_scene() -> Scene:
+    """sigma_t affine in position (a scalar ramp along a diagonal through a linear opacity), about 0.3 optical depths
+    along the rays of a one-pixel camera (no walk reaches the switch to the opaque rest): along any ray sigma_t is
+    linear, but for half a voxel at the box's faces, where lookups clamp."""
+    i = np.arange(24) / 23.0
+    field = (i[:, None, None] + 0.5 * i[None, :, None] + 0.25 * i[None, None, :]) / 1.75
+    tf = TransferFunction(np.array([0.0, 1.0]), np.array([[0.8, 0.7, 0.6], [0.8, 0.7, 0.6]]), np.array([0.0, 1.0]),
+                          1.0, "ramp")
+    lights = (DirectionalLight([-0.5, -0.8, 0.3], [1.0, 0.8, 0.6], 2.0),)
+    return Scene(make_volume(field, window=(0.0, 1.0), name="ramp"), tf, lights, small_camera(1), 0.3, "ramp")
+
+
+def test_marched_walk_control_follows_a_linear_medium() -> None:
+    """The residual tracker's control is linear between the walk's points (runtime.wavefront.marched_camera), so
+    where sigma_t is linear along the ray only each ray's ends (before its first point, after its last) leave the
+    events a residual to correct: the transmittance estimate to the ray's end is within 0.0015 rms of a fine
+    midpoint sum over the same rays (measured 0.0006; a control constant per stratum: 0.003), and unbiased."""
+    from photon_fields.runtime.renderers.ray_marcher import camera_light_volume
+    from photon_fields.runtime.transport.marching import march_transmittance
+    from photon_fields.runtime.wavefront import marched_camera
+    from photon_fields.runtime.wavefront.depth_bounds import unbounded
+    from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box
+
+    scene = _ramp_scene()
+    m, n, seed = scene.medium(), 2000, 7
+    cam = scene.camera
+    origin, du, dv = cam.image_plane()
+    eye = np.asarray(cam.eye, dtype=np.float64)
+    exact = np.ones(n)
+    for w in range(n):
+        dx, dy, dz, _, _ = camera_ray(origin, du, dv, 1, 1, w, np.uint64(seed))
+        hit, ox, oy, oz, tmax = clip_to_box(m, *eye, dx, dy, dz)
+        if hit:
+            exact[w] = march_transmittance(m, ox, oy, oz, dx, dy, dz, tmax, 1e-3, False)
+    walked = marched_camera.march_camera_rays(scene, m, camera_light_volume(scene, "marched"), np.arange(n), seed,
+                                              unbounded())
+    assert 0.6 < exact.mean() < 0.9 and exact.min() > marched_camera.CAMERA_SWITCH, (exact.mean(), exact.min())
+    err = walked.transmit - exact
+    assert math.sqrt(np.mean(err**2)) < 0.0015, math.sqrt(np.mean(err**2))
+    assert abs(err.mean()) < 4.5 * err.std() / math.sqrt(n), (err.mean(), err.std())
