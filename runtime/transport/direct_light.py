@@ -43,7 +43,6 @@ from photon_fields.runtime.transport.emitters import check_light_kinds, sample_l
 from photon_fields.runtime.transport.environment_map import EnvMap
 from photon_fields.runtime.transport.medium import Medium, intersect_box
 from photon_fields.runtime.transport.phase import hg_eval
-from photon_fields.runtime.transport.residual_tracking import residual_transmittance
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.tracking import SHADOW_BOOST, SHADOW_SWITCH, TASK_ITEMS, ratio_track
 
@@ -89,28 +88,21 @@ def _light_term(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap,
 
 @njit(cache=True, inline="always")
 def _shadow(m: Medium, px: float, py: float, pz: float, lx: float, ly: float, lz: float, tend: float,
-            state: np.uint64, boost: float, strata: tuple[float, float]) -> tuple[float, np.uint64]:
-    """Transmittance from p towards the light (direction l, ``tend`` away at most), its rest below
-    ``SHADOW_SWITCH`` by delta tracking: by ratio tracking at ``boost`` times the majorant
-    (:mod:`photon_fields.runtime.transport.tracking`), or, where ``strata`` = (strata per majorant optical depth,
-    the longest stratum) has a positive first entry, by residual ratio tracking against a control linear between
-    stratified points, its events at ``boost`` times the majorant
-    (:mod:`photon_fields.runtime.transport.residual_tracking`)."""
+            state: np.uint64, boost: float) -> tuple[float, np.uint64]:
+    """Transmittance from p towards the light (direction l, ``tend`` away at most), by ratio tracking at ``boost``
+    times the majorant, its rest below ``SHADOW_SWITCH`` by delta tracking
+    (:mod:`photon_fields.runtime.transport.tracking`)."""
     t0, t1 = intersect_box(m, px, py, pz, lx, ly, lz)
     tr = 1.0
     if t0 < t1:
-        if strata[0] > 0.0:
-            tr, state = residual_transmittance(m, px, py, pz, lx, ly, lz, t0, min(t1, tend), state, strata[0],
-                                               strata[1], boost, SHADOW_SWITCH)
-        else:
-            tr, state = ratio_track(m, px, py, pz, lx, ly, lz, t0, min(t1, tend), state, SHADOW_SWITCH, boost)
+        tr, state = ratio_track(m, px, py, pz, lx, ly, lz, t0, min(t1, tend), state, SHADOW_SWITCH, boost)
     return tr, state
 
 
 @njit(cache=True, inline="always")
 def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
                  py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
-                 env_mis: bool, boost: float, strata: tuple[float, float]) -> tuple[float, float, float, np.uint64]:
+                 env_mis: bool, boost: float) -> tuple[float, float, float, np.uint64]:
     """NEE with a shadow ray to every light (module docstring): radiance (r, g, b) and the stream's state."""
     r = 0.0
     gr = 0.0
@@ -120,7 +112,7 @@ def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                                                                 state, env_mis)
         if c <= 0.0:
             continue
-        tr, state = _shadow(m, px, py, pz, lx, ly, lz, tend, state, boost, strata)
+        tr, state = _shadow(m, px, py, pz, lx, ly, lz, tend, state, boost)
         ft = f * tr
         r += ft * lr
         gr += ft * lg
@@ -131,7 +123,7 @@ def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
 @njit(cache=True, inline="always")
 def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
                      py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
-                     env_mis: bool, boost: float, strata: tuple[float, float]) -> tuple[float, float, float, np.uint64]:
+                     env_mis: bool, boost: float) -> tuple[float, float, float, np.uint64]:
     """:func:`direct_light`'s estimate with one shadow ray: one light drawn by its unshadowed contribution (module
     docstring), for two lights or more (:func:`direct_light_batch` gives a single light to :func:`direct_light`,
     which draws nothing: the same numbers)."""
@@ -153,7 +145,7 @@ def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarr
                                                                 state, env_mis)
         acc += c
         if c > 0.0 and (target < acc or acc >= total):  # acc reaches total at the last light with c > 0
-            tr, state = _shadow(m, px, py, pz, lx, ly, lz, tend, state, boost, strata)
+            tr, state = _shadow(m, px, py, pz, lx, ly, lz, tend, state, boost)
             s = tr * total / c
             return (f * lr) * s, (f * lg) * s, (f * lb) * s, state
     return 0.0, 0.0, 0.0, state
@@ -167,12 +159,12 @@ def _items_of(nee: Any) -> Any:
 
     @njit(cache=True)
     def items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, o: np.ndarray,
-              d: np.ndarray, states: np.ndarray, env_mis: bool, boost: float, strata: tuple[float, float],
-              out: np.ndarray, lo: int, hi: int) -> None:
+              d: np.ndarray, states: np.ndarray, env_mis: bool, boost: float, out: np.ndarray, lo: int,
+              hi: int) -> None:
         for i in range(lo, hi):
             out[0, i], out[1, i], out[2, i], states[i] = nee(
                 m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis,
-                boost, strata)
+                boost)
 
     return items
 
@@ -184,27 +176,22 @@ _one_light_items = _items_of(direct_light_one)
 @njit(cache=True, parallel=True)
 def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
                        o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool = True,
-                       one_light: bool = False, boost: float = SHADOW_BOOST, strata_per_depth: float = 0.0,
-                       longest_stratum: float = 0.0) -> np.ndarray:
+                       one_light: bool = False, boost: float = SHADOW_BOOST) -> np.ndarray:
     """Stage: NEE at every vertex of a SoA batch; returns radiance (3, n) (times throughput later). ``env`` is
     the scene's environment map (``Scene.packed_environment_map()``, a placeholder when it has none).
     ``env_mis=False`` gives the environment's NEE full weight, for estimators that never reach the
     environment by phase sampling (the first-interaction renderers). ``one_light``: one shadow ray per vertex to a
     light drawn by its unshadowed contribution (:func:`direct_light_one`) instead of one to every light.
     ``boost``: shadow rays' tentative collisions at this many times the majorant (default
-    :data:`photon_fields.runtime.transport.tracking.SHADOW_BOOST`, every renderer's; 1: plain ratio tracking).
-    ``strata_per_depth`` > 0: the shadow rays' transmittance by residual ratio tracking instead (strata of at most
-    ``longest_stratum`` world units, a control linear between their points, events at ``boost`` times the majorant;
-    :mod:`photon_fields.runtime.transport.residual_tracking`): the marched camera's picks."""
+    :data:`photon_fields.runtime.transport.tracking.SHADOW_BOOST`, every renderer's; 1: plain ratio tracking)."""
     check_light_kinds(kind)
     n = o.shape[1]
     out = np.empty((3, n))
     one = one_light and kind.shape[0] > 1  # with one light, direct_light's numbers (nothing to draw)
-    strata = (float(strata_per_depth), float(longest_stratum))
     for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
         lo, hi = task * TASK_ITEMS, min(n, (task + 1) * TASK_ITEMS)
         if one:
-            _one_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, strata, out, lo, hi)
+            _one_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, lo, hi)
         else:
-            _every_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, strata, out, lo, hi)
+            _every_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, lo, hi)
     return out

@@ -81,9 +81,9 @@ from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, ray_i
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.final_gather import gather_indirect
 from photon_fields.runtime.wavefront.marched_camera import (
+    CORRECTION_SHADOW_BOOST,
     compact_marched,
     correction_direct,
-    correction_shadows,
     march_camera_rays,
 )
 from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box
@@ -373,10 +373,10 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
                     splat_runs(film, "L_i", fi.pixel, q, distinct, throughput, run)
             if direct:
                 with timer("estimate_direct"):
-                    # the marched correction's shadow rays by residual tracking (marched_camera.correction_shadows)
-                    shadows = correction_shadows(scene) if cached is not None else (SHADOW_BOOST, 0.0, 0.0)
+                    # the marched correction's shadow rays at their own boost (marched_camera.CORRECTION_SHADOW_BOOST)
+                    boost = CORRECTION_SHADOW_BOOST if cached is not None else SHADOW_BOOST
                     nee = direct_light_batch(m, kind, vec, rgb, env_map, scene.g, fi.x, fi.d, fi.rng, False, one_light,
-                                             *shadows)
+                                             boost)
                     if cached is not None:  # marched_camera's correction: NEE less the cached light at each pick
                         nee = correction_direct(nee, cached)
                 with timer("compose"):
