@@ -918,14 +918,15 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/renderers/test_marched_indirect.py::"
             "test_an_environments_single_scattering_comes_from_nee_at_the_pick",),
            "the marched method leaves an environment's single scattering out, as the plain preview does"),
-    Mutant("marched_camera_no_residual", "runtime/wavefront/marched_camera.py",
+    Mutant("marched_camera_no_residual", "runtime/transport/residual_tracking.py",
            "        ratio *= 1.0 - (sigma - (sigma_c + slope * (t - t0))) / mu\n", "        ratio *= 1.0\n",
            (f"{CAMERA}::test_marched_walk_matches_delta_tracking_on_sharp_walls[16.0-coarse]",),
            "the marched camera's transmittance is the control's exp(-integral sigma_c) alone, without the residual "
            "ratio tracking's events: biased wherever sigma_t varies within a stratum (a thin wall in a long one)"),
-    Mutant("marched_camera_flat_control_events", "runtime/wavefront/marched_camera.py",
-           "slope = (sc - p_s) / (tk - p_t) if tk > p_t else 0.0", "slope = 0.0",
-           (f"{CAMERA}::test_marched_walk_control_follows_a_linear_medium",),
+    Mutant("marched_camera_flat_control_events", "runtime/transport/residual_tracking.py",
+           "slope = (sigma_k - p_s) / (tk - p_t) if tk > p_t else 0.0", "slope = 0.0",
+           (f"{CAMERA}::test_marched_walk_control_follows_a_linear_medium",
+            "tests/runtime/transport/test_residual_tracking.py::test_residual_transmittance_is_unbiased"),
            "the residual events between two points correct a flat control while the exponential integrates the "
            "linear one: the marched camera's transmittance biased wherever sigma_t changes between points"),
     Mutant("marched_camera_rest_from_the_point", "runtime/wavefront/marched_camera.py",
@@ -937,6 +938,20 @@ MUTANTS: tuple[Mutant, ...] = (
            (f"{CAMERA}::test_camera_estimators_estimate_the_same_image[L_i-marched, dense]",),
            "the opaque rest's flight starts at the switching point, not at its stratum's end: the stretch between is "
            "counted twice (the stratum's candidate and the flight), dense media too bright"),
+    Mutant("residual_shadow_without_its_last_tail", "runtime/transport/residual_tracking.py",
+           "    if pend:  # the last point's tail\n", "    if False:  # the last point's tail\n",
+           ("tests/runtime/transport/test_residual_tracking.py::test_residual_transmittance_is_unbiased",),
+           "the residual shadow ray stops at its last point: the control's optical depth from there to the box or the "
+           "light is left out, the marched picks' NEE too bright"),
+    Mutant("staged_nee_drawn_light_unscaled", "runtime/transport/direct_light.py",
+           "            ratio = total / c\n", "            ratio = 1.0\n",
+           (f"{LSAMPLING}::test_staged_nee_with_residual_shadow_rays_has_the_one_stage_mean",),
+           "the marched picks' NEE, one light per vertex, is not divided by the drawn light's probability: too dark "
+           "wherever several lights reach a pick"),
+    Mutant("staged_nee_first_light_only", "runtime/transport/residual_tracking.py",
+           "        for j in range(i, lights.shape[1], n):\n", "        for j in range(i, i + 1):\n",
+           (f"{LSAMPLING}::test_staged_nee_with_residual_shadow_rays_has_the_one_stage_mean",),
+           "the marched picks' shadow rays to every light trace only the first light's: the others' light is lost"),
     Mutant("marched_camera_keeps_the_last", "runtime/wavefront/marched_camera.py",
            "            if v * w_abs < abs(w):\n", "            if v >= 0.0:\n",
            (f"{CAMERA}::test_camera_estimators_estimate_the_same_image[L_i-marched]",),

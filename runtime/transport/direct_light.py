@@ -121,12 +121,12 @@ def direct_light(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
 
 
 @njit(cache=True, inline="always")
-def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
-                     py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
-                     env_mis: bool, boost: float) -> tuple[float, float, float, np.uint64]:
-    """:func:`direct_light`'s estimate with one shadow ray: one light drawn by its unshadowed contribution (module
-    docstring), for two lights or more (:func:`direct_light_batch` gives a single light to :func:`direct_light`,
-    which draws nothing: the same numbers)."""
+def _draw_one_light(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float, py: float,
+                    pz: float, dx: float, dy: float, dz: float, state: np.uint64, env_mis: bool
+                    ) -> tuple[float, float, float, float, float, float, float, float, float, float, np.uint64]:
+    """The light k :func:`direct_light_one` draws (module docstring), without its shadow: (lx, ly, lz, distance,
+    f r, f g, f b, sum_j c_j, c_k, state); its term is (f r, f g, f b) times the transmittance times sum_j c_j / c_k,
+    and sum_j c_j is 0 (c_k 1) where no light adds anything."""
     n = kind.shape[0]
     state, u = next_float(state)
     start = state
@@ -135,20 +135,33 @@ def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarr
         _, _, _, _, _, _, _, _, c, state = _light_term(kind, vec, rgb, env, g, k, px, py, pz, dx, dy, dz, state,
                                                        env_mis)
         total += c
+    if total > 0.0:
+        state = start  # replay the same samples (only environments draw random numbers) up to the chosen light
+        target = u * total
+        acc = 0.0
+        for k in range(n):
+            lx, ly, lz, lr, lg, lb, tend, f, c, state = _light_term(kind, vec, rgb, env, g, k, px, py, pz, dx, dy, dz,
+                                                                    state, env_mis)
+            acc += c
+            if c > 0.0 and (target < acc or acc >= total):  # acc reaches total at the last light with c > 0
+                return lx, ly, lz, tend, f * lr, f * lg, f * lb, total, c, state
+    return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, state
+
+
+@njit(cache=True, inline="always")
+def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, px: float,
+                     py: float, pz: float, dx: float, dy: float, dz: float, state: np.uint64,
+                     env_mis: bool, boost: float) -> tuple[float, float, float, np.uint64]:
+    """:func:`direct_light`'s estimate with one shadow ray: one light drawn by its unshadowed contribution (module
+    docstring), for two lights or more (:func:`direct_light_batch` gives a single light to :func:`direct_light`,
+    which draws nothing: the same numbers)."""
+    lx, ly, lz, tend, fr, fg, fb, total, c, state = _draw_one_light(kind, vec, rgb, env, g, px, py, pz, dx, dy, dz,
+                                                                    state, env_mis)
     if total <= 0.0:
         return 0.0, 0.0, 0.0, state
-    state = start  # replay the same samples (only environments draw random numbers) up to the chosen light
-    target = u * total
-    acc = 0.0
-    for k in range(n):
-        lx, ly, lz, lr, lg, lb, tend, f, c, state = _light_term(kind, vec, rgb, env, g, k, px, py, pz, dx, dy, dz,
-                                                                state, env_mis)
-        acc += c
-        if c > 0.0 and (target < acc or acc >= total):  # acc reaches total at the last light with c > 0
-            tr, state = _shadow(m, px, py, pz, lx, ly, lz, tend, state, boost)
-            s = tr * total / c
-            return (f * lr) * s, (f * lg) * s, (f * lb) * s, state
-    return 0.0, 0.0, 0.0, state
+    tr, state = _shadow(m, px, py, pz, lx, ly, lz, tend, state, boost)
+    s = tr * total / c
+    return fr * s, fg * s, fb * s, state
 
 
 def _items_of(nee: Any) -> Any:
@@ -195,3 +208,49 @@ def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.nda
         else:
             _every_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, lo, hi)
     return out
+
+
+@njit(cache=True)
+def _light_sample_items(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, o: np.ndarray,
+                        d: np.ndarray, states: np.ndarray, env_mis: bool, one: bool, lights: np.ndarray,
+                        weight: np.ndarray, lo: int, hi: int) -> None:
+    """A task of :func:`sample_lights_batch` over items lo..hi-1."""
+    for i in range(lo, hi):
+        px, py, pz, dx, dy, dz = o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i]
+        s = states[i]
+        if one:
+            lx, ly, lz, tend, fr, fg, fb, total, c, s = _draw_one_light(kind, vec, rgb, env, g, px, py, pz, dx, dy,
+                                                                        dz, s, env_mis)
+            ratio = total / c
+            lights[0, i], lights[1, i], lights[2, i], lights[3, i] = lx, ly, lz, tend
+            weight[0, i], weight[1, i], weight[2, i] = fr * ratio, fg * ratio, fb * ratio
+        else:
+            for k in range(kind.shape[0]):
+                lx, ly, lz, lr, lg, lb, tend, f, c, s = _light_term(kind, vec, rgb, env, g, k, px, py, pz, dx, dy, dz,
+                                                                    s, env_mis)
+                j = k * o.shape[1] + i
+                lights[0, j], lights[1, j], lights[2, j], lights[3, j] = lx, ly, lz, tend
+                weight[0, j], weight[1, j], weight[2, j] = f * lr, f * lg, f * lb  # 0 where c is 0
+        states[i] = s
+
+
+@njit(cache=True, parallel=True)
+def sample_lights_batch(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, o: np.ndarray,
+                        d: np.ndarray, states: np.ndarray, env_mis: bool = True,
+                        one_light: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Stage: NEE's light samples at every vertex of a SoA batch without their shadow rays, for a renderer that traces
+    these by another estimator (the marched camera's picks): (lights (4, k n): direction and distance of shadow ray
+    j n + i from vertex i, weight (3, k n): its term over the transmittance; 0 for a ray that adds nothing), k = 1
+    with ``one_light`` (:func:`direct_light_one`'s draw) and two lights or more, else one ray per light. NEE is the
+    sum over a vertex's rays of weight times their transmittance; ``states`` are advanced past the lights' draws,
+    the shadow rays continue them."""
+    check_light_kinds(kind)
+    n = o.shape[1]
+    one = one_light and kind.shape[0] > 1
+    k = 1 if one else kind.shape[0]
+    lights = np.empty((4, k * n))
+    weight = np.empty((3, k * n))
+    for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
+        lo, hi = task * TASK_ITEMS, min(n, (task + 1) * TASK_ITEMS)
+        _light_sample_items(kind, vec, rgb, env, g, o, d, states, env_mis, one, lights, weight, lo, hi)
+    return lights, weight

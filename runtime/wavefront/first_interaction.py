@@ -66,7 +66,7 @@ from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.direct_light import LIGHT_SAMPLINGS, direct_light_batch
 from photon_fields.runtime.transport.light_volume import LightVolume
 from photon_fields.runtime.transport.medium import Medium, albedo_at
-from photon_fields.runtime.transport.tracking import SHADOW_BOOST, camera_collision, task_stride
+from photon_fields.runtime.transport.tracking import camera_collision, task_stride
 from photon_fields.runtime.wavefront.batches import (
     DEFAULT_BATCH,
     Environment,
@@ -81,9 +81,9 @@ from photon_fields.runtime.wavefront.depth_bounds import depth_bounds_for, ray_i
 from photon_fields.runtime.wavefront.film import Film
 from photon_fields.runtime.wavefront.final_gather import gather_indirect
 from photon_fields.runtime.wavefront.marched_camera import (
-    CORRECTION_SHADOW_BOOST,
     compact_marched,
     correction_direct,
+    correction_nee,
     march_camera_rays,
 )
 from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box
@@ -373,12 +373,12 @@ def render_first_interaction(scene: Scene, estimator: IndirectEstimator | None, 
                     splat_runs(film, "L_i", fi.pixel, q, distinct, throughput, run)
             if direct:
                 with timer("estimate_direct"):
-                    # the marched correction's shadow rays at their own boost (marched_camera.CORRECTION_SHADOW_BOOST)
-                    boost = CORRECTION_SHADOW_BOOST if cached is not None else SHADOW_BOOST
-                    nee = direct_light_batch(m, kind, vec, rgb, env_map, scene.g, fi.x, fi.d, fi.rng, False, one_light,
-                                             boost)
-                    if cached is not None:  # marched_camera's correction: NEE less the cached light at each pick
-                        nee = correction_direct(nee, cached)
+                    if cached is None:
+                        nee = direct_light_batch(m, kind, vec, rgb, env_map, scene.g, fi.x, fi.d, fi.rng, False,
+                                                 one_light)
+                    else:  # marched_camera's correction: NEE (its own shadow rays) less the cached light at each pick
+                        nee = correction_direct(correction_nee(scene, m, (kind, vec, rgb, env_map), fi.x, fi.d, fi.rng,
+                                                               one_light), cached)
                 with timer("compose"):
                     splat_runs(film, "L_d", fi.pixel, nee, distinct, throughput, run)
                     if cached is not None:

@@ -11,9 +11,13 @@ STRATUM_VOXELS, STRATUM_BOX_FRACTION : float
     box's longest side (1/48: two voxels of a 96^3 volume) where that is longer, so that a finer volume's walk does
     not take more strata for the same medium (docs/rendering.md, "Strata at 256^3").
 CORRECTION_SHADOW_BOOST : float
-    The picks' shadow rays (NEE, whose difference from the cache is the correction) track at this many times the
-    majorant (4, against every other shadow ray's ``tracking.SHADOW_BOOST`` of 2): with the cached light's noise
-    gone, the shadow rays' transmittance noise is most of the marched L_d's at thin walls (docs/rendering.md).
+    The picks' shadow rays (NEE, whose difference from the cache is the correction) estimate their transmittance by
+    residual ratio tracking over strata as the walk's, against a control linear between the strata's points
+    (:mod:`photon_fields.runtime.transport.residual_tracking`, :func:`correction_nee`), with events at this many
+    times the majorant (1). With the cached light's noise gone, the shadow rays' transmittance noise was most of the
+    marched L_d's at thin walls; against ratio tracking at 4x the majorant (every other shadow ray's
+    ``tracking.SHADOW_BOOST`` is 2) 1-spp efficiency +30 % on shell, +5-9 % on vortex, -3 to -7 % on head and blobs
+    (bench/README.md, "Residual shadow rays for the marched picks").
 RESIDUAL_BOOST : float
     The residual tracker's events at this many times the majorant (2; the factors' spread, which makes W noisy at
     walls, falls as 1 / boost, and each event is a lookup). With the piecewise-linear control below, 2 and 4 are
@@ -37,26 +41,18 @@ strata of length l no longer than ``STRATUM_VOXELS`` voxels and 1 / (STRATA_PER_
 the medium and the ray); each stratum k is sampled at t_k = its start + u l with one jitter u per ray, so that
 ``sum_k l f(t_k)`` is an unbiased estimate of the integral of f along the ray.
 
-**Transmittance to each point: residual ratio tracking** (Novak et al. 2014). With a control extinction sigma_c
-along the ray that does not depend on the tracker's events,
+**Transmittance to each point: residual ratio tracking** (Novak et al. 2014; the derivation in
+:mod:`photon_fields.runtime.transport.residual_tracking`). The walk's strata are the tracker's: sigma_t(t_k),
+looked up once per stratum (which also gives the albedo there), is the control's value at t_k, and the control is
+linear between consecutive points of a run of occupied macrocells (constant before a run's first point and after
+its last; until 2026-11-30 it was constant per stratum). The points depend on the jitter u and the medium only, so
+the control is fixed before any event is drawn, and
 
     T^(t) = exp(-integral_0^t sigma_c) * prod_{events e < t} (1 - (sigma_t(e) - sigma_c(e)) / mu(e))
 
-over a Poisson process of events at rate mu >= the local majorant (here ``RESIDUAL_BOOST`` times it) is an
-unbiased estimate of T(t): each factor's mean given its position cancels the residual's share of the optical
-depth. The control here is **piecewise linear through the strata's points**: sigma_t(t_k) is looked up once per
-stratum (which also gives the albedo there), and between two consecutive points t_k, t_k+1 of one run of
-occupied macrocells sigma_c goes linearly from sigma_t(t_k) to sigma_t(t_k+1); before a run's first point and
-after its last it is that point's value. The points depend on the jitter u and the medium only, so the control is
-fixed before any event is drawn; the events of [t_k, t_k+1] are drawn when the walk reaches t_k+1 (the stretch
-from t_k to the end of its stratum in t_k's macrocell at that majorant, then the new stratum's start to t_k+1).
-Since sigma_t(t) is trilinear in the volume, and the transfer function is usually smooth on a stratum's scale,
-the linear control's residual is mostly the kinks at voxel boundaries: against a control constant per stratum
-(sigma_t(t_k) on either side of t_k) it is 3-16x smaller in mean square on the embedded scenes, which makes the
-walk's W much less noisy at walls (1-spp efficiency +5-40 %; bench/README.md, "A linear control"). A factor is
-never negative (sigma_t - sigma_c <= mu, sigma_c >= 0 as an interpolation of values >= 0); where a point of a dense
-macrocell precedes one of a thin macrocell it can exceed 1, which costs variance, not bias. The exponential
-carries the bulk of the attenuation without noise; the events only correct the control's error.
+over events at ``RESIDUAL_BOOST`` times the majorant is an unbiased estimate of T(t). The linear control's residual
+is 3-16x smaller in mean square than the constant one's over the embedded scenes' camera rays, which makes the
+walk's W much less noisy at walls (1-spp efficiency +5-40 %; bench/README.md, "A linear control").
 
 **The opaque rest.** Once the estimate T^(t_k) at a point falls below ``CAMERA_SWITCH`` (the forced walk's switch,
 :mod:`photon_fields.runtime.transport.tracking`), the point's stratum is tracked to its end with the control
@@ -111,13 +107,23 @@ from numba import njit, prange
 from photon_fields.runtime.scene.lights import DIRECTIONAL
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.cell_grid import Grid, stencil
+from photon_fields.runtime.transport.direct_light import sample_lights_batch
 from photon_fields.runtime.transport.emitters import delta_light_direction
+from photon_fields.runtime.transport.environment_map import EnvMap
 from photon_fields.runtime.transport.light_volume import LightVolume, fill_wanted, light_transmittance, want_stencil
-from photon_fields.runtime.transport.macrocell_walk import enter_macrocell, leap_if_empty, next_event, step_macrocell
-from photon_fields.runtime.transport.medium import Medium, albedo_at, extinction_albedo_at, extinction_at
+from photon_fields.runtime.transport.macrocell_walk import enter_macrocell, leap_if_empty, step_macrocell
+from photon_fields.runtime.transport.medium import Medium, albedo_at, extinction_albedo_at
 from photon_fields.runtime.transport.phase import hg_eval
+from photon_fields.runtime.transport.residual_tracking import (
+    close_run,
+    constant_control_events,
+    events_to_point,
+    flight_collision,
+    shadowed_light_batch,
+    strata_in,
+)
 from photon_fields.runtime.transport.rng import next_float
-from photon_fields.runtime.transport.tracking import CAMERA_SWITCH, _sign, task_items, task_stride
+from photon_fields.runtime.transport.tracking import CAMERA_SWITCH, SHADOW_SWITCH, _sign, task_items, task_stride
 from photon_fields.runtime.wavefront.batches import RenderCancelledError
 from photon_fields.runtime.wavefront.depth_bounds import DepthBounds, ray_interval
 from photon_fields.runtime.wavefront.rays import camera_ray, clip_to_box
@@ -126,7 +132,7 @@ STRATA_PER_DEPTH = 2.0
 STRATUM_VOXELS = 2.0
 STRATUM_BOX_FRACTION = 1.0 / 48.0
 PICKS = 3
-CORRECTION_SHADOW_BOOST = 4.0
+CORRECTION_SHADOW_BOOST = 1.0
 RESIDUAL_BOOST = 2.0
 #: Status of a work item (the values of first_interaction's MISSED_BOX, ESCAPED, INTERACTED).
 _MISSED_BOX, _ESCAPED, _INTERACTED = 0, 1, 2
@@ -190,40 +196,6 @@ def cached_direct(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, 
         gg += c * rgb[k, 1]
         b += c * rgb[k, 2]
     return r, gg, b, ok
-
-
-@njit(cache=True, inline="always")
-def majorant_events(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, t: float,
-                    t_end: float, mu: float, sigma_c: float, slope: float, t0: float, tau: float, ratio: float,
-                    state: np.uint64, flight: bool) -> tuple[float, float, float, np.uint64]:
-    """The Poisson events at majorant ``mu`` over [t, t_end]: (tau left, ratio, collision distance, state).
-    ``tau`` is the majorant optical depth left to the next event (< 0: not drawn yet), carried across calls so that
-    the events are one Poisson process along the ray. ``flight`` False: residual ratio tracking against the control
-    ``sigma_c + slope (t' - t0)`` at the event's distance t' (module docstring), ``ratio`` times each event's factor,
-    no collision (inf). True: delta tracking, the first real collision's distance (inf if none in the stretch),
-    ``ratio`` unchanged."""
-    while True:
-        hit, t, tau, state = next_event(t, t_end, mu, tau, state)
-        if not hit:
-            return tau, ratio, math.inf, state
-        sigma = extinction_at(m, ox + t * dx, oy + t * dy, oz + t * dz)
-        if flight:
-            state, u = next_float(state)
-            if u * mu < sigma:
-                return tau, ratio, t, state
-            continue
-        ratio *= 1.0 - (sigma - (sigma_c + slope * (t - t0))) / mu
-
-
-@njit(cache=True, inline="always")
-def constant_control_events(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, t: float,
-                            t_end: float, mu: float, sigma_c: float, tau: float, ratio: float,
-                            state: np.uint64) -> tuple[float, float, float, np.uint64]:
-    """Residual ratio tracking over [t, t_end] against the constant control ``sigma_c`` (:func:`majorant_events`):
-    (tau left, ratio, the control's optical depth over the stretch, state)."""
-    tau, ratio, _, state = majorant_events(m, ox, oy, oz, dx, dy, dz, t, t_end, mu, sigma_c, 0.0, t, tau, ratio, state,
-                                           False)
-    return tau, ratio, sigma_c * (t_end - t), state
 
 
 @njit(cache=True, inline="always")
@@ -306,11 +278,9 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
         while not done:
             leapt, inside, t, ix, iy, iz, nx_t, ny_t, nz_t = leap_if_empty(m, ox, oy, oz, dx, dy, dz, ivx, ivy, ivz,
                                                                           octant, ix, iy, iz, t, nx_t, ny_t, nz_t)
-            if pend and (leapt or not m.majorant[ix, iy, iz] > 0.0):  # empty space: the tail's control is constant
-                tau, ratio, dc, s = constant_control_events(m, ox, oy, oz, dx, dy, dz, p_t, p_b, boost * p_mu, p_s,
-                                                            tau, ratio, s)
-                tau_c += dc
-                pend = False
+            pend, tau, ratio, dc, s = close_run(m, ox, oy, oz, dx, dy, dz, leapt, ix, iy, iz, pend, p_t, p_b,
+                                                boost * p_mu, p_s, tau, ratio, s)
+            tau_c += dc
             if leapt:
                 if not inside or t >= tmax:
                     break
@@ -318,25 +288,16 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
             t_end = min(nx_t, ny_t, nz_t, tmax)
             mu = m.majorant[ix, iy, iz]
             if mu > 0.0 and t_end > t and rest < 0.0:
-                n = int(math.ceil((t_end - t) / min(voxel, 1.0 / (per_depth * mu))))
-                length = (t_end - t) / n
+                n, length = strata_in(t, t_end, mu, per_depth, voxel)
                 for j in range(n):
                     a = t + j * length
                     b = t_end if j == n - 1 else a + length
                     tk = a + u * (b - a)
                     x, y, z = ox + tk * dx, oy + tk * dy, oz + tk * dz
                     sc, a0, a1, a2 = extinction_albedo_at(m, x, y, z)
-                    if pend:  # the control: linear from the last point to this one
-                        slope = (sc - p_s) / (tk - p_t) if tk > p_t else 0.0
-                        tau, ratio, _, s = majorant_events(m, ox, oy, oz, dx, dy, dz, p_t, p_b, boost * p_mu, p_s,
-                                                           slope, p_t, tau, ratio, s, False)
-                        tau, ratio, _, s = majorant_events(m, ox, oy, oz, dx, dy, dz, a, tk, boost * mu, p_s, slope,
-                                                           p_t, tau, ratio, s, False)
-                        tau_c += 0.5 * (p_s + sc) * (tk - p_t)
-                    else:  # the first point of a run: the control is its value
-                        tau, ratio, dc, s = constant_control_events(m, ox, oy, oz, dx, dy, dz, a, tk, boost * mu, sc,
-                                                                    tau, ratio, s)
-                        tau_c += dc
+                    tau, ratio, dc, s = events_to_point(m, ox, oy, oz, dx, dy, dz, a, tk, boost * mu, sc, pend, p_t,
+                                                        p_b, boost * p_mu, p_s, tau, ratio, s)
+                    tau_c += dc
                     tr = math.exp(-tau_c) * ratio
                     if sc > 0.0:
                         m0, m1, m2, w_abs, s = _score(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx,
@@ -352,8 +313,7 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                         pend = False
                         break
             if mu > 0.0 and t_end > t and rest >= 0.0:
-                tau, _, tc, s = majorant_events(m, ox, oy, oz, dx, dy, dz, t, t_end, mu, 0.0, 0.0, 0.0, tau, 1.0, s,
-                                                True)
+                tau, tc, s = flight_collision(m, ox, oy, oz, dx, dy, dz, t, t_end, mu, tau, s)
                 if tc < math.inf:
                     x, y, z = ox + tc * dx, oy + tc * dy, oz + tc * dz
                     a0, a1, a2 = albedo_at(m, x, y, z)
@@ -404,6 +364,23 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
     return missed
 
 
+def longest_stratum(scene: Scene) -> float:
+    """The longest stratum of the walk on ``scene``'s volume, in world units (``STRATUM_VOXELS``,
+    ``STRATUM_BOX_FRACTION``)."""
+    return max(float(scene.volume.voxel_size) * STRATUM_VOXELS, STRATUM_BOX_FRACTION)
+
+
+def correction_nee(scene: Scene, m: Medium, lights: tuple[np.ndarray, np.ndarray, np.ndarray, EnvMap], x: np.ndarray,
+                   d: np.ndarray, states: np.ndarray, one_light: bool) -> np.ndarray:
+    """NEE at the picks x (3, n) reached along d, radiance (3, n): the first-interaction renderers' light sampling
+    (environment without MIS), the shadow rays by residual ratio tracking over strata as the walk's, events at
+    ``CORRECTION_SHADOW_BOOST`` times the majorant (module docstring); advances ``states``."""
+    kind, vec, rgb, env = lights
+    samples, weight = sample_lights_batch(kind, vec, rgb, env, scene.g, x, d, states, False, one_light)
+    return shadowed_light_batch(m, x, samples, weight, states, float(STRATA_PER_DEPTH), longest_stratum(scene),
+                                float(CORRECTION_SHADOW_BOOST), float(SHADOW_SWITCH))
+
+
 def march_camera_rays(scene: Scene, m: Medium, lv: LightVolume, work: np.ndarray, seed: int, bounds: DepthBounds,
                       cancel: object = None) -> MarchedItems:
     """Stage 1 of the marched estimator for work items ``work`` (``sample * pixels + pixel``; the camera ray of
@@ -415,8 +392,7 @@ def march_camera_rays(scene: Scene, m: Medium, lv: LightVolume, work: np.ndarray
     cam = scene.camera
     origin, du, dv = cam.image_plane()
     eye = np.ascontiguousarray(cam.eye, dtype=np.float64)
-    longest = max(float(scene.volume.voxel_size) * STRATUM_VOXELS, STRATUM_BOX_FRACTION)
-    walk = (longest, float(STRATA_PER_DEPTH), float(CAMERA_SWITCH), float(RESIDUAL_BOOST))
+    walk = (longest_stratum(scene), float(STRATA_PER_DEPTH), float(CAMERA_SWITCH), float(RESIDUAL_BOOST))
 
     def run(items: np.ndarray) -> tuple[MarchedItems, np.ndarray]:
         out = MarchedItems.empty(items.shape[0], PICKS)

@@ -8,7 +8,9 @@ light is unshadowed, and the renderers' images with either setting converge to o
 - in an empty medium (transmittance 1) with lights of one colour, "one" is exact at every point: the choice is in
   proportion to each light's unshadowed contribution (phase function, falloff and power), or its variance is not 0;
 - one light: bit for bit the "all" numbers (nothing drawn);
-- whole images (neural renderer with a stand-in field; photon-map renderer's final gather) with block z-scores.
+- whole images (neural renderer with a stand-in field; photon-map renderer's final gather) with block z-scores;
+- NEE in two stages (the lights' samples, then their shadow rays by residual tracking: the marched camera's picks)
+  against the one-stage NEE with ratio-tracked shadow rays: one mean, per setting.
 """
 
 from __future__ import annotations
@@ -23,7 +25,9 @@ from photon_fields.runtime.scene.lights import DirectionalLight, EnvironmentLigh
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.scene.transfer import TransferFunction
 from photon_fields.runtime.scene.volume import make_volume
-from photon_fields.runtime.transport.direct_light import direct_light_batch
+from photon_fields.runtime.transport.direct_light import direct_light_batch, sample_lights_batch
+from photon_fields.runtime.transport.residual_tracking import shadowed_light_batch
+from photon_fields.runtime.transport.tracking import SHADOW_SWITCH
 from photon_fields.runtime.wavefront import first_interaction
 
 TF = TransferFunction(np.array([0.0, 0.55, 1.0]), np.array([[0.9, 0.6, 0.3], [0.5, 0.9, 0.7], [0.8, 0.7, 0.95]]),
@@ -48,15 +52,22 @@ FOUR_LIGHTS = (DirectionalLight([-0.5, -0.8, 0.3], [1.0, 0.8, 0.6], 2.0),
 
 
 def _estimates(scene: Scene, x: np.ndarray, d: np.ndarray, repeats: int, env_mis: bool, one: bool,
-               seed: int) -> np.ndarray:
-    """(repeats, 3, points) independent NEE estimates at points x along directions d."""
+               seed: int, staged: bool = False) -> np.ndarray:
+    """(repeats, 3, points) independent NEE estimates at points x along directions d; ``staged``: the lights'
+    samples, then their shadow rays by residual tracking (two strata per majorant optical depth, two voxels at
+    most, events at the majorant)."""
     m = scene.medium()
     kind, vec, rgb = scene.packed_lights()
     env = scene.packed_environment_map()
     n = x.shape[1]
     xs, ds = np.tile(x, repeats), np.tile(d, repeats)
     states = (np.arange(repeats * n, dtype=np.uint64) * np.uint64(2654435761) + np.uint64(seed)) | np.uint64(1)
-    out = direct_light_batch(m, kind, vec, rgb, env, scene.g, xs, ds, states, env_mis, one)
+    if staged:
+        lights, weight = sample_lights_batch(kind, vec, rgb, env, scene.g, xs, ds, states, env_mis, one)
+        out = shadowed_light_batch(m, xs, lights, weight, states, 2.0, 2.0 * scene.volume.voxel_size, 1.0,
+                                   SHADOW_SWITCH)
+    else:
+        out = direct_light_batch(m, kind, vec, rgb, env, scene.g, xs, ds, states, env_mis, one)
     return out.reshape(3, repeats, n).transpose(1, 0, 2)
 
 
@@ -79,6 +90,21 @@ def test_one_light_and_every_light_have_one_mean(env_mis: bool) -> None:
     assert z.max() < 4.5, z.max()
     # one shadow ray instead of four: noisier per estimate, but not without bound
     assert one.var(0).sum() > every.var(0).sum()
+
+
+@pytest.mark.parametrize(("env_mis", "one"), [(False, True), (False, False), (True, True)])
+def test_staged_nee_with_residual_shadow_rays_has_the_one_stage_mean(env_mis: bool, one: bool) -> None:
+    """The marched camera's picks' NEE (direct_light.sample_lights_batch, then
+    residual_tracking.shadowed_light_batch) against direct_light_batch: each light's weight, direction and distance
+    carried between the stages, every light's ray summed ("all") and the drawn one's scaled ("one")."""
+    scene = _scene(FOUR_LIGHTS)
+    x, d = _points()
+    reps = 4000
+    plain = _estimates(scene, x, d, reps, env_mis, one, 21)
+    staged = _estimates(scene, x, d, reps, env_mis, one, 22, staged=True)
+    assert plain.mean() > 0.0
+    z = np.abs(plain.mean(0) - staged.mean(0)) / np.sqrt(plain.var(0) / reps + staged.var(0) / reps + 1e-18)
+    assert z.max() < 4.5, z.max()
 
 
 def test_choice_follows_each_lights_unshadowed_contribution() -> None:
