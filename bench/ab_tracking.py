@@ -148,7 +148,8 @@ def _stage_calls(pkg: str, name: str, size: int) -> tuple[dict[str, Any], dict[s
 
     found = fim.compact_first_interactions(scratch, first())
 
-    one_light = (True,) if nee.direct_light_batch.py_func.__code__.co_argcount > 10 else ()  # a base before it: all
+    batch = getattr(nee.direct_light_batch, "py_func", nee.direct_light_batch)  # compiled in bases before 2026-11-30
+    one_light = (True,) if batch.__code__.co_argcount > 10 else ()  # a base before it: all lights
 
     def direct() -> np.ndarray:
         return nee.direct_light_batch(m, kind, vec, rgb, env, scene.g, found.x, found.d, found.rng.copy(), False,

@@ -186,7 +186,29 @@ _every_light_items = _items_of(direct_light)
 _one_light_items = _items_of(direct_light_one)
 
 
-@njit(cache=True, parallel=True)
+def _batch_of(items: Any) -> Any:
+    """A parallel loop of ``items`` (one of :func:`_items_of`'s) over a batch's tasks: one per kind of task, chosen by
+    :func:`direct_light_batch` in Python. One parallel function calling either kind compiled both wherever it was
+    used: a cold path-traced render (every light) spent ~40 % of its time compiling the one-light loop it never ran
+    (bench/README.md, "A stage of its own")."""
+
+    @njit(cache=True, parallel=True)
+    def batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, o: np.ndarray,
+              d: np.ndarray, states: np.ndarray, env_mis: bool, boost: float) -> np.ndarray:
+        n = o.shape[1]
+        out = np.empty((3, n))
+        for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
+            lo, hi = task * TASK_ITEMS, min(n, (task + 1) * TASK_ITEMS)
+            items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, lo, hi)
+        return out
+
+    return batch
+
+
+_every_light_batch = _batch_of(_every_light_items)
+_one_light_batch = _batch_of(_one_light_items)
+
+
 def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
                        o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool = True,
                        one_light: bool = False, boost: float = SHADOW_BOOST) -> np.ndarray:
@@ -198,16 +220,9 @@ def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.nda
     ``boost``: shadow rays' tentative collisions at this many times the majorant (default
     :data:`photon_fields.runtime.transport.tracking.SHADOW_BOOST`, every renderer's; 1: plain ratio tracking)."""
     check_light_kinds(kind)
-    n = o.shape[1]
-    out = np.empty((3, n))
     one = one_light and kind.shape[0] > 1  # with one light, direct_light's numbers (nothing to draw)
-    for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
-        lo, hi = task * TASK_ITEMS, min(n, (task + 1) * TASK_ITEMS)
-        if one:
-            _one_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, lo, hi)
-        else:
-            _every_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, lo, hi)
-    return out
+    batch = _one_light_batch if one else _every_light_batch
+    return batch(m, kind, vec, rgb, env, float(g), o, d, states, bool(env_mis), float(boost))
 
 
 @njit(cache=True)
