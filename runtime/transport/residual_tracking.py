@@ -198,19 +198,6 @@ def residual_transmittance(m: Medium, ox: float, oy: float, oz: float, dx: float
 
 
 @njit(cache=True)
-def residual_transmittance_batch(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray,
-                                 states: np.ndarray, per_depth: float, longest: float, boost: float,
-                                 switch: float) -> np.ndarray:
-    """:func:`residual_transmittance` over SoA rays (o, d: (3, n)), serially, for tests and tools; advances
-    ``states`` in place."""
-    out = np.empty(o.shape[1])
-    for i in range(o.shape[1]):
-        out[i], states[i] = residual_transmittance(m, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], tmin[i],
-                                                   tmax[i], states[i], per_depth, longest, boost, switch)
-    return out
-
-
-@njit(cache=True)
 def _shadow_items(m: Medium, o: np.ndarray, lights: np.ndarray, weight: np.ndarray, states: np.ndarray,
                   per_depth: float, longest: float, boost: float, switch: float, out: np.ndarray, lo: int,
                   hi: int) -> None:
