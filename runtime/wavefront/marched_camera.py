@@ -16,8 +16,8 @@ CORRECTION_SHADOW_BOOST : float
     (:mod:`photon_fields.runtime.transport.residual_tracking`, :func:`correction_nee`), with events at this many
     times the majorant (1). With the cached light's noise gone, the shadow rays' transmittance noise was most of the
     marched L_d's at thin walls; against ratio tracking at 4x the majorant (every other shadow ray's
-    ``tracking.SHADOW_BOOST`` is 2) 1-spp efficiency +30 % on shell, +5-9 % on vortex, -3 to -7 % on head and blobs
-    (bench/README.md, "Residual shadow rays for the marched picks").
+    ``tracking.SHADOW_BOOST`` is 2) it gains most on the thin-walled scenes (bench/README.md, "Residual shadow rays
+    for the marched picks", and "A stage of its own" for why these are stages apart from every renderer's NEE).
 RESIDUAL_BOOST : float
     The residual tracker's events at this many times the majorant (2; the factors' spread, which makes W noisy at
     walls, falls as 1 / boost, and each event is a lookup). With the piecewise-linear control below, 2 and 4 are
