@@ -34,7 +34,6 @@ probability was computed with.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 from numba import njit, prange
@@ -164,49 +163,59 @@ def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarr
     return fr * s, fg * s, fb * s, state
 
 
-def _items_of(nee: Any) -> Any:
-    """A task of :func:`direct_light_batch`: ``nee`` (:func:`direct_light` or :func:`direct_light_one`, inlined into
-    the loop) at items lo..hi-1 (``TASK_ITEMS`` in tracking.py says why tasks). One compiled loop per kind of
-    task: a compiled call per item passed the medium's arrays with reference counting, which cost more than many
-    shadow rays' walks, and one function inlining both kinds took minutes to compile."""
-
-    @njit(cache=True)
-    def items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, o: np.ndarray,
-              d: np.ndarray, states: np.ndarray, env_mis: bool, boost: float, out: np.ndarray, lo: int,
-              hi: int) -> None:
-        for i in range(lo, hi):
-            out[0, i], out[1, i], out[2, i], states[i] = nee(
-                m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis,
-                boost)
-
-    return items
+# The two kinds of task and their parallel loops are written out as top-level functions, not made by a factory:
+# numba keys a closure's cache entry by a pickle of its cells, and a captured dispatcher pickles with a uuid of its
+# own process, so every new process missed the cache and compiled NEE again (~20 s of every command-line render,
+# 2026-11-27 .. 11-30; tests/runtime/test_kernel_cache.py). One loop per kind of task: a compiled call
+# per item passed the medium's arrays with reference counting, which cost more than many shadow rays' walks, and
+# one function inlining both kinds took minutes to compile. ``TASK_ITEMS`` in tracking.py says why tasks.
 
 
-_every_light_items = _items_of(direct_light)
-_one_light_items = _items_of(direct_light_one)
+@njit(cache=True)
+def _every_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
+                       o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, boost: float,
+                       out: np.ndarray, lo: int, hi: int) -> None:
+    """A task of :func:`direct_light_batch`: :func:`direct_light` at items lo..hi-1."""
+    for i in range(lo, hi):
+        out[0, i], out[1, i], out[2, i], states[i] = direct_light(
+            m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis, boost)
 
 
-def _batch_of(items: Any) -> Any:
-    """A parallel loop of ``items`` (one of :func:`_items_of`'s) over a batch's tasks: one per kind of task, chosen by
-    :func:`direct_light_batch` in Python. One parallel function calling either kind compiled both wherever it was
-    used: a cold path-traced render (every light) spent ~40 % of its time compiling the one-light loop it never ran
-    (bench/README.md, "A stage of its own")."""
-
-    @njit(cache=True, parallel=True)
-    def batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float, o: np.ndarray,
-              d: np.ndarray, states: np.ndarray, env_mis: bool, boost: float) -> np.ndarray:
-        n = o.shape[1]
-        out = np.empty((3, n))
-        for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
-            lo, hi = task * TASK_ITEMS, min(n, (task + 1) * TASK_ITEMS)
-            items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, lo, hi)
-        return out
-
-    return batch
+@njit(cache=True)
+def _one_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
+                     o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, boost: float, out: np.ndarray,
+                     lo: int, hi: int) -> None:
+    """A task of :func:`direct_light_batch`: :func:`direct_light_one` at items lo..hi-1."""
+    for i in range(lo, hi):
+        out[0, i], out[1, i], out[2, i], states[i] = direct_light_one(
+            m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis, boost)
 
 
-_every_light_batch = _batch_of(_every_light_items)
-_one_light_batch = _batch_of(_one_light_items)
+# A parallel loop per kind of task, chosen by :func:`direct_light_batch` in Python: one parallel function calling
+# either kind compiled both wherever it was used (a cold path-traced render spent ~40 % of its time compiling the
+# one-light loop it never ran: bench/README.md, "A stage of its own").
+
+
+@njit(cache=True, parallel=True)
+def _every_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
+                       o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, boost: float) -> np.ndarray:
+    n = o.shape[1]
+    out = np.empty((3, n))
+    for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
+        lo, hi = task * TASK_ITEMS, min(n, (task + 1) * TASK_ITEMS)
+        _every_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, lo, hi)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _one_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
+                     o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, boost: float) -> np.ndarray:
+    n = o.shape[1]
+    out = np.empty((3, n))
+    for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):
+        lo, hi = task * TASK_ITEMS, min(n, (task + 1) * TASK_ITEMS)
+        _one_light_items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, lo, hi)
+    return out
 
 
 def direct_light_batch(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env: EnvMap, g: float,
