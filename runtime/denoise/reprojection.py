@@ -26,7 +26,10 @@ import math
 import numpy as np
 from numba import njit
 
+from photon_fields.runtime.numba_inlining import install
 from photon_fields.runtime.scene.camera import Camera
+
+install()  # before any kernel that inlines ours compiles (runtime/numba_inlining.py)
 
 #: Layout of :func:`pack_view`'s array: eye, image-plane origin, du, dv (the renderers' ray arithmetic), the
 #: orthonormal basis right, up, forward (for projection), the half extents of the image plane at unit distance

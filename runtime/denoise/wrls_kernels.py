@@ -13,6 +13,9 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.denoise.reprojection import reproject_pixel
+from photon_fields.runtime.numba_inlining import install
+
+install()  # before any kernel that inlines ours compiles (runtime/numba_inlining.py)
 
 # Per-pixel state (float32, (H, W, STATE), the last axis contiguous for the bilinear reads of the reprojection):
 # the feature z (3), the coefficients beta (3 channels x 4: intercept, slopes on the predictor's three colours)

@@ -101,6 +101,9 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from photon_fields.models_spec.hashgrid import HASH_PRIMES, HashGridConfig, fma_f32, level_specs, total_table_rows
+from photon_fields.runtime.numba_inlining import install
+
+install()  # before any kernel that inlines ours compiles (runtime/numba_inlining.py)
 
 _MASK = np.uint64(0xFFFFFFFF)
 _ONE_U = np.uint64(1)

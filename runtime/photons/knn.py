@@ -45,8 +45,11 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from photon_fields.runtime.numba_inlining import install
 from photon_fields.runtime.photons.knn_select import band, compact_to_k, heapsort, keep_k, kth_value
 from photon_fields.runtime.photons.photon_grid import PhotonGrid, cell_coord
+
+install()  # before any kernel that inlines ours compiles (runtime/numba_inlining.py)
 
 _BLOCK = 64  # queries per work block
 _SLACK = 1e-9  # relative (to the cell size) safety margin at cell faces

@@ -59,6 +59,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from photon_fields.runtime.numba_inlining import install
+
+install()  # before any kernel that inlines ours compiles (runtime/numba_inlining.py)
+
 #: Rec. 709 luminance weights of the sampling density (the same as the image tonemapper's).
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 #: Jacobian of the lat-long map: dw = JACOBIAN sin(theta) du dv.

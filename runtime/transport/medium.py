@@ -53,9 +53,12 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from photon_fields.runtime.numba_inlining import install
 from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.transfer import LUT_SIZE, TransferFunction
 from photon_fields.runtime.scene.volume import Volume
+
+install()  # before any kernel that inlines ours compiles (runtime/numba_inlining.py)
 
 DEFAULT_MACROCELL = 2  # measured with empty-space leaping: 2 beats 1, 4 and 8 on the embedded scenes (bench/README.md)
 #: :func:`auto_macrocell`'s grid side, at most: at 512^3 a 2-voxel macrocell's 256^3 grid made the neural and the

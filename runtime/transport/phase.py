@@ -20,6 +20,9 @@ import numpy as np
 from numba import njit
 
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.numba_inlining import install
+
+install()  # before any kernel that inlines ours compiles (runtime/numba_inlining.py)
 
 INV_4PI = 1.0 / (4.0 * math.pi)
 _ISOTROPIC_EPS = 1e-4
