@@ -1004,6 +1004,30 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/train/cli/test_demo.py::test_the_warm_up_compiles_every_estimator_that_auto_may_take",),
            "the demo warms up with auto alone, which renders its tiny view forced: a fresh clone's marched kernels "
            "compile inside the timed neural render, and the equal-time path tracer gets that time as samples"),
+    Mutant("nee_items_made_by_a_factory", "runtime/transport/direct_light.py",
+           "# A parallel loop per kind of task, chosen by",
+           "def _items_of(nee):\n"
+           "    @njit(cache=True)\n"
+           "    def items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, lo, hi):\n"
+           "        for i in range(lo, hi):\n"
+           "            out[0, i], out[1, i], out[2, i], states[i] = nee(m, kind, vec, rgb, env, g, o[0, i], o[1, i],"
+           " o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis, boost)\n"
+           "    return items\n\n\n"
+           "_one_light_items = _items_of(direct_light_one)\n\n\n"
+           "# A parallel loop per kind of task, chosen by",
+           ("tests/runtime/test_kernel_cache.py::test_every_cached_kernel_has_the_same_cache_key_in_a_new_process",),
+           "NEE's one-light loop made by a factory closing over direct_light_one, as from 2026-11-27 to 11-30: its "
+           "cache key holds the dispatcher's per-process uuid, so every new process compiles it again (~20 s)"),
+    Mutant("inlining_patch_left_out_of_phase", "runtime/transport/phase.py",
+           "install()  # before any kernel that inlines ours compiles (runtime/numba_inlining.py)\n", "",
+           ("tests/runtime/test_numba_inlining.py::"
+            "test_every_module_with_an_inlined_kernel_installs_the_patch_at_import",),
+           "a module with inline kernels that does not install the inliner patch: a kernel inlining them alone "
+           "compiles with numba's slow copies"),
+    Mutant("inlining_patch_never_installed", "runtime/numba_inlining.py",
+           "    _installed = False\n    if os.environ", "    _installed = True\n    return True\n    if os.environ",
+           ("tests/runtime/test_numba_inlining.py::test_the_patch_applies_to_this_numba",),
+           "install() reports the patch in place without patching numba: every cold compile as slow as before"),
 )
 
 
