@@ -1005,7 +1005,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "the demo warms up with auto alone, which renders its tiny view forced: a fresh clone's marched kernels "
            "compile inside the timed neural render, and the equal-time path tracer gets that time as samples"),
     Mutant("nee_items_made_by_a_factory", "runtime/transport/direct_light.py",
-           "# A parallel loop per kind of task, chosen by",
+           "def direct_light_batch(",
            "def _items_of(nee):\n"
            "    @njit(cache=True)\n"
            "    def items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, lo, hi):\n"
@@ -1013,11 +1013,23 @@ MUTANTS: tuple[Mutant, ...] = (
            "            out[0, i], out[1, i], out[2, i], states[i] = nee(m, kind, vec, rgb, env, g, o[0, i], o[1, i],"
            " o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis, boost)\n"
            "    return items\n\n\n"
-           "_one_light_items = _items_of(direct_light_one)\n\n\n"
-           "# A parallel loop per kind of task, chosen by",
-           ("tests/runtime/test_kernel_cache.py::test_every_cached_kernel_has_the_same_cache_key_in_a_new_process",),
-           "NEE's one-light loop made by a factory closing over direct_light_one, as from 2026-11-27 to 11-30: its "
-           "cache key holds the dispatcher's per-process uuid, so every new process compiles it again (~20 s)"),
+           "def _batch_of(items):\n"
+           "    @njit(cache=True, parallel=True)\n"
+           "    def batch(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost):\n"
+           "        n = o.shape[1]\n"
+           "        out = np.empty((3, n))\n"
+           "        for task in prange((n + TASK_ITEMS - 1) // TASK_ITEMS):\n"
+           "            items(m, kind, vec, rgb, env, g, o, d, states, env_mis, boost, out, task * TASK_ITEMS,"
+           " min(n, (task + 1) * TASK_ITEMS))\n"
+           "        return out\n"
+           "    return batch\n\n\n"
+           "_one_light_batch = _batch_of(_items_of(direct_light_one))\n\n\n"
+           "def direct_light_batch(",
+           ("tests/runtime/test_kernel_cache.py::test_every_cached_kernel_has_the_same_cache_key_in_a_new_process",
+            "tests/runtime/test_kernel_cache.py::test_a_second_process_loads_every_kernel_the_first_compiled"),
+           "NEE's one-light loop and its parallel batch made by factories closing over the kernels they call, as "
+           "from 2026-11-27 to 11-30: their cache keys hold the dispatchers' per-process uuids, so every new process "
+           "compiles them again (~20 s)"),
     Mutant("inlining_patch_left_out_of_phase", "runtime/transport/phase.py",
            "install()  # before any kernel that inlines ours compiles (runtime/numba_inlining.py)\n", "",
            ("tests/runtime/test_numba_inlining.py::"
