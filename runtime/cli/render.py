@@ -157,6 +157,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         print(f"warning: {w}", file=sys.stderr)
     make_parent(out)
     render = renderer.render_function()
+    if not args.quiet:
+        from photon_fields.runtime.compile_notice import announce_compiles
+
+        announce_compiles(lambda message: print(f"pfn-render: {message}", file=sys.stderr, flush=True))
 
     def render_frame(view: Any, progress: bool, seed: int = args.seed) -> Any:
         return render(view, spp=spp, seed=seed, batch_size=args.batch_size, progress=progress, **inputs,

@@ -107,6 +107,10 @@ def _main(argv: Sequence[str] | None = None) -> int:
         raise InputError("--max-spp", f"must be an integer in [1, {1 << 16}], got {args.max_spp}")
     set_threads(args.threads)
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="pfn-view: %(message)s")
+    if not args.quiet:
+        from photon_fields.runtime.compile_notice import announce_compiles
+
+        announce_compiles(logging.getLogger("photon_fields.viewer").info)
     from photon_fields.runtime.viewer.retrain import RetrainSettings
 
     pvrt_options = None
