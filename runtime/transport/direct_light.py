@@ -193,7 +193,8 @@ def _one_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarr
 
 # A parallel loop per kind of task, chosen by :func:`direct_light_batch` in Python: one parallel function calling
 # either kind compiled both wherever it was used (a cold path-traced render spent ~40 % of its time compiling the
-# one-light loop it never ran: bench/README.md, "A stage of its own").
+# one-light loop it never ran: bench/README.md, "A stage of its own"), also with the choice as a literal argument
+# (numba did not prune the other call inside the prange body); a factory writing them once missed the cache (above).
 
 
 @njit(cache=True, parallel=True)
