@@ -5,17 +5,17 @@ why). numba's ``InlineWorker.inline_ir`` copies the callee's IR before splicing 
 each block with ``copy.deepcopy`` and a memo of its own (numba/core/inline_closurecall.py, ``copy_ir``). Every
 variable refers to the function's one ``Scope``, which holds all of its variables, so each block's copy copies the
 whole scope again: blocks x variables. For NEE's item loop (the ratio-tracking walk inlined three levels deep) that
-was 16 of its 22 s of compiling (numba issues #8989, #9204 describe the same copies).
+was most of its compile time (bench/README.md, "Cold compiles"; numba issues #8989, #9204 describe the same copies).
 
 :func:`install` makes the blocks of one copied IR share one copy of its scope: the copies are equal to numba's
 (numba itself keeps one scope per function: ``inline_ir`` then asserts that the copied blocks have one scope, which
 with numba's copies holds only because equal copies compare equal), the same IR reaches the same lowering, and the
-machine code and its results are the same (the whole suite runs with it; bench/README.md has the cold compile times).
-It is a patch of numba's internals, so it applies only where ``copy_ir`` is the code it was written against (the
-source of ``inline_ir`` is checked) and does nothing otherwise, or when the environment sets
-``PFN_NUMBA_INLINE_COPY=0``. Every module of ours that defines an ``inline="always"`` kernel calls it at import, so
-it is in place before any kernel that inlines one compiles (tests/runtime/test_numba_inlining.py checks both). Without
-it, numba compiles the same kernels, more slowly.
+kernels compute the same numbers (renders byte for byte the same; the whole suite runs with it). It is a patch of
+numba's internals, so it applies only where ``copy_ir`` is the code it was written against (the source of
+``inline_ir`` is checked) and does nothing otherwise, or when the environment sets ``PFN_NUMBA_INLINE_COPY=0``.
+Every module of ours that defines an ``inline="always"`` kernel installs it at import (it calls :func:`install` or
+imports a module that does), so it is in place before any kernel that inlines one compiles
+(tests/runtime/test_numba_inlining.py checks both). Without it, numba compiles the same kernels, more slowly.
 """
 
 from __future__ import annotations
