@@ -165,8 +165,8 @@ def direct_light_one(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarr
 
 # The two kinds of task and their parallel loops are written out as top-level functions, not made by a factory:
 # numba keys a closure's cache entry by a pickle of its cells, and a captured dispatcher pickles with a uuid of its
-# own process, so every new process missed the cache and compiled NEE again (~20 s of every command-line render,
-# 2026-11-27 .. 11-30; tests/runtime/test_kernel_cache.py). One loop per kind of task: a compiled call
+# own process, so every new process missed the cache and compiled NEE again (every command-line render from
+# 2026-11-27 to 11-30: bench/README.md; tests/runtime/test_kernel_cache.py). One loop per kind of task: a compiled call
 # per item passed the medium's arrays with reference counting, which cost more than many shadow rays' walks, and
 # one function inlining both kinds took minutes to compile. ``TASK_ITEMS`` in tracking.py says why tasks.
 

@@ -4,7 +4,7 @@ numba keys a cached function by its signature, the machine and hashes of its byt
 pickle of its cells (``numba.core.caching._CacheImpl._index_key``). A cell that pickles differently in each process
 (a captured dispatcher carries a uuid4 of its own process) makes every new process miss the cache and compile the
 kernel again: from 2026-11-27 to 11-30 NEE's item loops were made by a factory that captured ``direct_light``, and
-every command-line path-traced render compiled them anew (~25 s instead of ~1 s for a 16x16 image)."""
+every command-line path-traced render compiled them anew (bench/README.md, ``bench_cli_startup.py``)."""
 
 from __future__ import annotations
 
