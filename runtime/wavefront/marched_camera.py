@@ -162,10 +162,6 @@ class MarchedItems:
                    np.empty(n, np.uint64), np.empty((3, n)), np.empty((picks, 3, n)), np.empty(n, np.uint8),
                    np.empty(n))
 
-    def take(self, idx: np.ndarray) -> MarchedItems:
-        return MarchedItems(*(a[..., idx] for a in (self.x, self.d, self.albedo, self.weight, self.rng, self.cached,
-                                                    self.cached_at_pick, self.status, self.transmit)))
-
     def put(self, idx: np.ndarray, other: MarchedItems) -> None:
         for name in ("x", "d", "albedo", "weight", "rng", "cached", "cached_at_pick", "status", "transmit"):
             getattr(self, name)[..., idx] = getattr(other, name)

@@ -38,8 +38,8 @@ def _calls_install(tree: ast.Module) -> bool:
 def test_every_module_with_an_inlined_kernel_installs_the_patch_at_import() -> None:
     """A module defining an ``inline="always"`` kernel calls ``install()`` at import, or imports one that does (at
     any depth): so no kernel inlining ours compiles before the patch is in place."""
-    trees = {_module_name(p): ast.parse(p.read_text()) for p in (PACKAGE / "runtime").rglob("*.py")}
     sources = {_module_name(p): p.read_text() for p in (PACKAGE / "runtime").rglob("*.py")}
+    trees = {name: ast.parse(source) for name, source in sources.items()}
     covered: dict[str, bool] = {}
 
     def installs(name: str, seen: frozenset[str] = frozenset()) -> bool:

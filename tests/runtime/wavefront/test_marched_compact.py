@@ -10,7 +10,8 @@ from photon_fields.runtime.wavefront.marched_camera import _INTERACTED, _PICK_SA
 def _reference(items: MarchedItems, start: int, n_pixels: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """The same copies written with numpy's takes and tiles."""
     idx = np.flatnonzero(items.status == _INTERACTED)
-    kept = items.take(idx)
+    kept = MarchedItems(*(a[..., idx] for a in (items.x, items.d, items.albedo, items.weight, items.rng, items.cached,
+                                                items.cached_at_pick, items.status, items.transmit)))
     picks = kept.x.shape[0]
     rng = np.concatenate([kept.rng ^ np.uint64(_PICK_SALT * q % 2**64) for q in range(picks)])
     flat = [np.tile((start + idx) % n_pixels, picks), kept.x.transpose(1, 0, 2).reshape(3, -1),
