@@ -1040,6 +1040,16 @@ MUTANTS: tuple[Mutant, ...] = (
            "    _installed = False\n    if os.environ", "    _installed = True\n    return True\n    if os.environ",
            ("tests/runtime/test_numba_inlining.py::test_the_patch_applies_to_this_numba",),
            "install() reports the patch in place without patching numba: every cold compile as slow as before"),
+    Mutant("marched_walk_counts_references", "runtime/wavefront/marched_camera.py",
+           "    m = borrowed_medium(m)  # no reference counting in the loops below (runtime/borrowed.py)\n", "",
+           ("tests/runtime/test_borrowed.py::test_every_task_kernel_of_a_parallel_loop_borrows_its_medium",),
+           "the marched walk's task kernel without its borrowed medium: every macrocell step counts the medium's "
+           "arrays up and down again (the walk 1.3x slower)"),
+    Mutant("borrowed_keeps_the_meminfo", "runtime/borrowed.py",
+           "        out.meminfo = cgutils.get_null_value(out.meminfo.type)\n",
+           "        out.meminfo = source.meminfo\n",
+           ("tests/runtime/test_borrowed.py::test_borrowing_takes_the_reference_counting_out_of_the_inlined_walk",),
+           "a borrowed array that keeps its owner's meminfo: every increment and decrement counted again"),
 )
 
 

@@ -83,7 +83,7 @@ from photon_fields.runtime.scene.lights import DIRECTIONAL
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.emitters import emit_photon, sample_uniform_sphere
 from photon_fields.runtime.transport.environment_map import NO_ENV_MAP, EnvMap
-from photon_fields.runtime.transport.medium import Medium, extinction_at
+from photon_fields.runtime.transport.medium import Medium, borrowed_medium, extinction_at
 from photon_fields.runtime.transport.phase import orthonormal_basis
 from photon_fields.runtime.transport.rng import next_float, stream_state
 
@@ -220,6 +220,7 @@ def _trace_basis_light(m: Medium, k: int, is_dsf: bool, dirs: np.ndarray, h: flo
     """All photon paths of basis light ``k`` (module docstring), splatted into ``acc[:, k]`` (the rows ``row``
     gives the cells), each with the radius its collision's sigma_t gives (:func:`splat_radius`). ``env`` is the
     emitters' environment-map argument, unused by the directional photons traced here (``NO_ENV_MAP``)."""
+    m = borrowed_medium(m)  # no reference counting in the loops below (runtime/borrowed.py)
     cx, cy, cz = m.bmin[0] + 0.5 * m.bsize[0], m.bmin[1] + 0.5 * m.bsize[1], m.bmin[2] + 0.5 * m.bsize[2]
     radius = 0.5 * math.sqrt(m.bsize[0] ** 2 + m.bsize[1] ** 2 + m.bsize[2] ** 2)
     n_out = (out_lmax + 1) ** 2

@@ -33,7 +33,7 @@ from photon_fields.runtime.pvrt.sh import hg_band_factors, sh_count, sh_eval
 from photon_fields.runtime.pvrt.transfer import Transfer
 from photon_fields.runtime.transport.cell_grid import grid_coord
 from photon_fields.runtime.transport.marching import march_transmittance
-from photon_fields.runtime.transport.medium import Medium
+from photon_fields.runtime.transport.medium import Medium, borrowed_medium
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, task_stride
 
 #: Radiance-volume channels: multiple-scattering RGB radiance towards the eye times each cell's interpolation
@@ -158,6 +158,7 @@ def _needed_cells(m: Medium, gx: int, gy: int, gz: int) -> np.ndarray:
 def _light_cells(m: Medium, lights: np.ndarray, cells: np.ndarray, h: float, skip: bool, out: np.ndarray, lo: int,
                  hi: int) -> None:
     """Entries lo..hi-1 of ``cells`` ((light, ix, iy, iz) rows) of :func:`_light_volumes`, serially."""
+    m = borrowed_medium(m)  # no reference counting in the loop (runtime/borrowed.py)
     _, gx, gy, gz = out.shape
     for v in range(lo, hi):
         li, ix, iy, iz = cells[v, 0], cells[v, 1], cells[v, 2], cells[v, 3]

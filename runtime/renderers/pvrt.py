@@ -58,7 +58,7 @@ from photon_fields.runtime.pvrt.transfer import Transfer
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.cell_grid import Grid, grid_of, stencil, trilinear
 from photon_fields.runtime.transport.marching import segment_past
-from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
+from photon_fields.runtime.transport.medium import Medium, borrowed_medium, extinction_albedo_at
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, empty_run, task_stride
 from photon_fields.runtime.wavefront.batches import RenderResult, StageTimer, finish
@@ -109,6 +109,7 @@ def _march_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndar
     it passes have sigma_t = 0 and add nothing), so empty space costs one step per run, not one per segment
     (``skip`` False: every midpoint looked up, the same sums). (The rays are not a kernel of their own: an inlined
     call per ray took and released a reference to each of its 13 arrays.)"""
+    m = borrowed_medium(m)  # no reference counting in the loops below (runtime/borrowed.py)
     depth, active, b_travel, b_rgb = basis
     ph = np.empty(travel.shape[0])  # each light's phase along the ray
     b_ph = np.empty(b_travel.shape[0])  # each active quadrature direction's
@@ -197,6 +198,7 @@ def _sum_items(m: Medium, rad: np.ndarray, lights: np.ndarray, travel: np.ndarra
     """Rays lo..hi-1 of :func:`_sum_kept`: out[0:6, ray] = the sum over the ray's kept samples (from first[ray] to
     first[ray + 1]) of what :func:`_march_items` adds for them, with their s_v's reciprocal kept in weight[3] and,
     when ``kept_tr`` has a row per sample, their transmittances towards the quadrature directions."""
+    m = borrowed_medium(m)  # no reference counting in the loops below (runtime/borrowed.py)
     depth, active, b_travel, b_rgb = basis
     ph = np.empty(travel.shape[0])
     b_ph = np.empty(b_travel.shape[0])

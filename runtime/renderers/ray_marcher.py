@@ -78,6 +78,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.denoise.reprojection import DU, DV, EYE, ORIGIN, pack_view
 from photon_fields.runtime.errors import check_choice
 from photon_fields.runtime.progress import progress_bar
@@ -99,7 +100,7 @@ from photon_fields.runtime.transport.light_volume import (
     want_stencil,
 )
 from photon_fields.runtime.transport.marching import march_transmittance, segment_past
-from photon_fields.runtime.transport.medium import Medium, extinction_albedo_at
+from photon_fields.runtime.transport.medium import Medium, borrowed_medium, extinction_albedo_at
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.step_grid import own_units, step_lengths, units_along, units_from_lengths
@@ -168,6 +169,9 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
     stream after its jitter: a re-marched ray keeps the same one), and writes ``pick`` (:data:`PICK_ROWS` x n):
     its position, the ray's direction, W = sum_k T_k (1 - e_k) and the albedo there (W = 0: none), and the ray's
     random state after its march to ``pick_rng`` (for the environment's NEE there)."""
+    m = borrowed_medium(m)  # no reference counting in the loops below (runtime/borrowed.py)
+    kind, vec, rgb, units, own = borrowed(kind), borrowed(vec), borrowed(rgb), borrowed(units), borrowed(own)
+    lv, wanted = borrowed(lv), borrowed(wanted)
     origin, du, dv = view[ORIGIN:ORIGIN + 3], view[DU:DU + 3], view[DV:DV + 3]
     ex, ey, ez = view[EYE], view[EYE + 1], view[EYE + 2]
     ray_phase = np.empty(kind.shape[0])

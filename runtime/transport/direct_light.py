@@ -38,9 +38,10 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.transport.emitters import check_light_kinds, sample_light_direction
-from photon_fields.runtime.transport.environment_map import EnvMap
-from photon_fields.runtime.transport.medium import Medium, intersect_box
+from photon_fields.runtime.transport.environment_map import EnvMap, borrowed_env
+from photon_fields.runtime.transport.medium import Medium, borrowed_medium, intersect_box
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.tracking import SHADOW_BOOST, SHADOW_SWITCH, TASK_ITEMS, ratio_track
@@ -176,6 +177,8 @@ def _every_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.nda
                        o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, boost: float,
                        out: np.ndarray, lo: int, hi: int) -> None:
     """A task of :func:`direct_light_batch`: :func:`direct_light` at items lo..hi-1."""
+    m, env = borrowed_medium(m), borrowed_env(env)  # no reference counting in the loop (runtime/borrowed.py)
+    kind, vec, rgb = borrowed(kind), borrowed(vec), borrowed(rgb)
     for i in range(lo, hi):
         out[0, i], out[1, i], out[2, i], states[i] = direct_light(
             m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis, boost)
@@ -186,6 +189,8 @@ def _one_light_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarr
                      o: np.ndarray, d: np.ndarray, states: np.ndarray, env_mis: bool, boost: float, out: np.ndarray,
                      lo: int, hi: int) -> None:
     """A task of :func:`direct_light_batch`: :func:`direct_light_one` at items lo..hi-1."""
+    m, env = borrowed_medium(m), borrowed_env(env)  # no reference counting in the loop (runtime/borrowed.py)
+    kind, vec, rgb = borrowed(kind), borrowed(vec), borrowed(rgb)
     for i in range(lo, hi):
         out[0, i], out[1, i], out[2, i], states[i] = direct_light_one(
             m, kind, vec, rgb, env, g, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], states[i], env_mis, boost)
@@ -240,6 +245,8 @@ def _light_sample_items(kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, env:
                         d: np.ndarray, states: np.ndarray, env_mis: bool, one: bool, lights: np.ndarray,
                         weight: np.ndarray, lo: int, hi: int) -> None:
     """A task of :func:`sample_lights_batch` over items lo..hi-1."""
+    env = borrowed_env(env)  # no reference counting in the loop (runtime/borrowed.py)
+    kind, vec, rgb = borrowed(kind), borrowed(vec), borrowed(rgb)
     for i in range(lo, hi):
         px, py, pz, dx, dy, dz = o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i]
         s = states[i]

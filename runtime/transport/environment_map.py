@@ -59,6 +59,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.numba_inlining import install
 
 install()  # before any kernel that inlines ours compiles (runtime/numba_inlining.py)
@@ -81,6 +82,14 @@ class EnvMap(NamedTuple):
     pdf_uv: np.ndarray  # float64 (H, W): the density on [0, 1]^2 of (u, v) samples, f_ij / mean(f)
     to_world: np.ndarray  # float64 (3, 3): w_world = to_world @ w_local (a rotation)
     integral: np.ndarray  # float64 (3,): int L dw over the sphere, per channel
+
+
+@njit(cache=True, inline="always")
+def borrowed_env(env: EnvMap) -> EnvMap:
+    """``env`` with its arrays borrowed (:mod:`photon_fields.runtime.borrowed`), for a serial task kernel's own use
+    while its caller holds ``env``."""
+    return EnvMap(borrowed(env.radiance), borrowed(env.row_cdf), borrowed(env.col_cdf), borrowed(env.pdf_uv),
+                  borrowed(env.to_world), borrowed(env.integral))
 
 
 def rotation_matrix(yaw_deg: float, pitch_deg: float = 0.0, roll_deg: float = 0.0) -> np.ndarray:

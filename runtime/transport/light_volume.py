@@ -44,11 +44,12 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.transport.cell_grid import Grid, blend, cell_centre
 from photon_fields.runtime.transport.emitters import delta_light_direction
 from photon_fields.runtime.transport.marching import march_transmittance_in_segments
-from photon_fields.runtime.transport.medium import Medium
+from photon_fields.runtime.transport.medium import Medium, borrowed_medium
 from photon_fields.runtime.transport.tracking import task_stride
 
 DEFAULT_CELLS_PER_VOXEL = 1.0
@@ -176,6 +177,7 @@ def want_stencil(v: np.ndarray, wanted: np.ndarray, light: int, i: int, j: int, 
 def _fill_brick(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Grid, h: float,
                 units: np.ndarray, bi: int, bj: int, bk: int) -> None:
     """March the :data:`WANTED` cells of brick (bi, bj, bk) (:func:`fill_wanted`), serially."""
+    m, units = borrowed_medium(m), borrowed(units)  # no reference counting in the loops (runtime/borrowed.py)
     gx, gy, gz, lights = v.shape
     for a in range(bi * BRICK, min(gx, (bi + 1) * BRICK)):
         for b in range(bj * BRICK, min(gy, (bj + 1) * BRICK)):

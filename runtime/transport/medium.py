@@ -53,6 +53,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.numba_inlining import install
 from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.transfer import LUT_SIZE, TransferFunction
@@ -81,6 +82,14 @@ class Medium(NamedTuple):
     bsize: np.ndarray  # float64 (3,)
     voxels_per_unit: np.ndarray  # float64 (3,): density.shape / bsize, so a lookup multiplies instead of dividing
     categorical: bool = False  # nearest-voxel label index and exact table lookups (module docstring)
+
+
+@njit(cache=True, inline="always")
+def borrowed_medium(m: Medium) -> Medium:
+    """``m`` with its arrays borrowed (:mod:`photon_fields.runtime.borrowed`: no reference counting in the walks'
+    loops): for a serial task kernel's own use while its caller holds ``m``."""
+    return Medium(borrowed(m.density), borrowed(m.ext_lut), borrowed(m.albedo_lut), borrowed(m.majorant),
+                  borrowed(m.leap), borrowed(m.bmin), borrowed(m.bsize), borrowed(m.voxels_per_unit), m.categorical)
 
 
 def auto_macrocell(shape: tuple[int, ...]) -> int:

@@ -46,7 +46,7 @@ import numpy as np
 from numba import njit, prange
 
 from photon_fields.runtime.transport.macrocell_walk import enter_macrocell, leap_if_empty, next_event, step_macrocell
-from photon_fields.runtime.transport.medium import Medium, extinction_at, intersect_box
+from photon_fields.runtime.transport.medium import Medium, borrowed_medium, extinction_at, intersect_box
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, _sign
 
@@ -202,6 +202,7 @@ def _shadow_items(m: Medium, o: np.ndarray, lights: np.ndarray, weight: np.ndarr
                   per_depth: float, longest: float, boost: float, switch: float, out: np.ndarray, lo: int,
                   hi: int) -> None:
     """A task of :func:`shadowed_light_batch` over vertices lo..hi-1."""
+    m = borrowed_medium(m)  # no reference counting in the loops below (runtime/borrowed.py)
     n = o.shape[1]
     for i in range(lo, hi):
         r = gg = b = 0.0

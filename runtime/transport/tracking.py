@@ -64,7 +64,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from photon_fields.runtime.transport.medium import Medium, extinction_at, intersect_box
+from photon_fields.runtime.transport.medium import Medium, borrowed_medium, extinction_at, intersect_box
 from photon_fields.runtime.transport.rng import next_float
 
 RR_THRESHOLD = 0.05
@@ -420,6 +420,7 @@ def camera_collision(m: Medium, ox: float, oy: float, oz: float, dx: float, dy: 
 @njit(cache=True)
 def _track_items(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray, states: np.ndarray,
                  mode: int, switch: float, boost: float, out: np.ndarray, lo: int, hi: int) -> None:
+    m = borrowed_medium(m)  # no reference counting in the loop (runtime/borrowed.py)
     for i in range(lo, hi):
         t, _, tr, states[i] = _track(m, o[0, i], o[1, i], o[2, i], d[0, i], d[1, i], d[2, i], tmin[i], tmax[i],
                                      states[i], mode, 0.0, switch, boost)

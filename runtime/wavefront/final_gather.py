@@ -38,7 +38,7 @@ from numba import njit, prange
 
 from photon_fields.runtime.transport.direct_light import direct_light_batch
 from photon_fields.runtime.transport.environment_map import EnvMap
-from photon_fields.runtime.transport.medium import Medium, albedo_at, intersect_box
+from photon_fields.runtime.transport.medium import Medium, albedo_at, borrowed_medium, intersect_box
 from photon_fields.runtime.transport.phase import sample_hg
 from photon_fields.runtime.transport.rng import mix64, next_float
 from photon_fields.runtime.transport.tracking import TASK_ITEMS, camera_collision
@@ -53,6 +53,7 @@ def _bounce_items(m: Medium, g: float, x: np.ndarray, d: np.ndarray, rng: np.nda
                   x2: np.ndarray, w: np.ndarray, weight: np.ndarray, states: np.ndarray, hit: np.ndarray,
                   lo: int, hi: int) -> None:
     """:func:`_bounce` for items lo..hi-1 (one task; ``TASK_ITEMS`` in tracking.py says why)."""
+    m = borrowed_medium(m)  # no reference counting in the loop (runtime/borrowed.py)
     for i in range(lo, hi):
         s = mix64(rng[i] ^ GATHER_STREAM)
         s, u1 = next_float(s)

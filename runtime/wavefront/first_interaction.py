@@ -65,7 +65,7 @@ from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.direct_light import LIGHT_SAMPLINGS, direct_light_batch
 from photon_fields.runtime.transport.light_volume import LightVolume
-from photon_fields.runtime.transport.medium import Medium, albedo_at
+from photon_fields.runtime.transport.medium import Medium, albedo_at, borrowed_medium
 from photon_fields.runtime.transport.tracking import camera_collision, task_stride
 from photon_fields.runtime.wavefront.batches import (
     DEFAULT_BATCH,
@@ -154,6 +154,7 @@ def _first_interactions_block(m: Medium, eye: np.ndarray, origin: np.ndarray, du
                               counts: np.ndarray) -> None:
     """Task ``b`` of :func:`_first_interactions`, serially (``TASK_ITEMS`` in tracking.py says why the parallel
     kernel only calls this)."""
+    m = borrowed_medium(m)  # no reference counting in the loop (runtime/borrowed.py)
     k = b * block
     inside = 0
     for i in range(b * block, min(count, (b + 1) * block)):

@@ -104,6 +104,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.scene.lights import DIRECTIONAL
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.cell_grid import Grid, stencil
@@ -112,7 +113,7 @@ from photon_fields.runtime.transport.emitters import delta_light_direction
 from photon_fields.runtime.transport.environment_map import EnvMap
 from photon_fields.runtime.transport.light_volume import LightVolume, fill_wanted, light_transmittance, want_stencil
 from photon_fields.runtime.transport.macrocell_walk import enter_macrocell, leap_if_empty, step_macrocell
-from photon_fields.runtime.transport.medium import Medium, albedo_at, extinction_albedo_at
+from photon_fields.runtime.transport.medium import Medium, albedo_at, borrowed_medium, extinction_albedo_at
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.residual_tracking import (
     close_run,
@@ -236,7 +237,12 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
     stratum (world units), strata per majorant optical depth, the switch to the opaque rest, the residual events'
     boost (:func:`march_camera_rays`)."""
     voxel, per_depth, switch, boost = walk
+    m = borrowed_medium(m)  # no reference counting in the loops below (runtime/borrowed.py)
+    kind, vec, rgb, lv, wanted = borrowed(kind), borrowed(vec), borrowed(rgb), borrowed(lv), borrowed(wanted)
+    out_x, out_a, at_pick, out_w = borrowed(out_x), borrowed(out_a), borrowed(at_pick), borrowed(out_w)
+    missed = borrowed(missed)
     ray_phase = np.empty(kind.shape[0])
+    phases = borrowed(ray_phase)
     for i in range(lo, hi):
         dx, dy, dz, p, s = camera_ray(origin, du, dv, width, n_pixels, work[i], s0)
         hit, ox, oy, oz, tmax = clip_to_box(m, eye[0], eye[1], eye[2], dx, dy, dz)
@@ -253,7 +259,7 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
             continue
         for k in range(kind.shape[0]):
             if kind[k] == DIRECTIONAL:
-                ray_phase[k] = hg_eval(g, -(dx * vec[k, 0] + dy * vec[k, 1] + dz * vec[k, 2]))
+                phases[k] = hg_eval(g, -(dx * vec[k, 0] + dy * vec[k, 1] + dz * vec[k, 2]))
         s, u = next_float(s)  # the strata's jitter
         sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
         ivx = 1.0 / dx if sx != 0 else math.inf
@@ -296,7 +302,7 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                     tau_c += dc
                     tr = math.exp(-tau_c) * ratio
                     if sc > 0.0:
-                        m0, m1, m2, w_abs, s = _score(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx,
+                        m0, m1, m2, w_abs, s = _score(kind, vec, rgb, g, phases, lv, wanted, grid, x, y, z, dx,
                                                       dy, dz, a0, a1, a2, (b - a) * sc * tr, w_abs, m0, m1, m2, i, s,
                                                       out_x, out_a, at_pick, out_w, missed)
                     pend, p_t, p_b, p_mu, p_s = True, tk, b, mu, sc
@@ -313,7 +319,7 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 if tc < math.inf:
                     x, y, z = ox + tc * dx, oy + tc * dy, oz + tc * dz
                     a0, a1, a2 = albedo_at(m, x, y, z)
-                    m0, m1, m2, w_abs, s = _score(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx,
+                    m0, m1, m2, w_abs, s = _score(kind, vec, rgb, g, phases, lv, wanted, grid, x, y, z, dx,
                                                   dy, dz, a0, a1, a2, rest, w_abs, m0, m1, m2, i, s, out_x, out_a,
                                                   at_pick, out_w, missed)
                     rest = 0.0
