@@ -8,9 +8,11 @@ the picks' shadow rays' time (``bench/profile_frame.py``: ``NRT_incref`` / ``NRT
 
 :func:`borrowed` returns the array with no meminfo: numba's increments and decrements of it find a null pointer
 and return at once, and LLVM no longer has an atomic operation to keep in the loop. It is safe where the borrowed
-array lives no longer than its owner's reference: a serial task kernel that borrows its arguments' arrays at its
-start, while its caller (the parallel loop, or Python) holds them. A borrowed array must not be returned, stored
-in an object that outlives the call, or resized.
+array lives no longer than its owner's reference: a serial task kernel that borrows its *parameters'* arrays at its
+start, while its caller (the parallel loop, or Python) holds them. Never borrow an array the kernel allocates itself:
+numba frees it right after its last use, which the borrowing is (scratch a task needs is allocated by its caller and
+passed in; ``tests/runtime/test_borrowed.py`` checks that only parameters are borrowed). A borrowed array must not be
+returned or stored where it outlives the call.
 """
 
 from __future__ import annotations

@@ -232,17 +232,16 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                  walk: tuple[float, float, float, float], lv: np.ndarray, wanted: np.ndarray, grid: Grid,
                  out_x: np.ndarray, out_d: np.ndarray, out_a: np.ndarray, out_w: np.ndarray, out_rng: np.ndarray,
                  cached: np.ndarray, at_pick: np.ndarray, status: np.ndarray, transmit: np.ndarray, missed: np.ndarray,
-                 lo: int, hi: int) -> None:
+                 ray_phase: np.ndarray, lo: int, hi: int) -> None:
     """Items lo .. hi - 1 of :func:`_march`, serially (the walk of the module docstring). ``walk``: the longest
     stratum (world units), strata per majorant optical depth, the switch to the opaque rest, the residual events'
-    boost (:func:`march_camera_rays`)."""
+    boost (:func:`march_camera_rays`). ``ray_phase``: the task's scratch, one value per light (the caller's, so that
+    it can be borrowed here)."""
     voxel, per_depth, switch, boost = walk
     m = borrowed_medium(m)  # no reference counting in the loops below (runtime/borrowed.py)
     kind, vec, rgb, lv, wanted = borrowed(kind), borrowed(vec), borrowed(rgb), borrowed(lv), borrowed(wanted)
     out_x, out_a, at_pick, out_w = borrowed(out_x), borrowed(out_a), borrowed(at_pick), borrowed(out_w)
-    missed = borrowed(missed)
-    ray_phase = np.empty(kind.shape[0])
-    phases = borrowed(ray_phase)
+    missed, phases = borrowed(missed), borrowed(ray_phase)
     for i in range(lo, hi):
         dx, dy, dz, p, s = camera_ray(origin, du, dv, width, n_pixels, work[i], s0)
         hit, ox, oy, oz, tmax = clip_to_box(m, eye[0], eye[1], eye[2], dx, dy, dz)
@@ -362,7 +361,7 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
         b = (task * stride) % tasks  # golden-ratio order: each thread gets dense and empty blocks alike
         _march_items(m, kind, vec, rgb, g, eye, origin, du, dv, width, n_pixels, work, s0, near, far, tile, walk,
                      lv, wanted, grid, out_x, out_d, out_a, out_w, out_rng, cached, at_pick, status, transmit, missed,
-                     b * per_task, min(n, (b + 1) * per_task))
+                     np.empty(kind.shape[0]), b * per_task, min(n, (b + 1) * per_task))
     return missed
 
 

@@ -124,3 +124,24 @@ def test_every_task_kernel_of_a_parallel_loop_borrows_its_medium() -> None:
                         missing.append(name)
     assert len(checked) >= 8, checked  # the walks' task kernels are found at all
     assert not missing, f"task kernels that do not borrow their medium: {missing}"
+
+
+def test_only_the_callers_arrays_are_borrowed() -> None:
+    """``borrowed`` (and ``borrowed_medium`` / ``borrowed_env``) only ever take a parameter of the enclosing kernel, or
+    a field of one: the caller holds those for the whole call. A borrowed local allocation would be freed by numba
+    right after its last use, the borrowed view left pointing at freed memory."""
+    seen, wrong = 0, []
+    for path in sorted(RUNTIME.rglob("*.py")):
+        tree = ast.parse(path.read_text())
+        for fn in (n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)):
+            params = {a.arg for a in fn.args.args}
+            for call in (c for c in ast.walk(fn) if isinstance(c, ast.Call)):
+                if getattr(call.func, "id", None) not in ("borrowed", "borrowed_medium", "borrowed_env"):
+                    continue
+                seen += 1
+                (arg,) = call.args
+                root = arg.value if isinstance(arg, ast.Attribute) else arg
+                if not (isinstance(root, ast.Name) and root.id in params):
+                    wrong.append(f"{path.relative_to(RUNTIME)}:{fn.name}:{call.lineno}: {ast.unparse(arg)}")
+    assert seen >= 20
+    assert not wrong, wrong
