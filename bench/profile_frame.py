@@ -88,7 +88,7 @@ def elf_functions(obj: bytes) -> list[tuple[str, int]]:
 
 def short_name(mangled: str) -> str:
     """numba's Itanium-style mangled name -> its last two components (``module.function``)."""
-    rest = mangled[3:] if mangled.startswith("_ZN") else ""
+    rest = mangled[mangled.index("_ZN") + 3:] if "_ZN" in mangled else ""
     parts = []
     while rest[:1].isdigit():
         digits = re.match(r"\d+", rest).group(0)  # type: ignore[union-attr]
@@ -109,7 +109,7 @@ def write_perf_map(pid: int) -> int:
             except Exception:  # a symbol numba did not load (e.g. a discarded duplicate)
                 continue
             if address:  # helpers every module defines (NRT_incref, ...) resolve to one copy: no owner named
-                owner = f"{library.name} | " if name.startswith("_ZN") else ""
+                owner = f"{library.name} | " if "_ZN" in name else ""
                 label = f"{owner}{short_name(name)}".replace(" ", "_")
                 symbols[address] = (label, max(size, 1))
     with open(f"/tmp/perf-{pid}.map", "w") as f:

@@ -17,7 +17,8 @@ from photon_fields.runtime.transport.medium import Medium, borrowed_medium
 from photon_fields.runtime.transport.tracking import _RATIO, _track
 
 install()
-RUNTIME = Path(__file__).resolve().parents[2] / "runtime"
+ROOT = Path(__file__).resolve().parents[2]
+KERNEL_TREES = (ROOT / "runtime", ROOT / "train")
 
 
 @njit(cache=True)
@@ -103,7 +104,7 @@ def test_every_task_kernel_of_a_parallel_loop_borrows_its_medium() -> None:
     """A serial kernel called inside a ``prange`` loop with the medium (the walks' task kernels) borrows it at its
     start (``borrowed_medium``): else each inlined walk step counts the medium's eight arrays up and down."""
     checked, missing = [], []
-    for path in sorted(RUNTIME.rglob("*.py")):
+    for path in sorted(p for tree in KERNEL_TREES for p in tree.rglob("*.py")):
         tree = ast.parse(path.read_text())
         functions = {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef)}
         for fn in functions.values():
@@ -117,7 +118,7 @@ def test_every_task_kernel_of_a_parallel_loop_borrows_its_medium() -> None:
                     callee = functions.get(getattr(call.func, "id", ""))
                     if callee is None or not _takes_medium(callee) or _decorator_kw(callee).get("inline"):
                         continue
-                    name = f"{path.relative_to(RUNTIME)}:{callee.name}"
+                    name = f"{path.relative_to(ROOT)}:{callee.name}"
                     checked.append(name)
                     calls = {getattr(c.func, "id", None) for c in ast.walk(callee) if isinstance(c, ast.Call)}
                     if "borrowed_medium" not in calls:
@@ -131,7 +132,7 @@ def test_only_the_callers_arrays_are_borrowed() -> None:
     a field of one: the caller holds those for the whole call. A borrowed local allocation would be freed by numba
     right after its last use, the borrowed view left pointing at freed memory."""
     seen, wrong = 0, []
-    for path in sorted(RUNTIME.rglob("*.py")):
+    for path in sorted(p for tree in KERNEL_TREES for p in tree.rglob("*.py")):
         tree = ast.parse(path.read_text())
         for fn in (n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)):
             params = {a.arg for a in fn.args.args}
@@ -142,6 +143,6 @@ def test_only_the_callers_arrays_are_borrowed() -> None:
                 (arg,) = call.args
                 root = arg.value if isinstance(arg, ast.Attribute) else arg
                 if not (isinstance(root, ast.Name) and root.id in params):
-                    wrong.append(f"{path.relative_to(RUNTIME)}:{fn.name}:{call.lineno}: {ast.unparse(arg)}")
+                    wrong.append(f"{path.relative_to(ROOT)}:{fn.name}:{call.lineno}: {ast.unparse(arg)}")
     assert seen >= 20
     assert not wrong, wrong

@@ -58,14 +58,15 @@ from numba import njit, prange
 
 from photon_fields.models_spec import DEFAULT_MAP_PHASES
 from photon_fields.models_spec.photon_map import MAX_LIGHTS, RECORD_FLOOR
+from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.photons.photon_map import PhotonMap, check_record_floor
 from photon_fields.runtime.photons.photon_path import trace_path
 from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.runtime.transport.emitters import emission_fluxes, emit_photon
-from photon_fields.runtime.transport.environment_map import EnvMap
-from photon_fields.runtime.transport.medium import Medium
+from photon_fields.runtime.transport.environment_map import EnvMap, borrowed_env
+from photon_fields.runtime.transport.medium import Medium, borrowed_medium
 from photon_fields.runtime.transport.phase import check_g
 from photon_fields.runtime.transport.rng import next_float, stream_state
 from photon_fields.runtime.transport.tracking import TASK_ITEMS
@@ -93,6 +94,9 @@ def _trace_paths(m: Medium, kind: np.ndarray, vec: np.ndarray, env: EnvMap, powe
                  out_light: np.ndarray, out_bounce: np.ndarray, out_prev: np.ndarray, out_count: np.ndarray,
                  out_lost: np.ndarray) -> None:
     """Paths lo..hi-1 of :func:`_trace_chunk`, serially (``TASK_ITEMS`` in the tracking module says why)."""
+    m, env = borrowed_medium(m), borrowed_env(env)  # no reference counting per path (runtime/borrowed.py)
+    kind, vec, power, cos_max, light_cdf = borrowed(kind), borrowed(vec), borrowed(power), borrowed(cos_max), \
+        borrowed(light_cdf)
     cx, cy, cz = m.bmin[0] + 0.5 * m.bsize[0], m.bmin[1] + 0.5 * m.bsize[1], m.bmin[2] + 0.5 * m.bsize[2]
     radius = 0.5 * math.sqrt(m.bsize[0] ** 2 + m.bsize[1] ** 2 + m.bsize[2] ** 2)
     rows = slots + 1  # the first collision's record too, which is not stored
