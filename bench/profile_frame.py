@@ -32,7 +32,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from pathlib import Path
 from typing import Any
 
@@ -137,6 +137,58 @@ def parse_report(text: str) -> dict[str, float]:
     return dict(shares)
 
 
+def find_function(part: str) -> tuple[Any, bytes, str, int, int] | None:
+    """The recorded numba function whose mangled name contains ``part`` (the largest if several): (library, object
+    file, symbol, size, load address)."""
+    best = None
+    for library, obj in list(_OBJECTS.values()):
+        for name, size in elf_functions(obj):
+            if part not in name or "_ZN" not in name or name.startswith(("cpython", "cfunc")):
+                continue
+            try:
+                address = library.get_pointer_to_function(name)
+            except Exception:
+                continue
+            if address and (best is None or size > best[3]):
+                best = (library, obj, name, size, address)
+    return best
+
+
+def annotate(perf: str, data: Path, part: str, top: int) -> list[str]:
+    """Hot instructions of one numba function: perf's sampled addresses as offsets into its code, next to objdump's
+    disassembly of its object file; then its hottest 256-byte windows (a window full of float loads right after an
+    index computation is a lookup waiting on memory; ``vdivsd`` / ``vsqrtsd`` / calls are named per window)."""
+    found = find_function(part)
+    objdump = shutil.which("objdump")
+    if found is None or objdump is None:
+        return [f"annotate: no function matching {part!r} recorded" if found is None else "annotate: no objdump"]
+    _, obj, name, size, address = found
+    ips = subprocess.run([perf, "script", "-i", str(data), "-F", "ip"], capture_output=True, text=True,
+                         check=True).stdout.split()
+    hits = Counter(int(ip, 16) - address for ip in ips if 0 <= int(ip, 16) - address < size)
+    total = max(1, sum(hits.values()))
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "kernel.o"
+        path.write_bytes(obj)
+        listing = subprocess.run([objdump, "-d", "--no-show-raw-insn", f"--disassemble={name}", str(path)],
+                                 capture_output=True, text=True, check=True).stdout
+    code = [line.split(":", 1) for line in listing.splitlines() if re.match(r"\s+[0-9a-f]+:", line)]
+    if not code:
+        return [f"annotate: objdump found no code for {name[:80]}"]
+    start = int(code[0][0], 16)
+    instructions = {int(o, 16) - start: text.strip() for o, text in code}
+    out = [f"{short_name(name)}: {total} samples ({len(ips)} in all), {size} bytes; hottest instructions:"]
+    out += [f"  {c / total * 100:5.1f}%  {o:6x}  {instructions.get(o, '?')}" for o, c in hits.most_common(top)]
+    windows = Counter()
+    for o, c in hits.items():
+        windows[o // 256] += c
+    out.append("hottest 256-byte windows (and the divisions, square roots and calls in them):")
+    for w, c in windows.most_common(top // 2):
+        notable = [t for o, t in instructions.items() if o // 256 == w and re.search(r"div|sqrt|call", t)]
+        out.append(f"  {c / total * 100:5.1f}%  {w * 256:6x}  {'; '.join(notable[:4])}")
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scene", default="head")
@@ -146,6 +198,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=60, help="frames sampled (after 3 warm-up frames)")
     ap.add_argument("--no-denoise", action="store_true", help="the render alone, no depth maps or WRLS")
     ap.add_argument("--top", type=int, default=30, help="rows printed")
+    ap.add_argument("--annotate", metavar="NAME", default=None,
+                    help="also the hot instructions of the numba function whose name contains NAME (needs objdump)")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "profile_frame.json")
     args = ap.parse_args(argv)
     perf = shutil.which("perf")
@@ -198,6 +252,7 @@ def main(argv: list[str] | None = None) -> int:
                                  "--field-separator", ";"],
                                 capture_output=True, text=True, check=True).stdout
         total_samples = re.search(r"# Samples: (\d+)(K?)", report)
+        annotated = annotate(perf, data, args.annotate, args.top) if args.annotate else []
     shares = parse_report(report)
     n = int(total_samples.group(1)) * (1000 if total_samples.group(2) else 1) if total_samples else 0
     cpu_ms_per_frame = n / 999 * 1e3 / args.frames  # samples at 999 Hz on every busy thread
@@ -208,9 +263,11 @@ def main(argv: list[str] | None = None) -> int:
           f"({info['cpu'].get('model', '?')})")
     for ms, name in rows[:args.top]:
         print(f"{ms:8.2f}  {name}")
+    if annotated:
+        print("\n" + "\n".join(annotated))
     write_report(args.out, "profile_frame", info, vars(args) | {"out": str(args.out), "bundle": str(args.bundle)},
                  frame_ms=frame_ms, cpu_ms_per_frame=cpu_ms_per_frame,
-                 functions=[{"cpu_ms": ms, "name": name} for ms, name in rows])
+                 functions=[{"cpu_ms": ms, "name": name} for ms, name in rows], annotated=annotated)
     return 0
 
 
