@@ -192,7 +192,11 @@ def annotate(perf: str, data: Path, part: str, top: int) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scene", default="head")
-    ap.add_argument("--bundle", required=True, help="the scene's field bundle (pfn-train all SCENE --out DIR)")
+    ap.add_argument("--bundle", default=None, help="the scene's field bundle (pfn-train all SCENE --out DIR); needed "
+                    "by the neural renderer")
+    ap.add_argument("--renderer", choices=("neural", "preview"), default="neural",
+                    help="neural (the default) or the preview (the ray marcher with its light volume)")
+    ap.add_argument("--resolution", type=int, default=None, help="voxels per side of the builtin volume")
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--camera", default="forced", help="camera estimator (forced, marched, delta, auto)")
     ap.add_argument("--frames", type=int, default=60, help="frames sampled (after 3 warm-up frames)")
@@ -202,6 +206,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the hot instructions of the numba function whose name contains NAME (needs objdump)")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "profile_frame.json")
     args = ap.parse_args(argv)
+    if args.renderer == "neural" and args.bundle is None:
+        print("profile_frame: --bundle: the neural renderer needs the scene's field", file=sys.stderr)
+        return 2
     perf = shutil.which("perf")
     if perf is None:
         print("profile_frame: perf not found (Debian: apt install linux-perf)", file=sys.stderr)
@@ -215,18 +222,23 @@ def main(argv: list[str] | None = None) -> int:
     from photon_fields.runtime.field.field import PhotonField
     from photon_fields.runtime.renderers.neural import render_neural
     from photon_fields.runtime.renderers.orbit import orbit_camera
+    from photon_fields.runtime.renderers.ray_marcher import render_ray_marched
     from photon_fields.runtime.scene.scene import builtin_scene
 
     info = machine_info()
-    scene = builtin_scene(args.scene).with_overrides(width=args.size, height=args.size)
-    estimator = PhotonField.load(args.bundle).estimator()
+    base = builtin_scene(args.scene) if args.resolution is None else builtin_scene(args.scene, args.resolution)
+    scene = base.with_overrides(width=args.size, height=args.size)
+    estimator = PhotonField.load(args.bundle).estimator() if args.bundle else None
     denoiser = WRLSDenoiser(args.size, args.size)
     depth = DepthEstimator(scene.medium())
 
     def frame(i: int) -> None:
         cam = orbit_camera(scene.camera, i)
-        result = render_neural(scene.with_overrides(camera=cam), estimator, spp=1, seed=i, progress=False,
-                               camera=args.camera)
+        if args.renderer == "preview":
+            result = render_ray_marched(scene.with_overrides(camera=cam), seed=i, progress=False)
+        else:
+            result = render_neural(scene.with_overrides(camera=cam), estimator, spp=1, seed=i, progress=False,
+                                   camera=args.camera)
         if not args.no_denoise:
             denoiser.denoise(result.layers["L"], camera=cam, depth=depth.depth(cam))
 
@@ -258,14 +270,16 @@ def main(argv: list[str] | None = None) -> int:
     cpu_ms_per_frame = n / 999 * 1e3 / args.frames  # samples at 999 Hz on every busy thread
     rows = sorted(((s * cpu_ms_per_frame, name) for name, s in shares.items()), reverse=True)
     frame_ms = wall / args.frames * 1e3
-    print(f"{args.scene} {args.size}^2 {args.camera}{'' if args.no_denoise else ' + WRLS'}: {frame_ms:.1f} ms a "
+    what = args.camera if args.renderer == "neural" else args.renderer
+    print(f"{args.scene} {args.size}^2 {what}{'' if args.no_denoise else ' + WRLS'}: {frame_ms:.1f} ms a "
           f"frame (wall, while sampled), {cpu_ms_per_frame:.1f} CPU ms; {symbols} numba functions named "
           f"({info['cpu'].get('model', '?')})")
     for ms, name in rows[:args.top]:
         print(f"{ms:8.2f}  {name}")
     if annotated:
         print("\n" + "\n".join(annotated))
-    write_report(args.out, "profile_frame", info, vars(args) | {"out": str(args.out), "bundle": str(args.bundle)},
+    config = vars(args) | {"out": str(args.out), "bundle": args.bundle and str(args.bundle)}
+    write_report(args.out, "profile_frame", info, config,
                  frame_ms=frame_ms, cpu_ms_per_frame=cpu_ms_per_frame,
                  functions=[{"cpu_ms": ms, "name": name} for ms, name in rows], annotated=annotated)
     return 0
