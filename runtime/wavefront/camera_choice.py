@@ -9,11 +9,11 @@ PROBE_RAYS : int
     estimator removes, dilutes the ratio: docs/rendering.md).
 COST_RATIO, COST_RESOLUTION, COST_EXPONENT : float
     The marched estimator's time per sample over the forced one's: 3.5 on volumes of ``COST_RESOLUTION`` (96) voxels
-    across, from the embedded scenes' frames with a field (4 before the walks borrowed their medium, 2026-11-30), growing as (voxels across / 96) ^ ``COST_EXPONENT``
-    (0.3) on finer volumes (:func:`cost_ratio`: the marched walk's strata shorten at sharp walls, which a finer grid
-    resolves, while the forced walk's cost follows the optical depth; docs/rendering.md). A
-    model, not a timing of the probe, so that the choice, and with it the image, depends on the scene and the seed
-    alone, never on the machine.
+    across, from the embedded scenes' frames with a field (4 before the walks borrowed their medium, 2026-11-30),
+    growing as (voxels across / 96) ^ ``COST_EXPONENT`` (0.3) on finer volumes (:func:`cost_ratio`: the marched
+    walk's strata shorten at sharp walls, which a finer grid resolves, while the forced walk's cost follows the
+    optical depth; docs/rendering.md). A model, not a timing of the probe, so that the choice, and with it the image,
+    depends on the scene and the seed alone, never on the machine.
 
 Which estimator has less noise per millisecond depends on the medium and the transfer function (docs/rendering.md,
 "Which camera estimator"): marched sums the cached light over the whole ray and wins where rays cross thin or
