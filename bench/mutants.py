@@ -1051,6 +1051,25 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/test_borrowed.py::test_borrowing_takes_the_reference_counting_out_of_the_inlined_walk",),
            "a borrowed array that is a counted reference like any other (its owner's meminfo, incremented): every "
            "increment and decrement in the walks again"),
+    Mutant("prefetch_moves_the_stratum_point", "runtime/wavefront/marched_camera.py",
+           "                        qx, qy, qz = x + length * dx, y + length * dy, z + length * dz\n"
+           "                        prefetch_scalar_stencil(m, qx, qy, qz)\n"
+           "                        prefetch_light_stencil(lv, grid, qx, qy, qz)\n",
+           "                        x, y, z = x + length * dx, y + length * dy, z + length * dz\n"
+           "                        prefetch_scalar_stencil(m, x, y, z)\n"
+           "                        prefetch_light_stencil(lv, grid, x, y, z)\n",
+           ("tests/runtime/transport/test_prefetch.py::"
+            "test_the_marches_give_the_same_images_with_and_without_prefetching",),
+           "the marched walk's prefetch computes the next stratum's point into the current one's variables: with "
+           "prefetching on, every stratum is read a stratum further on"),
+    Mutant("prefetch_advances_the_preview_step", "runtime/renderers/ray_marcher.py",
+           "                tn = t_next + 0.5 * h\n"
+           "                qx, qy, qz = ox + tn * dx, oy + tn * dy, oz + tn * dz\n",
+           "                t_next = t_next + 0.5 * h\n"
+           "                qx, qy, qz = ox + t_next * dx, oy + t_next * dy, oz + t_next * dz\n",
+           ("tests/runtime/transport/test_prefetch.py::"
+            "test_the_marches_give_the_same_images_with_and_without_prefetching",),
+           "the preview's prefetch moves the segment's end instead of computing a point of its own"),
 )
 
 

@@ -97,10 +97,17 @@ from photon_fields.runtime.transport.light_volume import (
     fill_wanted,
     light_transmittance,
     new_light_volume,
+    prefetch_light_stencil,
     want_stencil,
 )
 from photon_fields.runtime.transport.marching import march_transmittance, segment_past
-from photon_fields.runtime.transport.medium import Medium, borrowed_medium, extinction_albedo_at
+from photon_fields.runtime.transport.medium import (
+    Medium,
+    borrowed_medium,
+    extinction_albedo_at,
+    prefetch_scalar_stencil,
+    worth_prefetching,
+)
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.rng import next_float
 from photon_fields.runtime.transport.step_grid import own_units, step_lengths, units_along, units_from_lengths
@@ -154,8 +161,8 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                  width: int, n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int,
                  h: float, h_shadow: float, skip: bool, units: np.ndarray, own: np.ndarray, adaptive: bool,
                  use_volume: bool, lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float, ld: np.ndarray,
-                 trans: np.ndarray, missed: np.ndarray, pick: np.ndarray, pick_rng: np.ndarray, picking: bool, lo: int,
-                 hi: int) -> None:
+                 trans: np.ndarray, missed: np.ndarray, pick: np.ndarray, pick_rng: np.ndarray, picking: bool,
+                 prefetch: bool, lo: int, hi: int) -> None:
     """Work items ``work[lo:hi]`` of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why):
     each one's jittered camera ray (:func:`camera_ray`), clipped to the box (:func:`clip_to_box`) and marched
     within its tile's depth bounds (``near`` / ``far``: eye distances), in segments of base steps ``h``: the
@@ -232,6 +239,12 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 tm = 0.5 * (t_prev + t_next)
                 x, y, z = ox + tm * dx, oy + tm * dy, oz + tm * dz
             seg = t_next - t_prev
+            if prefetch:  # the next base step's midpoint: its loads start under this sample's work (prefetch.py)
+                tn = t_next + 0.5 * h
+                qx, qy, qz = ox + tn * dx, oy + tn * dy, oz + tn * dz
+                prefetch_scalar_stencil(m, qx, qy, qz)
+                if use_volume:
+                    prefetch_light_stencil(lv, grid, qx, qy, qz)
             sigma, a0, a1, a2 = extinction_albedo_at(m, x, y, z)
             if sigma > 0.0 and seg > 0.0:
                 e = math.exp(-sigma * seg)
@@ -280,7 +293,7 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
            n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int, h: float,
            h_shadow: float, skip: bool, units: np.ndarray, own: np.ndarray, adaptive: bool, use_volume: bool,
            lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float,
-           picking: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+           picking: bool, prefetch: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     n = work.shape[0]
     ld = np.empty((3, n))
     trans = np.empty(n)
@@ -294,7 +307,7 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
         b = (task * stride) % tasks  # golden-ratio order: each thread gets dense and empty blocks alike
         _march_items(m, kind, vec, rgb, g, view, width, n_pixels, work, seed, near, far, tile, h, h_shadow, skip,
                      units, own, adaptive, use_volume, lv, wanted, grid, t_min, ld, trans, missed, pick, pick_rng,
-                     picking, b * per_task, min(n, (b + 1) * per_task))
+                     picking, prefetch, b * per_task, min(n, (b + 1) * per_task))
     return ld, trans, missed, pick, pick_rng
 
 
@@ -323,7 +336,8 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
 
     def run(items: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return _march(m, kind, vec, rgb, scene.g, *args, items, int(seed), bounds.near, bounds.far, bounds.tile, h,
-                      hs, skip, units, own, adaptive, lv is not None, values, wanted, grid, t_min, picking)
+                      hs, skip, units, own, adaptive, lv is not None, values, wanted, grid, t_min, picking,
+                      worth_prefetching(m))
 
     ld, trans, missed, pick, pick_rng = run(work)
     if lv is None or not missed.any():

@@ -46,7 +46,8 @@ from numba import njit, prange
 
 from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.transport.cell_grid import Grid, blend, cell_centre
+from photon_fields.runtime.prefetch import prefetch3
+from photon_fields.runtime.transport.cell_grid import Grid, blend, cell_centre, stencil
 from photon_fields.runtime.transport.emitters import delta_light_direction
 from photon_fields.runtime.transport.marching import march_transmittance_in_segments
 from photon_fields.runtime.transport.medium import Medium, borrowed_medium
@@ -160,6 +161,17 @@ def light_transmittance(v: np.ndarray, light: int, i: int, j: int, k: int, fx: f
     if min(min(min(v000, v100), min(v010, v110)), min(min(v001, v101), min(v011, v111))) < 0.0:
         return -1.0
     return blend(v000, v100, v010, v110, v001, v101, v011, v111, fx, fy, fz)
+
+
+@njit(cache=True, inline="always")
+def prefetch_light_stencil(v: np.ndarray, grid: Grid, x: float, y: float, z: float) -> None:
+    """Start loading the cache lines of the light volume ``v``'s stencil at (x, y, z) (:mod:`photon_fields.runtime.
+    prefetch`), every light's values of a cell lying together: the four (i, j) corner pairs."""
+    i, j, k, _, _, _ = stencil(grid, x, y, z)
+    prefetch3(v, i, j, k)
+    prefetch3(v, i + 1, j, k)
+    prefetch3(v, i, j + 1, k)
+    prefetch3(v, i + 1, j + 1, k)
 
 
 @njit(cache=True, inline="always")

@@ -55,6 +55,7 @@ from numba import njit, prange
 
 from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.numba_inlining import install
+from photon_fields.runtime.prefetch import prefetch3
 from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.transfer import LUT_SIZE, TransferFunction
 from photon_fields.runtime.scene.volume import Volume
@@ -336,6 +337,31 @@ def scalar_at(m: Medium, x: float, y: float, z: float) -> float:
     c0 = c00 * (1.0 - fy) + c10 * fy
     c1 = c01 * (1.0 - fy) + c11 * fy
     return c0 * (1.0 - fz) + c1 * fz
+
+
+#: Volumes of at least this many bytes of scalars have their march's next stencils prefetched
+#: (:func:`worth_prefetching`): smaller ones stay in the caches, where the prefetches only cost (bench/README.md).
+PREFETCH_MIN_BYTES = 16 << 20
+
+
+def worth_prefetching(m: Medium) -> bool:
+    """Whether marches over ``m`` should prefetch their next samples' stencils (:data:`PREFETCH_MIN_BYTES`)."""
+    return m.density.nbytes >= PREFETCH_MIN_BYTES
+
+
+@njit(cache=True, inline="always")
+def prefetch_scalar_stencil(m: Medium, x: float, y: float, z: float) -> None:
+    """Start loading the cache lines of :func:`scalar_at`'s stencil at (x, y, z) (:mod:`photon_fields.runtime.prefetch`:
+    for a march's next sample, so that its lookup finds them in cache). The four (i, j) corner pairs; each pair's
+    k + 1 neighbour is the next float."""
+    nx, ny, nz = m.density.shape
+    i = min(int(max((x - m.bmin[0]) * m.voxels_per_unit[0] - 0.5, 0.0)), nx - 2)
+    j = min(int(max((y - m.bmin[1]) * m.voxels_per_unit[1] - 0.5, 0.0)), ny - 2)
+    k = min(int(max((z - m.bmin[2]) * m.voxels_per_unit[2] - 0.5, 0.0)), nz - 2)
+    prefetch3(m.density, i, j, k)
+    prefetch3(m.density, i + 1, j, k)
+    prefetch3(m.density, i, j + 1, k)
+    prefetch3(m.density, i + 1, j + 1, k)
 
 
 @njit(cache=True, inline="always")

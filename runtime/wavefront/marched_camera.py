@@ -111,9 +111,22 @@ from photon_fields.runtime.transport.cell_grid import Grid, stencil
 from photon_fields.runtime.transport.direct_light import sample_lights_batch
 from photon_fields.runtime.transport.emitters import delta_light_direction
 from photon_fields.runtime.transport.environment_map import EnvMap
-from photon_fields.runtime.transport.light_volume import LightVolume, fill_wanted, light_transmittance, want_stencil
+from photon_fields.runtime.transport.light_volume import (
+    LightVolume,
+    fill_wanted,
+    light_transmittance,
+    prefetch_light_stencil,
+    want_stencil,
+)
 from photon_fields.runtime.transport.macrocell_walk import enter_macrocell, leap_if_empty, step_macrocell
-from photon_fields.runtime.transport.medium import Medium, albedo_at, borrowed_medium, extinction_albedo_at
+from photon_fields.runtime.transport.medium import (
+    Medium,
+    albedo_at,
+    borrowed_medium,
+    extinction_albedo_at,
+    prefetch_scalar_stencil,
+    worth_prefetching,
+)
 from photon_fields.runtime.transport.phase import hg_eval
 from photon_fields.runtime.transport.residual_tracking import (
     close_run,
@@ -232,7 +245,7 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                  walk: tuple[float, float, float, float], lv: np.ndarray, wanted: np.ndarray, grid: Grid,
                  out_x: np.ndarray, out_d: np.ndarray, out_a: np.ndarray, out_w: np.ndarray, out_rng: np.ndarray,
                  cached: np.ndarray, at_pick: np.ndarray, status: np.ndarray, transmit: np.ndarray, missed: np.ndarray,
-                 ray_phase: np.ndarray, lo: int, hi: int) -> None:
+                 ray_phase: np.ndarray, prefetch: bool, lo: int, hi: int) -> None:
     """Items lo .. hi - 1 of :func:`_march`, serially (the walk of the module docstring). ``walk``: the longest
     stratum (world units), strata per majorant optical depth, the switch to the opaque rest, the residual events'
     boost (:func:`march_camera_rays`). ``ray_phase``: the task's scratch, one value per light (the caller's, so that
@@ -295,6 +308,10 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                     b = t_end if j == n - 1 else a + length
                     tk = a + u * (b - a)
                     x, y, z = ox + tk * dx, oy + tk * dy, oz + tk * dz
+                    if prefetch:  # the next stratum's point: its loads start under this one's work (prefetch.py)
+                        qx, qy, qz = x + length * dx, y + length * dy, z + length * dz
+                        prefetch_scalar_stencil(m, qx, qy, qz)
+                        prefetch_light_stencil(lv, grid, qx, qy, qz)
                     sc, a0, a1, a2 = extinction_albedo_at(m, x, y, z)
                     tau, ratio, dc, s = events_to_point(m, ox, oy, oz, dx, dy, dz, a, tk, boost * mu, sc, pend, p_t,
                                                         p_b, boost * p_mu, p_s, tau, ratio, s)
@@ -350,7 +367,7 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
            seed: int, near: np.ndarray, far: np.ndarray, tile: int, walk: tuple[float, float, float, float],
            lv: np.ndarray, wanted: np.ndarray, grid: Grid, out_x: np.ndarray, out_d: np.ndarray, out_a: np.ndarray,
            out_w: np.ndarray, out_rng: np.ndarray, cached: np.ndarray, at_pick: np.ndarray, status: np.ndarray,
-           transmit: np.ndarray) -> np.ndarray:
+           transmit: np.ndarray, prefetch: bool) -> np.ndarray:
     n = work.shape[0]
     missed = np.zeros(n, np.bool_)
     per_task = task_items(n)
@@ -361,7 +378,7 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
         b = (task * stride) % tasks  # golden-ratio order: each thread gets dense and empty blocks alike
         _march_items(m, kind, vec, rgb, g, eye, origin, du, dv, width, n_pixels, work, s0, near, far, tile, walk,
                      lv, wanted, grid, out_x, out_d, out_a, out_w, out_rng, cached, at_pick, status, transmit, missed,
-                     np.empty(kind.shape[0]), b * per_task, min(n, (b + 1) * per_task))
+                     np.empty(kind.shape[0]), prefetch, b * per_task, min(n, (b + 1) * per_task))
     return missed
 
 
@@ -400,7 +417,7 @@ def march_camera_rays(scene: Scene, m: Medium, lv: LightVolume, work: np.ndarray
         missed = _march(m, kind, vec, rgb, float(scene.g), eye, origin, du, dv, cam.width, cam.width * cam.height,
                         items, int(seed), bounds.near, bounds.far, bounds.tile, walk, lv.values, lv.wanted, lv.grid,
                         out.x, out.d, out.albedo, out.weight, out.rng, out.cached, out.cached_at_pick, out.status,
-                        out.transmit)
+                        out.transmit, worth_prefetching(m))
         return out, missed
 
     items, missed = run(work)
