@@ -20,11 +20,8 @@ shadows : str (default "volume")
 shadow_step : float (default 1.0 for "march"; for "volume" the light volume's 0.5, or half a cell where a cell spans
     more than a voxel)
     Step length along shadow rays in voxels (for "volume": the base step of the cells' rays, which span up to
-    ``light_volume.SHADOW_SPAN`` of them per segment where the step grid allows). Where sigma_t h reaches ~1 per
-    voxel at sharp boundaries (bone in a CT transfer function, a shell's wall) the midpoint sum's error across a
-    boundary is of order 1 and differs from ray to ray, and exp(-tau) averaged over such errors is biased high:
-    single scattering reads bright there. A finer step shrinks the bias quickly (bench/README.md, ray marcher); the
-    path tracer's trackers are unbiased.
+    ``light_volume.SHADOW_SPAN`` of them per segment where the step grid allows). At sharp boundaries (sigma_t h ~ 1
+    per voxel) exp(-tau) over the midpoint sum's errors is biased high, and a finer step shrinks that bias quickly.
 light_grid_scale : float or None (default None: 1, fewer over ~320^3 voxels)
     "volume": light-volume cells per voxel along each axis (finer: sharper lit walls, more memory and marching);
     None: :func:`photon_fields.runtime.transport.light_volume.auto_cells_per_voxel`, at most 128 MiB a light.
@@ -34,10 +31,9 @@ min_transmittance : float (default 1e-2)
 level : int (default 0)
     March the volume's coarser level (:mod:`photon_fields.runtime.scene.levels`: blocks of 2^level voxels a side
     averaged, the same box): what the viewer shows while the view or the scene is being changed on a large volume.
-spp : int
-    Jittered passes per pixel (a random start offset along each ray removes wood-grain banding).
-seed : int
-    Jitter streams are keyed like the path tracer's: same seed, same image.
+spp, seed : int
+    Jittered passes per pixel (a random start offset along each ray: no wood-grain banding); streams keyed like the
+    path tracer's: same seed, same image.
 
 For each camera ray the marcher integrates, segment by segment,
 
@@ -46,26 +42,18 @@ For each camera ray the marcher integrates, segment by segment,
 where ``T_k`` is the transmittance from the camera to the segment, sigma_k and albedo_k are taken at its midpoint
 and ``T_shadow`` is the transmittance towards each delta light ("global shadows"), marched or from the light
 volume. The light is evaluated at ``x'_k``, the segment's scattering centroid, not at its midpoint: with sigma_k
-over the segment, scattering within it happens at mean depth ``1 / sigma - h e / (1 - e)`` (e = exp(-sigma h);
-h / 2 for a thin segment, 1 / sigma for a dense one). At the lit wall of a dense medium that is where the light
-still is: the midpoint, half a step deep, read the light after the wall had absorbed it (a 1-voxel step was 8 %
-dark on the shell, 1 % on the head; measured in bench/README.md). The environment light is not marched (it would
-need a sphere of shadow rays); it only appears unscattered, as ``L_e = T * L_env``. This is the same
+over the segment, scattering within it happens at mean depth ``1 / sigma - h e / (1 - e)`` (e = exp(-sigma h)),
+where the light still is at the lit wall of a dense medium (the midpoint read it dark: bench/README.md). The
+environment light is not marched; it only appears unscattered, as ``L_e = T * L_env``. This is the same
 single-scattering integral the path tracer estimates with ``max_depth = 1``; the two agree up to the marcher's
 quadrature error (and the light volume's interpolation), which the tests check. Alone it has no L_i: multiple
 scattering is exactly what ray marching leaves out.
 
-Multiple scattering from a field (``estimator``, ``pfn-render --method raymarch-field``): the march's segments also
-estimate L_i = sum_k T_k (1 - e_k) a_k Q(x'_k, d, g), with Q a photon field's in-scattered indirect radiance
-(what the neural renderer asks it at its first interactions) at the segments' scattering centroids x'_k: one
-segment J per ray is drawn with probability w_J / W (w_k = T_k (1 - e_k), W = sum_k w_k = 1 - T_end) and the
-estimate is W a_J Q(x'_J): one field query per ray, unbiased for the sum. An environment light, which the march
-leaves unscattered, gets its single scattering the same way: W a_J NEE_env(x'_J), one shadow ray at the pick.
-With the light volume's noise-free L_d (of delta lights), a 1-spp frame's main noise is where along its ray L_i's
-one query falls, against the neural renderer's shadow rays and collision sampling for both terms; the price is
-the preview's bias in L_d (quadrature and the light volume's interpolation: a few per cent, more at dense walls;
-docs/rendering.md has the figures), which the neural renderer's unbiased L_d does not have. So it is the quick
-look with multiple scattering, not the image to converge.
+Multiple scattering from a field (``estimator``, ``pfn-render --method raymarch-field``): one segment J per ray is
+drawn with probability w_J / W (w_k = T_k (1 - e_k), W = 1 - T_end), and L_i = W a_J Q(x'_J, d, g), Q a photon
+field's in-scattered indirect radiance at the segment's scattering centroid: one field query per ray, unbiased for
+the sum over the segments; an environment light gets its single scattering the same way (W a_J NEE_env(x'_J)). The
+quick look with multiple scattering, with the preview's bias in L_d, not the image to converge (docs/rendering.md).
 """
 
 from __future__ import annotations

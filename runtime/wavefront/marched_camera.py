@@ -3,8 +3,7 @@
 Parameters (module constants)
 -----------------------------
 STRATA_PER_DEPTH : float
-    Strata per unit of majorant optical depth (2: half an optical depth each; 1 left shell's 1-spp error at 0.50
-    instead of 0.35, its walls' residual factors too wild).
+    Strata per unit of majorant optical depth (2: half an optical depth each; bench/README.md has why not 1).
 STRATUM_VOXELS, STRATUM_BOX_FRACTION : float
     The longest stratum: ``STRATUM_VOXELS`` voxels (2: against 1, 10-20 % less time in the walk for the same error on
     vortex, shell and head, blobs 0.192 -> 0.197 at 1 spp; 4 saved no more), or ``STRATUM_BOX_FRACTION`` of the
@@ -24,10 +23,8 @@ RESIDUAL_BOOST : float
     level in efficiency on shell, head and blobs, and 2 is 5 % better on vortex; 1 loses on shell and head
     (bench/README.md, "A linear control").
 PICKS : int
-    Points drawn from one walk's candidates, each with its own shadow ray (NEE,
-    :func:`photon_fields.runtime.transport.direct_light.direct_light_batch`) and field query, weighted W / PICKS
-    (3: the walk is most of the cost, so more points per walk pay; against one point with two shadow rays, 1-spp
-    efficiency 1 / (error^2 time) +32 % on vortex, +18-27 % on shell, head and blobs; 4 gained no more).
+    Points drawn from one walk's candidates, each with its own shadow ray (NEE) and field query, weighted W / PICKS
+    (3: the walk is most of the cost, so more points per walk pay; 4 gained no more: docs/rendering.md).
 
 The forced estimator (:mod:`photon_fields.runtime.wavefront.first_interaction`) gives every ray that crosses the
 medium one collision x, weighted by the walk's estimate W of 1 - T; its L_d is W a(x) NEE(x). On sparse media most
