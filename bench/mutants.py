@@ -337,12 +337,12 @@ MUTANTS: tuple[Mutant, ...] = (
             "test_preview_follows_transfer_and_light_edits_with_the_edited_scenes_light_volume",),
            "an edited scene reads the light volume filled for the scene before the edit"),
     Mutant("light_edit_recomputes_step_grids", "runtime/scene/scene.py",
-           'MEDIUM_CACHES = ("depth_bounds", "step_units")', "MEDIUM_CACHES = ()",
+           'MEDIUM_CACHES = ("depth_bounds", "occupied_macrocells", "step_units")', "MEDIUM_CACHES = ()",
            ("tests/runtime/viewer/test_viewer_preview.py::test_a_light_edit_keeps_what_depends_on_the_medium_alone",),
            "a viewer's light edit computes the step grids and depth bounds of an unchanged medium again"),
     Mutant("light_edit_keeps_light_volumes", "runtime/scene/scene.py",
-           'MEDIUM_CACHES = ("depth_bounds", "step_units")', 'MEDIUM_CACHES = ("depth_bounds", "step_units", '
-           '"light_volumes")',
+           'MEDIUM_CACHES = ("depth_bounds", "occupied_macrocells", "step_units")',
+           'MEDIUM_CACHES = ("depth_bounds", "occupied_macrocells", "step_units", "light_volumes")',
            ("tests/runtime/viewer/test_viewer_preview.py::"
             "test_preview_follows_transfer_and_light_edits_with_the_edited_scenes_light_volume",
             "tests/runtime/viewer/test_viewer_preview.py::test_a_light_edit_keeps_what_depends_on_the_medium_alone"),
@@ -848,14 +848,14 @@ MUTANTS: tuple[Mutant, ...] = (
            (f"{DEPTH}::test_every_ray_meets_the_medium_within_its_tiles_bounds",),
            "a macrocell's projected rectangle misses the pixels on its left edge: their rays skip medium"),
     Mutant("depth_bounds_behind_dropped", "runtime/wavefront/depth_bounds.py",
-           "                    all_near, all_far = min(all_near, lo), max(all_far, hi)\n",
-           "                    pass\n",
+           "            all_near, all_far = min(all_near, lo), max(all_far, hi)\n",
+           "            pass\n",
            (f"{DEPTH}::test_every_ray_meets_the_medium_within_its_tiles_bounds",
             f"{DEPTH}::test_bounds_change_no_sample_from_inside_the_volume",
             f"{DEPTH}::test_bounds_hold_for_an_eye_on_a_macrocell_plane"),
            "macrocells behind the eye's image plane (the eye inside the volume) are left out of every tile's bounds"),
     Mutant("depth_bounds_interior_eye_dropped", "runtime/wavefront/depth_bounds.py",
-           "                    if depth > _BEHIND:\n", "                    if True:\n",
+           "            if depth > _BEHIND:\n", "            if True:\n",
            (f"{DEPTH}::test_every_ray_meets_the_medium_within_its_tiles_bounds",),
            "interior macrocells are skipped even where they hold the eye: its rays start inside the medium late"),
     Mutant("depth_map_neighbour_tile", "runtime/denoise/depth.py",
@@ -1070,6 +1070,13 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/transport/test_prefetch.py::"
             "test_the_marches_give_the_same_images_with_and_without_prefetching",),
            "the preview's prefetch moves the segment's end instead of computing a point of its own"),
+    Mutant("depth_bounds_skip_the_interior", "runtime/wavefront/depth_bounds.py",
+           "    n = n_boundary + (interior.shape[0] if box_depth <= _BEHIND else 0)\n",
+           "    n = n_boundary\n",
+           ("tests/runtime/wavefront/test_depth_bounds.py::test_bounds_change_no_sample_from_inside_the_volume",
+            "tests/runtime/wavefront/test_depth_bounds.py::test_every_ray_meets_the_medium_within_its_tiles_bounds"),
+           "the depth bounds never rasterize the interior macrocells, not even when the eye is inside the medium: "
+           "rays that start in it lose their walk"),
 )
 
 

@@ -44,7 +44,7 @@ from photon_fields.runtime.denoise.reprojection import EYE, HEIGHT, WIDTH, pack_
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.scene.camera import Camera
 from photon_fields.runtime.transport.medium import Medium, block_extinction, leap_distances
-from photon_fields.runtime.wavefront.depth_bounds import grid_depth_bounds, unbounded
+from photon_fields.runtime.wavefront.depth_bounds import grid_depth_bounds, occupied_cells, unbounded
 
 DEFAULT_BLOCK = 2  # voxels per coarse cell edge, at least (:func:`auto_block`)
 #: The coarse grid's longest side in cells, at most, with the automatic block: a 512^3 volume's 256^3 grid at block 2
@@ -104,12 +104,13 @@ class DepthEstimator:
         self.min_opacity = float(min_opacity)
         self.grid_size = np.asarray(self.grid.shape, np.float64) / self.per_unit  # may reach past the box
         self.bounds = bool(bounds)
+        self.cells = occupied_cells(self.grid) if self.bounds else None  # for every camera's bounds, found once
 
     def depth(self, camera: Camera) -> np.ndarray:
         """(H, W) float32 distance from the eye along each pixel's centre ray (with ``stride`` > 1: its block's
         centre ray) to the quantile of the first collision, inf where the pixel sees (almost) no medium."""
         out = np.empty((camera.height, camera.width), dtype=np.float32)
-        b = grid_depth_bounds(self.grid, self.bmin, self.grid_size, camera) if self.bounds else unbounded()
+        b = grid_depth_bounds(self.cells, self.bmin, self.grid_size, camera) if self.cells is not None else unbounded()
         _depth_image(self.grid, self.leap, self.bmin, self.bsize, self.per_unit, pack_view(camera),
                      self.min_opacity, self.quantile, self.stride, b.near, b.far, b.tile, out)
         return out

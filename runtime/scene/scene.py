@@ -62,9 +62,10 @@ _SCENE_KEYS = {"name", "volume", "transfer_function", "lights", "camera", "phase
 
 
 #: The dicts :meth:`Scene.shared_cache` keeps, carried over by :meth:`Scene.with_overrides`.
-SHARED_CACHES = ("light_volumes", "depth_bounds", "step_units", "light_volumes_before", "levels", "camera_estimator")
+SHARED_CACHES = ("light_volumes", "depth_bounds", "occupied_macrocells", "step_units", "light_volumes_before", "levels",
+                 "camera_estimator")
 #: Those of :data:`SHARED_CACHES` that depend on the medium alone, not on the lights (:meth:`Scene.adopt_medium`).
-MEDIUM_CACHES = ("depth_bounds", "step_units")
+MEDIUM_CACHES = ("depth_bounds", "occupied_macrocells", "step_units")
 
 
 @dataclass(frozen=True, eq=False)
@@ -128,7 +129,8 @@ class Scene:
     def shared_cache(self, key: str) -> dict[Any, Any]:
         """A dict kept with the scene for what depends on its medium and lights, and on nothing else or on what
         its keys name (the ray marcher's light volumes, ``"light_volumes"``, and step grids, ``"step_units"``; the
-        camera walks' depth bounds per camera, ``"depth_bounds"``; the volume's coarser levels' scenes, ``"levels"``,
+        camera walks' depth bounds per camera, ``"depth_bounds"``, and the occupied macrocells they rasterize,
+        ``"occupied_macrocells"``; the volume's coarser levels' scenes, ``"levels"``,
         :mod:`photon_fields.runtime.scene.levels`; the auto camera estimator's choices, ``"camera_estimator"``,
         :mod:`photon_fields.runtime.wavefront.camera_choice`): one of :data:`SHARED_CACHES`, carried over by
         :meth:`with_overrides`, which changes neither medium nor lights."""

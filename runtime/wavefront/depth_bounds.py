@@ -26,7 +26,10 @@ a ray that meets the occupied macrocells first does so at a point of a boundary 
 holding the entry point, one is empty or outside the grid, and a chain of face neighbours among them leads from it
 to an occupied one), and leaves them last at one, unless it starts inside them, in a macrocell that holds the eye
 and widens every tile. Most occupied macrocells of a solid medium are interior ones, so this is several times
-cheaper, for bounds that differ in a few tiles at most (bench/README.md).
+cheaper, for bounds that differ in a few tiles at most (bench/README.md). Which cells are boundary and which interior
+does not depend on the camera: :func:`occupied_cells` lists them once per grid (kept with the medium), and a
+camera's rasterization visits the boundary list, and the interior one only where the box reaches behind the eye's
+image plane (no interior cell can otherwise).
 
 ``TILE`` = 4: at 512x512 the bounds take the forced estimator's first interactions
 from 61-75 ms to 47-63 ms (bench/README.md); 8 and 16 pixels bound less, 1 and 2 cost more than they save. The
@@ -80,71 +83,122 @@ def _interior(majorant: np.ndarray, i: int, j: int, k: int) -> bool:
 
 
 @njit(cache=True)
-def _rasterize(majorant: np.ndarray, bmin: np.ndarray, bsize: np.ndarray, view: np.ndarray,
-               tile: int) -> tuple[np.ndarray, np.ndarray]:
+def _occupied_cells(majorant: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The occupied macrocells' indices (n, 3), split into boundary and interior ones (:func:`_interior`): what
+    :func:`_rasterize` visits, the same for every camera."""
+    cx, cy, cz = majorant.shape
+    n_boundary = n_interior = 0
+    for i in range(cx):
+        for j in range(cy):
+            for k in range(cz):
+                if majorant[i, j, k] > 0.0:
+                    if _interior(majorant, i, j, k):
+                        n_interior += 1
+                    else:
+                        n_boundary += 1
+    boundary = np.empty((n_boundary, 3), np.int64)
+    interior = np.empty((n_interior, 3), np.int64)
+    b = c = 0
+    for i in range(cx):
+        for j in range(cy):
+            for k in range(cz):
+                if majorant[i, j, k] > 0.0:
+                    if _interior(majorant, i, j, k):
+                        interior[c, 0], interior[c, 1], interior[c, 2] = i, j, k
+                        c += 1
+                    else:
+                        boundary[b, 0], boundary[b, 1], boundary[b, 2] = i, j, k
+                        b += 1
+    return boundary, interior
+
+
+@dataclass(frozen=True)
+class OccupiedCells:
+    """A grid's occupied cells, boundary and interior (:func:`occupied_cells`), and the grid's shape."""
+
+    boundary: np.ndarray
+    interior: np.ndarray
+    shape: tuple[int, int, int]
+
+
+def occupied_cells(grid: np.ndarray) -> OccupiedCells:
+    """The cells > 0 of ``grid`` that :func:`grid_depth_bounds` rasterizes, found once (a grid's cells do not change
+    with the camera; the viewer asks for new bounds every moving frame)."""
+    g = np.ascontiguousarray(grid, np.float64)
+    boundary, interior = _occupied_cells(g)
+    return OccupiedCells(boundary, interior, (int(g.shape[0]), int(g.shape[1]), int(g.shape[2])))
+
+
+@njit(cache=True)
+def _rasterize(boundary: np.ndarray, interior: np.ndarray, cx: int, cy: int, cz: int, bmin: np.ndarray,
+               bsize: np.ndarray, view: np.ndarray, tile: int) -> tuple[np.ndarray, np.ndarray]:
     """The bounds of every tile of ``view`` (:func:`photon_fields.runtime.denoise.reprojection.pack_view`; module
-    docstring), serially."""
+    docstring) over the boundary cells, and the interior ones where the box reaches behind the eye's image plane
+    (else none of them can), serially."""
     width, height = int(view[WIDTH]), int(view[HEIGHT])
     ex, ey, ez = view[EYE], view[EYE + 1], view[EYE + 2]
     tx = (width + tile - 1) // tile
     ty = (height + tile - 1) // tile
     near = np.full((ty, tx), np.inf)
     far = np.full((ty, tx), -np.inf)
-    cx, cy, cz = majorant.shape
     hx, hy, hz = bsize[0] / cx, bsize[1] / cy, bsize[2] / cz
     all_near = np.inf
     all_far = -np.inf
     fx_, fy_, fz_ = view[FWD], view[FWD + 1], view[FWD + 2]
-    for i in range(cx):
+    box_depth = (bmin[0] - ex) * fx_ + (bmin[1] - ey) * fy_ + (bmin[2] - ez) * fz_ + min(bsize[0] * fx_, 0.0) \
+        + min(bsize[1] * fy_, 0.0) + min(bsize[2] * fz_, 0.0)  # the box's nearest corner along the view axis
+    n_boundary = boundary.shape[0]
+    n = n_boundary + (interior.shape[0] if box_depth <= _BEHIND else 0)
+    for c in range(n):
+        if c < n_boundary:
+            i, j, k = boundary[c, 0], boundary[c, 1], boundary[c, 2]
+        else:
+            i, j, k = interior[c - n_boundary, 0], interior[c - n_boundary, 1], interior[c - n_boundary, 2]
         x0 = bmin[0] + i * hx
-        for j in range(cy):
-            y0 = bmin[1] + j * hy
-            for k in range(cz):
-                if not majorant[i, j, k] > 0.0:
-                    continue
-                z0 = bmin[2] + k * hz
-                if _interior(majorant, i, j, k):
-                    # Covered by the boundary macrocells (module docstring) unless it may hold the eye: the
-                    # nearest of its corners along the view axis, in closed form.
-                    depth = (x0 - ex) * fx_ + (y0 - ey) * fy_ + (z0 - ez) * fz_ + min(hx * fx_, 0.0) \
-                        + min(hy * fy_, 0.0) + min(hz * fz_, 0.0)
-                    if depth > _BEHIND:
-                        continue
-                gx = max(x0 - ex, 0.0, ex - x0 - hx)
-                gy = max(y0 - ey, 0.0, ey - y0 - hy)
-                gz = max(z0 - ez, 0.0, ez - z0 - hz)
-                lo = math.sqrt(gx * gx + gy * gy + gz * gz) - MARGIN
-                fx = max(abs(x0 - ex), abs(x0 + hx - ex))
-                fy = max(abs(y0 - ey), abs(y0 + hy - ey))
-                fz = max(abs(z0 - ez), abs(z0 + hz - ez))
-                hi = math.sqrt(fx * fx + fy * fy + fz * fz) + MARGIN
-                umin = vmin = np.inf
-                umax = vmax = -np.inf
-                behind = False
-                for c in range(8):
-                    vx, vy, vz = x0 + hx * (c & 1) - ex, y0 + hy * ((c >> 1) & 1) - ey, z0 + hz * (c >> 2) - ez
-                    if vx * view[FWD] + vy * view[FWD + 1] + vz * view[FWD + 2] <= _BEHIND:
-                        behind = True
-                        break
-                    u, v, _ = project_direction(view, vx, vy, vz)
-                    u = min(max(u, -_FAR_PIXEL), _FAR_PIXEL)
-                    v = min(max(v, -_FAR_PIXEL), _FAR_PIXEL)
-                    umin, umax = min(umin, u), max(umax, u)
-                    vmin, vmax = min(vmin, v), max(vmax, v)
-                if behind:
-                    all_near, all_far = min(all_near, lo), max(all_far, hi)
-                    continue
-                # Pixels whose jittered rays (x in [p, p + 1)) can reach the rectangle, one pixel wider each side.
-                a0 = max(math.floor(umin) - 1, 0)
-                a1 = min(math.floor(umax) + 1, width - 1)
-                b0 = max(math.floor(vmin) - 1, 0)
-                b1 = min(math.floor(vmax) + 1, height - 1)
-                if a0 > a1 or b0 > b1:
-                    continue  # beside the image
-                for b in range(b0 // tile, b1 // tile + 1):
-                    for a in range(a0 // tile, a1 // tile + 1):
-                        near[b, a] = min(near[b, a], lo)
-                        far[b, a] = max(far[b, a], hi)
+        y0 = bmin[1] + j * hy
+        z0 = bmin[2] + k * hz
+        if c >= n_boundary:
+            # Covered by the boundary macrocells (module docstring) unless it may hold the eye: the nearest of its
+            # corners along the view axis, in closed form.
+            depth = (x0 - ex) * fx_ + (y0 - ey) * fy_ + (z0 - ez) * fz_ + min(hx * fx_, 0.0) \
+                + min(hy * fy_, 0.0) + min(hz * fz_, 0.0)
+            if depth > _BEHIND:
+                continue
+        gx = max(x0 - ex, 0.0, ex - x0 - hx)
+        gy = max(y0 - ey, 0.0, ey - y0 - hy)
+        gz = max(z0 - ez, 0.0, ez - z0 - hz)
+        lo = math.sqrt(gx * gx + gy * gy + gz * gz) - MARGIN
+        fx = max(abs(x0 - ex), abs(x0 + hx - ex))
+        fy = max(abs(y0 - ey), abs(y0 + hy - ey))
+        fz = max(abs(z0 - ez), abs(z0 + hz - ez))
+        hi = math.sqrt(fx * fx + fy * fy + fz * fz) + MARGIN
+        umin = vmin = np.inf
+        umax = vmax = -np.inf
+        behind = False
+        for q in range(8):
+            vx, vy, vz = x0 + hx * (q & 1) - ex, y0 + hy * ((q >> 1) & 1) - ey, z0 + hz * (q >> 2) - ez
+            if vx * view[FWD] + vy * view[FWD + 1] + vz * view[FWD + 2] <= _BEHIND:
+                behind = True
+                break
+            u, v, _ = project_direction(view, vx, vy, vz)
+            u = min(max(u, -_FAR_PIXEL), _FAR_PIXEL)
+            v = min(max(v, -_FAR_PIXEL), _FAR_PIXEL)
+            umin, umax = min(umin, u), max(umax, u)
+            vmin, vmax = min(vmin, v), max(vmax, v)
+        if behind:
+            all_near, all_far = min(all_near, lo), max(all_far, hi)
+            continue
+        # Pixels whose jittered rays (x in [p, p + 1)) can reach the rectangle, one pixel wider each side.
+        a0 = max(math.floor(umin) - 1, 0)
+        a1 = min(math.floor(umax) + 1, width - 1)
+        b0 = max(math.floor(vmin) - 1, 0)
+        b1 = min(math.floor(vmax) + 1, height - 1)
+        if a0 > a1 or b0 > b1:
+            continue  # beside the image
+        for b in range(b0 // tile, b1 // tile + 1):
+            for a in range(a0 // tile, a1 // tile + 1):
+                near[b, a] = min(near[b, a], lo)
+                far[b, a] = max(far[b, a], hi)
     if all_far >= 0.0:
         for b in range(ty):
             for a in range(tx):
@@ -164,16 +218,20 @@ def ray_interval(near: np.ndarray, far: np.ndarray, tile: int, width: int, pixel
     return max(0.0, near[ty, tx] - entry), min(tmax, far[ty, tx] - entry)
 
 
-def camera_depth_bounds(m: Medium, camera: Camera, tile: int = TILE) -> DepthBounds:
-    """The depth bounds of ``camera``'s tiles over ``m``'s occupied macrocells (module docstring)."""
-    return grid_depth_bounds(m.majorant, m.bmin, m.bsize, camera, tile)
+def camera_depth_bounds(m: Medium, camera: Camera, tile: int = TILE,
+                        cells: OccupiedCells | None = None) -> DepthBounds:
+    """The depth bounds of ``camera``'s tiles over ``m``'s occupied macrocells (module docstring); ``cells``: the
+    majorant grid's :func:`occupied_cells`, when known."""
+    return grid_depth_bounds(m.majorant if cells is None else cells, m.bmin, m.bsize, camera, tile)
 
 
-def grid_depth_bounds(grid: np.ndarray, bmin: np.ndarray, size: np.ndarray, camera: Camera,
+def grid_depth_bounds(grid: np.ndarray | OccupiedCells, bmin: np.ndarray, size: np.ndarray, camera: Camera,
                       tile: int = TILE) -> DepthBounds:
     """The depth bounds of ``camera``'s tiles over the cells > 0 of any ``grid`` of equal boxes spanning
-    ``[bmin, bmin + size]`` (the majorant grid, or the depth maps' coarse extinction)."""
-    near, far = _rasterize(np.ascontiguousarray(grid, np.float64), np.asarray(bmin, np.float64),
+    ``[bmin, bmin + size]`` (the majorant grid, or the depth maps' coarse extinction); ``grid`` may be its
+    :func:`occupied_cells`, found once for many cameras."""
+    cells = grid if isinstance(grid, OccupiedCells) else occupied_cells(grid)
+    near, far = _rasterize(cells.boundary, cells.interior, *cells.shape, np.asarray(bmin, np.float64),
                            np.asarray(size, np.float64), pack_view(camera), int(tile))
     return DepthBounds(int(tile), near, far)
 
@@ -193,7 +251,11 @@ def depth_bounds_for(scene: Scene, m: Medium) -> DepthBounds:
            cam.height)
     hit = cache.pop(key, None)
     if hit is None or hit[0] is not m:
-        hit = (m, camera_depth_bounds(m, cam))
+        found = scene.shared_cache("occupied_macrocells").get(id(m))
+        if found is None or found[0] is not m:  # the cells of a medium, for every camera's bounds over it
+            found = (m, occupied_cells(m.majorant))
+            scene.shared_cache("occupied_macrocells")[id(m)] = found
+        hit = (m, camera_depth_bounds(m, cam, cells=found[1]))
     cache[key] = hit  # the newest last
     while len(cache) > KEPT:
         del cache[next(iter(cache))]

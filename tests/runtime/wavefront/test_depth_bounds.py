@@ -181,3 +181,20 @@ def test_bounds_are_kept_per_camera_with_the_medium() -> None:
     again = depth_bounds_for(scene, m)
     assert again is not first
     np.testing.assert_array_equal(again.near, first.near)
+
+
+def test_the_occupied_cells_split_into_boundary_and_interior_as_numpy_finds_them() -> None:
+    """occupied_cells (found once per grid, rasterized for every camera): every cell > 0 exactly once, interior where
+    its six face neighbours are > 0 (outside the grid counts as empty), against a numpy construction."""
+    from photon_fields.runtime.wavefront.depth_bounds import occupied_cells
+
+    rng = np.random.default_rng(5)
+    grid = (rng.random((9, 7, 8)) < 0.7) * rng.random((9, 7, 8))
+    cells = occupied_cells(grid)
+    occupied = np.pad(grid > 0.0, 1)
+    inner = occupied[1:-1, 1:-1, 1:-1] & occupied[:-2, 1:-1, 1:-1] & occupied[2:, 1:-1, 1:-1] \
+        & occupied[1:-1, :-2, 1:-1] & occupied[1:-1, 2:, 1:-1] & occupied[1:-1, 1:-1, :-2] & occupied[1:-1, 1:-1, 2:]
+    assert cells.shape == grid.shape
+    assert {tuple(c) for c in cells.interior} == {tuple(c) for c in np.argwhere(inner)}
+    assert {tuple(c) for c in cells.boundary} == {tuple(c) for c in np.argwhere((grid > 0.0) & ~inner)}
+    assert len(cells.interior) > 0 and len(cells.boundary) > 0
