@@ -83,33 +83,17 @@ def _interior(majorant: np.ndarray, i: int, j: int, k: int) -> bool:
 
 
 @njit(cache=True)
-def _occupied_cells(majorant: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The occupied macrocells' indices (n, 3), split into boundary and interior ones (:func:`_interior`): what
-    :func:`_rasterize` visits, the same for every camera."""
+def _list_cells(majorant: np.ndarray, cells: np.ndarray, interior: np.ndarray) -> None:
+    """The occupied macrocells in index order into ``cells`` (n, 3), each one's :func:`_interior` into ``interior``."""
     cx, cy, cz = majorant.shape
-    n_boundary = n_interior = 0
+    n = 0
     for i in range(cx):
         for j in range(cy):
             for k in range(cz):
                 if majorant[i, j, k] > 0.0:
-                    if _interior(majorant, i, j, k):
-                        n_interior += 1
-                    else:
-                        n_boundary += 1
-    boundary = np.empty((n_boundary, 3), np.int64)
-    interior = np.empty((n_interior, 3), np.int64)
-    b = c = 0
-    for i in range(cx):
-        for j in range(cy):
-            for k in range(cz):
-                if majorant[i, j, k] > 0.0:
-                    if _interior(majorant, i, j, k):
-                        interior[c, 0], interior[c, 1], interior[c, 2] = i, j, k
-                        c += 1
-                    else:
-                        boundary[b, 0], boundary[b, 1], boundary[b, 2] = i, j, k
-                        b += 1
-    return boundary, interior
+                    cells[n, 0], cells[n, 1], cells[n, 2] = i, j, k
+                    interior[n] = _interior(majorant, i, j, k)
+                    n += 1
 
 
 @dataclass(frozen=True)
@@ -125,8 +109,10 @@ def occupied_cells(grid: np.ndarray) -> OccupiedCells:
     """The cells > 0 of ``grid`` that :func:`grid_depth_bounds` rasterizes, found once (a grid's cells do not change
     with the camera; the viewer asks for new bounds every moving frame)."""
     g = np.ascontiguousarray(grid, np.float64)
-    boundary, interior = _occupied_cells(g)
-    return OccupiedCells(boundary, interior, (int(g.shape[0]), int(g.shape[1]), int(g.shape[2])))
+    n = int(np.count_nonzero(g > 0.0))
+    cells, interior = np.empty((n, 3), np.int64), np.empty(n, np.bool_)
+    _list_cells(g, cells, interior)
+    return OccupiedCells(cells[~interior], cells[interior], (int(g.shape[0]), int(g.shape[1]), int(g.shape[2])))
 
 
 @njit(cache=True)
