@@ -1071,7 +1071,7 @@ MUTANTS: tuple[Mutant, ...] = (
             "test_the_marches_give_the_same_images_with_and_without_prefetching",),
            "the preview's prefetch moves the segment's end instead of computing a point of its own"),
     Mutant("depth_bounds_skip_the_interior", "runtime/wavefront/depth_bounds.py",
-           "    n = n_boundary + (interior.shape[0] if box_depth <= _BEHIND else 0)\n",
+           "    n = cells.shape[0] if box_depth <= _BEHIND else n_boundary\n",
            "    n = n_boundary\n",
            ("tests/runtime/wavefront/test_depth_bounds.py::test_bounds_change_no_sample_from_inside_the_volume",
             "tests/runtime/wavefront/test_depth_bounds.py::test_every_ray_meets_the_medium_within_its_tiles_bounds"),

@@ -316,18 +316,29 @@ def _range_max_one(table: np.ndarray, lo: int, hi: int) -> float:
 
 
 @njit(cache=True, inline="always")
+def _voxel_coords(m: Medium, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """World point -> continuous voxel coordinates (voxel centres at integers), clamped to the grid."""
+    nx, ny, nz = m.density.shape
+    return (min(max((x - m.bmin[0]) * m.voxels_per_unit[0] - 0.5, 0.0), nx - 1.0),
+            min(max((y - m.bmin[1]) * m.voxels_per_unit[1] - 0.5, 0.0), ny - 1.0),
+            min(max((z - m.bmin[2]) * m.voxels_per_unit[2] - 0.5, 0.0), nz - 1.0))
+
+
+@njit(cache=True, inline="always")
+def _lower_corner(m: Medium, vx: float, vy: float, vz: float) -> tuple[int, int, int]:
+    """The trilinear stencil's lower corner at voxel coordinates (vx, vy, vz) (:func:`_voxel_coords`)."""
+    nx, ny, nz = m.density.shape
+    return min(int(vx), nx - 2), min(int(vy), ny - 2), min(int(vz), nz - 2)
+
+
+@njit(cache=True, inline="always")
 def scalar_at(m: Medium, x: float, y: float, z: float) -> float:
     """Trilinearly interpolated normalized scalar at world point (x, y, z) (clamped at the border); in a
     categorical medium, the nearest voxel's label index (never interpolated)."""
-    nx, ny, nz = m.density.shape
-    vx = min(max((x - m.bmin[0]) * m.voxels_per_unit[0] - 0.5, 0.0), nx - 1.0)
-    vy = min(max((y - m.bmin[1]) * m.voxels_per_unit[1] - 0.5, 0.0), ny - 1.0)
-    vz = min(max((z - m.bmin[2]) * m.voxels_per_unit[2] - 0.5, 0.0), nz - 1.0)
+    vx, vy, vz = _voxel_coords(m, x, y, z)
     if m.categorical:  # vx <= nx - 1, so int(vx + 0.5) <= nx - 1: the nearest voxel centre
         return m.density[int(vx + 0.5), int(vy + 0.5), int(vz + 0.5)]
-    i = min(int(vx), nx - 2)
-    j = min(int(vy), ny - 2)
-    k = min(int(vz), nz - 2)
+    i, j, k = _lower_corner(m, vx, vy, vz)
     fx, fy, fz = vx - i, vy - j, vz - k
     d = m.density
     c00 = d[i, j, k] * (1.0 - fx) + d[i + 1, j, k] * fx
@@ -354,10 +365,8 @@ def prefetch_scalar_stencil(m: Medium, x: float, y: float, z: float) -> None:
     """Start loading the cache lines of :func:`scalar_at`'s stencil at (x, y, z) (:mod:`photon_fields.runtime.prefetch`:
     for a march's next sample, so that its lookup finds them in cache). The four (i, j) corner pairs; each pair's
     k + 1 neighbour is the next float."""
-    nx, ny, nz = m.density.shape
-    i = min(int(max((x - m.bmin[0]) * m.voxels_per_unit[0] - 0.5, 0.0)), nx - 2)
-    j = min(int(max((y - m.bmin[1]) * m.voxels_per_unit[1] - 0.5, 0.0)), ny - 2)
-    k = min(int(max((z - m.bmin[2]) * m.voxels_per_unit[2] - 0.5, 0.0)), nz - 2)
+    vx, vy, vz = _voxel_coords(m, x, y, z)
+    i, j, k = _lower_corner(m, vx, vy, vz)
     prefetch3(m.density, i, j, k)
     prefetch3(m.density, i + 1, j, k)
     prefetch3(m.density, i, j + 1, k)

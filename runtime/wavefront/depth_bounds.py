@@ -98,10 +98,11 @@ def _list_cells(majorant: np.ndarray, cells: np.ndarray, interior: np.ndarray) -
 
 @dataclass(frozen=True)
 class OccupiedCells:
-    """A grid's occupied cells, boundary and interior (:func:`occupied_cells`), and the grid's shape."""
+    """A grid's occupied cells (:func:`occupied_cells`): their indices (n, 3), the boundary ones first, how many those
+    are, and the grid's shape."""
 
-    boundary: np.ndarray
-    interior: np.ndarray
+    cells: np.ndarray
+    n_boundary: int
     shape: tuple[int, int, int]
 
 
@@ -112,15 +113,16 @@ def occupied_cells(grid: np.ndarray) -> OccupiedCells:
     n = int(np.count_nonzero(g > 0.0))
     cells, interior = np.empty((n, 3), np.int64), np.empty(n, np.bool_)
     _list_cells(g, cells, interior)
-    return OccupiedCells(cells[~interior], cells[interior], (int(g.shape[0]), int(g.shape[1]), int(g.shape[2])))
+    return OccupiedCells(np.concatenate((cells[~interior], cells[interior])), int(n - interior.sum()),
+                         (int(g.shape[0]), int(g.shape[1]), int(g.shape[2])))
 
 
 @njit(cache=True)
-def _rasterize(boundary: np.ndarray, interior: np.ndarray, cx: int, cy: int, cz: int, bmin: np.ndarray,
-               bsize: np.ndarray, view: np.ndarray, tile: int) -> tuple[np.ndarray, np.ndarray]:
+def _rasterize(cells: np.ndarray, n_boundary: int, cx: int, cy: int, cz: int, bmin: np.ndarray, bsize: np.ndarray,
+               view: np.ndarray, tile: int) -> tuple[np.ndarray, np.ndarray]:
     """The bounds of every tile of ``view`` (:func:`photon_fields.runtime.denoise.reprojection.pack_view`; module
-    docstring) over the boundary cells, and the interior ones where the box reaches behind the eye's image plane
-    (else none of them can), serially."""
+    docstring) over the boundary cells (the first ``n_boundary`` of ``cells``), and the interior ones where the box
+    reaches behind the eye's image plane (else none of them can), serially."""
     width, height = int(view[WIDTH]), int(view[HEIGHT])
     ex, ey, ez = view[EYE], view[EYE + 1], view[EYE + 2]
     tx = (width + tile - 1) // tile
@@ -133,13 +135,9 @@ def _rasterize(boundary: np.ndarray, interior: np.ndarray, cx: int, cy: int, cz:
     fx_, fy_, fz_ = view[FWD], view[FWD + 1], view[FWD + 2]
     box_depth = (bmin[0] - ex) * fx_ + (bmin[1] - ey) * fy_ + (bmin[2] - ez) * fz_ + min(bsize[0] * fx_, 0.0) \
         + min(bsize[1] * fy_, 0.0) + min(bsize[2] * fz_, 0.0)  # the box's nearest corner along the view axis
-    n_boundary = boundary.shape[0]
-    n = n_boundary + (interior.shape[0] if box_depth <= _BEHIND else 0)
+    n = cells.shape[0] if box_depth <= _BEHIND else n_boundary
     for c in range(n):
-        if c < n_boundary:
-            i, j, k = boundary[c, 0], boundary[c, 1], boundary[c, 2]
-        else:
-            i, j, k = interior[c - n_boundary, 0], interior[c - n_boundary, 1], interior[c - n_boundary, 2]
+        i, j, k = cells[c, 0], cells[c, 1], cells[c, 2]
         x0 = bmin[0] + i * hx
         y0 = bmin[1] + j * hy
         z0 = bmin[2] + k * hz
@@ -204,11 +202,9 @@ def ray_interval(near: np.ndarray, far: np.ndarray, tile: int, width: int, pixel
     return max(0.0, near[ty, tx] - entry), min(tmax, far[ty, tx] - entry)
 
 
-def camera_depth_bounds(m: Medium, camera: Camera, tile: int = TILE,
-                        cells: OccupiedCells | None = None) -> DepthBounds:
-    """The depth bounds of ``camera``'s tiles over ``m``'s occupied macrocells (module docstring); ``cells``: the
-    majorant grid's :func:`occupied_cells`, when known."""
-    return grid_depth_bounds(m.majorant if cells is None else cells, m.bmin, m.bsize, camera, tile)
+def camera_depth_bounds(m: Medium, camera: Camera, tile: int = TILE) -> DepthBounds:
+    """The depth bounds of ``camera``'s tiles over ``m``'s occupied macrocells (module docstring)."""
+    return grid_depth_bounds(m.majorant, m.bmin, m.bsize, camera, tile)
 
 
 def grid_depth_bounds(grid: np.ndarray | OccupiedCells, bmin: np.ndarray, size: np.ndarray, camera: Camera,
@@ -217,7 +213,7 @@ def grid_depth_bounds(grid: np.ndarray | OccupiedCells, bmin: np.ndarray, size: 
     ``[bmin, bmin + size]`` (the majorant grid, or the depth maps' coarse extinction); ``grid`` may be its
     :func:`occupied_cells`, found once for many cameras."""
     cells = grid if isinstance(grid, OccupiedCells) else occupied_cells(grid)
-    near, far = _rasterize(cells.boundary, cells.interior, *cells.shape, np.asarray(bmin, np.float64),
+    near, far = _rasterize(cells.cells, cells.n_boundary, *cells.shape, np.asarray(bmin, np.float64),
                            np.asarray(size, np.float64), pack_view(camera), int(tile))
     return DepthBounds(int(tile), near, far)
 
@@ -241,7 +237,7 @@ def depth_bounds_for(scene: Scene, m: Medium) -> DepthBounds:
         if found is None or found[0] is not m:  # the cells of a medium, for every camera's bounds over it
             found = (m, occupied_cells(m.majorant))
             scene.shared_cache("occupied_macrocells")[id(m)] = found
-        hit = (m, camera_depth_bounds(m, cam, cells=found[1]))
+        hit = (m, grid_depth_bounds(found[1], m.bmin, m.bsize, cam))
     cache[key] = hit  # the newest last
     while len(cache) > KEPT:
         del cache[next(iter(cache))]

@@ -251,7 +251,7 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
     m = borrowed_medium(m)  # no reference counting in the loops below (runtime/borrowed.py)
     kind, vec, rgb, lv, wanted = borrowed(kind), borrowed(vec), borrowed(rgb), borrowed(lv), borrowed(wanted)
     out_x, out_a, at_pick, out_w = borrowed(out_x), borrowed(out_a), borrowed(at_pick), borrowed(out_w)
-    missed, phases = borrowed(missed), borrowed(ray_phase)
+    missed, ray_phase = borrowed(missed), borrowed(ray_phase)
     for i in range(lo, hi):
         dx, dy, dz, p, s = camera_ray(origin, du, dv, width, n_pixels, work[i], s0)
         hit, ox, oy, oz, tmax = clip_to_box(m, eye[0], eye[1], eye[2], dx, dy, dz)
@@ -268,7 +268,7 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
             continue
         for k in range(kind.shape[0]):
             if kind[k] == DIRECTIONAL:
-                phases[k] = hg_eval(g, -(dx * vec[k, 0] + dy * vec[k, 1] + dz * vec[k, 2]))
+                ray_phase[k] = hg_eval(g, -(dx * vec[k, 0] + dy * vec[k, 1] + dz * vec[k, 2]))
         s, u = next_float(s)  # the strata's jitter
         sx, sy, sz = _sign(dx), _sign(dy), _sign(dz)
         ivx = 1.0 / dx if sx != 0 else math.inf
@@ -315,7 +315,7 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                     tau_c += dc
                     tr = math.exp(-tau_c) * ratio
                     if sc > 0.0:
-                        m0, m1, m2, w_abs, s = _score(kind, vec, rgb, g, phases, lv, wanted, grid, x, y, z, dx,
+                        m0, m1, m2, w_abs, s = _score(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx,
                                                       dy, dz, a0, a1, a2, (b - a) * sc * tr, w_abs, m0, m1, m2, i, s,
                                                       out_x, out_a, at_pick, out_w, missed)
                     pend, p_t, p_b, p_mu, p_s = True, tk, b, mu, sc
@@ -332,7 +332,7 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                 if tc < math.inf:
                     x, y, z = ox + tc * dx, oy + tc * dy, oz + tc * dz
                     a0, a1, a2 = albedo_at(m, x, y, z)
-                    m0, m1, m2, w_abs, s = _score(kind, vec, rgb, g, phases, lv, wanted, grid, x, y, z, dx,
+                    m0, m1, m2, w_abs, s = _score(kind, vec, rgb, g, ray_phase, lv, wanted, grid, x, y, z, dx,
                                                   dy, dz, a0, a1, a2, rest, w_abs, m0, m1, m2, i, s, out_x, out_a,
                                                   at_pick, out_w, missed)
                     rest = 0.0
