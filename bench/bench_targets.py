@@ -9,7 +9,10 @@ ratio against one batch's share (the first value, default 256), on one traced ma
 (the default map and the ``cpu`` preset's window sampling; ``--discrete`` adds the five-phase map).
 ``--samplings support visible`` times the same at the sampler's default ``per_set`` for each training-position
 mode (:data:`photon_fields.train.fit.targets.SAMPLING_MODES`) as a ratio against the first, the modes
-alternating repeat by repeat so that a changing load falls on all of them.
+alternating repeat by repeat so that a changing load falls on all of them. ``--fits STEPS`` fits the default
+preset for STEPS steps on each scene's map with the targets computed beside the training (the product's way) and
+by the training loop itself, alternated ``--repeats`` times: wall seconds, the ratio, and whether the two fits'
+validation losses are the same (they must be: the same batches).
 
 Output: a table on stdout and JSON (default ``bench/results/targets.json``) with the machine record.
 """
@@ -64,6 +67,38 @@ def compare_samplings(sampler: TargetSampler, modes: list[str], repeats: int, ra
     return {m: float(np.median(t)) for m, t in times.items()}
 
 
+class _Alone(TargetSampler):
+    """The sampler as the loop used it before the worker: every pool computed in the training's thread."""
+
+    def __init__(self, *args: Any, background: bool = False, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+
+
+def compare_fits(scene: Any, pmap: Any, steps: int, repeats: int) -> dict[str, Any]:
+    """Fit walls (s) of the default preset with the targets beside the training and alone, alternated."""
+    import tempfile
+
+    from photon_fields.train.fit import loop
+    from photon_fields.train.fit.settings import FitSettings
+
+    walls: dict[str, list[float]] = {"beside": [], "alone": []}
+    losses: dict[str, set[float]] = {"beside": set(), "alone": set()}
+    try:
+        for r in range(repeats):
+            for mode in ("beside", "alone") if r % 2 == 0 else ("alone", "beside"):
+                loop.TargetSampler = TargetSampler if mode == "beside" else _Alone
+                with tempfile.TemporaryDirectory() as tmp:
+                    t0 = time.perf_counter()
+                    res = loop.fit(scene, pmap, tmp, FitSettings.from_preset("cpu", steps=steps), progress=False)
+                    walls[mode].append(time.perf_counter() - t0)
+                losses[mode].add(res.log["validation"][-1]["val_loss"])
+    finally:
+        loop.TargetSampler = TargetSampler
+    beside, alone = float(np.median(walls["beside"])), float(np.median(walls["alone"]))
+    return {"steps": steps, "beside_s": beside, "alone_s": alone, "ratio": beside / alone,
+            "same_fit": losses["beside"] == losses["alone"] and len(losses["alone"]) == 1, "walls": walls}
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", nargs="*", default=["vortex", "shell"], help="builtin scenes")
@@ -75,6 +110,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--discrete", action="store_true", help="also the five-phase map with discrete g (cpu-phases)")
     ap.add_argument("--samplings", nargs="*", default=[],
                     help="training-position modes to compare at the default per_set (the first is the baseline)")
+    ap.add_argument("--fits", type=int, default=0, metavar="STEPS",
+                    help="also fit the default preset for STEPS steps with the targets beside the training and alone")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = ap.parse_args(argv)
@@ -108,6 +145,13 @@ def main(argv: list[str] | None = None) -> None:
                                                  "other_cores": busy.other_cores} for m, t in modes.items()}
                 print(f"{key}: ms per {BATCH} samples drawn and estimated by position mode: "
                       + ", ".join(f"{m} {1e3 * t:.1f} (x{t / first:.2f})" for m, t in modes.items()), flush=True)
+            if args.fits and g_sampling == "window":
+                with Contention() as busy:
+                    fits = compare_fits(scene, pmap, args.fits, args.repeats)
+                results[key]["fits"] = {**fits, "other_cores": busy.other_cores}
+                print(f"{key}: fit of {args.fits} steps {fits['beside_s']:.1f} s with the targets beside the training, "
+                      f"{fits['alone_s']:.1f} s alone (x{fits['ratio']:.2f}; the same fit: {fits['same_fit']})",
+                      flush=True)
     write_report(args.out, "targets", finish_info(info, results),
                  {k: v for k, v in vars(args).items() if k != "out"}, results=results)
 

@@ -81,7 +81,7 @@ def ball_pattern(n: int = SUPPORT_SAMPLES) -> np.ndarray:
     return np.array(pts)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def support_fraction(m: Medium, x: np.ndarray, r: np.ndarray, pattern: np.ndarray) -> np.ndarray:
     """Fraction of the ball (x_i, r_i) inside the medium's support (sigma_t > 0), x (n, 3)."""
     n = x.shape[0]

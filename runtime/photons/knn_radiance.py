@@ -106,7 +106,7 @@ def _kernel_bins(bin_g: np.ndarray, half_width: float, g: float) -> tuple[int, i
     return np.int64(b0), np.int64(b1), 1.0 / total
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _radiance_kernel(pos: np.ndarray, cell_start: np.ndarray, origin: np.ndarray, h: float, dims: np.ndarray,
                      nb: int, dirs: np.ndarray, wts: np.ndarray, light: np.ndarray, lights: int, rank: np.ndarray,
                      bin_g: np.ndarray, half_width: float, queries: np.ndarray, view: np.ndarray, qorder: np.ndarray,

@@ -46,7 +46,7 @@ def next_float(state: np.uint64) -> tuple[np.uint64, float]:
     return state, float(mix64(state) >> _S11) * _INV_2_53
 
 
-@njit(cache=True, parallel=False)
+@njit(cache=True, parallel=False, nogil=True)
 def stream_states(seed: int, first_stream: int, count: int) -> np.ndarray:
     """States of streams ``first_stream .. first_stream + count - 1``."""
     out = np.empty(count, dtype=np.uint64)

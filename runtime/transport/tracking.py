@@ -427,7 +427,7 @@ def _track_items(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax
         out[i] = t if mode == _DELTA else tr
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def _track_batch(m: Medium, o: np.ndarray, d: np.ndarray, tmin: np.ndarray, tmax: np.ndarray, states: np.ndarray,
                  mode: int, switch: float = 0.0, boost: float = 1.0) -> np.ndarray:
     n = o.shape[1]

@@ -250,8 +250,11 @@ def _run_fit(args: argparse.Namespace, scene, pmap, settings,  # noqa: ANN001
     result = fit(scene, pmap, out, settings, progress=not args.quiet, on_progress=stage_callback(progress, "fit"))
     t = result.log["totals"]
     val = t["final_validation"] or {}
+    beside = t["targets_background_s"] / max(t["steps_done"], 1)
     print(f"fitted {t['steps_done']} steps x {settings.batch} samples in {t['wall_s']:.1f} s (targets "
-          f"{t['targets_s_per_step'] * 1e3:.0f} ms/step, training {t['train_s_per_step'] * 1e3:.0f} ms/step, "
+          f"{t['targets_s_per_step'] * 1e3:.0f} ms/step waited"
+          + (f", {beside * 1e3:.0f} computed beside the training" if beside else "")
+          + f", training {t['train_s_per_step'] * 1e3:.0f} ms/step, "
           f"{t['samples_per_s']:,.0f} samples/s); final loss {t['final_loss']:.4g}, validation loss "
           f"{val.get('val_loss', float('nan')):.4g}, relative L1 {val.get('val_rel_l1', float('nan')):.3f}"
           + (f", {result.model.cfg.light_channels} lights apart" if result.model.cfg.light_channels > 1 else "")
@@ -385,8 +388,8 @@ def update_time_line(t: dict[str, float]) -> str:
     return (f"start-up {t.get('startup_s', 0.0):.1f} s, read RUN {t['read_run_s']:.1f} s, "
             f"retrace {t['trace_s']:.1f} s, save map {t['save_map_s']:.1f} s, "
             f"search structures {t['index_build_s']:.1f} s, validation targets {t['validation_targets_s']:.1f} s, "
-            f"steps {steps:.1f} s (targets {t['targets_s']:.1f} s), validations {t['validate_s']:.1f} s, log "
-            f"{t['outputs_s']:.1f} s, export {t['export_s']:.1f} s; the bundle after {t['bundle_s']:.1f} s (budget "
+            f"steps {steps:.1f} s (waiting for targets {t['targets_s']:.1f} s), validations {t['validate_s']:.1f} s, "
+            f"log {t['outputs_s']:.1f} s, export {t['export_s']:.1f} s; the bundle after {t['bundle_s']:.1f} s (budget "
             f"{t['budget_s']:g} s), loss plot {t['plot_s']:.1f} s, {t['wall_s']:.1f} s in all")
 
 

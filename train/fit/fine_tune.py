@@ -134,7 +134,8 @@ def fine_tune(model: TorchPhotonField, scene: Scene, pmap: PhotonMap, out_dir: s
     def summary(done: int) -> dict[str, Any]:
         targets_s, steps_s = float(np.sum(per["targets_s"])), float(np.sum(per["step_s"]))
         return {"steps_done": done, "wall_s": time.perf_counter() - t_start, "setup_s": setup_s,
-                "index_build_s": sampler.build_seconds, "targets_s": targets_s, "train_s": steps_s,
+                "index_build_s": sampler.build_seconds, "targets_s": targets_s,
+                "targets_background_s": sampler.background_seconds, "train_s": steps_s,
                 "targets_s_per_step": targets_s / max(done, 1), "train_s_per_step": steps_s / max(done, 1),
                 "samples_per_s": done * settings.batch / max(targets_s + steps_s, 1e-9),
                 "final_loss": per["loss"][-1] if per["loss"] else None,
@@ -215,6 +216,7 @@ def fine_tune(model: TorchPhotonField, scene: Scene, pmap: PhotonMap, out_dir: s
                 check(done)
     finally:
         bar.close()
+        sampler.close()
     with torch.no_grad():
         for p, k in zip(model.parameters(), kept, strict=True):
             p.copy_(k)

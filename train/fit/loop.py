@@ -112,11 +112,13 @@ def light_channels_for(pmap: PhotonMap, per_light: bool) -> int:
 
 def field_sampler(scene: Scene, pmap: PhotonMap, settings: FitSettings,
                   light_channels: int) -> tuple[TargetSampler, FieldConfig]:
-    """The target sampler of a fit with ``settings`` on ``pmap`` and the field configuration it trains (its preset's
-    architecture, the sampler's phases, ``light_channels`` outputs)."""
+    """The target sampler of a fit with ``settings`` on ``pmap`` (its targets computed beside the training; the
+    caller closes it) and the field configuration it trains (its preset's architecture, the sampler's phases,
+    ``light_channels`` outputs)."""
     preset = PRESETS[settings.preset]
     sampler = TargetSampler(pmap, scene.medium(), k=settings.k, psi=settings.psi, seed=settings.seed,
-                            sampling=settings.sampling, g_sampling=settings.g_sampling, lights=light_channels)
+                            sampling=settings.sampling, g_sampling=settings.g_sampling, lights=light_channels,
+                            background=True)
     return sampler, field_config_for(preset, sampler.field_phases(preset.phase_nodes), settings.psi, light_channels)
 
 
@@ -207,7 +209,7 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
         targets_s = float(np.sum(per["targets_s"]))
         steps_s = float(np.sum(per["step_s"]))
         return {"steps_done": done, "wall_s": wall, "setup_s": setup_s, "index_build_s": sampler.build_seconds,
-                "targets_s": targets_s, "train_s": steps_s,
+                "targets_s": targets_s, "targets_background_s": sampler.background_seconds, "train_s": steps_s,
                 "targets_s_per_step": targets_s / max(done, 1), "train_s_per_step": steps_s / max(done, 1),
                 "samples_per_s": done * settings.batch / max(targets_s + steps_s, 1e-9),
                 "final_loss": per["loss"][-1] if per["loss"] else None,
@@ -264,6 +266,7 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
                                 sps=f"{done * settings.batch / max(train_s + sampler.seconds, 1e-9):,.0f}")
     finally:
         bar.close()
+        sampler.close()
     save_checkpoint(ckpt, model, scene.fingerprint(), total, summary(total))
     write_outputs(total, "done")
     return FitResult(model, log, out, [ckpt, log_path, png])

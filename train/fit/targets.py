@@ -59,6 +59,9 @@ g_sampling : "discrete", "continuous", "mixed" or "window"
 lights : int (default 1)
     1: targets for all lights together (n, 3); or the map's number of lights (it must record each photon's light):
     each light's part apart (n, 3 lights), from the same search (:class:`PhotonMapEstimator`'s ``lights``).
+background : bool (default False)
+    Compute the next pool in a worker thread (below, "Targets beside the training"); :meth:`TargetSampler.close`
+    stops it.
 
 Targets ahead. The estimates are computed for several steps' batches at once (:data:`TARGETS_PER_SET` per
 phase, or :data:`BINNED_POOL_SETS` times that from the binned index; :meth:`TargetSampler.sample` then hands them
@@ -67,16 +70,27 @@ queries per call instead of a batch's share (256 of 4096 with 16 phases), and th
 find their photons in cache (the binned index took 1.6x as long per query in calls of 4096 as in one call of
 65536). The pool is dropped when the schedule's radius changes. Measured in bench/README.md ("Targets ahead").
 
-Timing: every :meth:`TargetSampler.sample` adds its wall time to ``seconds`` (the time of the estimates it
-computed, in the step that needed them) and its batch size to ``queries``; ``estimated`` counts the targets
-computed. :mod:`photon_fields.train.fit.loop` reports the seconds per step next to the training step.
+Targets beside the training (``background=True``, what the fits use): while the steps consume one pool, a
+worker thread draws and estimates the next, so the estimates (numba, the GIL released) run on one core while
+torch's small training step, mostly serial, runs on the other. The pools are the same as without the worker:
+the worker is the only user of the training stream, draws each pool in turn, and a pool drawn at a radius the
+schedule has left is estimated again from the same draws at the radius asked for (the draws do not depend on
+the radius). It takes all but one of the caller's numba threads; a caller with one thread (``--threads 1``)
+computes the pools itself, as before. Measured in bench/README.md ("Targets beside the training").
+
+Timing: every :meth:`TargetSampler.sample` adds its wall time to ``seconds`` (what the step waited for its
+targets: the estimates it computed itself, or the rest of the worker's pool) and its batch size to ``queries``;
+``background_seconds`` sums the worker's time per pool; ``estimated`` counts the targets computed.
+:mod:`photon_fields.train.fit.loop` reports the seconds per step next to the training step.
 """
 
 from __future__ import annotations
 
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import torch
 from numba import njit, prange
@@ -111,7 +125,7 @@ TARGETS_PER_SET = 4096
 _MAX_REJECTION_DRAWS = 1 << 26  # candidates before giving up on an (almost) empty support
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def in_support(m: Medium, x: np.ndarray) -> np.ndarray:
     """sigma_t(x_i) > 0 for world points x (n, 3) (parallel; elementwise, so thread-count independent)."""
     out = np.empty(x.shape[0], dtype=np.bool_)
@@ -159,7 +173,7 @@ class TargetSampler:
 
     def __init__(self, pmap: PhotonMap, medium: Medium, *, k: int = DEFAULT_K, psi: float, seed: int = 0,
                  sampling: str = "box", g_sampling: str = "discrete", per_set: int = TARGETS_PER_SET,
-                 lights: int = 1) -> None:
+                 lights: int = 1, background: bool = False) -> None:
         if sampling not in SAMPLING_MODES:
             raise InputError("sampling", f"must be one of {SAMPLING_MODES}, got {sampling!r}")
         if g_sampling not in G_SAMPLING_MODES:
@@ -195,6 +209,11 @@ class TargetSampler:
         self._pool: tuple[np.ndarray, ...] = ()
         self._pool_radius = -1.0
         self._pool_next = 0
+        self.background_seconds = 0.0
+        #: The worker's numba threads (0: no worker): all but one of the caller's.
+        self._worker_threads = numba.get_num_threads() - 1 if background else 0
+        self._executor: ThreadPoolExecutor | None = None
+        self._ahead: Future | None = None
 
     def field_phases(self, nodes: int) -> tuple[float, ...]:
         """The phase set the field records (the nodes of its phase features,
@@ -303,14 +322,45 @@ class TargetSampler:
                            target=torch.from_numpy(encode_radiance(q, self.psi)), q=q, found=found,
                            seconds=time.perf_counter() - t0)
 
-    def _refill(self, n: int, radius: float) -> None:
-        """Draw and estimate the next pool: a whole number of batches of n, about ``per_set`` per search
-        structure."""
-        size = n * max(1, round(self.per_set * self.sets / n))
+    def _draw_pool(self, size: int, radius: float) -> tuple[tuple[np.ndarray, ...], float, float]:
+        """The next ``size`` samples of the training stream and their estimates at ``radius``: ((x, d, g, ph, q,
+        found), radius, seconds)."""
+        t0 = time.perf_counter()
         x, d, g, ph = self.draw(self.rng, size, self.sampling)
         q, found = self.estimate(x, d, g, ph, radius)
+        return (x, d, g, ph, q, found), radius, time.perf_counter() - t0
+
+    def _refill(self, n: int, radius: float) -> None:
+        """Install the next pool: a whole number of batches of n, about ``per_set`` per search structure; the
+        worker's when it runs (module docstring, "Targets beside the training"), which then starts the one
+        after."""
+        size = n * max(1, round(self.per_set * self.sets / n))
+        if self._ahead is None:
+            (x, d, g, ph, q, found), _, _ = self._draw_pool(size, radius)
+        else:
+            (x, d, g, ph, q, found), drawn_at, seconds = self._ahead.result()
+            self._ahead = None
+            self.background_seconds += seconds
+            if drawn_at != radius:  # the schedule moved on: the same draws, estimated at the radius asked for
+                q, found = self.estimate(x, d, g, ph, radius)
         self._pool, self._pool_radius, self._pool_next = (x, d, g, q, found), radius, 0
-        self.estimated += size
+        self.estimated += x.shape[0]
+        if self._worker_threads > 0:
+            if self._executor is None:
+                self._executor = ThreadPoolExecutor(1, thread_name_prefix="pfn-targets",
+                                                    initializer=numba.set_num_threads,
+                                                    initargs=(self._worker_threads,))
+            self._ahead = self._executor.submit(self._draw_pool, size, radius)
+
+    def close(self) -> None:
+        """Stop the worker (after the pool it is computing, which the next refill still takes: the stream stays
+        the same); the sampler then computes its pools itself."""
+        self._worker_threads = 0
+        if self._executor is not None:
+            self._executor.shutdown(wait=True, cancel_futures=True)
+            self._executor = None
+        if self._ahead is not None and self._ahead.cancelled():
+            self._ahead = None
 
     def sample(self, n: int, radius: float) -> TargetBatch:
         """A training batch of n fresh samples with targets at r_max = ``radius`` (box units), from the pool

@@ -20,6 +20,7 @@ from photon_fields.runtime.errors import InputError  # noqa: E402
 from photon_fields.runtime.photons.estimate import PhotonMapEstimator  # noqa: E402
 from photon_fields.runtime.photons.photon_map import PhotonMap  # noqa: E402
 from photon_fields.runtime.scene.scene import scene_from_dict  # noqa: E402
+from photon_fields.runtime.threads import numba_threads  # noqa: E402
 from photon_fields.train.cli.train import _main  # noqa: E402
 from photon_fields.train.field.network import TorchPhotonField  # noqa: E402
 from photon_fields.train.fit.checkpoint import load_checkpoint  # noqa: E402
@@ -128,6 +129,45 @@ def test_batches_come_fresh_from_targets_estimated_ahead(tiny: tuple) -> None:
     assert np.array_equal(np.concatenate([b.g.numpy()[:, 0] for b in batches[:5]]), g.astype(np.float32))
     sampler.sample(64, 0.02)  # the schedule's next radius: the rest of the pool is not used
     assert sampler.estimated == 960
+
+
+@pytest.mark.parametrize("sampling", ["support", "visible"])
+def test_targets_beside_the_training_are_the_same_batches(tiny: tuple, sampling: str) -> None:
+    """With the worker thread computing the next pool, every batch is the one the sampler computes alone: over
+    several pools, a radius change in the middle of one (the worker's pool was drawn at the old radius) and a
+    close() with a pool in flight (the next refill still takes it)."""
+    import numba
+
+    scene, pmap, _, _ = tiny
+    m = scene.medium()
+    kw = dict(k=32, psi=5.0, seed=7, sampling=sampling, g_sampling="continuous", per_set=100)
+    radii = [0.05] * 7 + [0.03] * 16  # pools of 5 batches: refills at steps 0, 5, 7 (new radius), 12, 17, 22
+    with numba_threads(2):
+        alone = TargetSampler(pmap, m, **kw)
+        beside = TargetSampler(pmap, m, **kw, background=True)
+        try:
+            for step, radius in enumerate(radii):
+                if step == 13:  # the worker's next pool computed (not cancelled): the next refill takes it
+                    beside._ahead.result()
+                    beside.close()
+                a, b = alone.sample(64, radius), beside.sample(64, radius)
+                for name in ("pos", "dirs", "g", "target"):
+                    assert torch.equal(getattr(a, name), getattr(b, name)), (step, name)
+                assert np.array_equal(a.q, b.q) and np.array_equal(a.found, b.found)
+        finally:
+            beside.close()
+        assert beside.background_seconds > 0 and alone.background_seconds == 0
+        assert beside._executor is None and numba.get_num_threads() == 2
+
+
+def test_a_caller_with_one_thread_computes_its_targets_itself(tiny: tuple) -> None:
+    """``--threads 1`` keeps the fit on one core: no worker thread."""
+    scene, pmap, _, _ = tiny
+    with numba_threads(1):
+        sampler = TargetSampler(pmap, scene.medium(), k=16, psi=5.0, seed=0, sampling="support", background=True)
+        sampler.sample(64, 0.05)
+        sampler.sample(64, 0.05)
+    assert sampler._executor is None and sampler.background_seconds == 0
 
 
 def test_support_sampling_is_uniform_over_the_medium(tiny: tuple) -> None:
