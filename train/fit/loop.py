@@ -12,8 +12,9 @@ Settings: :class:`photon_fields.train.fit.settings.FitSettings` (defaults from t
 Outputs (run folder, each file written atomically):
 
 - ``checkpoint.pt`` (:mod:`photon_fields.train.fit.checkpoint`), every ``checkpoint_every`` steps and at the end;
-- ``log.json``: settings, per-step columns (loss, radius, lr, wall time, target and step seconds, mean
-  photons found), validation history and totals (incl. the time split targets / training step);
+- ``log.json``: settings, per-step columns (loss, radius, lr, wall time, seconds waited for the targets and of the
+  step, mean photons found), validation history and totals (incl. the time split targets waited / training step,
+  and the worker's time computing targets beside the training, ``targets_background_s``);
 - ``loss.png`` (:mod:`photon_fields.train.fit.plots`): the loss curve with the schedule's stage changes.
 
 A non-finite loss stops the run with :class:`TrainingDivergedError` (an InputError: one line naming the step
