@@ -10,10 +10,15 @@ in bounds (no check is made: the point of it is to cost a few instructions).
 
 from __future__ import annotations
 
+import numpy as np
 from llvmlite import ir
-from numba import types
+from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
+
+from photon_fields.runtime.numba_inlining import install
+
+install()  # before any kernel that inlines ours compiles (runtime/numba_inlining.py)
 
 
 @intrinsic
@@ -41,3 +46,13 @@ def prefetch3(typingctx, array, i, j, k):  # numba intrinsic: arguments are numb
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+@njit(cache=True, inline="always")
+def prefetch_stencil(array: np.ndarray, i: int, j: int, k: int) -> None:
+    """Prefetch a trilinear stencil with lower corner (i, j, k) of a C-ordered array of 3 or more dimensions: the
+    four (i, j) corner pairs' lines (each pair's k + 1 neighbour, and any further axes, lie next to it)."""
+    prefetch3(array, i, j, k)
+    prefetch3(array, i + 1, j, k)
+    prefetch3(array, i, j + 1, k)
+    prefetch3(array, i + 1, j + 1, k)

@@ -46,7 +46,7 @@ from numba import njit, prange
 
 from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.prefetch import prefetch3
+from photon_fields.runtime.prefetch import prefetch_stencil
 from photon_fields.runtime.transport.cell_grid import Grid, blend, cell_centre, stencil
 from photon_fields.runtime.transport.emitters import delta_light_direction
 from photon_fields.runtime.transport.marching import march_transmittance_in_segments
@@ -168,10 +168,7 @@ def prefetch_light_stencil(v: np.ndarray, grid: Grid, x: float, y: float, z: flo
     """Start loading the cache lines of the light volume ``v``'s stencil at (x, y, z) (:mod:`photon_fields.runtime.
     prefetch`), every light's values of a cell lying together: the four (i, j) corner pairs."""
     i, j, k, _, _, _ = stencil(grid, x, y, z)
-    prefetch3(v, i, j, k)
-    prefetch3(v, i + 1, j, k)
-    prefetch3(v, i, j + 1, k)
-    prefetch3(v, i + 1, j + 1, k)
+    prefetch_stencil(v, i, j, k)
 
 
 @njit(cache=True, inline="always")

@@ -55,7 +55,7 @@ from numba import njit, prange
 
 from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.numba_inlining import install
-from photon_fields.runtime.prefetch import prefetch3
+from photon_fields.runtime.prefetch import prefetch_stencil
 from photon_fields.runtime.scene.labels import LabelTransfer
 from photon_fields.runtime.scene.transfer import LUT_SIZE, TransferFunction
 from photon_fields.runtime.scene.volume import Volume
@@ -363,14 +363,10 @@ def worth_prefetching(m: Medium) -> bool:
 @njit(cache=True, inline="always")
 def prefetch_scalar_stencil(m: Medium, x: float, y: float, z: float) -> None:
     """Start loading the cache lines of :func:`scalar_at`'s stencil at (x, y, z) (:mod:`photon_fields.runtime.prefetch`:
-    for a march's next sample, so that its lookup finds them in cache). The four (i, j) corner pairs; each pair's
-    k + 1 neighbour is the next float."""
+    for a march's next sample, so that its lookup finds them in cache)."""
     vx, vy, vz = _voxel_coords(m, x, y, z)
     i, j, k = _lower_corner(m, vx, vy, vz)
-    prefetch3(m.density, i, j, k)
-    prefetch3(m.density, i + 1, j, k)
-    prefetch3(m.density, i, j + 1, k)
-    prefetch3(m.density, i + 1, j + 1, k)
+    prefetch_stencil(m.density, i, j, k)
 
 
 @njit(cache=True, inline="always")
