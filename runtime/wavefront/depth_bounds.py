@@ -233,11 +233,10 @@ def depth_bounds_for(scene: Scene, m: Medium) -> DepthBounds:
            cam.height)
     hit = cache.pop(key, None)
     if hit is None or hit[0] is not m:
-        found = scene.shared_cache("occupied_macrocells").get(id(m))
-        if found is None or found[0] is not m:  # the cells of a medium, for every camera's bounds over it
-            found = (m, occupied_cells(m.majorant))
-            scene.shared_cache("occupied_macrocells")[id(m)] = found
-        hit = (m, grid_depth_bounds(found[1], m.bmin, m.bsize, cam))
+        occupied = scene.shared_cache("occupied_macrocells")  # the last medium's cells, for every camera over it
+        if occupied.get("medium") is not m:
+            occupied.update(medium=m, cells=occupied_cells(m.majorant))
+        hit = (m, grid_depth_bounds(occupied["cells"], m.bmin, m.bsize, cam))
     cache[key] = hit  # the newest last
     while len(cache) > KEPT:
         del cache[next(iter(cache))]
