@@ -185,6 +185,12 @@ MUTANTS: tuple[Mutant, ...] = (
            "        if self._ahead is not None:",
            ("tests/train/fit/test_field_training.py::test_targets_beside_the_training_are_the_same_batches",),
            "close() drops the worker's computed pool: the next refill draws past it and the stream changes"),
+    Mutant("ray_marcher_terminates_late", "runtime/renderers/ray_marcher.py",
+           "while t_prev < tmax and t_prev < t_far and t_min < T:",
+           "while t_prev < tmax and t_prev < t_far and t_min * t_min < T:",
+           ("tests/runtime/renderers/test_ray_marcher.py::"
+            "test_early_termination_loses_what_scatters_behind_the_stopping_point",),
+           "early ray termination at the square of the threshold: the preview marches on where it should stop"),
     Mutant("spline_ghost_node_dropped", "models_spec/encoding.py",
            "w[:, 0] += around[:, 0]",
            "w[:, 0] += 0.0 * around[:, 0]",

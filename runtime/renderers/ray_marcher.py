@@ -25,9 +25,9 @@ shadow_step : float (default 1.0 for "march"; for "volume" the light volume's 0.
 light_grid_scale : float or None (default None: 1, fewer over ~320^3 voxels)
     "volume": light-volume cells per voxel along each axis (finer: sharper lit walls, more memory and marching);
     None: :func:`photon_fields.runtime.transport.light_volume.auto_cells_per_voxel`, at most 128 MiB a light.
-min_transmittance : float (default 1e-2)
-    Early ray termination: a camera ray stops once it is this opaque. What lies behind can add at most this
-    fraction of the brightest radiance it would have scattered (and of the environment seen through it).
+min_transmittance : float (default ``registry.DEFAULT_MIN_TRANSMITTANCE``, 0.03)
+    Early ray termination: a camera ray stops once its transmittance is below this. What lies behind can add at most
+    this fraction of the brightest radiance it would have scattered (and of the environment seen through it).
 level : int (default 0)
     March the volume's coarser level (:mod:`photon_fields.runtime.scene.levels`: blocks of 2^level voxels a side
     averaged, the same box): what the viewer shows while the view or the scene is being changed on a large volume.
@@ -70,6 +70,7 @@ from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.denoise.reprojection import DU, DV, EYE, ORIGIN, pack_view
 from photon_fields.runtime.errors import check_choice
 from photon_fields.runtime.progress import progress_bar
+from photon_fields.runtime.renderers.registry import DEFAULT_MIN_TRANSMITTANCE
 from photon_fields.runtime.scene.levels import scene_at_level
 from photon_fields.runtime.scene.lights import DIRECTIONAL
 from photon_fields.runtime.scene.scene import Scene
@@ -448,8 +449,8 @@ def camera_estimator_for(scene: Scene, estimator: IndirectEstimator | None, came
 
 def render_ray_marched(scene: Scene, *, spp: int = 1, step: float = 1.0, shadows: str = "volume",
                        shadow_step: float | None = None, light_grid_scale: float | None = None,
-                       min_transmittance: float = 1e-2, max_step: float | None = None, seed: int = 0,
-                       batch_size: int = MARCH_BATCH, progress: bool = True, skip_empty: bool = True,
+                       min_transmittance: float = DEFAULT_MIN_TRANSMITTANCE, max_step: float | None = None,
+                       seed: int = 0, batch_size: int = MARCH_BATCH, progress: bool = True, skip_empty: bool = True,
                        level: int = 0, cancel: Callable[[], bool] | None = None,
                        estimator: IndirectEstimator | None = None) -> RenderResult:
     """Single scattering by ray marching (module docstring for the parameters). Layers L, L_e and L_d (L_i stays

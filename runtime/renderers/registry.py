@@ -149,6 +149,11 @@ LIGHT_OPTION = Option("--light-sampling", "light_sampling", "next-event estimati
 #: reduces (measurements: bench/README.md, ``bench_final_gather.py``).
 DEFAULT_GATHER_AFTER = 128
 
+#: The ray marcher's early ray termination: a camera ray stops once its transmittance is below this. 0.03 rather than
+#: 0.01: fewer samples per ray and fewer light-volume cells filled behind what a new jitter reaches, for a change of
+#: the image far below the preview's own error (bench/README.md, ``bench_ray_marcher.py``, "Early ray termination").
+DEFAULT_MIN_TRANSMITTANCE = 0.03
+
 
 def spp_or_never(text: str) -> int | None:
     """``--final-gather-after``'s argparse type: a sample count, or ``never`` (None)."""
@@ -185,7 +190,7 @@ MARCH_OPTIONS = (
            "along each axis (default: 1, fewer for volumes over ~320^3 voxels: at most 128 MiB a light)",
            float, None, optional(float_in(0.25, 4, "cells per voxel"))),
     Option("--min-transmittance", "min_transmittance", "early ray termination: a camera ray stops once "
-           "this opaque", float, 1e-2, float_in(0, 0.5, "(transmittance)")),
+           "its transmittance is below this", float, DEFAULT_MIN_TRANSMITTANCE, float_in(0, 0.5, "(transmittance)")),
     Option("--level", "level", "march a coarser level of the volume: blocks of 2^LEVEL voxels a side "
            "averaged in the same box (a quick look at a large volume; walls one or two voxels thick read "
            "thicker)", int, 0, int_in(0, MAX_LEVEL)),

@@ -138,6 +138,21 @@ def test_long_segments_stay_within_one_optical_depth_in_a_lit_slab(tau: float) -
     assert abs(marched.mean() / exact - 1.0) < 0.025
 
 
+def test_early_termination_loses_what_scatters_behind_the_stopping_point() -> None:
+    """Lit from behind the camera, the slab scatters towards the camera at depth t in proportion to exp(-2 sigma t):
+    camera and light transmittance alike. A ray stopped where its transmittance T_s falls below the threshold
+    loses exactly the fraction T_s^2 of what it would scatter (the slab is 4 optical depths, exp(-8) beyond it),
+    and T_s lies between the threshold times one segment's transmittance (3 voxels of 0.25) and the threshold."""
+    scene = _slab_scene(0.25)
+    full = render_ray_marched(scene, spp=16, shadows="march", shadow_step=0.02, min_transmittance=1e-9,
+                              progress=False).layers["L_d"].mean()
+    for threshold in (0.03, 0.1):
+        stopped = render_ray_marched(scene, spp=16, shadows="march", shadow_step=0.02, min_transmittance=threshold,
+                                     progress=False).layers["L_d"].mean()
+        lost = 1.0 - stopped / full
+        assert (threshold * math.exp(-0.75)) ** 2 * 0.9 < lost < threshold ** 2 * 1.1, (threshold, lost)
+
+
 def test_light_volume_cells_are_shadow_rays_from_their_centres_and_only_read_cells_are_marched() -> None:
     from photon_fields.runtime.renderers.ray_marcher import scene_light_volume
     from photon_fields.runtime.transport.cell_grid import cell_centre

@@ -10,7 +10,7 @@ import pytest
 
 from photon_fields.runtime.cli.render import build_parser, renderer_options
 from photon_fields.runtime.errors import InputError
-from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER, INPUTS, RENDERERS
+from photon_fields.runtime.renderers.registry import DEFAULT_GATHER_AFTER, DEFAULT_MIN_TRANSMITTANCE, INPUTS, RENDERERS
 
 COMMON = ("spp", "seed", "batch_size", "progress")
 INPUT_KEYWORDS = {"map": ("pmap", "force"), "bundle": ("estimator",)}
@@ -53,7 +53,7 @@ def test_options_reach_only_their_renderer_and_are_all_checked() -> None:
     assert renderer_options(args, "pt") == {"max_depth": 3, "nee": False}
     assert renderer_options(args, "raymarch") == {"step": 2.0, "max_step": None, "shadow_step": 0.25,
                                                   "shadows": "volume", "light_grid_scale": None,
-                                                  "min_transmittance": 1e-2, "level": 0}
+                                                  "min_transmittance": DEFAULT_MIN_TRANSMITTANCE, "level": 0}
     assert renderer_options(args, "field") == {"camera": "auto", "light_sampling": "one",
                                                "final_gather_after": DEFAULT_GATHER_AFTER}
     delta = parser.parse_args(["--method", "field", "--camera-estimator", "delta", "--final-gather-after", "0",
