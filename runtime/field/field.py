@@ -44,7 +44,10 @@ the normalized position + position hash encoding into columns ``[0, Lp Fp)``; ``
 encoding into ``[Lp Fp, Lp Fp + Ld Fd)`` (``runtime.field.hashgrid.encode(out=buf,
 col=...)``: no concatenation copy); those columns times g where the direction gain says so, and the phase features
 into the last columns (numba loops without numpy's temporaries, :mod:`photon_fields.runtime.field.inputs`, equal to
-:mod:`photon_fields.models_spec.encoding`'s functions bit for bit); ``InferenceSession.run`` on the buffer. The
+:mod:`photon_fields.models_spec.encoding`'s functions bit for bit); ``InferenceSession.run`` on the buffer. A rendered
+frame asks with one g: its gain and phase-feature row are computed once per g, and the two reused encode buffers keep
+their phase columns while they hold that g's row for the rows a chunk uses (nothing else writes those columns; any
+other g, more rows or per-query g write them again). The
 direction timer includes the gains and the phase features. Eq. 7 (``decode_radiance`` of
 :mod:`photon_fields.models_spec.encoding`, the same function training's targets are checked with) runs once over the
 whole result. ``field.timers`` accumulates seconds per stage over calls (``reset()`` clears them). Where the
@@ -137,6 +140,10 @@ class PhotonField:
         self._dir_col = self.config.position.output_dims
         self._phase_col = self._dir_col + self.config.direction.output_dims
         self._buffers = [np.empty((0, self.config.input_dims), np.float32) for _ in range(2)]
+        #: Per encode buffer, (g, rows) whose phase columns already hold that g's features (None: not known).
+        self._phase_rows: list[tuple[float, int] | None] = [None, None]
+        #: The last frame g's direction gains and phase-feature row: (g, gains, phase).
+        self._frame_g: tuple[float, np.ndarray | None, np.ndarray] | None = None
         self._pool: Any = None
 
     # ------------------------------------------------------------------------------------------------
@@ -193,6 +200,7 @@ class PhotonField:
     def _buf(self, m: int, k: int = 0) -> np.ndarray:
         if self._buffers[k].shape[0] < m:
             self._buffers[k] = np.empty((m, self.input_width), np.float32)
+            self._phase_rows[k] = None
         return self._buffers[k][:m]
 
     def encode_inputs(self, x: Any, omega: Any, g: Any) -> np.ndarray:
@@ -202,7 +210,10 @@ class PhotonField:
         self._encode_into(out, x, omega, ga)
         return out
 
-    def _encode_into(self, buf: np.ndarray, x: np.ndarray, omega: np.ndarray, ga: np.ndarray) -> None:
+    def _encode_into(self, buf: np.ndarray, x: np.ndarray, omega: np.ndarray, ga: np.ndarray,
+                     k: int | None = None) -> None:
+        """The MLP input rows of x, omega, g into ``buf``; ``k``: which of the reused encode buffers it is (None: a
+        buffer of the caller's, every column written)."""
         cfg, t = self.config, self.timers
         t0 = time.perf_counter()
         try:
@@ -211,10 +222,27 @@ class PhotonField:
             encode(cfg.direction, self.direction_table, direction_input(omega), out=buf, col=self._dir_col)
         except ValueError as exc:  # non-finite or absurdly far positions / directions
             raise InputError("query", str(exc)) from None
-        # One g for the chunk (a rendered frame): one gain, one row of phase features for every row.
-        g = ga[:1] if ga.shape[0] > 1 and bool((ga == ga[0]).all()) else ga
-        finish_rows(buf, self._dir_col, self._phase_col, direction_gains(g, cfg.direction_gain),
-                    phase_features(g, cfg.phases, cfg.phase_encoding))
+        if ga.shape[0] >= 1 and bool((ga == ga[0]).all()):
+            # One g for the chunk (a rendered frame): one gain, one row of phase features for every row, computed
+            # once per g; and a reused buffer whose phase columns already hold that row (nothing else writes them)
+            # keeps them.
+            g0 = float(ga[0])
+            if self._frame_g is None or self._frame_g[0] != g0:
+                one = ga[:1]
+                self._frame_g = (g0, direction_gains(one, cfg.direction_gain),
+                                 phase_features(one, cfg.phases, cfg.phase_encoding))
+            _, gains, phase = self._frame_g
+            rows = buf.shape[0]
+            held = self._phase_rows[k] if k is not None else None
+            keep = held is not None and held[0] == g0 and held[1] >= rows
+            finish_rows(buf, self._dir_col, self._phase_col, gains, None if keep else phase)
+            if k is not None and not keep:
+                self._phase_rows[k] = (g0, rows)
+        else:
+            finish_rows(buf, self._dir_col, self._phase_col, direction_gains(ga, cfg.direction_gain),
+                        phase_features(ga, cfg.phases, cfg.phase_encoding))
+            if k is not None:
+                self._phase_rows[k] = None
         t2 = time.perf_counter()
         t.encode_position_s += t1 - t0
         t.encode_direction_s += t2 - t1
@@ -238,7 +266,7 @@ class PhotonField:
                 for a in range(0, n, self.chunk):
                     b = min(n, a + self.chunk)
                     buf = self._buf(b - a)
-                    self._encode_into(buf, x[a:b], omega[a:b], ga[a:b])
+                    self._encode_into(buf, x[a:b], omega[a:b], ga[a:b], 0)
                     self._infer(buf, out, a, b)
         t.queries += n
         t.calls += 1
@@ -263,7 +291,7 @@ class PhotonField:
             for k, a in enumerate(range(0, n, self.chunk)):
                 b = min(n, a + self.chunk)
                 buf = self._buf(b - a, k % 2)
-                self._encode_into(buf, x[a:b], omega[a:b], ga[a:b])
+                self._encode_into(buf, x[a:b], omega[a:b], ga[a:b], k % 2)
                 if pending is not None:
                     pending.result()
                 pending = self._pool.submit(self._infer, buf, out, a, b)

@@ -43,7 +43,7 @@ def normalized_positions(x_world: np.ndarray, bmin: np.ndarray, bsize: np.ndarra
 
 @njit(cache=True)
 def _finish_kernel(buf: np.ndarray, dir_col: int, phase_col: int, gains: np.ndarray, phase: np.ndarray) -> None:
-    # gains: (0,) none, (1,) one for all rows, (n,) per row; phase: (1, P) one row for all, or (n, P).
+    # gains: (0,) none, (1,) one for all rows, (n,) per row; phase: (0, P) none, (1, P) one row for all, or (n, P).
     n = buf.shape[0]
     row_step = 1 if phase.shape[0] == n and n > 1 else 0
     gain_step = 1 if gains.shape[0] > 1 else 0
@@ -52,18 +52,25 @@ def _finish_kernel(buf: np.ndarray, dir_col: int, phase_col: int, gains: np.ndar
             gi = gains[i * gain_step]
             for c in range(dir_col, phase_col):
                 buf[i, c] *= gi
-        r = i * row_step
-        for c in range(phase.shape[1]):
-            buf[i, phase_col + c] = phase[r, c]
+        if phase.shape[0] > 0:
+            r = i * row_step
+            for c in range(phase.shape[1]):
+                buf[i, phase_col + c] = phase[r, c]
 
 
-def finish_rows(buf: np.ndarray, dir_col: int, phase_col: int, gains: np.ndarray | None, phase: np.ndarray) -> None:
+def finish_rows(buf: np.ndarray, dir_col: int, phase_col: int, gains: np.ndarray | None,
+                phase: np.ndarray | None) -> None:
     """Multiply ``buf[:, dir_col:phase_col]`` by ``gains`` (None: unchanged; (1,) or (n,) float32) and set
-    ``buf[:, phase_col:]`` to ``phase`` ((1, P): the same row everywhere; or (n, P)), in place."""
+    ``buf[:, phase_col:]`` to ``phase`` ((1, P): the same row everywhere; or (n, P); None: left as they are, for a
+    reused buffer that holds them already), in place."""
     g = np.zeros(0, np.float32) if gains is None else np.ascontiguousarray(gains, dtype=np.float32).reshape(-1)
-    p = np.ascontiguousarray(phase, dtype=np.float32)
+    if phase is None and g.shape[0] == 0:
+        return
+    p = (np.zeros((0, buf.shape[1] - phase_col), np.float32) if phase is None
+         else np.ascontiguousarray(phase, dtype=np.float32))
     n = buf.shape[0]
-    if g.shape[0] not in (0, 1, n) or p.ndim != 2 or p.shape[0] not in (1, n) or p.shape[1] != buf.shape[1] - phase_col:
+    if g.shape[0] not in (0, 1, n) or p.ndim != 2 or p.shape[0] not in (0, 1, n) or \
+            p.shape[1] != buf.shape[1] - phase_col or (p.shape[0] == 0 and phase is not None):
         raise ValueError(f"gains {g.shape} / phase {p.shape} do not fit {n} rows of {buf.shape[1] - phase_col} "
                          "phase columns")
     _finish_kernel(buf, int(dir_col), int(phase_col), g, p)

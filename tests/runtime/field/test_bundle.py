@@ -265,6 +265,25 @@ def test_pipelined_and_chunked_queries_equal_one_call(small: tuple) -> None:
     np.testing.assert_array_equal(field.query_encoded(x, d, g), want)
 
 
+def test_a_frames_phase_columns_are_kept_only_while_they_hold_its_g(small: tuple) -> None:
+    """A rendered frame queries with one g: its phase-feature row is computed once and a reused encode buffer keeps
+    its phase columns while they hold that g's row for every row the chunk uses. Any other g, or more rows than
+    were written, writes them again: the same results as fresh fields, through g changes, shorter and longer
+    chunks, per-query g in between, and the pipelined buffers."""
+    _, _, path = small
+    rng = np.random.default_rng(4)
+    x, d = rng.random((900, 3)), unit(rng.standard_normal((900, 3)))
+    mixed = rng.uniform(-1, 1, 900)
+    steps = [(-0.5, 700), (0.3, 100), (0.3, 700), (0.3, 250), (None, 900), (0.3, 250), (-0.5, 250), (0.3, 900),
+             (0.75, 80)]
+    for kw in ({"chunk": 300}, {"chunk": 300, "pipeline": True}):
+        field = PhotonField.load(path, **kw)
+        for g, n in steps:
+            gv = mixed[:n] if g is None else g
+            want = PhotonField.load(path).query_encoded(x[:n], d[:n], gv)
+            np.testing.assert_array_equal(field.query_encoded(x[:n], d[:n], gv), want, err_msg=f"{kw} {g} {n}")
+
+
 def test_int8_precision_is_refused_in_one_line(small: tuple) -> None:
     """int8 was removed (its accuracy depended on the CPU's VNNI, runtime/field/field.py): asking for it names
     the option and the reason, in the API and in the CLI."""
