@@ -37,7 +37,7 @@ def normalized_positions(x_world: np.ndarray, bmin: np.ndarray, bsize: np.ndarra
     """World positions (n, 3) -> float32 (n, 3), equal to ``normalize_position(x_world, bmin, bsize)``."""
     x, lo, size = box_arguments(x_world, bmin, bsize)
     out = np.empty((x.shape[0], 3), np.float32)
-    _normalize_kernel(np.ascontiguousarray(x), lo, size, out)
+    _normalize_kernel(x, lo, size, out)  # any strides: the renderers pass (3, n) arrays transposed
     return out
 
 

@@ -16,7 +16,8 @@ def test_normalized_positions_equal_models_spec_bit_for_bit() -> None:
     bmin, bsize = np.array([-0.5, -0.3, -0.45]), np.array([1.0, 0.6, 0.9])
     x = bmin + rng.uniform(-0.2, 1.2, (100_000, 3)) * bsize  # inside and outside the box
     x[:8] = bmin + np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)]) * bsize  # its corners
-    for xs in (x, x.astype(np.float32)):
+    # contiguous, float32, and the renderers' (3, n) arrays transposed (strided, read in place)
+    for xs in (x, x.astype(np.float32), np.ascontiguousarray(x.T).T[5:900:3]):
         np.testing.assert_array_equal(normalized_positions(xs, bmin, bsize), normalize_position(xs, bmin, bsize))
     with pytest.raises(ValueError, match="bsize"):
         normalized_positions(x, bmin, np.array([1.0, 0.0, 1.0]))
