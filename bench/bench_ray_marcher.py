@@ -31,7 +31,15 @@ import numpy as np
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from common import alternated_median_ms, finish_info, machine_info, median_ms, parse_scenes, write_report  # noqa: E402
+from common import (  # noqa: E402
+    alternated_median_ms,
+    finish_info,
+    machine_info,
+    median_ms,
+    parse_scenes,
+    streak_median_ms,
+    write_report,
+)
 
 from photon_fields.runtime.renderers.path_tracer import render_path_traced  # noqa: E402
 from photon_fields.runtime.renderers.ray_marcher import render_ray_marched  # noqa: E402
@@ -41,12 +49,13 @@ from photon_fields.runtime.scene.scene import builtin_scene, load_scene  # noqa:
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "ray_marcher.json"
 
 
-def scene_row(scene: Any, est: Any, repeats: int, fill_frames: int) -> dict[str, Any]:
+def scene_row(scene: Any, est: Any, repeats: int, fill_frames: int, streak: int = 1) -> dict[str, Any]:
     """The preview cold; then ``fill_frames`` preview frames of other seeds with each of its step settings (each new
     jitter reads a few cells no frame read before: at 256^3 the fifteenth frame still fills some, and a warm frame
-    that fills cells is a first frame in part); then, alternated (``alternated_median_ms``), the preview warm with
-    its adaptive segments and with fixed steps, the marched baseline, the path tracer and (with ``est``) the neural
-    renderer."""
+    that fills cells is a first frame in part); then, alternated (``alternated_median_ms``; with ``streak`` > 1 in
+    streaks of that many frames per renderer, ``streak_median_ms``, the viewer's way), the preview warm with its
+    adaptive segments and with fixed steps, the marched baseline, the path tracer and (with ``est``) the neural
+    renderer with the forced camera estimator (its fastest frame) and with its default (``auto``)."""
     from photon_fields.runtime.renderers.ray_marcher import light_volume_settings, scene_light_volume
     from photon_fields.runtime.transport.light_volume import UNFILLED
 
@@ -75,7 +84,8 @@ def scene_row(scene: Any, est: Any, repeats: int, fill_frames: int) -> dict[str,
 
         # the neural renderer's fastest frame (forced), as in the tables before auto became the default
         warm["neural_ms"] = lambda seed: render_neural(scene, est, spp=1, seed=seed, progress=False, camera="forced")
-    row.update(alternated_median_ms(warm, repeats))
+        warm["neural_default_ms"] = lambda seed: render_neural(scene, est, spp=1, seed=seed, progress=False)
+    row.update(alternated_median_ms(warm, repeats) if streak <= 1 else streak_median_ms(warm, repeats, streak))
     values = scene_light_volume(scene, *light_volume_settings(scene)).values
     row["light_volume_filled"] = float((values != UNFILLED).mean())
     row["light_volume_mb"] = values.nbytes / 1e6
@@ -120,13 +130,17 @@ def main(argv: list[str] | None = None) -> None:
                     help="preview frames rendered before the warm ones are timed (their light volume filled)")
     ap.add_argument("--bundle", action="append", default=[], metavar="SCENE=PATH",
                     help="a bundle per scene for the neural renderer's row (trained at --resolution)")
+    ap.add_argument("--streak", type=int, default=1,
+                    help="warm frames per renderer in a row, the first not timed (1: every frame after another "
+                         "renderer's; the viewer renders one renderer's frames in a row, its data warm)")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = ap.parse_args(argv)
     given = dict(b.split("=", 1) for b in args.bundle)
     info = machine_info()
     results: dict[str, Any] = {}
     print(f"{'scene':8s} {'preview 1st':>12s} {'preview':>8s} {'fixed steps':>12s} {'filled':>7s} {'march':>8s} "
-          f"{'path tracer':>12s} {'neural':>8s}  (ms, {args.size}x{args.size}, builtins at {args.resolution}^3, 1 spp)")
+          f"{'path tracer':>12s} {'neural':>8s} {'(auto)':>8s}  (ms, {args.size}x{args.size}, builtins at "
+          f"{args.resolution}^3, 1 spp; neural: forced, and its default camera estimator)")
     scenes = [(name, lambda name=name: builtin_scene(name, args.resolution))
               for name in (parse_scenes(args.scenes) if args.scenes or not args.scene_file else [])]
     scenes += [(Path(path).stem, lambda path=path: load_scene(path)) for path in args.scene_file]
@@ -137,9 +151,10 @@ def main(argv: list[str] | None = None) -> None:
             from photon_fields.runtime.field.field import PhotonField
 
             est = PhotonField.load(given[name]).estimator()
-        row = scene_row(scene, est, args.repeats, args.fill_frames)
+        row = scene_row(scene, est, args.repeats, args.fill_frames, args.streak)
         results[name] = row
-        neural = f"{row['neural_ms']:8.1f}" if "neural_ms" in row else f"{'-':>8s}"
+        neural = (f"{row['neural_ms']:8.1f} {row['neural_default_ms']:8.1f}" if "neural_ms" in row
+                  else f"{'-':>8s} {'-':>8s}")
         print(f"{name:8s} {row['preview_first_ms']:12.0f} {row['preview_ms']:8.1f} "
               f"{row['preview_fixed_steps_ms']:12.1f} {row['light_volume_filled']:7.3f} {row['march_ms']:8.1f} "
               f"{row['path_tracer_ms']:12.1f} {neural}",
@@ -151,6 +166,7 @@ def main(argv: list[str] | None = None) -> None:
     write_report(args.out, "ray_marcher", finish_info(info, {}), {"size": args.size, "resolution": args.resolution,
                                                                   "repeats": args.repeats,
                                                                   "fill_frames": args.fill_frames,
+                                                                  "streak": args.streak,
                                                                   "scene_files": args.scene_file}, results=results)
 
 

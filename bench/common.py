@@ -108,6 +108,25 @@ def alternated_median_ms(fns: dict[str, Callable[[int], Any]], repeats: int) -> 
     return {name: float(np.median(t)) * 1e3 for name, t in times.items()}
 
 
+def streak_median_ms(fns: dict[str, Callable[[int], Any]], repeats: int, streak: int) -> dict[str, float]:
+    """Median wall time in ms of each ``fns[name](seed)``, frames taken ``streak`` in a row per function (a new seed
+    each, the first of each streak not timed), in ``repeats`` rounds with the order rotated as in
+    :func:`alternated_median_ms`: a viewer renders one method frame after frame, with that method's data warm in
+    the caches, which frame-by-frame alternation (each frame after another method's) does not see."""
+    names = list(fns)
+    times: dict[str, list[float]] = {name: [] for name in names}
+    seed = 0
+    for r in range(repeats):
+        for name in names[r % len(names):] + names[:r % len(names)]:
+            for k in range(streak):
+                seed += 1
+                t0 = time.perf_counter()
+                fns[name](seed)
+                if k > 0:
+                    times[name].append(time.perf_counter() - t0)
+    return {name: float(np.median(t)) * 1e3 for name, t in times.items()}
+
+
 def median_ms(fn: Callable[[int], Any], repeats: int, clock: Callable[[], float] = time.perf_counter) -> float:
     """Median time in ms of ``fn(seed)`` for seeds 1 .. ``repeats``, after one warm-up call ``fn(0)``, on
     ``clock`` (``time.process_time`` for CPU time)."""
