@@ -185,6 +185,11 @@ MUTANTS: tuple[Mutant, ...] = (
            "        if self._ahead is not None:",
            ("tests/train/fit/test_field_training.py::test_targets_beside_the_training_are_the_same_batches",),
            "close() drops the worker's computed pool: the next refill draws past it and the stream changes"),
+    Mutant("light_volume_fills_over_another_grid", "runtime/transport/light_volume.py",
+           "    if lv.units.shape != m.majorant.shape:", "    if False:",
+           ("tests/runtime/renderers/test_ray_marcher.py::"
+            "test_a_fill_over_a_medium_of_another_macrocell_grid_is_refused",),
+           "a fill over a medium of another macrocell grid reads the step units out of bounds (a hang, or garbage)"),
     Mutant("ray_marcher_terminates_late", "runtime/renderers/ray_marcher.py",
            "while t_prev < tmax and t_prev < t_far and t_min < T:",
            "while t_prev < tmax and t_prev < t_far and t_min * t_min < T:",

@@ -216,7 +216,12 @@ def fill_wanted(m: Medium, kind: np.ndarray, vec: np.ndarray, lv: LightVolume,
     """March every :data:`WANTED` cell of ``lv`` towards its light (in parallel over the flagged bricks, up to
     :data:`FILL_CHUNK` bricks at a time) and clear the flags; True when done. ``cancel`` is asked before each chunk:
     when it returns True the fill stops and returns False, the bricks not filled still flagged (a later fill
-    completes them; what was filled stays, each cell's value being its own)."""
+    completes them; what was filled stays, each cell's value being its own). ``m`` must be the medium the volume
+    was made for, or one over the same majorant grid (a transfer-function edit's): its shadow rays read ``lv.units``
+    per macrocell of ``m``, and another grid's indices would run past them."""
+    if lv.units.shape != m.majorant.shape:
+        raise ValueError(f"the light volume's step units are per macrocell of a {lv.units.shape} grid, the medium's "
+                         f"grid is {m.majorant.shape}")
     bricks = np.argwhere(lv.wanted)
     for start in range(0, len(bricks), FILL_CHUNK):
         if cancel is not None and cancel():

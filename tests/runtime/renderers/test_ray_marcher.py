@@ -205,6 +205,22 @@ def test_marked_cells_are_filled_brick_by_brick_and_no_others() -> None:
     assert (lv.values[lv.values != UNFILLED] >= 0.0).all() and not lv.wanted.any()
 
 
+def test_a_fill_over_a_medium_of_another_macrocell_grid_is_refused() -> None:
+    """The cells' shadow rays read the volume's step units per macrocell: a medium of another grid (here 1-voxel
+    macrocells for a volume made over 2-voxel ones) would index past them, so the fill refuses it."""
+    from photon_fields.runtime.transport.light_volume import fill_wanted, new_light_volume
+    from photon_fields.runtime.transport.medium import build_medium
+
+    scene = builtin_scene("blobs", 16)
+    m = scene.medium()
+    kind, vec, _ = scene.packed_lights()
+    lv = new_light_volume(m, len(kind), 1.0, 0.5 * scene.volume.voxel_size)
+    assert fill_wanted(m, kind, vec, lv)
+    finer = build_medium(scene.volume, scene.tf, macrocell=1)
+    with pytest.raises(ValueError, match="per macrocell"):
+        fill_wanted(finer, kind, vec, lv)
+
+
 def test_a_cancelled_fill_keeps_its_cells_and_the_next_frame_completes_it(monkeypatch: pytest.MonkeyPatch) -> None:
     """A render cancelled while its light volume fills (a chunk of one brick at a time here) raises, keeps the
     cells it filled and the flags of the bricks it did not; the next frame fills those, and its image is a cold
