@@ -140,10 +140,11 @@ class PhotonField:
         self._dir_col = self.config.position.output_dims
         self._phase_col = self._dir_col + self.config.direction.output_dims
         self._buffers = [np.empty((0, self.config.input_dims), np.float32) for _ in range(2)]
-        #: Per encode buffer, (g, rows) whose phase columns already hold that g's features (None: not known).
-        self._phase_rows: list[tuple[float, int] | None] = [None, None]
-        #: The last frame g's direction gains and phase-feature row: (g, gains, phase).
-        self._frame_g: tuple[float, np.ndarray | None, np.ndarray] | None = None
+        #: Per encode buffer, (g, rows) whose phase columns already hold that g's features (None: not known); g as
+        #: its float32's bytes, so that -0.0 and 0.0 (whose features differ in sign) are two values.
+        self._phase_rows: list[tuple[bytes, int] | None] = [None, None]
+        #: The last frame g's direction gains and phase-feature row: (g's bytes, gains, phase).
+        self._frame_g: tuple[bytes, np.ndarray | None, np.ndarray] | None = None
         self._pool: Any = None
 
     # ------------------------------------------------------------------------------------------------
@@ -226,7 +227,7 @@ class PhotonField:
             # One g for the chunk (a rendered frame): one gain, one row of phase features for every row, computed
             # once per g; and a reused buffer whose phase columns already hold that row (nothing else writes them)
             # keeps them.
-            g0 = float(ga[0])
+            g0 = ga[:1].tobytes()
             if self._frame_g is None or self._frame_g[0] != g0:
                 one = ga[:1]
                 self._frame_g = (g0, direction_gains(one, cfg.direction_gain),
