@@ -17,13 +17,19 @@ warm-up, against the path tracer at ``--ref-spp`` (default 512; cached in ``--wo
   interpolated log-log on its curve (extrapolated from the last two points when the neural image is better
   than the curve's end, marked ``>``), over the neural time;
 - with the ``oidn`` extra installed (``pip install 'photon-fields[oidn]'``), the same for the path tracer and the
-  neural renderer at 1 and 4 spp denoised by Intel Open Image Denoise (``photon_fields.runtime.denoise.oidn``, what
-  ``pfn-render --denoise oidn`` runs: colour only, HDR), the denoiser's time included.
+  neural renderer at ``--oidn-spps`` (default 1 and 4) denoised by Intel Open Image Denoise
+  (``photon_fields.runtime.denoise.oidn``, what ``pfn-render --denoise oidn`` runs: colour only, HDR), the
+  denoiser's time included.
 - the temporal WRLS denoiser (``photon_fields.runtime.denoise.wrls``) on a static camera, as a progressive render
   shows it: 1-spp frames accumulated (the neural renderer per camera estimator, ``ProgressiveRender``, and the path
   tracer, seed per frame) and the running mean denoised after every frame; rel. L2 after ``--wrls-frames``
   frames (default 1, 4, 32), the time of all frames so far, denoising included. (On a moving camera, the same
   denoiser's error and flicker along an orbit: ``bench_denoise.py``.)
+- **at equal time** (issue 14: "the neural renderer with its best denoiser beats the path tracer with OIDN from 50 ms
+  to 1 s"): per budget of ``--budgets`` ms (default 50, 100, 200, 500, 1000), the least error each side reaches
+  within it, over all its rows (the neural renderer: every camera estimator, spp and denoiser; the path tracer:
+  plain, + OIDN, + WRLS), and which is lower. The path tracer's plain curve ends where it reaches the neural rows'
+  least error, so past that time its last point stands for it (it has won there).
 
 Bundles: ``--bundle SCENE=PATH``, else those of ``bench_render.py`` (``bench/results/render/<scene>.pfn``,
 trained there when missing). Output: a table on stdout, JSON (default ``bench/results/equal_error.json``) with the
@@ -154,7 +160,7 @@ def path_tracer_curve(point: Callable[[int], dict[str, float]], pt_spps: list[in
 def scene_curves(scene: Scene, est: Any, ref: np.ndarray, args: argparse.Namespace, pt_spps: list[int] | None,
                  denoise: Callable[[np.ndarray], np.ndarray] | None) -> dict[str, list[dict[str, Any]]]:
     """Per method, its (spp, ms, rel. L2) points: the path tracer's curve, the neural renderer's per camera
-    estimator and, with ``denoise``, both at 1 and 4 spp denoised."""
+    estimator and, with ``denoise``, both at ``--oidn-spps`` denoised."""
 
     def pt(spp: int) -> Callable[[int], np.ndarray]:
         return lambda seed: render_path_traced(scene, spp=spp, seed=seed, progress=False).layers["L"]
@@ -181,10 +187,11 @@ def scene_curves(scene: Scene, est: Any, ref: np.ndarray, args: argparse.Namespa
         curves["raymarch-field + WRLS (progressive)"] = progressive_wrls(raymarch_field(1), scene, ref,
                                                                          args.wrls_frames, args.repeats)
     if denoise is not None:
-        curves["path tracer + OIDN"] = [{"spp": s, **measure(pt(s), ref, args.repeats, denoise)} for s in (1, 4)]
+        curves["path tracer + OIDN"] = [{"spp": s, **measure(pt(s), ref, args.repeats, denoise)}
+                                        for s in args.oidn_spps]
         for camera in args.cameras:
             curves[f"neural {camera} + OIDN"] = [{"spp": s, **measure(neural(s, camera), ref, args.repeats, denoise)}
-                                                 for s in (1, 4)]
+                                                 for s in args.oidn_spps]
     return curves
 
 
@@ -211,6 +218,37 @@ def plot(results: dict[str, Any], path: Path) -> None:
     plt.close(fig)
 
 
+#: Frame-time budgets (ms) of the equal-time comparison (issue 14: from 50 ms to 1 s a 256x256 frame).
+BUDGETS_MS = (50.0, 100.0, 200.0, 500.0, 1000.0)
+
+
+def best_within(curves: dict[str, list[dict[str, Any]]], prefix: str, budget: float) -> dict[str, Any] | None:
+    """The least-error row (with its method) among ``curves``' methods that start with ``prefix`` and take at most
+    ``budget`` ms; None when none fits."""
+    rows = [{"method": m, **row} for m, rs in curves.items() if m.startswith(prefix) for row in rs
+            if row["ms"] <= budget]
+    return min(rows, key=lambda row: row["rel_l2"]) if rows else None
+
+
+def equal_time(curves: dict[str, list[dict[str, Any]]], budgets: list[float]) -> list[dict[str, Any]]:
+    """Per budget: the neural renderer's and the path tracer's least error within it (:func:`best_within`) and
+    whether the neural one is lower (None where a side has no row that fast)."""
+    out = []
+    for budget in budgets:
+        neural, pt = best_within(curves, "neural", budget), best_within(curves, "path tracer", budget)
+        # a side with no frame within the budget loses to one that has one
+        wins = None if neural is None and pt is None else (pt is None or neural is not None and
+                                                              neural["rel_l2"] < pt["rel_l2"])
+        out.append({"budget_ms": budget, "neural": neural, "path_tracer": pt, "neural_wins": wins})
+    return out
+
+
+def describe(row: dict[str, Any] | None) -> str:
+    if row is None:
+        return "none this fast"
+    return f"{row['rel_l2']:.3f} ({row['method']}, {row['spp']} spp, {row['ms']:.0f} ms)"
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     add_reference_args(ap)
@@ -227,6 +265,10 @@ def main(argv: list[str] | None = None) -> None:
                     help="progressive WRLS: rel. L2 after these many 1-spp frames")
     ap.add_argument("--bundle", action="append", default=[], metavar="SCENE=PATH")
     ap.add_argument("--work", type=Path, default=DEFAULT_WORK)
+    ap.add_argument("--oidn-spps", type=int, nargs="*", default=[1, 4],
+                    help="samples per pixel of the OIDN-denoised rows (more to follow the path tracer to 1 s)")
+    ap.add_argument("--budgets", type=float, nargs="*", default=list(BUDGETS_MS),
+                    help="ms per image of the equal-time comparison")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = ap.parse_args(argv)
     given = dict(b.split("=", 1) for b in args.bundle)
@@ -261,7 +303,9 @@ def main(argv: list[str] | None = None) -> None:
                 t, extrapolated = time_to_error(curves["path tracer"], row["rel_l2"])
                 row["equal_error_speedup"] = t / row["ms"]
                 row["extrapolated"] = extrapolated
-        results[name] = {"bundle": str(bundle_for(name, base, given)), "curves": curves, "auto_chose": chosen}
+        timed = equal_time(curves, args.budgets)
+        results[name] = {"bundle": str(bundle_for(name, base, given)), "curves": curves, "auto_chose": chosen,
+                         "equal_time": timed}
         print(f"\n{name} ({args.size}x{args.size}, reference: path tracer {args.ref_spp} spp; auto: {chosen})")
         print(f"  {'method':36s} {'spp':>4s} {'ms':>8s} {'rel. L2':>8s} {'speedup':>8s}")
         for method, rows in curves.items():
@@ -270,13 +314,19 @@ def main(argv: list[str] | None = None) -> None:
                 mark = ">" if row.get("extrapolated") else " "
                 speed_s = f"{mark}{speed:6.1f}x" if speed is not None else ""
                 print(f"  {method:36s} {row['spp']:4d} {row['ms']:8.1f} {row['rel_l2']:8.3f} {speed_s:>8s}", flush=True)
+        print("  at equal time, the least error within each budget:")
+        for t in timed:
+            verdict = {True: "neural", False: "path tracer", None: "-"}[t["neural_wins"]]
+            print(f"  {t['budget_ms']:6.0f} ms  neural {describe(t['neural'])}  path tracer "
+                  f"{describe(t['path_tracer'])}  lower: {verdict}", flush=True)
     info = finish_info(info, {})
     pt_record = pt_spps or "until the neural rows' least error (each scene's curve lists its points)"
     write_report(args.out, "equal_error", info, {"size": args.size, "ref_spp": args.ref_spp, "pt_spps": pt_record,
                                                  "spps": args.spps, "cameras": args.cameras,
                                                  "repeats": args.repeats, "oidn": denoise is not None,
                                                  "wrls_frames": args.wrls_frames,
-                                                 "raymarch_field": args.raymarch_field},
+                                                 "raymarch_field": args.raymarch_field, "budgets": args.budgets,
+                                                 "oidn_spps": args.oidn_spps},
                  results=results)
     plot(results, args.out.with_suffix(".png"))
     print(f"wrote {args.out.with_suffix('.png')}")
