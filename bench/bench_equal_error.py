@@ -19,7 +19,8 @@ warm-up, against the path tracer at ``--ref-spp`` (default 512; cached in ``--wo
 - with the ``oidn`` extra installed (``pip install 'photon-fields[oidn]'``), the same for the path tracer and the
   neural renderer at ``--oidn-spps`` (default 1 and 4) denoised by Intel Open Image Denoise
   (``photon_fields.runtime.denoise.oidn``, what ``pfn-render --denoise oidn`` runs: colour only, HDR), the
-  denoiser's time included.
+  denoiser's time included; with ``--gather-oidn-spps``, the neural renderer also with the final gather from its
+  first sample (``--final-gather-after 0``: a real bounce before the field, less of its bias) and OIDN.
 - the temporal WRLS denoiser (``photon_fields.runtime.denoise.wrls``) on a static camera, as a progressive render
   shows it: 1-spp frames accumulated (the neural renderer per camera estimator, ``ProgressiveRender``, and the path
   tracer, seed per frame) and the running mean denoised after every frame; rel. L2 after ``--wrls-frames``
@@ -165,8 +166,9 @@ def scene_curves(scene: Scene, est: Any, ref: np.ndarray, args: argparse.Namespa
     def pt(spp: int) -> Callable[[int], np.ndarray]:
         return lambda seed: render_path_traced(scene, spp=spp, seed=seed, progress=False).layers["L"]
 
-    def neural(spp: int, camera: str) -> Callable[[int], np.ndarray]:
-        return lambda seed: render_neural(scene, est, spp=spp, seed=seed, progress=False, camera=camera).layers["L"]
+    def neural(spp: int, camera: str, gather_after: int | None = None) -> Callable[[int], np.ndarray]:
+        return lambda seed: render_neural(scene, est, spp=spp, seed=seed, progress=False, camera=camera,
+                                          final_gather_after=gather_after).layers["L"]
 
     def raymarch_field(spp: int) -> Callable[[int], np.ndarray]:
         return lambda seed: render_ray_marched(scene, spp=spp, seed=seed, progress=False, estimator=est).layers["L"]
@@ -192,6 +194,10 @@ def scene_curves(scene: Scene, est: Any, ref: np.ndarray, args: argparse.Namespa
         for camera in args.cameras:
             curves[f"neural {camera} + OIDN"] = [{"spp": s, **measure(neural(s, camera), ref, args.repeats, denoise)}
                                                  for s in args.oidn_spps]
+            if args.gather_oidn_spps:  # every sample gathered (--final-gather-after 0): less of the field's bias
+                curves[f"neural {camera} + gather + OIDN"] = [
+                    {"spp": s, **measure(neural(s, camera, 0), ref, args.repeats, denoise)}
+                    for s in args.gather_oidn_spps]
     return curves
 
 
@@ -267,6 +273,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--work", type=Path, default=DEFAULT_WORK)
     ap.add_argument("--oidn-spps", type=int, nargs="*", default=[1, 4],
                     help="samples per pixel of the OIDN-denoised rows (more to follow the path tracer to 1 s)")
+    ap.add_argument("--gather-oidn-spps", type=int, nargs="*", default=[],
+                    help="samples per pixel of neural rows with the final gather from the first sample "
+                         "(pfn-render --final-gather-after 0), OIDN-denoised (default: none)")
     ap.add_argument("--budgets", type=float, nargs="*", default=list(BUDGETS_MS),
                     help="ms per image of the equal-time comparison")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
@@ -326,7 +335,8 @@ def main(argv: list[str] | None = None) -> None:
                                                  "repeats": args.repeats, "oidn": denoise is not None,
                                                  "wrls_frames": args.wrls_frames,
                                                  "raymarch_field": args.raymarch_field, "budgets": args.budgets,
-                                                 "oidn_spps": args.oidn_spps},
+                                                 "oidn_spps": args.oidn_spps,
+                                                 "gather_oidn_spps": args.gather_oidn_spps},
                  results=results)
     plot(results, args.out.with_suffix(".png"))
     print(f"wrote {args.out.with_suffix('.png')}")
