@@ -209,9 +209,12 @@ def plot(results: dict[str, Any], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(results), figsize=(4.2 * len(results), 3.8), dpi=100, squeeze=False)
+    colours = plt.get_cmap("tab20").colors  # one colour per method (the default cycle repeats after ten)
     for ax, (name, r) in zip(axes[0], results.items(), strict=True):
-        for method, rows in r["curves"].items():
-            ax.plot([p["ms"] for p in rows], [p["rel_l2"] for p in rows], "o-", ms=3, label=method)
+        for k, (method, rows) in enumerate(r["curves"].items()):
+            style = "s--" if method.startswith("path tracer") else "o-"  # the competitor dashed
+            ax.plot([p["ms"] for p in rows], [p["rel_l2"] for p in rows], style, ms=3, label=method,
+                    color=colours[k % len(colours)])
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_title(name)
