@@ -17,8 +17,7 @@ shadows : str (default "volume")
     (:mod:`photon_fields.runtime.transport.light_volume`: marched from a cell's centre the first time a sample reads
     it, interpolated trilinearly), kept on the scene object for its later frames (camera moves, progressive passes).
     "march": the paper's baseline, a shadow ray marched from every camera sample to every light.
-shadow_step : float (default 1.0 for "march"; for "volume" the light volume's 0.5, or half a cell where a cell spans
-    more than a voxel)
+shadow_step : float (default 1.0 for "march"; "volume": the light volume's 0.5, or half a cell where cells are larger)
     Step length along shadow rays in voxels (for "volume": the base step of the cells' rays, which span up to
     ``light_volume.SHADOW_SPAN`` of them per segment where the step grid allows). At sharp boundaries (sigma_t h ~ 1
     per voxel) exp(-tau) over the midpoint sum's errors is biased high, and a finer step shrinks that bias quickly.
