@@ -105,7 +105,9 @@ from photon_fields.runtime.io.progress import ProgressFile
 args = sys.argv[1:]
 opt = lambda name: args[args.index(name) + 1]
 mode = opt("--mode") if "--mode" in args else "slow"
-Path(opt("--progress-file")).with_name("argv.json").write_text(json.dumps(args))
+argv = Path(opt("--progress-file")).with_name("argv.json")  # written whole, then renamed: tests poll for it
+argv.with_suffix(".tmp").write_text(json.dumps(args))
+argv.with_suffix(".tmp").replace(argv)
 pf = ProgressFile(opt("--progress-file"), ("trace", "fit", "export"), min_interval=0)
 pf.update("trace", 1, 2)
 if mode == "fail":
