@@ -180,24 +180,41 @@ def _update_row(prep: np.ndarray, y: int, width: int, pad: int, prev: np.ndarray
                 planes: np.ndarray, found_out: np.ndarray, have_prev: bool, moving: bool, view_cur: np.ndarray,
                 view_prev: np.ndarray, depth: np.ndarray, prev_depth: np.ndarray, alpha: float, lam: float,
                 inv_h2: float, inv_lam: float, eps: float, prior: float, history_pred: bool, depth_tol: float,
-                hist: np.ndarray) -> None:
-    """Stages 2-4 for the pixels of row ``y``, from its prepared planes ``prep`` (:func:`_prepare_rows`)."""
+                histories: np.ndarray, prow: np.ndarray, wrow: np.ndarray) -> None:
+    """Stages 2-4 for the pixels of row ``y``, from its prepared planes ``prep`` (:func:`_prepare_rows`), as passes
+    over the row: the reprojection, the histories' reads (into ``histories[x]``), stage 3 with Eq. 13's weight (the
+    predictor into ``prow``, the weight into ``wrow``), stage 4. A pass's pixels are independent and its body short,
+    so the core overlaps the latencies of several pixels (square roots, divisions, the exponential) that one pass
+    doing all four per pixel kept in one chain: the same arithmetic, 0.7x the time (bench/README.md, "WRLS in
+    passes")."""
     height = depth.shape[0]
+    # Stage 2: reprojection, q = pi(v_j) (into prow and, whether q is on-screen in front, wrow: scratch until stage 3
+    # writes them), and the history there (its weight found into wrow).
+    if have_prev and moving:
+        for x in range(width):
+            qx, qy, dist, front = reproject_pixel(view_cur, view_prev, x, y, float(depth[y, x]))
+            prow[0, x] = qx
+            prow[1, x] = qy
+            prow[2, x] = dist
+            wrow[x] = 1.0 if front and 0.0 <= qx < width and 0.0 <= qy < height else 0.0
+        for x in range(width):
+            wrow[x] = _gather(prev, prev_depth, prow[0, x], prow[1, x], prow[2, x], depth_tol,
+                              histories[x]) if wrow[x] > 0.0 else 0.0
+    elif have_prev:
+        for x in range(width):
+            hist = histories[x]
+            for k in range(STATE):
+                hist[k] = prev[y, x, k]
+            wrow[x] = 1.0
+    else:
+        for x in range(width):
+            wrow[x] = 0.0
     for x in range(width):
+        hist = histories[x]
         i0 = prep[0, x]
         i1 = prep[1, x]
         i2 = prep[2, x]
-        # Stage 2: reprojection, q = pi(v_j).
-        found = 0.0
-        if have_prev:
-            if moving:
-                qx, qy, dist, front = reproject_pixel(view_cur, view_prev, x, y, float(depth[y, x]))
-                if front and 0.0 <= qx < width and 0.0 <= qy < height:
-                    found = _gather(prev, prev_depth, qx, qy, dist, depth_tol, hist)
-            else:
-                for k in range(STATE):
-                    hist[k] = prev[y, x, k]
-                found = 1.0
+        found = wrow[x]  # the history's weight (stage 2); wrow[x] takes Eq. 13's weight below
         found_out[y, x] = found
         # Stage 3: the temporal feature, Eq. 12, with the clamped history Psi[z_q(t-1), I~_j(t)].
         if found > 0.0:
@@ -219,7 +236,7 @@ def _update_row(prep: np.ndarray, y: int, width: int, pad: int, prev: np.ndarray
             hist[_P + 4] = prior
             hist[_P + 7] = prior
             hist[_P + 9] = prior
-        # Stage 4: wRLS. Predictor p = [1, p1, p2, p3] (Eq. 5): the clamped history ("history") or z_j(t).
+        # Predictor p = [1, p1, p2, p3] (Eq. 5): the clamped history ("history") or z_j(t).
         if history_pred:
             p1, p2, p3 = c0, c1, c2
         else:
@@ -228,7 +245,30 @@ def _update_row(prep: np.ndarray, y: int, width: int, pad: int, prev: np.ndarray
         ni = math.sqrt(i0 * i0 + i1 * i1 + i2 * i2)
         nz = math.sqrt(z0 * z0 + z1 * z1 + z2 * z2)
         den = min(ni, nz) + eps
-        w = math.exp(-((i0 - z0) ** 2 + (i1 - z1) ** 2 + (i2 - z2) ** 2) / (den * den) * inv_h2)
+        wrow[x] = math.exp(-((i0 - z0) ** 2 + (i1 - z1) ** 2 + (i2 - z2) ** 2) / (den * den) * inv_h2)
+        prow[0, x] = p1
+        prow[1, x] = p2
+        prow[2, x] = p3
+        cur[y, x, _Z] = z0
+        cur[y, x, _Z + 1] = z1
+        cur[y, x, _Z + 2] = z2
+        planes[_Z, y, pad + x] = z0
+        planes[_Z + 1, y, pad + x] = z1
+        planes[_Z + 2, y, pad + x] = z2
+        planes[_N, y, pad + x] = nz
+        planes[_F, y, pad + x] = p1
+        planes[_F + 1, y, pad + x] = p2
+        planes[_F + 2, y, pad + x] = p3
+    # Stage 4: wRLS.
+    for x in range(width):
+        hist = histories[x]
+        i0 = prep[0, x]
+        i1 = prep[1, x]
+        i2 = prep[2, x]
+        p1 = prow[0, x]
+        p2 = prow[1, x]
+        p3 = prow[2, x]
+        w = wrow[x]
         # P p^T with P's upper triangle [00 01 02 03 11 12 13 22 23 33].
         s00, s01, s02, s03 = hist[_P], hist[_P + 1], hist[_P + 2], hist[_P + 3]
         s11, s12, s13 = hist[_P + 4], hist[_P + 5], hist[_P + 6]
@@ -279,16 +319,6 @@ def _update_row(prep: np.ndarray, y: int, width: int, pad: int, prev: np.ndarray
         cur[y, x, _P + 7] = t22 * k
         cur[y, x, _P + 8] = (s23 - q2 * v3) * k
         cur[y, x, _P + 9] = t33 * k
-        cur[y, x, _Z] = z0
-        cur[y, x, _Z + 1] = z1
-        cur[y, x, _Z + 2] = z2
-        planes[_Z, y, pad + x] = z0
-        planes[_Z + 1, y, pad + x] = z1
-        planes[_Z + 2, y, pad + x] = z2
-        planes[_N, y, pad + x] = nz
-        planes[_F, y, pad + x] = p1
-        planes[_F + 1, y, pad + x] = p2
-        planes[_F + 2, y, pad + x] = p3
 
 
 @njit(cache=True, parallel=True, fastmath=_FAST)
@@ -310,7 +340,9 @@ def temporal(frame: np.ndarray, taps: np.ndarray, inv_scale: np.float32, clamp_r
     for block in prange((height + ROWS_PER_TASK - 1) // ROWS_PER_TASK):
         y0 = block * ROWS_PER_TASK
         y1 = min(height, y0 + ROWS_PER_TASK)
-        hist = np.empty(STATE)
+        histories = np.empty((width, STATE))
+        prow = np.empty((3, width))
+        wrow = np.empty(width)
         row = np.empty(width + 2 * r, dtype=np.float32)
         hrow = np.empty((ROWS_PER_TASK + 2 * (clamp_r + r), width), dtype=np.float32)
         filt = np.empty((ROWS_PER_TASK + 2 * clamp_r, width + 2 * clamp_r), dtype=np.float32)
@@ -322,7 +354,7 @@ def temporal(frame: np.ndarray, taps: np.ndarray, inv_scale: np.float32, clamp_r
         for y in range(y0, y1):
             _update_row(prep_rows[y - y0], y, width, pad, prev, cur, planes, found_out, have_prev, moving, view_cur,
                         view_prev, depth, prev_depth, alpha, lam, inv_h2, inv_lam, eps, prior, history_pred,
-                        depth_tol, hist)
+                        depth_tol, histories, prow, wrow)
 
 
 @njit(cache=True, parallel=True, fastmath=_FAST)
