@@ -69,13 +69,14 @@ from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.denoise.reprojection import DU, DV, EYE, ORIGIN, pack_view
 from photon_fields.runtime.errors import check_choice
 from photon_fields.runtime.progress import progress_bar
+from photon_fields.runtime.renderers.preview_light import SAMPLE_BUFFER, light_samples
 from photon_fields.runtime.renderers.registry import DEFAULT_MIN_TRANSMITTANCE
 from photon_fields.runtime.scene.levels import scene_at_level
 from photon_fields.runtime.scene.lights import DIRECTIONAL
 from photon_fields.runtime.scene.scene import Scene
-from photon_fields.runtime.transport.cell_grid import Grid, stencil
+from photon_fields.runtime.transport.cell_grid import Grid
 from photon_fields.runtime.transport.direct_light import direct_light_batch
-from photon_fields.runtime.transport.emitters import delta_light_direction, environment_index
+from photon_fields.runtime.transport.emitters import environment_index
 from photon_fields.runtime.transport.light_volume import (
     DEFAULT_SHADOW_STEP,
     SHADOW_SPAN,
@@ -83,12 +84,10 @@ from photon_fields.runtime.transport.light_volume import (
     adopt_light_columns,
     auto_cells_per_voxel,
     fill_wanted,
-    light_transmittance,
     new_light_volume,
     prefetch_light_stencil,
-    want_stencil,
 )
-from photon_fields.runtime.transport.marching import march_transmittance, segment_past
+from photon_fields.runtime.transport.marching import segment_past
 from photon_fields.runtime.transport.medium import (
     Medium,
     borrowed_medium,
@@ -137,27 +136,21 @@ def scattering_centroid(sigma: float, seg: float, e: float) -> float:
 
 
 @njit(cache=True)
-def _shadow_ray(m: Medium, x: float, y: float, z: float, lx: float, ly: float, lz: float, tend: float, h: float,
-                skip: bool) -> float:
-    """``march_transmittance`` as a call, for the baseline: it keeps the preview's loop small (what a march inside
-    it costs: ``light_volume.light_transmittance``), and a shadow ray costs far more than a call."""
-    return march_transmittance(m, x, y, z, lx, ly, lz, tend, h, skip)
-
-
-@njit(cache=True)
 def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, view: np.ndarray,
                  width: int, n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int,
                  h: float, h_shadow: float, skip: bool, units: np.ndarray, own: np.ndarray, adaptive: bool,
                  use_volume: bool, lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float, ld: np.ndarray,
                  trans: np.ndarray, missed: np.ndarray, pick: np.ndarray, pick_rng: np.ndarray, picking: bool,
-                 prefetch: bool, lo: int, hi: int) -> None:
+                 prefetch: bool, buffer: int, lo: int, hi: int) -> None:
     """Work items ``work[lo:hi]`` of :func:`_march`, serially (``TASK_ITEMS`` in the tracking module says why):
     each one's jittered camera ray (:func:`camera_ray`), clipped to the box (:func:`clip_to_box`) and marched
     within its tile's depth bounds (``near`` / ``far``: eye distances), in segments of base steps ``h``: the
     neighbourhood's ``units`` per macrocell, or more where the macrocell's ``own`` units are more and every macrocell
-    the segment passes allows them (``adaptive`` False: fixed steps). A ray that reads an unfilled light-volume
-    cell is ``missed``: from there on it marks the cells its samples read (:func:`want_stencil`) instead of summing
-    them, to its end (its walk does not depend on the light), so one walk finds every cell it needs.
+    the segment passes allows them (``adaptive`` False: fixed steps). Each sample's light is looked up after the
+    march, a buffer of samples at a time (:func:`photon_fields.runtime.renderers.preview_light.light_samples`). A
+    ray that reads an unfilled light-volume cell is ``missed``: from there on it marks the cells its samples read
+    instead of summing them, to its end (its walk does not depend on the light), so one walk finds every cell it
+    needs.
 
     ``picking``: each ray also keeps one of its segments' scattering centroids, drawn with probability
     proportional to the segment's weight T_k (1 - e_k) (a weighted reservoir of size one, from the ray's own random
@@ -169,10 +162,16 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
     lv, wanted = borrowed(lv), borrowed(wanted)
     origin, du, dv = view[ORIGIN:ORIGIN + 3], view[DU:DU + 3], view[DV:DV + 3]
     ex, ey, ez = view[EYE], view[EYE + 1], view[EYE + 2]
-    ray_phase = np.empty(kind.shape[0])
+    phases = np.empty((hi - lo, kind.shape[0]))
+    dirs = np.empty((3, hi - lo))
+    samples = np.empty((7, buffer))
+    ray_of = np.empty(buffer, np.int64)
+    count = 0
     s0 = np.uint64(seed)
     for i in range(lo, hi):
         dx, dy, dz, p, state = camera_ray(origin, du, dv, width, n_pixels, work[i], s0)
+        dirs[0, i - lo], dirs[1, i - lo], dirs[2, i - lo] = dx, dy, dz
+        ray_phase = phases[i - lo]
         state, jitter = next_float(state)
         ld[0, i] = ld[1, i] = ld[2, i] = 0.0
         trans[i] = 1.0
@@ -197,7 +196,6 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
             if kind[k] == DIRECTIONAL:
                 ray_phase[k] = hg_eval(g, -(dx * vec[k, 0] + dy * vec[k, 1] + dz * vec[k, 2]))
         T = 1.0
-        l0 = l1 = l2 = 0.0
         # Base step s spans [t_{s-1}, t_s], t_s = (jitter + s) h, t_{-1} = 0 (the first one is partial); a
         # segment is one base step, or as many as the macrocells it passes allow (transport.step_grid).
         s = 0
@@ -245,43 +243,32 @@ def _march_items(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, 
                     if u * w_sum < w:
                         pick[0, i], pick[1, i], pick[2, i] = x, y, z
                         pick[PICK_A, i], pick[PICK_A + 1, i], pick[PICK_A + 2, i] = a0, a1, a2
-                ci, cj, ck, fx, fy, fz = stencil(grid, x, y, z)
-                for k in range(kind.shape[0]):
-                    # The environment is not marched (module docstring): delta_light_direction gives it 0.
-                    lx, ly, lz, scale, tend = delta_light_direction(kind[k], vec[k], x, y, z)
-                    ph = ray_phase[k] if kind[k] == DIRECTIONAL else hg_eval(g, dx * lx + dy * ly + dz * lz)
-                    c = w * scale * ph
-                    if c <= 0.0:
-                        continue
-                    if use_volume:
-                        tl = -1.0 if missed[i] else light_transmittance(lv, k, ci, cj, ck, fx, fy, fz)
-                        if tl < 0.0:
-                            missed[i] = True
-                            want_stencil(lv, wanted, k, ci, cj, ck)
-                            continue
-                        c *= tl
-                    else:
-                        c *= _shadow_ray(m, x, y, z, lx, ly, lz, tend, h_shadow, skip)
-                    l0 += c * a0 * rgb[k, 0]
-                    l1 += c * a1 * rgb[k, 1]
-                    l2 += c * a2 * rgb[k, 2]
+                if count == buffer:
+                    light_samples(m, kind, vec, rgb, g, h_shadow, skip, use_volume, lv, wanted, grid, ld, missed,
+                                   samples, ray_of, count, dirs, phases, lo)
+                    count = 0
+                samples[0, count], samples[1, count], samples[2, count], samples[3, count] = x, y, z, w
+                samples[4, count], samples[5, count], samples[6, count] = a0, a1, a2
+                ray_of[count] = i
+                count += 1
                 T *= e
             s += n
             t_prev = t_next
-        ld[0, i], ld[1, i], ld[2, i] = l0, l1, l2
         trans[i] = T if t_min < T else 0.0
         if picking and w_sum > 0.0:
             pick[PICK_W, i] = w_sum
             pick[3, i], pick[4, i], pick[5, i] = dx, dy, dz
             pick_rng[i] = state
+    light_samples(m, kind, vec, rgb, g, h_shadow, skip, use_volume, lv, wanted, grid, ld, missed, samples, ray_of,
+                   count, dirs, phases, lo)
 
 
 @njit(cache=True, parallel=True)
 def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: float, view: np.ndarray, width: int,
            n_pixels: int, work: np.ndarray, seed: int, near: np.ndarray, far: np.ndarray, tile: int, h: float,
            h_shadow: float, skip: bool, units: np.ndarray, own: np.ndarray, adaptive: bool, use_volume: bool,
-           lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float,
-           picking: bool, prefetch: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+           lv: np.ndarray, wanted: np.ndarray, grid: Grid, t_min: float, picking: bool, prefetch: bool,
+           buffer: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     n = work.shape[0]
     ld = np.empty((3, n))
     trans = np.empty(n)
@@ -295,7 +282,7 @@ def _march(m: Medium, kind: np.ndarray, vec: np.ndarray, rgb: np.ndarray, g: flo
         b = (task * stride) % tasks  # golden-ratio order: each thread gets dense and empty blocks alike
         _march_items(m, kind, vec, rgb, g, view, width, n_pixels, work, seed, near, far, tile, h, h_shadow, skip,
                      units, own, adaptive, use_volume, lv, wanted, grid, t_min, ld, trans, missed, pick, pick_rng,
-                     picking, prefetch, b * per_task, min(n, (b + 1) * per_task))
+                     picking, prefetch, buffer, b * per_task, min(n, (b + 1) * per_task))
     return ld, trans, missed, pick, pick_rng
 
 
@@ -313,7 +300,8 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
     (:func:`photon_fields.runtime.transport.light_volume.fill_wanted`); True stops with
     :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the cells filled so far kept.
     ``picking``: picks holds one scattering point per ray for an L_i estimate (:class:`Picks`, :func:`_march_items`;
-    else placeholders)."""
+    else placeholders). Each task marches up to ``SAMPLE_BUFFER`` samples before it looks up their light (the same
+    sums whatever it is; read at each call, so that a test can make it small)."""
     m = scene.medium()
     adaptive = bool(own.max() > 1)
     cam = scene.camera
@@ -325,7 +313,7 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
     def run(items: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return _march(m, kind, vec, rgb, scene.g, *args, items, int(seed), bounds.near, bounds.far, bounds.tile, h,
                       hs, skip, units, own, adaptive, lv is not None, values, wanted, grid, t_min, picking,
-                      worth_prefetching(m))
+                      worth_prefetching(m), int(SAMPLE_BUFFER))
 
     ld, trans, missed, pick, pick_rng = run(work)
     if lv is None or not missed.any():

@@ -381,3 +381,22 @@ def test_taking_rays_a_tile_at_a_time_changes_no_pixel(monkeypatch: pytest.Monke
     assert tiled["L_d"].max() > 0.0 and np.ptp(tiled["L_e"]) > 0.0
     for layer in ("L", "L_d", "L_e"):
         np.testing.assert_array_equal(tiled[layer], rows[layer], err_msg=layer)
+
+
+@pytest.mark.parametrize("shadows", ["volume", "march"])
+def test_the_light_of_buffered_samples_is_the_same_whatever_the_buffer(monkeypatch: pytest.MonkeyPatch,
+                                                                       shadows: str) -> None:
+    """The march buffers its samples and looks up their light a buffer at a time (preview_light.py): buffers of one
+    sample, of a few (full many times within a ray, and rays that end with samples still buffered) and the default
+    give the same image bit for bit, with a cold light volume (rays that miss cells, marked and marched again) and
+    with shadow rays."""
+    from photon_fields.runtime.renderers import ray_marcher
+
+    images = []
+    for size in (ray_marcher.SAMPLE_BUFFER, 1, 5):
+        monkeypatch.setattr(ray_marcher, "SAMPLE_BUFFER", size)
+        images.append(render_ray_marched(_sparse_scene(), spp=2, seed=6, shadows=shadows, progress=False).layers)
+    assert images[0]["L_d"].max() > 0.0
+    for other in images[1:]:
+        for layer in ("L", "L_d", "L_e"):
+            np.testing.assert_array_equal(images[0][layer], other[layer], err_msg=layer)
