@@ -101,13 +101,12 @@ def split_frame(data: bytes) -> tuple[dict[str, Any], bytes]:
 STAND_IN = '''
 import json, sys, time
 from pathlib import Path
+from photon_fields.runtime.io.atomic import atomic_write_text
 from photon_fields.runtime.io.progress import ProgressFile
 args = sys.argv[1:]
 opt = lambda name: args[args.index(name) + 1]
 mode = opt("--mode") if "--mode" in args else "slow"
-argv = Path(opt("--progress-file")).with_name("argv.json")  # written whole, then renamed: tests poll for it
-argv.with_suffix(".tmp").write_text(json.dumps(args))
-argv.with_suffix(".tmp").replace(argv)
+atomic_write_text(Path(opt("--progress-file")).with_name("argv.json"), json.dumps(args))  # tests poll for it
 pf = ProgressFile(opt("--progress-file"), ("trace", "fit", "export"), min_interval=0)
 pf.update("trace", 1, 2)
 if mode == "fail":
