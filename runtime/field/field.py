@@ -216,27 +216,31 @@ class PhotonField:
         """The MLP input rows of x, omega, g into ``buf``; ``k``: which of the reused encode buffers it is (None: a
         buffer of the caller's, every column written)."""
         cfg, t = self.config, self.timers
-        t0 = time.perf_counter()
-        try:
-            encode(cfg.position, self.position_table, normalized_positions(x, self.bmin, self.bsize), out=buf)
-            t1 = time.perf_counter()
-            encode(cfg.direction, self.direction_table, direction_input(omega), out=buf, col=self._dir_col)
-        except ValueError as exc:  # non-finite or absurdly far positions / directions
-            raise InputError("query", str(exc)) from None
-        if ga.shape[0] >= 1 and bool((ga == ga[0]).all()):
-            # One g for the chunk (a rendered frame): one gain, one row of phase features for every row, computed
-            # once per g; and a reused buffer whose phase columns already hold that row (nothing else writes them)
-            # keeps them.
+        one_g = ga.shape[0] >= 1 and bool((ga == ga[0]).all())
+        gain = 1.0
+        if one_g:
+            # One g for the chunk (a rendered frame): one gain, applied as the direction encoder stores its features,
+            # and one row of phase features for every row, both computed once per g; a reused buffer whose phase
+            # columns already hold that row (nothing else writes them) keeps them.
             g0 = ga[:1].tobytes()
             if self._frame_g is None or self._frame_g[0] != g0:
                 one = ga[:1]
                 self._frame_g = (g0, direction_gains(one, cfg.direction_gain),
                                  phase_features(one, cfg.phases, cfg.phase_encoding))
             _, gains, phase = self._frame_g
+            gain = 1.0 if gains is None else float(gains[0, 0])
+        t0 = time.perf_counter()
+        try:
+            encode(cfg.position, self.position_table, normalized_positions(x, self.bmin, self.bsize), out=buf)
+            t1 = time.perf_counter()
+            encode(cfg.direction, self.direction_table, direction_input(omega), out=buf, col=self._dir_col, gain=gain)
+        except ValueError as exc:  # non-finite or absurdly far positions / directions
+            raise InputError("query", str(exc)) from None
+        if one_g:
             rows = buf.shape[0]
             held = self._phase_rows[k] if k is not None else None
             keep = held is not None and held[0] == g0 and held[1] >= rows
-            finish_rows(buf, self._dir_col, self._phase_col, gains, None if keep else phase)
+            finish_rows(buf, self._dir_col, self._phase_col, None, None if keep else phase)
             if k is not None and not keep:
                 self._phase_rows[k] = (g0, rows)
         else:

@@ -130,15 +130,16 @@ def fma32(typingctx, a, b, c):  # numba intrinsic: arguments are numba types
 
 
 @intrinsic
-def _interp_store(typingctx, table, out, i, col, rows, weights, nfeat):
-    """``out[i, col : col + F] = fma-chain over j of weights[j] * table[rows[j], :]`` from +0, F = ``nfeat``
-    (an int literal), as one <F x float> load + fma per corner. ``table`` must be C-contiguous (F floats per
-    row) and ``out``'s columns contiguous; rows / weights are equal-length tuples (uint64 / float32)."""
+def _interp_store(typingctx, table, out, i, col, rows, weights, gain, nfeat):
+    """``out[i, col : col + F] = (fma-chain over j of weights[j] * table[rows[j], :] from +0) * gain``, F =
+    ``nfeat`` (an int literal), as one <F x float> load + fma per corner and one multiply. ``table`` must be
+    C-contiguous (F floats per row) and ``out``'s columns contiguous; rows / weights are equal-length tuples
+    (uint64 / float32), gain a float32 (1: the sums as they are, bit for bit)."""
     if not isinstance(nfeat, types.IntegerLiteral):
         return None  # numba retries with the literal type; F must be a compile-time constant
     F = nfeat.literal_value
     K = rows.count
-    sig = types.void(table, out, i, col, rows, weights, nfeat)
+    sig = types.void(table, out, i, col, rows, weights, gain, nfeat)
 
     def codegen(context, builder, signature, args):
         tab = context.make_array(signature.args[0])(context, builder, args[0])
@@ -155,6 +156,8 @@ def _interp_store(typingctx, table, out, i, col, rows, weights, nfeat):
             v = builder.load(builder.bitcast(src, vt.as_pointer()), typ=vt, align=4)
             w = builder.insert_element(undef, builder.extract_value(args[5], j), ir.Constant(i32, 0))
             acc = builder.call(fma, [builder.shuffle_vector(w, undef, splat), v, acc])
+        g = builder.insert_element(undef, args[6], ir.Constant(i32, 0))
+        acc = builder.fmul(acc, builder.shuffle_vector(g, undef, splat))
         offset = builder.add(builder.mul(args[2], builder.extract_value(dst.strides, 0)),
                              builder.mul(args[3], ir.Constant(i64, 4)))
         ptr = builder.inttoptr(builder.add(builder.ptrtoint(dst.data, i64), offset), vt.as_pointer())
@@ -253,17 +256,17 @@ def _point2(x, i, scale, hashed, m0, m1, size, offset):
 
 
 @njit(cache=True)
-def _encode_block(x, table, out, col, i0, i1, scale, hashed, m0, m1, m2, size, offset, D, F):
-    """Encode points i0 .. i1 - 1 at one level into ``out[:, col : col + F]``."""
+def _encode_block(x, table, out, col, i0, i1, scale, hashed, m0, m1, m2, size, offset, gain, D, F):
+    """Encode points i0 .. i1 - 1 at one level into ``out[:, col : col + F]``, times ``gain``."""
     literally(D)
     literally(F)
     for i in range(i0, i1):
         if D == 3:
             r3, w3 = _point3(x, i, scale, hashed, m0, m1, m2, size, offset)
-            _interp_store(table, out, i, col, r3, w3, F)
+            _interp_store(table, out, i, col, r3, w3, gain, F)
         else:
             r2, w2 = _point2(x, i, scale, hashed, m0, m1, size, offset)
-            _interp_store(table, out, i, col, r2, w2, F)
+            _interp_store(table, out, i, col, r2, w2, gain, F)
 
 
 @njit(cache=True)
@@ -288,26 +291,26 @@ def _encode_kernel(D: int, F: int, layout: str) -> Any:
     if layout == "levels":
 
         @njit(cache=True, parallel=True)
-        def encode_levels_outside(x, table, scales, hashed, mult, sizes, offsets, out, col, block):
+        def encode_levels_outside(x, table, scales, hashed, mult, sizes, offsets, out, col, block, gain):
             n = x.shape[0]
             nblocks = (n + block - 1) // block
             for lv in range(scales.shape[0]):
                 for k in prange(nblocks):
                     _encode_block(x, table, out, col + lv * F, k * block, min(n, (k + 1) * block), scales[lv],
-                                  hashed[lv], mult[lv, 0], mult[lv, 1], mult[lv, 2], sizes[lv], offsets[lv], D, F)
+                                  hashed[lv], mult[lv, 0], mult[lv, 1], mult[lv, 2], sizes[lv], offsets[lv], gain, D, F)
 
         return encode_levels_outside
 
     if layout == "blocks":
 
         @njit(cache=True, parallel=True)
-        def encode_blocks_outside(x, table, scales, hashed, mult, sizes, offsets, out, col, block):
+        def encode_blocks_outside(x, table, scales, hashed, mult, sizes, offsets, out, col, block, gain):
             n = x.shape[0]
             nblocks = (n + block - 1) // block
             for k in prange(nblocks):
                 for lv in range(scales.shape[0]):
                     _encode_block(x, table, out, col + lv * F, k * block, min(n, (k + 1) * block), scales[lv],
-                                  hashed[lv], mult[lv, 0], mult[lv, 1], mult[lv, 2], sizes[lv], offsets[lv], D, F)
+                                  hashed[lv], mult[lv, 0], mult[lv, 1], mult[lv, 2], sizes[lv], offsets[lv], gain, D, F)
 
         return encode_blocks_outside
 
@@ -408,17 +411,18 @@ def _output(cfg: HashGridConfig, n: int, out: np.ndarray | None, col: Any) -> tu
 
 
 def encode(cfg: HashGridConfig, table: np.ndarray, x: np.ndarray, out: np.ndarray | None = None,
-           col: int = 0) -> np.ndarray:
+           col: int = 0, gain: float = 1.0) -> np.ndarray:
     """Hash-encode points x (n, D) with the flat float32 table: ``out[:, col : col + L*F]`` (float32,
-    level-major), equal to ``encode_reference(cfg, table, x)`` bit for bit. Returns ``out`` (a new
-    (n, L*F) array when not given). See the module docstring for the parameters."""
+    level-major), equal to ``encode_reference(cfg, table, x)`` bit for bit, times ``gain`` (one float32 product per
+    feature: the field's direction gain of a frame's one g, as the separate pass over the rows gave it). Returns
+    ``out`` (a new (n, L*F) array when not given). See the module docstring for the parameters."""
     consts = level_constants(cfg)
     table = _table(cfg, table)
     x = _points(cfg, x)
     out, col = _output(cfg, x.shape[0], out, col)
     if x.shape[0] == 0:
         return out
-    _encode_kernel(cfg.dims, cfg.features, _LAYOUT)(x, table, *consts, out, col, _BLOCK)
+    _encode_kernel(cfg.dims, cfg.features, _LAYOUT)(x, table, *consts, out, col, _BLOCK, np.float32(gain))
     return out
 
 
@@ -428,7 +432,7 @@ def encode_with_layout(cfg: HashGridConfig, table: np.ndarray, x: np.ndarray, ou
     benchmark's layout comparison (same result bit for bit). x is checked as in :func:`encode`; table must
     be a C-contiguous float32 table and out an (n, >= L*F) float32 array with contiguous columns."""
     x = _points(cfg, x)
-    _encode_kernel(cfg.dims, cfg.features, layout)(x, table, *level_constants(cfg), out, 0, int(block))
+    _encode_kernel(cfg.dims, cfg.features, layout)(x, table, *level_constants(cfg), out, 0, int(block), np.float32(1.0))
     return out
 
 

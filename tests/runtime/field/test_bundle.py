@@ -284,6 +284,25 @@ def test_a_frames_phase_columns_are_kept_only_while_they_hold_its_g(small: tuple
             np.testing.assert_array_equal(field.query_encoded(x[:n], d[:n], gv), want, err_msg=f"{kw} {g} {n}")
 
 
+def test_a_frames_gain_in_the_direction_encoder_equals_the_per_query_product(tmp_path: Path) -> None:
+    """With one g for every query (a frame) the direction encoder stores its features times the gain; with per-query
+    g the rows are multiplied afterwards (finish_rows). The two give the same MLP inputs bit for bit: queries at one
+    g against the same queries among ones at another g (``direction_gain`` "g", the cpu preset's)."""
+    model = make_model(dataclasses.replace(SMALL, direction_gain="g"), seed=3)
+    field = PhotonField.load(export_bundle(make_run(tmp_path / "run", model, [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]),
+                                           tmp_path / "gain.pfn").path)
+    rng = np.random.default_rng(6)
+    x, d = rng.random((500, 3)), unit(rng.standard_normal((500, 3)))
+    cols = slice(field.config.position.output_dims, field.config.position.output_dims
+                 + field.config.direction.output_dims)
+    for g in (0.37, -0.6, 0.0):
+        frame = field.encode_inputs(x, d, g)
+        per_query = np.full(500, g)
+        per_query[-1] = 0.9  # one other g: the per-query path
+        np.testing.assert_array_equal(frame[:-1], field.encode_inputs(x, d, per_query)[:-1], err_msg=str(g))
+        np.testing.assert_array_equal(frame[:, cols], np.float32(g) * field.encode_inputs(x, d, 1.0)[:, cols])
+
+
 def test_int8_precision_is_refused_in_one_line(small: tuple) -> None:
     """int8 was removed (its accuracy depended on the CPU's VNNI, runtime/field/field.py): asking for it names
     the option and the reason, in the API and in the CLI."""
