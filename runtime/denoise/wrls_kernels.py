@@ -1,8 +1,8 @@
 """The WRLS denoiser's numba kernels, two parallel regions per frame (:mod:`photon_fields.runtime.denoise.wrls`
 says what each stage computes and why, with the paper's equation numbers): :func:`temporal` (per block of rows, the
-pixel reconstruction filter and Psi's bounds of :func:`_prepare_rows`, then per pixel reprojection, Eq. 12 feature,
-Eq. 13 weight, wRLS update Eq. 8-11 / 14) and :func:`spatial` (the 5x5 blend of the neighbours' models). The state
-layout they share is defined here.
+pixel reconstruction filter and Psi's bounds of :func:`_prepare_rows`, then, in passes over each row, reprojection,
+Eq. 12 feature, Eq. 13 weight, wRLS update Eq. 8-11 / 14) and :func:`spatial` (the 5x5 blend of the neighbours'
+models). The state layout they share is defined here.
 """
 
 from __future__ import annotations
@@ -185,7 +185,7 @@ def _update_row(prep: np.ndarray, y: int, width: int, pad: int, prev: np.ndarray
     over the row: the reprojection, the histories' reads (into ``histories[x]``), stage 3 with Eq. 13's weight (the
     predictor into ``prow``, the weight into ``wrow``), stage 4. A pass's pixels are independent and its body short,
     so the core overlaps the latencies of several pixels (square roots, divisions, the exponential) that one pass
-    doing all four per pixel kept in one chain: the same arithmetic, 0.7x the time (bench/README.md, "WRLS in
+    doing all four per pixel kept in one chain: the same arithmetic, 0.65-0.75x the time (bench/README.md, "WRLS in
     passes")."""
     height = depth.shape[0]
     # Stage 2: reprojection, q = pi(v_j) (into prow and, whether q is on-screen in front, wrow: scratch until stage 3
