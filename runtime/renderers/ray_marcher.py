@@ -69,7 +69,8 @@ from photon_fields.runtime.borrowed import borrowed
 from photon_fields.runtime.denoise.reprojection import DU, DV, EYE, ORIGIN, pack_view
 from photon_fields.runtime.errors import check_choice
 from photon_fields.runtime.progress import progress_bar
-from photon_fields.runtime.renderers.preview_light import SAMPLE_BUFFER, light_samples
+from photon_fields.runtime.renderers import preview_light
+from photon_fields.runtime.renderers.preview_light import light_samples
 from photon_fields.runtime.renderers.registry import DEFAULT_MIN_TRANSMITTANCE
 from photon_fields.runtime.scene.levels import scene_at_level
 from photon_fields.runtime.scene.lights import DIRECTIONAL
@@ -300,8 +301,8 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
     (:func:`photon_fields.runtime.transport.light_volume.fill_wanted`); True stops with
     :class:`photon_fields.runtime.wavefront.batches.RenderCancelledError`, the cells filled so far kept.
     ``picking``: picks holds one scattering point per ray for an L_i estimate (:class:`Picks`, :func:`_march_items`;
-    else placeholders). Each task marches up to ``SAMPLE_BUFFER`` samples before it looks up their light (the same
-    sums whatever it is; read at each call, so that a test can make it small)."""
+    else placeholders). Each task marches up to ``preview_light.SAMPLE_BUFFER`` samples before it looks up their
+    light (the same sums whatever it is; read at each call, so that a test can make it small)."""
     m = scene.medium()
     adaptive = bool(own.max() > 1)
     cam = scene.camera
@@ -313,7 +314,7 @@ def march_work(scene: Scene, work: np.ndarray, seed: int, h: float, hs: float, s
     def run(items: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return _march(m, kind, vec, rgb, scene.g, *args, items, int(seed), bounds.near, bounds.far, bounds.tile, h,
                       hs, skip, units, own, adaptive, lv is not None, values, wanted, grid, t_min, picking,
-                      worth_prefetching(m), int(SAMPLE_BUFFER))
+                      worth_prefetching(m), int(preview_light.SAMPLE_BUFFER))
 
     ld, trans, missed, pick, pick_rng = run(work)
     if lv is None or not missed.any():

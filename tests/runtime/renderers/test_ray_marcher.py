@@ -390,11 +390,11 @@ def test_the_light_of_buffered_samples_is_the_same_whatever_the_buffer(monkeypat
     sample, of a few (full many times within a ray, and rays that end with samples still buffered) and the default
     give the same image bit for bit, with a cold light volume (rays that miss cells, marked and marched again) and
     with shadow rays."""
-    from photon_fields.runtime.renderers import ray_marcher
+    from photon_fields.runtime.renderers import preview_light
 
     images = []
-    for size in (ray_marcher.SAMPLE_BUFFER, 1, 5):
-        monkeypatch.setattr(ray_marcher, "SAMPLE_BUFFER", size)
+    for size in (preview_light.SAMPLE_BUFFER, 1, 5):
+        monkeypatch.setattr(preview_light, "SAMPLE_BUFFER", size)
         images.append(render_ray_marched(_sparse_scene(), spp=2, seed=6, shadows=shadows, progress=False).layers)
     assert images[0]["L_d"].max() > 0.0
     for other in images[1:]:
