@@ -28,6 +28,18 @@ marked cells in flagged bricks only: a resting view's frames keep finding a few 
 samples reach a little further each frame), and a scan of the whole grid for them (34M entries at 256^3) cost more
 than the rest of such a frame.
 
+**A margin in idle time.** A resting view's later frames and the next views after a small camera move read cells
+just beside those filled for the frames before (a pixel's jitter moves its stencil across cell centres; a view a few
+degrees on sees the same surfaces): each such frame marks a few hundred cells and marches its rays twice, and the
+first full frame after a 5-degree orbit of a 256^3 head took 3x as long as with its cells filled (bench/README.md,
+ray marcher, "idle time"). Filling those cells up front would make every change's first frame wait longer. So a fill
+remembers the bricks where it filled cells that frames asked for (``LightVolume.margin``), and
+:func:`fill_margin`, for a caller with nothing else to do (the viewer between changes), fills every unfilled cell
+among the 26 around each filled cell of those bricks (:data:`NEIGHBOUR`), once: the cells it fills do not flag their
+bricks, so each idle moment adds one ring around the bricks that frames filled in since the last, never a flood (a
+brick that frames fill in again spreads from every filled cell of it, the last ring's included). The marks are a
+filled cell's neighbours, its values those of any fill: the images do not change.
+
 Marking and filling race benignly: a cell's value is a deterministic function of the cell (the midpoint rule of
 :mod:`photon_fields.runtime.transport.marching`, no random numbers), so every image is the same whatever was filled
 before, in whatever order, on however many threads (tested). Point lights march to the light's position,
@@ -70,6 +82,9 @@ MAX_BYTES = 1 << 30
 #: The value of a cell not marched yet, and of one that a frame has asked for (:func:`want_stencil`).
 UNFILLED = np.float32(-1.0)
 WANTED = np.float32(-2.0)
+#: An unfilled cell beside a filled one, marked by :func:`fill_margin`: filled as a wanted one is, but its brick is
+#: not remembered for the next margin (module docstring, "A margin in idle time").
+NEIGHBOUR = np.float32(-3.0)
 #: Edge of a brick of cells, the unit in which marked cells are looked for (module docstring): a power of two.
 BRICK = 8
 #: Bricks one parallel fill takes at most: between two, a cancellable render may stop (the viewer's resting frames:
@@ -80,14 +95,16 @@ _BRICK_SHIFT = BRICK.bit_length() - 1
 
 class LightVolume(NamedTuple):
     """Transmittances (gx, gy, gz, lights) float32, :data:`UNFILLED` until read; the grid; the cells' shadow base
-    step (world units) and base steps per segment per macrocell (uint8); per :data:`BRICK` of cells, 1 where a
-    cell is marked and not filled yet (uint8)."""
+    step (world units) and base steps per segment per macrocell (uint8); per :data:`BRICK` of cells (uint8), 1
+    where a cell is marked and not filled yet (``wanted``), and 1 where cells that frames asked for were filled
+    since the last :func:`fill_margin` (``margin``)."""
 
     values: np.ndarray
     grid: Grid
     shadow_step: float
     units: np.ndarray
     wanted: np.ndarray
+    margin: np.ndarray
 
 
 def light_volume_shape(volume_shape: tuple[int, ...], cells_per_voxel: float) -> tuple[int, int, int]:
@@ -128,7 +145,8 @@ def new_light_volume(m: Medium, lights: int, cells_per_voxel: float, shadow_step
     if units.shape != m.majorant.shape:
         raise ValueError(f"units {units.shape} are not per macrocell {m.majorant.shape}")
     bricks = tuple(-(-n // BRICK) for n in cells)
-    return LightVolume(values, grid, float(shadow_step), units, np.zeros(bricks, np.uint8))
+    return LightVolume(values, grid, float(shadow_step), units, np.zeros(bricks, np.uint8),
+                       np.zeros(bricks, np.uint8))
 
 
 def adopt_light_columns(lv: LightVolume, kind: np.ndarray, vec: np.ndarray, old: LightVolume, old_kind: np.ndarray,
@@ -184,31 +202,60 @@ def want_stencil(v: np.ndarray, wanted: np.ndarray, light: int, i: int, j: int, 
 
 @njit(cache=True)
 def _fill_brick(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Grid, h: float,
-                units: np.ndarray, bi: int, bj: int, bk: int) -> None:
-    """March the :data:`WANTED` cells of brick (bi, bj, bk) (:func:`fill_wanted`), serially."""
+                units: np.ndarray, bi: int, bj: int, bk: int) -> bool:
+    """March the :data:`WANTED` and :data:`NEIGHBOUR` cells of brick (bi, bj, bk) (:func:`fill_wanted`), serially;
+    True if one of them was wanted by a frame."""
     m, units = borrowed_medium(m), borrowed(units)  # no reference counting in the loops (runtime/borrowed.py)
     gx, gy, gz, lights = v.shape
+    wanted = False
     for a in range(bi * BRICK, min(gx, (bi + 1) * BRICK)):
         for b in range(bj * BRICK, min(gy, (bj + 1) * BRICK)):
             for e in range(bk * BRICK, min(gz, (bk + 1) * BRICK)):
                 for light in range(lights):
-                    if v[a, b, e, light] != WANTED:
+                    state = v[a, b, e, light]
+                    if state != WANTED and state != NEIGHBOUR:
                         continue
+                    wanted = wanted or state == WANTED
                     px, py, pz = cell_centre(grid, a, b, e)
                     lx, ly, lz, scale, tend = delta_light_direction(kind[light], vec[light], px, py, pz)
                     tr = (march_transmittance_in_segments(m, units, px, py, pz, lx, ly, lz, tend, h, TAU_MAX)
                           if scale > 0.0 else 0.0)
                     v[a, b, e, light] = np.float32(tr)
+    return wanted
 
 
 @njit(cache=True, parallel=True)
 def _fill(m: Medium, kind: np.ndarray, vec: np.ndarray, v: np.ndarray, grid: Grid, h: float,
-          units: np.ndarray, bricks: np.ndarray) -> None:
+          units: np.ndarray, bricks: np.ndarray, margin: np.ndarray) -> None:
     n = bricks.shape[0]
     stride = task_stride(n)
     for t in prange(n):  # golden-ratio order: the wanted cells cluster where the camera looks
         b = (t * stride) % n
-        _fill_brick(m, kind, vec, v, grid, h, units, bricks[b, 0], bricks[b, 1], bricks[b, 2])
+        if _fill_brick(m, kind, vec, v, grid, h, units, bricks[b, 0], bricks[b, 1], bricks[b, 2]):
+            margin[bricks[b, 0], bricks[b, 1], bricks[b, 2]] = 1
+
+
+@njit(cache=True, parallel=True)
+def _mark_margin(v: np.ndarray, wanted: np.ndarray, bricks: np.ndarray) -> None:
+    """Mark :data:`NEIGHBOUR` every :data:`UNFILLED` cell within one cell (the 26 around it) of a filled cell of
+    the same light in ``bricks``, and flag their bricks in ``wanted``. Cells only go from unfilled to neighbour,
+    and only filled cells spread, so the marks are the same in whatever order the threads take the bricks (a
+    benign race: every writer writes the same value)."""
+    gx, gy, gz, lights = v.shape
+    for t in prange(bricks.shape[0]):
+        bi, bj, bk = bricks[t, 0], bricks[t, 1], bricks[t, 2]
+        for a in range(bi * BRICK, min(gx, (bi + 1) * BRICK)):
+            for b in range(bj * BRICK, min(gy, (bj + 1) * BRICK)):
+                for e in range(bk * BRICK, min(gz, (bk + 1) * BRICK)):
+                    for light in range(lights):
+                        if v[a, b, e, light] < 0.0:
+                            continue
+                        for p in range(max(a - 1, 0), min(a + 2, gx)):
+                            for q in range(max(b - 1, 0), min(b + 2, gy)):
+                                for r in range(max(e - 1, 0), min(e + 2, gz)):
+                                    if v[p, q, r, light] == UNFILLED:
+                                        v[p, q, r, light] = NEIGHBOUR
+                                        wanted[p >> _BRICK_SHIFT, q >> _BRICK_SHIFT, r >> _BRICK_SHIFT] = 1
 
 
 def fill_wanted(m: Medium, kind: np.ndarray, vec: np.ndarray, lv: LightVolume,
@@ -227,6 +274,20 @@ def fill_wanted(m: Medium, kind: np.ndarray, vec: np.ndarray, lv: LightVolume,
         if cancel is not None and cancel():
             return False
         chunk = bricks[start:start + FILL_CHUNK]
-        _fill(m, kind, vec, lv.values, lv.grid, lv.shadow_step, lv.units, chunk)
+        _fill(m, kind, vec, lv.values, lv.grid, lv.shadow_step, lv.units, chunk, lv.margin)
         lv.wanted[chunk[:, 0], chunk[:, 1], chunk[:, 2]] = 0
     return True
+
+
+def fill_margin(m: Medium, kind: np.ndarray, vec: np.ndarray, lv: LightVolume,
+                cancel: Callable[[], bool] | None = None) -> bool:
+    """Fill every unfilled cell beside a cell filled for frames since the last call (the bricks ``lv.margin``
+    flags; module docstring, "A margin in idle time"), then clear those flags; True when done, False when ``cancel``
+    stopped the fill (:func:`fill_wanted`: the marks not filled yet stay, and the next fill of any kind, this one's
+    included, completes them). The images are the same with or without it (each cell's value is its own); only
+    later frames' fills are smaller."""
+    bricks = np.argwhere(lv.margin)
+    if len(bricks):
+        _mark_margin(lv.values, lv.wanted, bricks)
+        lv.margin[bricks[:, 0], bricks[:, 1], bricks[:, 2]] = 0
+    return fill_wanted(m, kind, vec, lv, cancel)

@@ -41,6 +41,7 @@ from starlette.routing import Route, WebSocketRoute
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from photon_fields.runtime.errors import InputError
+from photon_fields.runtime.viewer.idle_work import fill_light_margins
 from photon_fields.runtime.viewer.messages import MAX_MESSAGE_BYTES, MessageError, parse
 from photon_fields.runtime.viewer.session import ViewerSession
 
@@ -94,6 +95,7 @@ class RenderWorker:
                 if status is not None and self.send_text is not None:
                     self.send_text(json.dumps(status))
                 if not self.session.wait_for_work(self.stop_event):
+                    fill_light_margins(self.session, self.stop_event)  # nothing to render: the next view's cells
                     continue
                 try:
                     frame = self.session.next_frame()

@@ -250,6 +250,72 @@ def test_a_cancelled_fill_keeps_its_cells_and_the_next_frame_completes_it(monkey
                                                            progress=False).layers["L_d"])
 
 
+def _dilated(filled: np.ndarray) -> np.ndarray:
+    """Each light's filled cells (gx, gy, gz, lights) grown by the 26 cells around each (clipped at the grid)."""
+    out = filled.copy()
+    g = filled.shape[:3]
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            for dk in (-1, 0, 1):
+                src = tuple(slice(max(0, -d), n - max(0, d)) for d, n in zip((di, dj, dk), g, strict=True))
+                dst = tuple(slice(max(0, d), n - max(0, -d)) for d, n in zip((di, dj, dk), g, strict=True))
+                out[dst] |= filled[src]
+    return out
+
+
+def test_a_margin_fills_the_cells_beside_those_frames_filled_once_and_changes_no_image() -> None:
+    """fill_margin marches exactly the unfilled cells among the 26 around every filled cell (each from its centre,
+    as a wanted cell), once: a second call finds nothing to do; the frames after it are the cold render's."""
+    from photon_fields.runtime.renderers.ray_marcher import light_volume_settings, scene_light_volume
+    from photon_fields.runtime.transport.cell_grid import cell_centre
+    from photon_fields.runtime.transport.emitters import delta_light_direction
+    from photon_fields.runtime.transport.light_volume import TAU_MAX, fill_margin
+    from photon_fields.runtime.transport.marching import march_transmittance_in_segments
+
+    scene = _sparse_scene()
+    first = render_ray_marched(scene, spp=1, seed=3, progress=False).layers["L_d"]
+    lv = scene_light_volume(scene, *light_volume_settings(scene))
+    m = scene.medium()
+    kind, vec, _ = scene.packed_lights()
+    before = lv.values >= 0.0
+    assert lv.margin.any() and 0.001 < before.mean() < 0.3
+    assert fill_margin(m, kind, vec, lv)
+    after = lv.values >= 0.0
+    np.testing.assert_array_equal(after, _dilated(before))
+    assert not lv.margin.any() and not lv.wanted.any() and (lv.values[after] >= 0.0).all()
+    new = np.argwhere(after & ~before)
+    for i, j, k, light in new[np.random.default_rng(1).choice(len(new), 40, replace=False)]:
+        p = cell_centre(lv.grid, i, j, k)
+        lx, ly, lz, _, tend = delta_light_direction(kind[light], vec[light], *p)
+        assert lv.values[i, j, k, light] == np.float32(march_transmittance_in_segments(m, lv.units, *p, lx, ly, lz,
+                                                                                        tend, lv.shadow_step, TAU_MAX))
+    once = lv.values.copy()
+    assert fill_margin(m, kind, vec, lv)  # the cells it filled are not a margin's seeds: nothing more
+    np.testing.assert_array_equal(lv.values, once)
+    np.testing.assert_array_equal(render_ray_marched(scene, spp=1, seed=3, progress=False).layers["L_d"], first)
+    later = render_ray_marched(scene, spp=1, seed=4, progress=False).layers["L_d"]
+    np.testing.assert_array_equal(later, render_ray_marched(_sparse_scene(), spp=1, seed=4,
+                                                            progress=False).layers["L_d"])
+
+
+def test_a_cancelled_margin_is_completed_by_the_next_fill() -> None:
+    """A margin fill stopped before its first chunk leaves its marks (and their bricks flagged); the next frame's
+    fill marches them with its own cells, and its image is a cold render's."""
+    from photon_fields.runtime.renderers.ray_marcher import light_volume_settings, scene_light_volume
+    from photon_fields.runtime.transport.light_volume import NEIGHBOUR, fill_margin
+
+    scene = _sparse_scene()
+    render_ray_marched(scene, spp=1, seed=3, progress=False)
+    lv = scene_light_volume(scene, *light_volume_settings(scene))
+    kind, vec, _ = scene.packed_lights()
+    assert not fill_margin(scene.medium(), kind, vec, lv, cancel=lambda: True)
+    assert (lv.values == NEIGHBOUR).sum() > 0 and lv.wanted.any() and not lv.margin.any()
+    image = render_ray_marched(scene, spp=1, seed=8, progress=False).layers["L_d"]
+    assert not (lv.values == NEIGHBOUR).any() and not lv.wanted.any()
+    np.testing.assert_array_equal(image, render_ray_marched(_sparse_scene(), spp=1, seed=8,
+                                                            progress=False).layers["L_d"])
+
+
 def test_light_volume_gives_the_same_image_cold_or_warm_and_with_any_threads() -> None:
     import numba
 

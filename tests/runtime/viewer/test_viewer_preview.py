@@ -182,3 +182,34 @@ def test_the_preview_with_the_fields_l_i_is_marched_denoised_and_stale_after_an_
     assert s.next_frame().header["denoised"]
     s.apply(msg("transfer", **edited(s, density_scale=3 * s.base_scene.tf.density_scale)))
     assert s.next_frame().header["stale"]
+
+
+def test_an_idle_render_thread_fills_the_light_volumes_margin_and_stops_for_a_frame(tmp_path: Path) -> None:
+    """With no frame wanted (a resting view done), fill_light_margins fills the margin of the preview's light volume
+    (the cells beside those its frames filled); once a change makes a frame wanted, it stops before filling."""
+    import threading
+
+    from photon_fields.runtime.viewer.idle_work import fill_light_margins
+
+    s = make_session(tmp_path, renderer="preview")
+    while s.wants_frame():
+        s.next_frame()
+    (lv,) = s.scene.shared_cache("light_volumes").values()
+    filled = int((lv.values >= 0.0).sum())
+    assert lv.margin.any() and filled > 0
+    assert fill_light_margins(s, threading.Event())
+    assert not lv.margin.any() and int((lv.values >= 0.0).sum()) > filled
+    s.apply(msg("orbit", dx=40.0, dy=0.0))
+    while s.wants_frame():
+        s.next_frame()
+    assert lv.margin.any()  # the new view filled cells of its own
+    s.apply(msg("orbit", dx=40.0, dy=0.0))  # a frame is wanted again: the margin waits, marked
+    filled = int((lv.values >= 0.0).sum())
+    assert not fill_light_margins(s, threading.Event()) and int((lv.values >= 0.0).sum()) == filled
+    stop = threading.Event()
+    stop.set()
+    assert not fill_light_margins(s, stop) and lv.wanted.any()
+    while s.wants_frame():
+        s.next_frame()
+    assert fill_light_margins(s, threading.Event())  # at rest: what was left marked, and the new margin
+    assert not lv.wanted.any() and not lv.margin.any() and (lv.values >= -1.0).all()

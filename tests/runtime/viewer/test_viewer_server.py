@@ -207,3 +207,29 @@ def test_a_frame_that_fails_is_reported_and_the_loop_waits_for_the_next_change(t
     finally:
         worker.stop()
         worker.thread.join(30)
+
+
+def test_the_render_loop_fills_the_light_volumes_margin_once_the_view_rests(tmp_path: Path) -> None:
+    """A preview view's frames done, the render thread has nothing to render: it fills the light volume's margin
+    (runtime/viewer/idle_work.py) and sends no frame for it."""
+    from viewer_helpers import make_session
+
+    from photon_fields.runtime.viewer.field_in_use import PREVIEW_FRAMES
+    from photon_fields.runtime.viewer.server import RenderWorker, Stats
+
+    session = make_session(tmp_path, renderer="preview")
+    binary: list[bytes] = []
+    worker = RenderWorker(session, binary.append, Stats())
+    worker.start()
+    try:
+        end = time.monotonic() + 30
+        volumes = session.scene.shared_cache("light_volumes")
+        while time.monotonic() < end and not (len(binary) == PREVIEW_FRAMES and volumes
+                                              and not any(lv.margin.any() for lv in volumes.values())):
+            time.sleep(0.05)
+        (lv,) = volumes.values()
+        assert len(binary) == PREVIEW_FRAMES and not lv.margin.any() and not lv.wanted.any()
+        assert worker.thread.is_alive() and worker.error is None
+    finally:
+        worker.stop()
+        worker.thread.join(30)

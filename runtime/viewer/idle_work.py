@@ -1,0 +1,39 @@
+"""What the viewer's render thread does when no frame is wanted: the light volumes' margins.
+
+A resting view's preview (and "marched" neural) frames read the scene's light volumes, and the next small camera move
+reads cells just beside the ones they filled; a fill of those cells in the first frame after the move makes that
+frame wait (at 256^3, ~3x longer than with them filled: bench/README.md, ray marcher, "idle time").
+:func:`fill_light_margins` fills them between changes instead
+(:func:`photon_fields.runtime.transport.light_volume.fill_margin`), giving up as soon as a frame is wanted again.
+The images do not change (a cell's value is its own); later frames only find more cells filled.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import TYPE_CHECKING
+
+from photon_fields.runtime.transport.light_volume import fill_margin
+
+if TYPE_CHECKING:
+    from photon_fields.runtime.viewer.session import ViewerSession
+
+
+def fill_light_margins(session: ViewerSession, stop: threading.Event) -> bool:
+    """Fill the margins of the light volumes of the session's scene (the render thread's; call on that thread, between
+    frames), and what an earlier, stopped call left marked. Stops between chunks once ``stop`` is set or the session
+    wants a frame. True when everything is filled (or there was nothing to fill)."""
+
+    def cancel() -> bool:
+        if stop.is_set():
+            return True
+        with session.lock:
+            return session.wants_frame()
+
+    scene = session.scene
+    volumes = [lv for lv in scene.shared_cache("light_volumes").values() if lv.margin.any() or lv.wanted.any()]
+    if not volumes:
+        return True
+    m = scene.medium()  # built: its light volumes were filled from it
+    kind, vec, _ = scene.packed_lights()
+    return all(fill_margin(m, kind, vec, lv, cancel) for lv in volumes)
