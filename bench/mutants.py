@@ -1152,6 +1152,11 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/runtime/viewer/test_viewer_server.py::test_the_render_loop_fills_the_light_volumes_margin_once_the_"
             "view_rests",),
            "the viewer's render thread idles without filling the light volumes' margins"),
+    Mutant("idle_work_ignores_render_turn", "runtime/viewer/idle_work.py",
+           "    if not RENDER_LOCK.acquire(blocking=False):",
+           "    if not RENDER_LOCK.acquire(blocking=False) and False:",
+           ("tests/runtime/viewer/test_viewer_preview.py::test_idle_work_gives_way_to_every_pages_frames",),
+           "the idle margin fills while another page's frame renders (both on the cores, on a shared light volume)"),
     Mutant("depth_bounds_skip_the_interior", "runtime/wavefront/depth_bounds.py",
            "    n = cells.shape[0] if box_depth <= _BEHIND else n_boundary\n",
            "    n = n_boundary\n",

@@ -260,8 +260,9 @@ def _mark_margin(v: np.ndarray, wanted: np.ndarray, bricks: np.ndarray) -> None:
 
 def fill_wanted(m: Medium, kind: np.ndarray, vec: np.ndarray, lv: LightVolume,
                 cancel: Callable[[], bool] | None = None) -> bool:
-    """March every :data:`WANTED` cell of ``lv`` towards its light (in parallel over the flagged bricks, up to
-    :data:`FILL_CHUNK` bricks at a time) and clear the flags; True when done. ``cancel`` is asked before each chunk:
+    """March every :data:`WANTED` (and :data:`NEIGHBOUR`) cell of ``lv`` towards its light (in parallel over the
+    flagged bricks, up to :data:`FILL_CHUNK` bricks at a time), clear the flags and flag in ``lv.margin`` the bricks
+    where it filled wanted cells; True when done. ``cancel`` is asked before each chunk:
     when it returns True the fill stops and returns False, the bricks not filled still flagged (a later fill
     completes them; what was filled stays, each cell's value being its own). ``m`` must be the medium the volume
     was made for, or one over the same majorant grid (a transfer-function edit's): its shadow rays read ``lv.units``

@@ -14,6 +14,7 @@ import threading
 from typing import TYPE_CHECKING
 
 from photon_fields.runtime.transport.light_volume import fill_margin
+from photon_fields.runtime.viewer.render_turns import RENDER_LOCK, frames_waiting
 
 if TYPE_CHECKING:
     from photon_fields.runtime.viewer.session import ViewerSession
@@ -21,11 +22,13 @@ if TYPE_CHECKING:
 
 def fill_light_margins(session: ViewerSession, stop: threading.Event) -> bool:
     """Fill the margins of the light volumes of the session's scene (the render thread's; call on that thread, between
-    frames), and what an earlier, stopped call left marked. Stops between chunks once ``stop`` is set or the session
-    wants a frame. True when everything is filled (or there was nothing to fill)."""
+    frames), and what an earlier, stopped call left marked, in the sessions' render turn
+    (:mod:`photon_fields.runtime.viewer.render_turns`; not at all while another page's frame renders). Stops between
+    chunks once ``stop`` is set, the session wants a frame or another page's frame waits. True when everything is
+    filled (or there was nothing to fill)."""
 
     def cancel() -> bool:
-        if stop.is_set():
+        if stop.is_set() or frames_waiting():
             return True
         with session.lock:
             return session.wants_frame()
@@ -34,6 +37,11 @@ def fill_light_margins(session: ViewerSession, stop: threading.Event) -> bool:
     volumes = [lv for lv in scene.shared_cache("light_volumes").values() if lv.margin.any() or lv.wanted.any()]
     if not volumes:
         return True
-    m = scene.medium()  # built: its light volumes were filled from it
-    kind, vec, _ = scene.packed_lights()
-    return all(fill_margin(m, kind, vec, lv, cancel) for lv in volumes)
+    if not RENDER_LOCK.acquire(blocking=False):  # another page's frame renders: its turn first, ours next time
+        return False
+    try:
+        m = scene.medium()  # built: its light volumes were filled from it
+        kind, vec, _ = scene.packed_lights()
+        return all(fill_margin(m, kind, vec, lv, cancel) for lv in volumes)
+    finally:
+        RENDER_LOCK.release()

@@ -86,6 +86,7 @@ from photon_fields.runtime.viewer.frame_size import fit_view
 from photon_fields.runtime.viewer.light_control import LightControl, edited_lights
 from photon_fields.runtime.viewer.messages import MIN_SIDE, Message, MessageError
 from photon_fields.runtime.viewer.pvrt_view import PvrtOptions, PvrtView
+from photon_fields.runtime.viewer.render_turns import render_turn
 from photon_fields.runtime.viewer.retrain import RetrainSettings
 from photon_fields.runtime.viewer.set_controls import apply_set
 from photon_fields.runtime.viewer.state_message import state_message
@@ -98,9 +99,6 @@ from photon_fields.runtime.viewer.transfer_edit import (
 from photon_fields.runtime.viewer.updater import FieldUpdater
 from photon_fields.runtime.viewer.view_state import DEFAULT_MAX_SPP, Frame, ViewState
 
-#: Renders of all sessions of a process take turns: two pages rendering at once would each get half the cores
-#: and both miss their frame rate; one at a time keeps each frame as fast as the machine allows.
-RENDER_LOCK = threading.Lock()
 DEFAULT_DENOISE_FRAMES = 16
 
 
@@ -357,7 +355,7 @@ class ViewerSession:
             # then, so that the new view's first frame waits for a quarter of a frame at most, not a whole one.
             cancel = (lambda: self.generation != generation) if refining else None
             try:
-                with RENDER_LOCK:
+                with render_turn():  # the sessions' renders take turns (render_turns.py)
                     layers = self._render(scene, s, self._acc.samples, gather, moved_only, cancel, level)
             except RenderCancelledError:
                 with self.lock:

@@ -213,3 +213,36 @@ def test_an_idle_render_thread_fills_the_light_volumes_margin_and_stops_for_a_fr
         s.next_frame()
     assert fill_light_margins(s, threading.Event())  # at rest: what was left marked, and the new margin
     assert not lv.wanted.any() and not lv.margin.any() and (lv.values >= -1.0).all()
+
+
+def test_idle_work_gives_way_to_every_pages_frames(tmp_path: Path) -> None:
+    """While another page's frame holds the render turn, the idle margin waits; a frame waiting for its turn is seen
+    (render_turns.frames_waiting), and gets it once the holder is done."""
+    import threading
+    import time
+
+    from photon_fields.runtime.viewer.idle_work import fill_light_margins
+    from photon_fields.runtime.viewer.render_turns import RENDER_LOCK, frames_waiting, render_turn
+
+    s = make_session(tmp_path, renderer="preview")
+    while s.wants_frame():
+        s.next_frame()
+    (lv,) = s.scene.shared_cache("light_volumes").values()
+    with render_turn():  # another page's frame renders
+        assert not fill_light_margins(s, threading.Event()) and lv.margin.any()
+    got = threading.Event()
+
+    def frame() -> None:
+        with render_turn():
+            got.set()
+
+    with render_turn():
+        waiter = threading.Thread(target=frame)
+        waiter.start()
+        end = time.monotonic() + 10
+        while not frames_waiting() and time.monotonic() < end:
+            time.sleep(0.01)
+        assert frames_waiting() and not got.is_set()
+    waiter.join(10)
+    assert got.is_set() and not frames_waiting() and not RENDER_LOCK.locked()
+    assert fill_light_margins(s, threading.Event()) and not lv.margin.any()
