@@ -1157,6 +1157,12 @@ MUTANTS: tuple[Mutant, ...] = (
            "    if not RENDER_LOCK.acquire(blocking=False) and False:",
            ("tests/runtime/viewer/test_viewer_preview.py::test_idle_work_gives_way_to_every_pages_frames",),
            "the idle margin fills while another page's frame renders (both on the cores, on a shared light volume)"),
+    Mutant("idle_work_skips_levels", "runtime/viewer/idle_work.py",
+           '    scenes = [session.scene, *session.scene.shared_cache("levels").values()]',
+           "    scenes = [session.scene]",
+           ("tests/runtime/viewer/test_viewer_preview.py::test_idle_work_fills_the_margin_of_the_interactive_levels_"
+            "light_volume_too",),
+           "the idle margin leaves the interactive level's light volume (the first frame after each change) alone"),
     Mutant("depth_bounds_skip_the_interior", "runtime/wavefront/depth_bounds.py",
            "    n = cells.shape[0] if box_depth <= _BEHIND else n_boundary\n",
            "    n = n_boundary\n",

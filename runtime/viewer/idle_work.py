@@ -21,11 +21,11 @@ if TYPE_CHECKING:
 
 
 def fill_light_margins(session: ViewerSession, stop: threading.Event) -> bool:
-    """Fill the margins of the light volumes of the session's scene (the render thread's; call on that thread, between
-    frames), and what an earlier, stopped call left marked, in the sessions' render turn
-    (:mod:`photon_fields.runtime.viewer.render_turns`; not at all while another page's frame renders). Stops between
-    chunks once ``stop`` is set, the session wants a frame or another page's frame waits. True when everything is
-    filled (or there was nothing to fill)."""
+    """Fill the margins of the light volumes of the session's scene and of its volume's coarser levels (the first
+    frames after changes march those), and what an earlier, stopped call left marked; on the render thread (whose
+    scene it is), between frames, in the sessions' render turn (:mod:`photon_fields.runtime.viewer.render_turns`;
+    not at all while another page's frame renders). Stops between chunks once ``stop`` is set, the session wants a
+    frame or another page's frame waits. True when everything is filled (or there was nothing to fill)."""
 
     def cancel() -> bool:
         if stop.is_set() or frames_waiting():
@@ -33,15 +33,18 @@ def fill_light_margins(session: ViewerSession, stop: threading.Event) -> bool:
         with session.lock:
             return session.wants_frame()
 
-    scene = session.scene
-    volumes = [lv for lv in scene.shared_cache("light_volumes").values() if lv.margin.any() or lv.wanted.any()]
-    if not volumes:
+    scenes = [session.scene, *session.scene.shared_cache("levels").values()]  # the full volume and its levels
+    work = [(scene, lv) for scene in scenes for lv in scene.shared_cache("light_volumes").values()
+            if lv.margin.any() or lv.wanted.any()]
+    if not work:
         return True
     if not RENDER_LOCK.acquire(blocking=False):  # another page's frame renders: its turn first, ours next time
         return False
     try:
-        m = scene.medium()  # built: its light volumes were filled from it
-        kind, vec, _ = scene.packed_lights()
-        return all(fill_margin(m, kind, vec, lv, cancel) for lv in volumes)
+        for scene, lv in work:
+            kind, vec, _ = scene.packed_lights()
+            if not fill_margin(scene.medium(), kind, vec, lv, cancel):  # built: its light volumes were filled from it
+                return False
+        return True
     finally:
         RENDER_LOCK.release()

@@ -246,3 +246,22 @@ def test_idle_work_gives_way_to_every_pages_frames(tmp_path: Path) -> None:
     waiter.join(10)
     assert got.is_set() and not frames_waiting() and not RENDER_LOCK.locked()
     assert fill_light_margins(s, threading.Event()) and not lv.margin.any()
+
+
+def test_idle_work_fills_the_margin_of_the_interactive_levels_light_volume_too(tmp_path: Path) -> None:
+    """The first frame after a change marches the volume's coarser level (here forced to 1): its light volume, kept
+    with the level's scene, gets its margin in idle time as the full volume's does."""
+    import threading
+
+    from photon_fields.runtime.viewer.idle_work import fill_light_margins
+
+    s = make_session(tmp_path, renderer="preview", interactive_level=1)
+    s.next_frame()
+    s.apply(msg("orbit", dx=20.0, dy=0.0))
+    while s.wants_frame():
+        s.next_frame()
+    (level,) = s.scene.shared_cache("levels").values()
+    (lv,) = level.shared_cache("light_volumes").values()
+    assert lv.margin.any()
+    assert fill_light_margins(s, threading.Event())
+    assert not lv.margin.any() and not lv.wanted.any()
