@@ -33,6 +33,8 @@ def fill_light_margins(session: ViewerSession, stop: threading.Event) -> bool:
         with session.lock:
             return session.wants_frame()
 
+    if stop.is_set():  # the page went away: no marks for a fill that would stop before its first chunk
+        return False
     scenes = [session.scene, *session.scene.shared_cache("levels").values()]  # the full volume and its levels
     work = [(scene, lv) for scene in scenes for lv in scene.shared_cache("light_volumes").values()
             if lv.margin.any() or lv.wanted.any()]
