@@ -77,7 +77,7 @@ def make_bundle(arch: str, folder: Path, tables_dtype: str = "float32") -> Path:
     run = folder / f"run_{arch}"
     if not (run / "checkpoint.pt").is_file():
         run.mkdir(parents=True, exist_ok=True)
-        model = TorchField(field_config_for(PRESETS[arch], (-0.75, 0.0, 0.75)), seed=0)
+        model = TorchField(field_config_for(PRESETS[arch], (-0.75, 0.0, 0.75), volume_shape=(96, 96, 96)), seed=0)
         gen = torch.Generator().manual_seed(1)
         with torch.no_grad():
             for t in model.table_parameters():

@@ -16,8 +16,9 @@ file                contents
                     data), opset :data:`ONNX_OPSET`.
 ``tables.npz``      two arrays, ``position`` (rows_p, F_p) and ``direction`` (rows_d, F_d), the flat hash
                     tables of :mod:`models_spec.hashgrid` (level l in rows ``table_offsets(cfg)[l] : ...``),
-                    float32 or float16 as the manifest says; no pickles (readers use
-                    ``np.load(allow_pickle=False)``)
+                    float32 or float16 as the manifest says; for a field with the surface input a third,
+                    ``surface`` int8 (sx, sy, sz, 3), its grid (:mod:`models_spec.surface`); no pickles
+                    (readers use ``np.load(allow_pickle=False)``)
 ==================  ================================================================================
 
 Evaluating a bundle (what ``runtime.field.field.PhotonField.query`` does, and what any other runtime must do):
@@ -42,16 +43,19 @@ Manifest (version :data:`BUNDLE_VERSION`; :data:`MANIFEST_SCHEMA` is its JSON Sc
   phase encoding, a key present only when it is not "scalar", so bundles written before it read unchanged;
   ``light_channels``, likewise present only when > 1, added without a version change; ``direction_gain``, present
   only when "g": the direction's columns of the features are multiplied by g before the MLP, added without a version
-  change, since a reader that does not know the key refuses the bundle rather than render it wrong);
+  change, since a reader that does not know the key refuses the bundle rather than render it wrong; ``surface``, the
+  surface input's grid cells, present only for a field with that input, likewise);
 - ``hash_primes``: tcnn's primes (:data:`photon_fields.models_spec.hashgrid.HASH_PRIMES`), listed so that a foreign
   runtime needs nothing but the manifest; a reader refuses other values;
 - ``encodings``: per encoding the derived geometry (table rows, per-level resolution, table size, whether
   hashed): redundant with ``field``, and checked against it, so a definition drift cannot go unnoticed;
 - ``domain``: ``bmin``, ``bsize`` (world box, 3 numbers each, bsize > 0);
 - ``inputs``: ``width`` and ``layout`` (``[{"name", "start", "stop"}]`` for position, direction, g (its phase
-  features: 1 or 1 + |G| columns), in column order), the ONNX tensor names and batch axis name;
+  features: 1 or 1 + |G| columns) and, with the surface input, surface, in column order), the ONNX tensor names
+  and batch axis name;
 - ``output``: 3 channels per light channel (3 C), ``encoding`` "eq6-log10" (decode: ``10^(-L' psi)``);
-- ``tables``: file, ``dtype`` (float32 | float16), array shapes;
+- ``tables``: file, ``dtype`` of the hash tables (float32 | float16), array shapes (``surface`` listed exactly when
+  the field has the surface input; int8 whatever ``dtype`` says);
 - ``scene_fingerprint``: :func:`photon_fields.models_spec.fingerprint.scene_fingerprint` of the scene trained for;
 - ``scene`` (version 2): the scene trained for, each entry null when unknown: ``name``; ``parts``, its
   per-part fingerprints ``{"volume", "transfer_function", "lights"}`` (:func:`photon_fields.models_spec.fingerprint.
@@ -104,6 +108,8 @@ from photon_fields.models_spec.bundle_layout import (
     ONNX_OUTPUT,
     OUTPUT_ENCODING,
     READABLE_VERSIONS,
+    SURFACE_ARRAY,
+    SURFACE_DTYPE,
     TABLE_ARRAYS,
     TABLE_DTYPES,
     TABLES_FILE,
@@ -119,6 +125,7 @@ from photon_fields.models_spec.bundle_manifest import (
     manifest_text,
     parse_manifest_bytes,
     scene_record,
+    table_dtype,
     table_shapes,
     training_summary,
     validate_manifest,
@@ -130,9 +137,9 @@ from photon_fields.models_spec.schema_check import schema_check as _schema_check
 __all__ = [
     "BATCH_AXIS", "BUNDLE_FILES", "BUNDLE_FORMAT", "BUNDLE_SUFFIX", "BUNDLE_VERSION", "MANIFEST_FILE",
     "MAX_MANIFEST_BYTES", "ONNX_FILE", "ONNX_INPUT", "ONNX_IR_VERSION", "ONNX_OPSET", "ONNX_OUTPUT", "OUTPUT_ENCODING",
-    "READABLE_VERSIONS", "TABLE_ARRAYS", "TABLE_DTYPES", "TABLES_FILE", "BundleError",
+    "READABLE_VERSIONS", "SURFACE_ARRAY", "SURFACE_DTYPE", "TABLE_ARRAYS", "TABLE_DTYPES", "TABLES_FILE", "BundleError",
     "MANIFEST_SCHEMA", "SCHEMA_PATH", "manifest_schema", "schema_json",
     "Manifest", "build_manifest", "check_table", "encoding_geometry", "file_digest", "input_layout", "manifest_text",
-    "parse_manifest_bytes", "scene_record", "table_shapes", "training_summary", "validate_manifest",
+    "parse_manifest_bytes", "scene_record", "table_dtype", "table_shapes", "training_summary", "validate_manifest",
     "validate_scene_record",
 ]

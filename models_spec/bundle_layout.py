@@ -18,6 +18,10 @@ BUNDLE_FILES = (MANIFEST_FILE, ONNX_FILE, TABLES_FILE)
 #: The arrays of ``tables.npz``, in input-column order.
 TABLE_ARRAYS = ("position", "direction")
 TABLE_DTYPES = ("float32", "float16")
+#: The ``tables.npz`` array of the surface input's grid, in a bundle whose field has it
+#: (:mod:`photon_fields.models_spec.surface`), and its dtype (whatever the hash tables').
+SURFACE_ARRAY = "surface"
+SURFACE_DTYPE = "int8"
 ONNX_INPUT = "features"
 ONNX_OUTPUT = "encoded_radiance"
 BATCH_AXIS = "batch"

@@ -28,6 +28,8 @@ from photon_fields.models_spec.bundle_layout import (
     ONNX_OUTPUT,
     OUTPUT_ENCODING,
     READABLE_VERSIONS,
+    SURFACE_ARRAY,
+    SURFACE_DTYPE,
     TABLES_FILE,
     BundleError,
 )
@@ -46,16 +48,30 @@ def encoding_geometry(cfg: HashGridConfig) -> dict[str, Any]:
 
 
 def input_layout(cfg: FieldConfig) -> list[dict[str, Any]]:
-    """Column ranges of the MLP input: position features, direction features, g (Sec. 3.4, Fig. 5)."""
+    """Column ranges of the MLP input: position features, direction features, g (Sec. 3.4, Fig. 5), and the
+    surface input's columns when the field has them."""
     p, d = cfg.position.output_dims, cfg.direction.output_dims
-    return [{"name": "position", "start": 0, "stop": p}, {"name": "direction", "start": p, "stop": p + d},
-            {"name": "g", "start": p + d, "stop": p + d + cfg.phase_dims}]
+    g = p + d + cfg.phase_dims
+    layout = [{"name": "position", "start": 0, "stop": p}, {"name": "direction", "start": p, "stop": p + d},
+              {"name": "g", "start": p + d, "stop": g}]
+    if cfg.surface_dims:
+        layout.append({"name": "surface", "start": g, "stop": g + cfg.surface_dims})
+    return layout
 
 
-def table_shapes(cfg: FieldConfig) -> dict[str, tuple[int, int]]:
-    """Expected shape of each ``tables.npz`` array."""
-    return {"position": (total_table_rows(cfg.position), cfg.position.features),
-            "direction": (total_table_rows(cfg.direction), cfg.direction.features)}
+def table_shapes(cfg: FieldConfig) -> dict[str, tuple[int, ...]]:
+    """Expected shape of each ``tables.npz`` array (the surface grid's only for a field with the surface input)."""
+    shapes: dict[str, tuple[int, ...]] = {"position": (total_table_rows(cfg.position), cfg.position.features),
+                                          "direction": (total_table_rows(cfg.direction), cfg.direction.features)}
+    if cfg.surface is not None:
+        shapes[SURFACE_ARRAY] = (*cfg.surface, 3)
+    return shapes
+
+
+def table_dtype(manifest: Manifest, name: str) -> np.dtype:
+    """The dtype of ``tables.npz`` array ``name``: the surface grid's is int8 (:mod:`photon_fields.models_spec.
+    surface`), the hash tables' the manifest's."""
+    return np.dtype(SURFACE_DTYPE) if name == SURFACE_ARRAY else np.dtype(manifest.tables_dtype)
 
 
 def _finite_or_none(v: Any) -> float | None:
@@ -187,8 +203,11 @@ def validate_manifest(doc: Any, what: str = MANIFEST_FILE) -> Manifest:
                           f"field.light_channels = {cfg.light_channels}), got {doc['output']['channels']}")
     if doc["inputs"]["layout"] != input_layout(cfg):
         raise BundleError(f"{what}: inputs.layout", f"must be {json.dumps(input_layout(cfg))}")
+    arrays = doc["tables"]["arrays"]
+    if (SURFACE_ARRAY in arrays) != (cfg.surface is not None):
+        raise BundleError(f"{what}: tables.arrays.{SURFACE_ARRAY}", "must be listed exactly when field.surface is set")
     for name, shape in table_shapes(cfg).items():
-        got = tuple(doc["tables"]["arrays"][name]["shape"])
+        got = tuple(arrays[name]["shape"])
         if got != shape:
             raise BundleError(f"{what}: tables.arrays.{name}.shape", f"must be {list(shape)} for field.{name}, "
                               f"got {list(got)}")
@@ -217,8 +236,8 @@ def check_table(manifest: Manifest, name: str, shape: tuple[int, ...], dtype: An
     want = table_shapes(manifest.config)[name]
     if tuple(shape) != want:
         raise BundleError(what, f"'{name}' has shape {tuple(shape)}, the manifest's field needs {want}")
-    if np.dtype(dtype) != np.dtype(manifest.tables_dtype):
-        raise BundleError(what, f"'{name}' has dtype {np.dtype(dtype)}, the manifest says {manifest.tables_dtype}")
+    if np.dtype(dtype) != table_dtype(manifest, name):
+        raise BundleError(what, f"'{name}' has dtype {np.dtype(dtype)}, the field needs {table_dtype(manifest, name)}")
 
 
 def file_digest(path: str | Path, chunk: int = 1 << 22) -> tuple[str, int]:

@@ -25,6 +25,7 @@ from photon_fields.models_spec.bundle_layout import (
 from photon_fields.models_spec.encoding import MAX_LIGHT_CHANNELS, OUTPUT_CHANNELS
 from photon_fields.models_spec.fingerprint import FINGERPRINT_PARTS
 from photon_fields.models_spec.hashgrid import HASH_PRIMES
+from photon_fields.models_spec.surface import SURFACE_MAX_CELLS
 
 _SHA256 = "^[0-9a-f]{64}$"
 
@@ -62,12 +63,14 @@ MANIFEST_SCHEMA: dict[str, Any] = {
             "level_hashed": {"type": "array", "items": {"type": "boolean"}, "minItems": 1},
         }),
         "column_range": _obj({
-            "name": {"type": "string", "enum": ["position", "direction", "g"]},
+            "name": {"type": "string", "enum": ["position", "direction", "g", "surface"]},
             "start": {"type": "integer", "minimum": 0},
             "stop": {"type": "integer", "minimum": 1},
         }),
         "table": _obj({"shape": {"type": "array", "items": {"type": "integer", "minimum": 1}, "minItems": 2,
                                  "maxItems": 2}}),
+        "surface_table": _obj({"shape": {"type": "array", "items": {"type": "integer", "minimum": 1}, "minItems": 4,
+                                         "maxItems": 4}}),
         "nullable_number": {"type": ["number", "null"]},
     },
     **_obj({
@@ -84,13 +87,15 @@ MANIFEST_SCHEMA: dict[str, Any] = {
             "phase_encoding": {"type": "string", "enum": ["tent", "spline"]},
             "light_channels": {"type": "integer", "minimum": 2, "maximum": MAX_LIGHT_CHANNELS},
             "direction_gain": {"type": "string", "enum": ["g"]},
+            "surface": {"type": "array", "items": {"type": "integer", "minimum": 1, "maximum": SURFACE_MAX_CELLS},
+                        "minItems": 3, "maxItems": 3},
         }, required=["version", "position", "direction", "hidden_width", "hidden_layers", "psi", "phases"]),
         "hash_primes": {"type": "array", "const": [int(p) for p in HASH_PRIMES]},
         "encodings": _obj({"position": {"$ref": "#/$defs/geometry"}, "direction": {"$ref": "#/$defs/geometry"}}),
         "domain": _obj({"bmin": _num_array(3), "bsize": _num_array(3, exclusiveMinimum=0)}),
         "inputs": _obj({
             "width": {"type": "integer", "minimum": 2},
-            "layout": {"type": "array", "items": {"$ref": "#/$defs/column_range"}, "minItems": 3, "maxItems": 3},
+            "layout": {"type": "array", "items": {"$ref": "#/$defs/column_range"}, "minItems": 3, "maxItems": 4},
             "onnx_input": {"type": "string", "const": ONNX_INPUT},
             "onnx_output": {"type": "string", "const": ONNX_OUTPUT},
             "batch_axis": {"type": "string", "const": BATCH_AXIS},
@@ -101,7 +106,8 @@ MANIFEST_SCHEMA: dict[str, Any] = {
         "tables": _obj({
             "file": {"type": "string", "const": TABLES_FILE},
             "dtype": {"type": "string", "enum": list(TABLE_DTYPES)},
-            "arrays": _obj({"position": {"$ref": "#/$defs/table"}, "direction": {"$ref": "#/$defs/table"}}),
+            "arrays": _obj({"position": {"$ref": "#/$defs/table"}, "direction": {"$ref": "#/$defs/table"},
+                            "surface": {"$ref": "#/$defs/surface_table"}}, required=["position", "direction"]),
         }),
         "onnx": _obj({"file": {"type": "string", "const": ONNX_FILE},
                       "opset": {"type": "integer", "minimum": 1}}),

@@ -55,8 +55,11 @@ did not quite: they came out darker towards some directions than others at g = 0
 (docs/training.md). Scaled by g, the field is isotropic at g = 0 exactly, and its direction dependence starts at
 first order in g, as the light's does; the sign of g (forward or back scattering) reaches it too.
 
-The network input is ``[hash_position(x) (Lp Fp), hash_direction(d) (Ld Fd), phase features (1 or 1 + |G|)]``
-in this order.
+With ``surface`` set, two columns from the medium's surface orientation at x, seen along d, follow
+(:mod:`photon_fields.models_spec.surface`, which says why).
+
+The network input is ``[hash_position(x) (Lp Fp), hash_direction(d) (Ld Fd), phase features (1 or 1 + |G|),
+surface columns (0 or 2)]`` in this order.
 
 :class:`FieldConfig` (what a trained field needs to be rebuilt)
 ---------------------------------------------------------------
@@ -76,6 +79,8 @@ phase_encoding : "scalar" (default, the paper), "tent" or "spline"
 direction_gain : "none" (default, the paper) or "g"
     Whether the direction features are multiplied by g (above); like ``phase_encoding``, a key of the dict only
     when it is not the default.
+surface : (sx, sy, sz) or None (default, the paper)
+    The surface input's grid cells (:mod:`photon_fields.models_spec.surface`); a key of the dict only when set.
 """
 
 from __future__ import annotations
@@ -89,6 +94,7 @@ import numpy as np
 
 from photon_fields.models_spec.hashgrid import PAPER_DIRECTION, PAPER_POSITION, HashGridConfig, direction_to_unit_square
 from photon_fields.models_spec.photon_map import DEFAULT_PHASES
+from photon_fields.models_spec.surface import SURFACE_COLUMNS, SURFACE_MAX_CELLS
 
 DEFAULT_PSI = 5.0
 FIELD_CONFIG_VERSION = 1
@@ -242,7 +248,7 @@ def _int_field(name: str, v: Any, lo: int, hi: int) -> int:
 
 
 #: FieldConfig keys a dict may leave out (their defaults: configs written before they existed read unchanged).
-_OPTIONAL_KEYS = ("phase_encoding", "light_channels", "direction_gain")
+_OPTIONAL_KEYS = ("phase_encoding", "light_channels", "direction_gain", "surface")
 
 
 @dataclass(frozen=True)
@@ -264,6 +270,10 @@ class FieldConfig:
     unchanged."""
     direction_gain: str = "none"
     """"none" (the paper) or "g": the direction features times g (module docstring; :func:`direction_gains`)."""
+    surface: tuple[int, int, int] | None = None
+    """The surface input's grid cells (sx, sy, sz), or None (the paper) for a field without it
+    (:mod:`photon_fields.models_spec.surface`): its :data:`photon_fields.models_spec.surface.SURFACE_COLUMNS` columns
+    come last in the MLP input, and the bundle's ``tables.npz`` holds the grid as ``surface``."""
 
     def __post_init__(self) -> None:
         if not isinstance(self.position, HashGridConfig) or self.position.dims != 3:
@@ -288,6 +298,16 @@ class FieldConfig:
         if self.direction_gain not in DIRECTION_GAINS:
             raise ValueError(f"FieldConfig.direction_gain must be one of {DIRECTION_GAINS}, "
                              f"got {self.direction_gain!r}")
+        if self.surface is not None:
+            try:
+                cells = tuple(int(c) for c in self.surface)
+                ok = len(cells) == 3 and all(not isinstance(c, bool) and c == int(c) for c in self.surface)
+            except (TypeError, ValueError):
+                ok = False
+            if not ok or not all(1 <= c <= SURFACE_MAX_CELLS for c in cells):
+                raise ValueError(f"FieldConfig.surface must be three cell counts in [1, {SURFACE_MAX_CELLS}] or None, "
+                                 f"got {self.surface!r}")
+            object.__setattr__(self, "surface", cells)
         if self.phase_encoding == "spline":
             try:
                 check_spline_phases(phases)
@@ -305,9 +325,14 @@ class FieldConfig:
         return OUTPUT_CHANNELS * self.light_channels
 
     @property
+    def surface_dims(self) -> int:
+        """Columns of the surface input: :data:`photon_fields.models_spec.surface.SURFACE_COLUMNS`, or 0."""
+        return SURFACE_COLUMNS if self.surface is not None else 0
+
+    @property
     def input_dims(self) -> int:
-        """MLP input width: position features + direction features + phase features."""
-        return self.position.output_dims + self.direction.output_dims + self.phase_dims
+        """MLP input width: position features + direction features + phase features + surface columns."""
+        return self.position.output_dims + self.direction.output_dims + self.phase_dims + self.surface_dims
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (nested hash-grid dicts), with a format version."""
@@ -320,6 +345,8 @@ class FieldConfig:
             out["light_channels"] = self.light_channels
         if self.direction_gain != "none":
             out["direction_gain"] = self.direction_gain
+        if self.surface is not None:
+            out["surface"] = list(self.surface)
         return out
 
     @classmethod
@@ -339,4 +366,5 @@ class FieldConfig:
                    direction=HashGridConfig.from_dict(data["direction"]), hidden_width=data["hidden_width"],
                    hidden_layers=data["hidden_layers"], psi=data["psi"], phases=tuple(data["phases"]),
                    phase_encoding=data.get("phase_encoding", "scalar"), light_channels=data.get("light_channels", 1),
-                   direction_gain=data.get("direction_gain", "none"))
+                   direction_gain=data.get("direction_gain", "none"),
+                   surface=None if data.get("surface") is None else tuple(data["surface"]))

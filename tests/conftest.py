@@ -127,8 +127,9 @@ def small_field_config():  # noqa: ANN201  (models_spec.encoding.FieldConfig)
 
 
 def make_model(cfg, seed: int = 0):  # noqa: ANN001, ANN201  (FieldConfig -> the torch field)
-    """The torch field of ``cfg`` with its hash tables uniform in [-1, 1] and its tent columns (which start at
-    zero) random, so errors cannot hide."""
+    """The torch field of ``cfg`` with its hash tables uniform in [-1, 1], its tent columns (which start at
+    zero) random and, for a field with the surface input, a random grid, so errors cannot hide."""
+    import numpy as np
     import torch
 
     from photon_fields.train.field.network import TorchPhotonField as TorchField
@@ -139,8 +140,12 @@ def make_model(cfg, seed: int = 0):  # noqa: ANN001, ANN201  (FieldConfig -> the
         for t in model.table_parameters():
             t.copy_(torch.rand(t.shape, generator=gen) * 2 - 1)
         first = model.matrix_parameters()[0]
-        tents = first[:, cfg.input_dims - cfg.phase_dims + 1:]
+        phase_end = cfg.input_dims - cfg.surface_dims
+        tents = first[:, phase_end - cfg.phase_dims + 1:phase_end]
         tents.copy_(torch.rand(tents.shape, generator=gen) - 0.5)
+    if cfg.surface is not None:
+        rng = np.random.default_rng(seed + 200)
+        model.set_surface(rng.integers(-127, 128, (*cfg.surface, 3)).astype(np.int8))
     return model.eval()
 
 

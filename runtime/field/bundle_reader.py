@@ -31,13 +31,14 @@ from photon_fields.models_spec.bundle import (
     ONNX_FILE,
     ONNX_INPUT,
     ONNX_OUTPUT,
-    TABLE_ARRAYS,
+    SURFACE_ARRAY,
     TABLES_FILE,
     BundleError,
     Manifest,
     check_table,
     file_digest,
     parse_manifest_bytes,
+    table_shapes,
 )
 from photon_fields.models_spec.fingerprint import mismatch_detail
 from photon_fields.runtime.errors import InputError
@@ -185,12 +186,13 @@ def _load_tables(path: Path, manifest: Manifest) -> dict[str, np.ndarray]:
     if not isinstance(z, np.lib.npyio.NpzFile):
         raise InputError(what, "not an .npz archive")
     tables: dict[str, np.ndarray] = {}
+    expected = list(table_shapes(manifest.config))  # the hash tables, and the surface grid for a field with it
     with z:
         names = sorted(z.files)
-        if names != sorted(TABLE_ARRAYS):
+        if names != sorted(expected):
             # Unknown entries are refused by name, before anything is read from them.
-            raise InputError(what, f"must hold exactly the arrays {list(TABLE_ARRAYS)}, found {names}")
-        for name in TABLE_ARRAYS:
+            raise InputError(what, f"must hold exactly the arrays {expected}, found {names}")
+        for name in expected:
             try:
                 a = z[name]
             except ValueError as exc:  # object arrays: numpy refuses to unpickle with allow_pickle=False
@@ -203,6 +205,9 @@ def _load_tables(path: Path, manifest: Manifest) -> dict[str, np.ndarray]:
                 check_table(manifest, name, a.shape, a.dtype, what)
             except BundleError as err:
                 raise InputError(err.what, err.problem) from None
+            if name == SURFACE_ARRAY:  # int8, read as it is
+                tables[name] = np.ascontiguousarray(a)
+                continue
             if not np.all(np.isfinite(a)):
                 raise InputError(what, f"'{name}' contains non-finite values")
             # numba has no float16 on the CPU: widen once (exact), and align rows to cache lines.

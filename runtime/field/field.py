@@ -44,11 +44,12 @@ the normalized position + position hash encoding into columns ``[0, Lp Fp)``; ``
 encoding into ``[Lp Fp, Lp Fp + Ld Fd)`` (``runtime.field.hashgrid.encode(out=buf,
 col=...)``: no concatenation copy); those columns times g where the direction gain says so, and the phase features
 into the last columns (numba loops without numpy's temporaries, :mod:`photon_fields.runtime.field.inputs`, equal to
-:mod:`photon_fields.models_spec.encoding`'s functions bit for bit); ``InferenceSession.run`` on the buffer. A rendered
+:mod:`photon_fields.models_spec.encoding`'s functions bit for bit); for a field with the surface input its two
+columns last (``surface_rows``, from the bundle's ``surface`` grid); ``InferenceSession.run`` on the buffer. A rendered
 frame asks with one g: its gain and phase-feature row are computed once per g, and the two reused encode buffers keep
 their phase columns while they hold that g's row for the rows a chunk uses (nothing else writes those columns; any
 other g, more rows or per-query g write them again). The
-direction timer includes the gains and the phase features. Eq. 7 (``decode_radiance`` of
+direction timer includes the gains, the phase features and the surface columns. Eq. 7 (``decode_radiance`` of
 :mod:`photon_fields.models_spec.encoding`, the same function training's targets are checked with) runs once over the
 whole result. ``field.timers`` accumulates seconds per stage over calls (``reset()`` clears them). Where the
 time goes, and the measurements behind each default, are in bench/README.md (``bench_field.py``).
@@ -64,7 +65,7 @@ from typing import Any
 
 import numpy as np
 
-from photon_fields.models_spec.bundle import ONNX_INPUT, ONNX_OUTPUT, Manifest
+from photon_fields.models_spec.bundle import ONNX_INPUT, ONNX_OUTPUT, SURFACE_ARRAY, Manifest
 from photon_fields.models_spec.encoding import (
     OUTPUT_CHANNELS,
     decode_radiance,
@@ -75,7 +76,7 @@ from photon_fields.models_spec.encoding import (
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.field.bundle_reader import read_bundle
 from photon_fields.runtime.field.hashgrid import encode
-from photon_fields.runtime.field.inputs import finish_rows, normalized_positions
+from photon_fields.runtime.field.inputs import finish_rows, normalized_positions, surface_rows
 from photon_fields.runtime.field.outputs import decode_lights
 from photon_fields.runtime.field.session import make_session
 from photon_fields.runtime.scene.light_rescale import rescale_note
@@ -133,12 +134,15 @@ class PhotonField:
         self.light_note: str | None = None
         self.position_table = tables["position"]
         self.direction_table = tables["direction"]
+        #: The surface input's grid (int8, :mod:`photon_fields.models_spec.surface`), or None for a field without it.
+        self.surface_grid: np.ndarray | None = tables.get(SURFACE_ARRAY)
         self.session = session
         self.threads, self.precision, self.chunk, self.spinning = threads, precision, int(chunk), spinning
         self.pipeline = bool(pipeline)
         self.timers = FieldTimers()
         self._dir_col = self.config.position.output_dims
         self._phase_col = self._dir_col + self.config.direction.output_dims
+        self._surface_col = self._phase_col + self.config.phase_dims
         self._buffers = [np.empty((0, self.config.input_dims), np.float32) for _ in range(2)]
         #: Per encode buffer, (g, rows) whose phase columns already hold that g's features (None: not known); g as
         #: its float32's bytes, so that -0.0 and 0.0 (whose features differ in sign) are two values.
@@ -231,7 +235,8 @@ class PhotonField:
             gain = 1.0 if gains is None else float(gains[0, 0])
         t0 = time.perf_counter()
         try:
-            encode(cfg.position, self.position_table, normalized_positions(x, self.bmin, self.bsize), out=buf)
+            u = normalized_positions(x, self.bmin, self.bsize)
+            encode(cfg.position, self.position_table, u, out=buf)
             t1 = time.perf_counter()
             encode(cfg.direction, self.direction_table, direction_input(omega), out=buf, col=self._dir_col, gain=gain)
         except ValueError as exc:  # non-finite or absurdly far positions / directions
@@ -240,14 +245,16 @@ class PhotonField:
             rows = buf.shape[0]
             held = self._phase_rows[k] if k is not None else None
             keep = held is not None and held[0] == g0 and held[1] >= rows
-            finish_rows(buf, self._dir_col, self._phase_col, None, None if keep else phase)
+            finish_rows(buf, self._dir_col, self._phase_col, None, None if keep else phase, self._surface_col)
             if k is not None and not keep:
                 self._phase_rows[k] = (g0, rows)
         else:
             finish_rows(buf, self._dir_col, self._phase_col, direction_gains(ga, cfg.direction_gain),
-                        phase_features(ga, cfg.phases, cfg.phase_encoding))
+                        phase_features(ga, cfg.phases, cfg.phase_encoding), self._surface_col)
             if k is not None:
                 self._phase_rows[k] = None
+        if self.surface_grid is not None:
+            surface_rows(buf, self._surface_col, u, omega, ga[:1] if one_g else ga, self.surface_grid)
         t2 = time.perf_counter()
         t.encode_position_s += t1 - t0
         t.encode_direction_s += t2 - t1

@@ -61,6 +61,9 @@ from photon_fields.models_spec.bundle import (
     ONNX_IR_VERSION,
     ONNX_OPSET,
     ONNX_OUTPUT,
+    SURFACE_ARRAY,
+    SURFACE_DTYPE,
+    TABLE_ARRAYS,
     TABLE_DTYPES,
     TABLES_FILE,
     BundleError,
@@ -239,6 +242,8 @@ def _tables(model: TorchField, dtype: str) -> dict[str, np.ndarray]:
             raise InputError("--tables-dtype", f"the {name} table has values beyond {dtype}'s range "
                              f"(max |v| = {float(np.abs(t).max()):.3g}); export with float32")
         out[name] = cast
+    if model.cfg.surface is not None:  # the surface input's grid, int8 whatever the tables' dtype
+        out[SURFACE_ARRAY] = model.surface.detach().cpu().numpy().astype(SURFACE_DTYPE)
     return out
 
 
@@ -280,7 +285,7 @@ def _verify(staging: Path, model: TorchField, tables: dict[str, np.ndarray], bmi
     loaded = PhotonField.load(staging)
     x, d, g = verification_inputs(bmin, bsize, model.cfg.phases)
     ref_model = model
-    if any(t.dtype != np.float32 for t in tables.values()):
+    if any(tables[name].dtype != np.float32 for name in TABLE_ARRAYS):
         # float16 tables: the runtime computes the function of the rounded tables; compare with exactly that.
         import copy
 

@@ -3,9 +3,10 @@
 :class:`TorchPhotonField` is three modules in a row, as in Fig. 5:
 
 1. encoding: a 3-D hash grid on the normalized position x in [0, 1]^3, a 2-D hash grid on the direction
-   in normalized spherical coordinates ([0, 1]^2), and the phase features of g (g itself, plus one tent per
-   phase with the "tent" encoding); concatenated in that order, the direction's features times g with
-   ``cfg.direction_gain`` "g" (the field is then isotropic at g = 0, as the light is)
+   in normalized spherical coordinates ([0, 1]^2), the phase features of g (g itself, plus one tent per
+   phase with the "tent" encoding) and, with ``cfg.surface``, the surface input's two columns (the grid is the
+   ``surface`` buffer, :meth:`TorchPhotonField.set_surface`); concatenated in that order, the direction's
+   features times g with ``cfg.direction_gain`` "g" (the field is then isotropic at g = 0, as the light is)
    (:mod:`models_spec.encoding` defines the input conventions, :class:`train.field.hashgrid.HashGridEncoding`
    the hash grids, bit-exact with tiny-cuda-nn);
 2. network: a ReLU MLP with ``cfg.hidden_layers`` hidden layers of ``cfg.hidden_width`` neurons and no
@@ -33,10 +34,12 @@ to float32 once, like the numpy originals, so both sides agree bit for bit (test
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
 from photon_fields.models_spec.encoding import FieldConfig, check_psi, phase_features
+from photon_fields.models_spec.surface import check_surface_grid, surface_columns, unit_direction
 from photon_fields.train.field.hashgrid import HashGridEncoding
 
 
@@ -58,7 +61,7 @@ def decode_radiance_torch(Lp: torch.Tensor, psi: float) -> torch.Tensor:
 class TorchPhotonField(nn.Module):
     """Hash-grid encoded ReLU MLP from (x, omega, g) to log-encoded radiance (see the module docstring)."""
 
-    def __init__(self, cfg: FieldConfig, *, seed: int = 0) -> None:
+    def __init__(self, cfg: FieldConfig, *, seed: int = 0, surface: np.ndarray | None = None) -> None:
         super().__init__()
         if not isinstance(cfg, FieldConfig):
             raise TypeError(f"cfg must be a FieldConfig, got {type(cfg).__name__}")
@@ -82,8 +85,25 @@ class TorchPhotonField(nn.Module):
             # every node would carry its own random offset into the hidden layer, and their variance (largest at
             # a node, where one tent alone is 1) came out of the ReLUs as a dip in L at every tent node that
             # training did not remove (docs/training.md).
+            phase_end = cfg.input_dims - cfg.surface_dims
             with torch.no_grad():
-                layers[0].weight[:, cfg.input_dims - cfg.phase_dims + 1:] = 0.0
+                layers[0].weight[:, phase_end - cfg.phase_dims + 1:phase_end] = 0.0
+        # The surface input's grid (models_spec.surface): data of the scene, not a parameter; kept in the state dict
+        # (so in checkpoints) and exported to the bundle. Zeros until set (a checkpoint's load fills it). A field
+        # without the input has no such buffer, so the checkpoints written before it existed load unchanged.
+        if cfg.surface is not None:
+            self.register_buffer("surface", torch.zeros((*cfg.surface, 3), dtype=torch.int8))
+        if surface is not None:
+            self.set_surface(surface)
+
+    def set_surface(self, grid: np.ndarray) -> None:
+        """Set the surface input's grid (int8 (sx, sy, sz, 3) as ``cfg.surface`` says; :mod:`photon_fields.
+        train.field.surface_grid` computes it from the medium)."""
+        if self.cfg.surface is None:
+            raise ValueError("this field has no surface input")
+        check_surface_grid(np.asarray(grid), self.cfg.surface)
+        with torch.no_grad():
+            self.surface.copy_(torch.from_numpy(np.ascontiguousarray(grid)))
 
     def table_parameters(self) -> list[nn.Parameter]:
         """The hash tables: tcnn's "non-matrix" parameters (sparse gradients, lazily updated by its Adam)."""
@@ -110,8 +130,17 @@ class TorchPhotonField(nn.Module):
         direction = self.direction(dirs)
         if self.cfg.direction_gain == "g":  # models_spec.encoding.direction_gains, in float32 like the runtime
             direction = direction * g.to(torch.float32)
-        features = torch.cat([self.position(pos), direction, self.phase_features(g)], dim=1)
-        return self.mlp(features)
+        parts = [self.position(pos), direction, self.phase_features(g)]
+        if self.cfg.surface is not None:
+            parts.append(self.surface_features(pos, dirs, g))
+        return self.mlp(torch.cat(parts, dim=1))
+
+    def surface_features(self, pos: torch.Tensor, dirs: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+        """The surface input's columns (:func:`photon_fields.models_spec.surface.surface_columns`, computed by that
+        numpy function itself: the inputs need no gradient), with d recovered from the direction input."""
+        d = unit_direction(dirs.detach().numpy())
+        cols = surface_columns(self.surface.numpy(), pos.detach().numpy(), d, g.detach().reshape(-1).numpy())
+        return torch.from_numpy(cols)
 
     def radiance(self, pos: torch.Tensor, dirs: torch.Tensor, g: torch.Tensor,
                  light_scale: torch.Tensor | None = None) -> torch.Tensor:

@@ -55,7 +55,7 @@ def load_checkpoint(path: str | Path,
         raise InputError(str(p), "checkpoint was trained for another scene (fingerprint mismatch)")
     try:
         model = TorchPhotonField(FieldConfig.from_dict(data["field_config"]))
-        model.load_state_dict(data["state_dict"])
+        model.load_state_dict(data["state_dict"])  # the surface input's grid included
     except (ValueError, TypeError, KeyError, RuntimeError) as exc:
         raise InputError(str(p), f"field_config or state_dict unusable: {' '.join(str(exc).split())[:300]}") from None
     return model, data

@@ -49,12 +49,14 @@ import numba
 import numpy as np
 import torch
 
+from photon_fields.models_spec.surface import surface_cells
 from photon_fields.runtime.errors import InputError
 from photon_fields.runtime.io.atomic import atomic_write_text
 from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.train.field.network import TorchPhotonField
+from photon_fields.train.field.surface_grid import medium_surface_grid
 from photon_fields.train.fit.averaging import ParameterAverage
 from photon_fields.train.fit.checkpoint import save_checkpoint
 from photon_fields.train.fit.early_stop import PlateauStop
@@ -95,14 +97,17 @@ def fine_tune(model: TorchPhotonField, scene: Scene, pmap: PhotonMap, out_dir: s
         raise InputError("warm start", f"the earlier field keeps {lights} lights apart, the scene has "
                          f"{len(scene.lights)}: train a new field with pfn-train all")
     sampler, cfg = field_sampler(scene, pmap, settings, lights)
-    # A field trained before its preset took the direction gain keeps its own: the gain changes no parameter's shape,
-    # and the warm start is the earlier field, whose features were fitted with (or without) it.
-    cfg = replace(cfg, direction_gain=model.cfg.direction_gain)
+    # A field trained before its preset took the direction gain or the surface input keeps its own: the warm start is
+    # the earlier field, whose features were fitted with (or without) them.
+    surface = None if model.cfg.surface is None else surface_cells(scene.medium().density.shape)
+    cfg = replace(cfg, direction_gain=model.cfg.direction_gain, surface=surface)
     want, have = cfg.to_dict(), model.cfg.to_dict()
     if want != have:
         differ = ", ".join(sorted(k for k in {*want, *have} if want.get(k) != have.get(k)))
         raise InputError("warm start", f"the earlier field's architecture is not preset {settings.preset!r}'s for "
                          f"this photon map (its {differ} differ); train a new field with pfn-train all")
+    if surface is not None:  # the edited scene's surfaces (a transfer-function edit moves them)
+        model.set_surface(medium_surface_grid(scene.medium()))
     schedule = settings.resolve_schedule(len(pmap))
     radius = schedule.final_radius
     torch.manual_seed(settings.seed)

@@ -48,6 +48,7 @@ from photon_fields.runtime.photons.photon_map import PhotonMap
 from photon_fields.runtime.progress import progress_bar
 from photon_fields.runtime.scene.scene import Scene
 from photon_fields.train.field.network import TorchPhotonField, decode_radiance_torch
+from photon_fields.train.field.surface_grid import medium_surface_grid
 from photon_fields.train.fit.averaging import ParameterAverage, averaging_start
 from photon_fields.train.fit.checkpoint import save_checkpoint
 from photon_fields.train.fit.loss import field_loss
@@ -120,7 +121,8 @@ def field_sampler(scene: Scene, pmap: PhotonMap, settings: FitSettings,
     sampler = TargetSampler(pmap, scene.medium(), k=settings.k, psi=settings.psi, seed=settings.seed,
                             sampling=settings.sampling, g_sampling=settings.g_sampling, lights=light_channels,
                             background=True)
-    return sampler, field_config_for(preset, sampler.field_phases(preset.phase_nodes), settings.psi, light_channels)
+    return sampler, field_config_for(preset, sampler.field_phases(preset.phase_nodes), settings.psi, light_channels,
+                                     scene.medium().density.shape)
 
 
 @contextlib.contextmanager
@@ -180,7 +182,8 @@ def fit(scene: Scene, pmap: PhotonMap, out_dir: str | Path, settings: FitSetting
     total = settings.steps
     boundaries = schedule.boundaries(total)
     torch.manual_seed(settings.seed)
-    model = TorchPhotonField(cfg, seed=settings.seed)
+    model = TorchPhotonField(cfg, seed=settings.seed,
+                             surface=None if cfg.surface is None else medium_surface_grid(scene.medium()))
     opt = TcnnAdam(model.matrix_parameters(), model.table_parameters())
     val = sampler.validation_set(settings.val_points, schedule.final_radius)
     val_every = settings.val_every or max(1, total // 10)

@@ -14,7 +14,9 @@
   on shell and head), the direction features times g (the field is isotropic at g = 0, as the light is; without
   it fields came out dark around g = 0), a harder learning-rate anneal, and 1600 steps of 2048 samples (twice the
   optimizer steps of 800 x 4096 for the same samples: the parts of the field whose targets are small, such as a skull's
-  unlit side, converge late; docs/training.md "Both sides"). Needs a map of
+  unlit side, converge late; docs/training.md "Both sides"), and the surface input (the medium's surface orientation
+  along the camera ray: without it the field spread the light of lit surfaces seen from behind at strong forward
+  scattering over all directions, 4-5 % dark where cameras look). Needs a map of
   :data:`photon_fields.models_spec.photon_map.PHASE_BINS` (what ``pfn-train trace`` makes by default).
 - ``cpu-phases``: ``cpu`` as it was before the kernel in g: trains at the map's phases only (the paper's way,
   any map of a few phases), scalar g, the paper's anneal.
@@ -32,6 +34,7 @@ from dataclasses import dataclass, replace
 
 from photon_fields.models_spec.encoding import DEFAULT_PSI, FieldConfig
 from photon_fields.models_spec.hashgrid import PAPER_DIRECTION, PAPER_POSITION, HashGridConfig
+from photon_fields.models_spec.surface import surface_cells
 
 
 @dataclass(frozen=True)
@@ -84,6 +87,10 @@ class Preset:
     direction_gain: str = "none"
     """"none" (the paper) or "g": the direction features times g before the MLP, so that the field is isotropic at
     g = 0, as the light is (:attr:`photon_fields.models_spec.encoding.FieldConfig.direction_gain`)."""
+    surface: bool = False
+    """Whether the field has the surface input: two columns from the medium's surface orientation at x seen along
+    the camera ray, times g (:mod:`photon_fields.models_spec.surface`; its grid is computed from the medium the
+    field is fitted to)."""
     g_sampling: str = "discrete"
     """Training g (:mod:`photon_fields.train.fit.targets`): "discrete" (the phases G, the paper), "continuous"
     (uniform over [min G, max G], targets from the two nearest phases' photons) or "mixed" (half of each)."""
@@ -101,6 +108,7 @@ PRESETS: dict[str, Preset] = {
                     about="Sec. 3.4/3.5 as published (hours on 2 CPU cores)"),
     "cpu": replace(_CPU_PHASES, phase_encoding="spline", g_sampling="window", phase_nodes=16, lr_decay_start=0.5,
                    lr_decay_every=10, sampling="visible", k=32, direction_gain="g", steps=1600, batch=1 << 11,
+                   surface=True,
                    about="the default: any g from a kernel in g over a map in narrow phase bins; ~1 min on 2 cores"),
     "cpu-phases": _CPU_PHASES,
     "cpu-tent": replace(_CPU_PHASES, phase_encoding="tent", g_sampling="continuous",
@@ -140,7 +148,13 @@ UPDATE_VAL_EVERY = 25
 
 
 def field_config_for(preset: Preset, phases: tuple[float, ...], psi: float = DEFAULT_PSI,
-                     light_channels: int = 1) -> FieldConfig:
-    """The field configuration of ``preset`` for a map traced at ``phases``, with ``light_channels`` outputs."""
+                     light_channels: int = 1, volume_shape: tuple[int, ...] | None = None) -> FieldConfig:
+    """The field configuration of ``preset`` for a map traced at ``phases``, with ``light_channels`` outputs;
+    ``volume_shape``: the volume's, whose surface grid a preset with the surface input sizes (it needs one)."""
+    surface = None
+    if preset.surface:
+        if volume_shape is None:
+            raise ValueError("a preset with the surface input needs the volume's shape")
+        surface = surface_cells(volume_shape)
     return FieldConfig(preset.position, preset.direction, preset.hidden_width, preset.hidden_layers, psi, phases,
-                       preset.phase_encoding, light_channels, preset.direction_gain)
+                       preset.phase_encoding, light_channels, preset.direction_gain, surface)

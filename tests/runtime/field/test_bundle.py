@@ -118,8 +118,10 @@ def test_parity_random_and_edge_inputs(small: tuple) -> None:
 
 
 def test_parity_cpu_preset_in_a_non_unit_box(tmp_path: Path) -> None:
-    """The default architecture, world positions in a shifted, non-cubic box (normalization from the manifest)."""
-    cfg = field_config_for(PRESETS["cpu"], PHASES)
+    """The default architecture, world positions in a shifted, non-cubic box (normalization from the manifest), a
+    surface grid of a non-cubic volume (its axes in order)."""
+    cfg = field_config_for(PRESETS["cpu"], PHASES, volume_shape=(12, 7, 9))
+    assert cfg.surface == (12, 7, 9)
     model = make_model(cfg, seed=3)
     bmin, bsize = [-0.5, -0.3, -0.45], [1.0, 0.6, 0.9]
     run = make_run(tmp_path / "run", model, bmin, bsize)
@@ -138,9 +140,9 @@ def test_parity_phase_features(tmp_path: Path, preset: str, encoding: str) -> No
     """The tent and the spline architectures (g plus one tent, or cubic B-spline weight, per phase as MLP inputs):
     the runtime builds the same input columns as torch, at the phases, between them, beyond them, one g per query
     and one g for all."""
-    cfg = field_config_for(PRESETS[preset], PHASES)
+    cfg = field_config_for(PRESETS[preset], PHASES, volume_shape=(5, 6, 7))
     assert cfg.phase_encoding == encoding
-    assert cfg.input_dims == field_config_for(PRESETS["cpu-phases"], PHASES).input_dims + 3
+    assert cfg.input_dims == field_config_for(PRESETS["cpu-phases"], PHASES).input_dims + 3 + cfg.surface_dims
     model = make_model(cfg, seed=5)
     bmin, bsize = [0.0, 0.0, 0.0], [1.0, 1.0, 1.0]
     run = make_run(tmp_path / "run", model, bmin, bsize)
@@ -598,6 +600,33 @@ def test_table_shape_dtype_and_values(bundle_copy: Path, tmp_path: Path) -> None
     # A manifest whose table shape disagrees with its own field config is refused before any file is read.
     edit_manifest(bundle_copy, lambda m: m["tables"]["arrays"]["position"].update(shape=[8, 2]))
     refused(bundle_copy, "tables.arrays.position.shape")
+
+
+def test_a_surface_bundles_grid_is_checked_like_its_tables(tmp_path: Path) -> None:
+    """A field with the surface input carries its int8 grid, listed in the manifest exactly when the field has it;
+    missing, reshaped, re-typed or unlisted, the bundle is refused in one line."""
+    cfg = dataclasses.replace(SMALL, surface=(5, 4, 3))
+    run = make_run(tmp_path / "run", make_model(cfg, seed=2), [0.0, 0.0, 0.0], [1.0, 1.0, 1.0])
+    path = export_bundle(run, tmp_path / "surface.pfn").path
+    man = json.loads((path / "manifest.json").read_text())
+    assert man["tables"]["arrays"]["surface"]["shape"] == [5, 4, 3, 3]
+    assert man["inputs"]["layout"][-1] == {"name": "surface", "start": cfg.input_dims - 2, "stop": cfg.input_dims}
+    assert PhotonField.load(path).surface_grid.shape == (5, 4, 3, 3)
+    with np.load(path / "tables.npz") as z:
+        pos, dirs, grid = z["position"], z["direction"], z["surface"]
+    assert grid.dtype == np.int8 and np.abs(grid).max() > 100
+    copy = tmp_path / "copy.pfn"
+    for arrays, match in [({"position": pos, "direction": dirs}, "must hold exactly the arrays"),
+                          ({"position": pos, "direction": dirs, "surface": grid[:4]}, "'surface' has shape"),
+                          ({"position": pos, "direction": dirs, "surface": grid.astype(np.float32)}, "dtype float32")]:
+        shutil.rmtree(copy, ignore_errors=True)
+        shutil.copytree(path, copy)
+        rewrite(copy, "tables.npz", _npz_bytes(tmp_path, **arrays))
+        refused(copy, match)
+    shutil.rmtree(copy)
+    shutil.copytree(path, copy)
+    edit_manifest(copy, lambda m: m["tables"]["arrays"].pop("surface"))
+    refused(copy, "tables.arrays.surface")
 
 
 class _Smuggler:

@@ -291,15 +291,17 @@ def test_empty_phase_bin_is_refused(tiny: tuple) -> None:
 
 def test_tent_columns_start_at_zero() -> None:
     """A tent-encoded field starts smooth in g: its first layer's tent columns are zero (random ones left a dip in
-    L at every node, docs/training.md); every other column is Xavier-random, and a scalar field is unchanged."""
+    L at every node, docs/training.md); every other column (the surface input's after them included) is
+    Xavier-random, and a scalar field is unchanged."""
     from photon_fields.train.fit.presets import PRESETS, field_config_for
 
     nodes = tuple(np.linspace(-0.75, 0.75, 16).round(6))
-    tent = TorchPhotonField(field_config_for(PRESETS["cpu"], nodes), seed=3)
+    tent = TorchPhotonField(field_config_for(PRESETS["cpu"], nodes, volume_shape=(4, 4, 4)), seed=3)
     first = tent.matrix_parameters()[0].detach()
-    cols = tent.cfg.input_dims - tent.cfg.phase_dims + 1
-    assert first.shape[1] == cols + 16 and torch.count_nonzero(first[:, cols:]) == 0
-    assert bool((first[:, :cols] != 0).all())
+    cols = tent.cfg.input_dims - tent.cfg.surface_dims - tent.cfg.phase_dims + 1
+    assert tent.cfg.surface_dims == 2 and first.shape[1] == cols + 16 + 2
+    assert torch.count_nonzero(first[:, cols:cols + 16]) == 0
+    assert bool((first[:, :cols] != 0).all()) and bool((first[:, cols + 16:] != 0).all())
     scalar = TorchPhotonField(field_config_for(PRESETS["cpu-phases"], nodes[:5]), seed=3)
     assert bool((scalar.matrix_parameters()[0] != 0).all())
 

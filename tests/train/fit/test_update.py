@@ -178,6 +178,32 @@ def test_a_field_from_before_its_presets_direction_gain_keeps_its_own(runs: dict
     assert np.array_equal(outputs(res.bundle.path), outputs(runs["run"] / "field.pfn"))
 
 
+def test_the_surface_input_follows_the_edited_scene(runs: dict[str, Path], tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """A field with the surface input, updated for a transfer-function edit, takes the edited medium's surface grid
+    (a threshold moves the surfaces; a density scale alone would not: the grid is scale-free); RUN, from before its
+    preset took the input, keeps its own architecture."""
+    from dataclasses import replace
+
+    from photon_fields.train.field.surface_grid import medium_surface_grid
+
+    monkeypatch.setitem(PRESETS, "tiny", replace(PRESETS["tiny"], surface=True))
+    res = update_run(runs["run"], load_scene(runs["denser"]), tmp_path / "old", max_steps=0, progress=False)
+    assert PhotonField.load(res.bundle.path).surface_grid is None
+    run = tmp_path / "run"
+    assert train_main(["all", str(runs["base"]), "--photons", "3k", *FIT, "--seed", "3", "--out", str(run)]) == 0
+    before = PhotonField.load(run / "field.pfn").surface_grid
+    assert np.array_equal(before, medium_surface_grid(load_scene(runs["base"]).medium()))
+    assert np.array_equal(medium_surface_grid(load_scene(runs["denser"]).medium()), before)  # scale-free
+    white = {"albedo": [1, 1, 1]}
+    edge = load_scene(write_scene(tmp_path, "edge", transfer_function={"points": [
+        {"s": 0, "opacity": 0, **white}, {"s": 0.3, "opacity": 0, **white}, {"s": 0.35, "opacity": 1, **white},
+        {"s": 1, "opacity": 1, **white}]}))
+    res = update_run(run, edge, tmp_path / "new", max_steps=0, progress=False)
+    after = PhotonField.load(res.bundle.path).surface_grid
+    assert np.array_equal(after, medium_surface_grid(edge.medium())) and not np.array_equal(after, before)
+
+
 def test_same_seed_same_field(runs: dict[str, Path], tmp_path: Path) -> None:
     new = load_scene(runs["denser"])
     a = update_run(runs["run"], new, tmp_path / "a", max_steps=4, progress=False)
