@@ -116,6 +116,8 @@ def test_a_coarse_volumes_cells_hold_the_mean_of_the_voxels_centred_in_them(shap
     got = cell_extinction(m)
     ext = voxel_extinction(m)
     owners = [voxel_cells(n, c) for n, c in zip(shape, cells, strict=True)]
+    for n, c, o in zip(shape, cells, owners, strict=True):  # the cell each voxel's centre falls in
+        assert o.tolist() == [min(int((j + 0.5) * c / n), c - 1) for j in range(n)]
     want = np.zeros(cells)
     count = np.zeros(cells)
     np.add.at(want, np.ix_(*owners), ext)
