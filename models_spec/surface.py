@@ -7,9 +7,10 @@ along a surface. Times g like the direction features (:func:`photon_fields.model
 so the field stays isotropic at g = 0.
 
 Why: seen from behind a lit object at forward scattering (head at g = 0.6 / 0.75, the camera orbited 180 degrees),
-the field was 4-5 % darker than its photon map while the map was right, and no setting of the fit changed that
-(bench/README.md, ``bench_fidelity.py``). At those points the field had the angular *mean* right but spread the light
-from the directions that look into the lit surface, which cameras see, to the others: the contrast depends on x
+the field was darker than its photon map while the map was right, and no setting of the fit changed that
+(bench/README.md, ``bench_fidelity.py``, has the figures). At those points the field had the angular *mean* right
+but spread the light from the directions that look into the lit surface, which cameras see, to the others: the
+contrast depends on x
 through the surface's orientation, a product of position and direction that a small bias-free ReLU MLP fed with
 separate hash features of x and d approximates poorly. These columns hand it that product.
 
@@ -17,7 +18,7 @@ Definition (training and the runtime evaluate exactly this; the bundle carries t
 ``surface``, and its shape in the field config, :attr:`photon_fields.models_spec.encoding.FieldConfig.surface`):
 
 - the grid: cells tiling the volume's box, :func:`surface_cells` (one per voxel up to :data:`SURFACE_MAX_CELLS` a
-  side; a coarser volume's voxels are shared out to cells by the cell their centre falls in); each cell holds the
+  side; a larger volume's voxels are shared out to coarser cells by the cell their centre falls in); each cell holds the
   mean extinction sigma_t of its voxels. :func:`surface_grid` smooths it with a Gaussian of :data:`SURFACE_SMOOTHING`
   cells (separable, truncated at :data:`SURFACE_RADIUS` cells, edge cells repeated), takes the gradient by central
   differences (one-sided at the edges) in world units, and stores ``v = -grad / (|grad| + c)``, c the median of

@@ -16,7 +16,7 @@
   optimizer steps of 800 x 4096 for the same samples: the parts of the field whose targets are small, such as a skull's
   unlit side, converge late; docs/training.md "Both sides"), and the surface input (the medium's surface orientation
   along the camera ray: without it the field spread the light of lit surfaces seen from behind at strong forward
-  scattering over all directions, 4-5 % dark where cameras look). Needs a map of
+  scattering over all directions, dark where cameras look; docs/training.md). Needs a map of
   :data:`photon_fields.models_spec.photon_map.PHASE_BINS` (what ``pfn-train trace`` makes by default).
 - ``cpu-phases``: ``cpu`` as it was before the kernel in g: trains at the map's phases only (the paper's way,
   any map of a few phases), scalar g, the paper's anneal.
