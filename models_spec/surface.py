@@ -10,9 +10,8 @@ Why: seen from behind a lit object at forward scattering (head at g = 0.6 / 0.75
 the field was darker than its photon map while the map was right, and no setting of the fit changed that
 (bench/README.md, ``bench_fidelity.py``, has the figures). At those points the field had the angular *mean* right
 but spread the light from the directions that look into the lit surface, which cameras see, to the others: the
-contrast depends on x
-through the surface's orientation, a product of position and direction that a small bias-free ReLU MLP fed with
-separate hash features of x and d approximates poorly. These columns hand it that product.
+contrast depends on x through the surface's orientation, a product of position and direction that a small bias-free
+ReLU MLP fed with separate hash features of x and d approximates poorly. These columns hand it that product.
 
 Definition (training and the runtime evaluate exactly this; the bundle carries the grid, ``tables.npz`` array
 ``surface``, and its shape in the field config, :attr:`photon_fields.models_spec.encoding.FieldConfig.surface`):
