@@ -121,12 +121,14 @@ def build_medium(volume: Volume, tf: TransferFunction | LabelTransfer, macrocell
                   bool(getattr(tf, "categorical", False)))
 
 
-def voxel_extinction(m: Medium) -> np.ndarray:
-    """sigma_t at every voxel centre, float64 (nx, ny, nz): where both interpolation modes return the voxel's
-    own value, so this is exact for continuous and categorical media alike."""
+def voxel_extinction(m: Medium, start: int = 0, stop: int | None = None) -> np.ndarray:
+    """sigma_t at every voxel centre of the x-planes [start, stop) (default all), float64 (planes, ny, nz): where
+    both interpolation modes return the voxel's own value, so this is exact for continuous and categorical media
+    alike."""
+    d = m.density[start:stop]
     if m.categorical:
-        return m.ext_lut[m.density.astype(np.int64)]
-    return np.interp(m.density.astype(np.float64), np.linspace(0.0, 1.0, m.ext_lut.shape[0]), m.ext_lut)
+        return m.ext_lut[d.astype(np.int64)]
+    return np.interp(d.astype(np.float64), np.linspace(0.0, 1.0, m.ext_lut.shape[0]), m.ext_lut)
 
 
 def block_extinction(m: Medium, block: int) -> np.ndarray:

@@ -11,15 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from photon_fields.models_spec.surface import surface_cells, surface_grid, voxel_cells
-from photon_fields.runtime.transport.medium import Medium
-
-
-def _slab_extinction(m: Medium, start: int, stop: int) -> np.ndarray:
-    """sigma_t at the voxel centres of x-planes [start, stop), float64 (as ``medium.voxel_extinction``)."""
-    d = m.density[start:stop]
-    if m.categorical:
-        return m.ext_lut[d.astype(np.int64)]
-    return np.interp(d.astype(np.float64), np.linspace(0.0, 1.0, m.ext_lut.shape[0]), m.ext_lut)
+from photon_fields.runtime.transport.medium import Medium, voxel_extinction
 
 
 def cell_extinction(m: Medium) -> np.ndarray:
@@ -32,7 +24,7 @@ def cell_extinction(m: Medium) -> np.ndarray:
     out = np.empty(cells)
     bounds = list(starts[0]) + [shape[0]]
     for i in range(cells[0]):
-        plane = _slab_extinction(m, int(bounds[i]), int(bounds[i + 1])).sum(axis=0)
+        plane = voxel_extinction(m, int(bounds[i]), int(bounds[i + 1])).sum(axis=0)
         rows = np.add.reduceat(plane, starts[1], axis=0)
         out[i] = np.add.reduceat(rows, starts[2], axis=1)
     return out / (counts[0][:, None, None] * counts[1][None, :, None] * counts[2][None, None, :])
