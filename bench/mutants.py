@@ -1158,9 +1158,9 @@ MUTANTS: tuple[Mutant, ...] = (
            (f"{RAY_MARCHER}::test_the_light_of_buffered_samples_is_the_same_whatever_the_buffer",),
            "a full buffer of the preview's samples is emptied without their light"),
     Mutant("margin_faces_only", "runtime/transport/light_volume.py",
-           "                                    if v[p, q, r, light] == UNFILLED:\n",
-           "                                    if v[p, q, r, light] == UNFILLED and abs(p - a) + abs(q - b) "
-           "+ abs(r - e) == 1:\n",
+           "                                    _mark_unfilled(v, wanted, p, q, r, light, NEIGHBOUR)\n",
+           "                                    if abs(p - a) + abs(q - b) + abs(r - e) == 1:\n"
+           "                                        _mark_unfilled(v, wanted, p, q, r, light, NEIGHBOUR)\n",
            (f"{RAY_MARCHER}::test_a_margin_fills_the_cells_beside_those_frames_filled_once_and_changes_no_image",),
            "the light volume's margin fills only the 6 face neighbours of the filled cells, not the 26"),
     Mutant("margin_cascades", "runtime/transport/light_volume.py",

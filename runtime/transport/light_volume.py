@@ -190,14 +190,20 @@ def prefetch_light_stencil(v: np.ndarray, grid: Grid, x: float, y: float, z: flo
 
 
 @njit(cache=True, inline="always")
+def _mark_unfilled(v: np.ndarray, wanted: np.ndarray, a: int, b: int, e: int, light: int, mark: float) -> None:
+    """Mark cell (a, b, e) of light ``light`` with ``mark`` if it is :data:`UNFILLED`, and flag its brick in
+    ``wanted`` (a benign race: every writer writes the same value)."""
+    if v[a, b, e, light] == UNFILLED:
+        v[a, b, e, light] = mark
+        wanted[a >> _BRICK_SHIFT, b >> _BRICK_SHIFT, e >> _BRICK_SHIFT] = 1
+
+
+@njit(cache=True, inline="always")
 def want_stencil(v: np.ndarray, wanted: np.ndarray, light: int, i: int, j: int, k: int) -> None:
     """Mark the stencil's unfilled corners :data:`WANTED` for light ``light`` and flag their bricks in ``wanted``
     (a benign race: every writer writes the same value)."""
     for c in range(8):
-        a, b, e = i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)
-        if v[a, b, e, light] == UNFILLED:
-            v[a, b, e, light] = WANTED
-            wanted[a >> _BRICK_SHIFT, b >> _BRICK_SHIFT, e >> _BRICK_SHIFT] = 1
+        _mark_unfilled(v, wanted, i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1), light, WANTED)
 
 
 @njit(cache=True)
@@ -253,9 +259,7 @@ def _mark_margin(v: np.ndarray, wanted: np.ndarray, bricks: np.ndarray) -> None:
                         for p in range(max(a - 1, 0), min(a + 2, gx)):
                             for q in range(max(b - 1, 0), min(b + 2, gy)):
                                 for r in range(max(e - 1, 0), min(e + 2, gz)):
-                                    if v[p, q, r, light] == UNFILLED:
-                                        v[p, q, r, light] = NEIGHBOUR
-                                        wanted[p >> _BRICK_SHIFT, q >> _BRICK_SHIFT, r >> _BRICK_SHIFT] = 1
+                                    _mark_unfilled(v, wanted, p, q, r, light, NEIGHBOUR)
 
 
 def fill_wanted(m: Medium, kind: np.ndarray, vec: np.ndarray, lv: LightVolume,
